@@ -1,0 +1,1 @@
+"""servo_app: online servo control of industrial robot arms."""

@@ -1,0 +1,330 @@
+"""The client side of Stream Motion (manual 61.3, 61.4) as a pure state machine.
+
+Feed it every datagram from the controller and a clock; it returns the datagrams to send. It owns the
+protocol rules, nothing else:
+
+- status output start; limit tables requested one per status interval (61.3 note 4: keep the total
+  rate under 1 packet/ms); the profile's tables are used when the controller does not answer;
+- wait for status bit 0, then the first command carries the sequence number of the status just
+  received, each later command +1;
+- exactly one command per status packet, plus an optional *lead* of N commands kept in the
+  controller's buffer (61.4). The count to send is derived from the status sequence number, so a lost
+  status packet is made up for on the next one and a duplicated one sends nothing;
+- ending: the motion source decelerates to rest, a command with last data = 1 follows, and only when
+  status bit 0 has cleared is the status output stopped (61.3 note 2, 61.4 note 2).
+
+Motion itself comes from a :class:`MotionSource` (the servo cycle): this module never computes a
+position, and it integrates nothing from the servo position.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Protocol
+
+import numpy as np
+
+from servo_app.fanuc.packets import (
+    Command,
+    DataFormat,
+    LimitTableRequest,
+    LimitTableResponse,
+    LimitType,
+    PacketError,
+    Status,
+    StatusStart,
+    StatusStop,
+    decode_from_robot,
+    next_seq,
+    seq_diff,
+)
+from servo_app.motion.limit_tables import LimitTables, tables_from_rows
+
+MAX_PKT_STACK = 10  # $PKT_STACK default and maximum (61.6): at most 9 unprocessed commands
+
+
+class Phase(StrEnum):
+    IDLE = "idle"
+    FETCHING_TABLES = "fetching_tables"
+    WAITING_READY = "waiting_ready"
+    STREAMING = "streaming"
+    ENDING = "ending"  # last data sent, waiting for status bit 0 to clear
+    CLOSED = "closed"  # status output stopped
+    FAULT = "fault"
+
+
+class MotionSource(Protocol):
+    """What the session asks of the servo cycle."""
+
+    def begin(self, q_start: np.ndarray, tables: LimitTables | None) -> None:
+        """Streaming starts at ``q_start`` (FANUC joint convention, deg) with the controller's tables."""
+
+    def next_command(self, status: Status) -> np.ndarray:
+        """The next commanded joint position (FANUC deg), one call per command packet."""
+
+    def request_rest(self) -> None:
+        """Decelerate to rest (the session wants to end)."""
+
+    def at_rest(self) -> bool:
+        """True once the commanded motion has come to rest."""
+
+
+@dataclass
+class IoRequest:
+    """Read (sticky) and write (one-shot) I/O carried by command packets."""
+
+    io_type: int
+    index: int
+    mask: int = 0xFFFF
+    value: int = 0
+
+
+@dataclass
+class SessionConfig:
+    n_axes: int = 6
+    lead: int = 0  # extra commands kept in the controller's buffer
+    fetch_tables: bool = True
+    table_axes: int = 6
+    table_timeout_s: float = 0.25
+    table_retries: int = 3
+    ready_timeout_s: float = 10.0  # no status bit 0 within this -> fault
+    status_timeout_s: float = 0.1  # no status packet within this while streaming -> fault
+    max_payload_kg: float = 0.0  # for building LimitTables from responses
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.lead <= MAX_PKT_STACK - 2:
+            raise ValueError(f"lead={self.lead} must be in 0..{MAX_PKT_STACK - 2} ($PKT_STACK-1 buffer)")
+
+
+@dataclass
+class SessionStats:
+    status_received: int = 0
+    status_lost: int = 0  # gaps in the status sequence
+    status_duplicated: int = 0  # repeated or out-of-order status packets
+    commands_sent: int = 0
+    malformed: int = 0
+    last_error: str = ""
+
+
+@dataclass
+class SentCommand:
+    """What went out in one datagram; the runner logs it."""
+
+    command: Command
+    data: bytes
+
+
+@dataclass
+class StreamSession:
+    motion: MotionSource
+    config: SessionConfig = field(default_factory=SessionConfig)
+    phase: Phase = Phase.IDLE
+    stats: SessionStats = field(default_factory=SessionStats)
+    tables: LimitTables | None = None
+    fault_reason: str = ""
+    last_status: Status | None = None
+    io_read: IoRequest | None = None
+
+    def __post_init__(self) -> None:
+        self._pending_tables: list[tuple[int, int]] = []
+        self._table_rows: dict[tuple[int, int], LimitTableResponse] = {}
+        self._table_sent_at = 0.0
+        self._table_tries = 0
+        self._phase_since = 0.0
+        self._last_status_at = 0.0
+        self._first_status_seq = 0  # status seq answered by the first command
+        self._next_cmd_seq = 0
+        self._sent_since_start = 0
+        self._end_requested = False
+        self._last_data_sent = False
+        self._io_writes: list[IoRequest] = []
+        self._q_last: np.ndarray | None = None
+        self.sent: list[SentCommand] = []  # filled per call, for the runner's log
+
+    # ----------------------------------------------------------------- requests
+    def open(self, now: float) -> list[bytes]:
+        """Start the status output (and queue the limit-table requests)."""
+        if self.phase not in (Phase.IDLE, Phase.CLOSED):
+            raise RuntimeError(f"open() in phase {self.phase}")
+        if self.config.fetch_tables:
+            self._pending_tables = [(axis, lt) for axis in range(1, self.config.table_axes + 1)
+                                    for lt in LimitType]
+            self._enter(Phase.FETCHING_TABLES, now)
+        else:
+            self._enter(Phase.WAITING_READY, now)
+        self._last_status_at = now
+        return [StatusStart().encode()]
+
+    def request_end(self) -> None:
+        """Decelerate, send last data, then stop the status output."""
+        self._end_requested = True
+        self.motion.request_rest()
+
+    def close_now(self) -> list[bytes]:
+        """Stop the status output at once (only safe when not streaming)."""
+        self._enter(Phase.CLOSED, self._phase_since)
+        return [StatusStop().encode()]
+
+    def write_io(self, req: IoRequest) -> None:
+        self._io_writes.append(req)
+
+    # ------------------------------------------------------------------ inputs
+    def on_datagram(self, data: bytes, now: float) -> list[bytes]:
+        self.sent = []
+        try:
+            packet = decode_from_robot(data)
+        except PacketError as exc:
+            self.stats.malformed += 1
+            self.stats.last_error = str(exc)
+            return []
+        if isinstance(packet, LimitTableResponse):
+            self._on_table(packet)
+            return []
+        return self._on_status(packet, now)
+
+    def on_idle(self, now: float) -> list[bytes]:
+        """Call when no datagram arrived for a while: time-outs live here."""
+        self.sent = []
+        if self.phase in (Phase.STREAMING, Phase.ENDING) and now - self._last_status_at > self.config.status_timeout_s:
+            self._fault(f"no status packet for {now - self._last_status_at:.3f} s", now)
+        elif self.phase == Phase.WAITING_READY and now - self._phase_since > self.config.ready_timeout_s:
+            self._fault(f"controller not ready (status bit 0) within {self.config.ready_timeout_s} s", now)
+        elif self.phase == Phase.FETCHING_TABLES and now - self._last_status_at > 1.0:
+            self._fault("no status packets after status output start", now)
+        return []
+
+    # --------------------------------------------------------------- internals
+    def _enter(self, phase: Phase, now: float) -> None:
+        self.phase = phase
+        self._phase_since = now
+
+    def _fault(self, reason: str, now: float) -> None:
+        self.fault_reason = reason
+        self._enter(Phase.FAULT, now)
+
+    def _on_table(self, resp: LimitTableResponse) -> None:
+        key = (resp.axis, resp.limit_type)
+        if self._pending_tables and self._pending_tables[0] == key:
+            self._table_rows[key] = resp
+            self._pending_tables.pop(0)
+            self._table_tries = 0
+
+    def _table_requests(self, now: float) -> list[bytes]:
+        """One request per status interval; move on to streaming when all are in or given up."""
+        if self._pending_tables and now - self._table_sent_at >= self.config.table_timeout_s:
+            if self._table_tries >= self.config.table_retries:
+                self.stats.last_error = (f"no limit table for axis {self._pending_tables[0][0]} type "
+                                         f"{self._pending_tables[0][1]}: using the profile's limits")
+                self._pending_tables = []
+            else:
+                self._table_tries += 1
+                self._table_sent_at = now
+                axis, lt = self._pending_tables[0]
+                return [LimitTableRequest(axis, lt).encode()]
+        if not self._pending_tables:
+            self.tables = self._assemble_tables()
+            self._enter(Phase.WAITING_READY, now)
+        return []
+
+    def _assemble_tables(self) -> LimitTables | None:
+        n = self.config.table_axes
+        if len(self._table_rows) != n * len(LimitType):
+            return None
+        rows = [[(self._table_rows[(a, lt)].no_payload, self._table_rows[(a, lt)].max_payload)
+                 for a in range(1, n + 1)] for lt in LimitType]
+        first = self._table_rows[(1, LimitType.VELOCITY)]
+        return tables_from_rows(first.vmax_mm_s, first.check_time_s, self.config.max_payload_kg, rows)
+
+    def _on_status(self, st: Status, now: float) -> list[bytes]:
+        prev = self.last_status
+        if prev is not None:
+            gap = seq_diff(st.seq, prev.seq)
+            if gap <= 0 and st.seq != 1:  # duplicate or reordered (seq 1 = output restarted)
+                self.stats.status_duplicated += 1
+                return []
+            if gap > 1:
+                self.stats.status_lost += gap - 1
+        self.stats.status_received += 1
+        self.last_status = st
+        self._last_status_at = now
+        if self.phase == Phase.FETCHING_TABLES:
+            return self._table_requests(now)
+        if self.phase == Phase.WAITING_READY:
+            if self._end_requested:  # ended before streaming began: nothing to drain
+                self._enter(Phase.CLOSED, now)
+                return [StatusStop().encode()]
+            return self._maybe_start(st)
+        if self.phase == Phase.STREAMING:
+            return self._stream(st, now)
+        if self.phase == Phase.ENDING and not st.waiting_for_command:
+            self._enter(Phase.CLOSED, now)
+            return [StatusStop().encode()]
+        return []
+
+    def _maybe_start(self, st: Status) -> list[bytes]:
+        if not (st.waiting_for_command and st.sysrdy) or st.moving:
+            return []
+        q0 = np.array(st.joints[: self.config.n_axes], dtype=float)
+        self.motion.begin(q0, self.tables)
+        self._first_status_seq = st.seq
+        self._next_cmd_seq = st.seq
+        self._sent_since_start = 0
+        self._last_data_sent = False
+        self.phase = Phase.STREAMING
+        return self._send_due(st)
+
+    def _stream(self, st: Status, now: float) -> list[bytes]:
+        if not st.waiting_for_command or not st.sysrdy:
+            self._fault("controller stopped the stream (status bit 0 or SYSRDY cleared): see its alarm "
+                        "history", now)
+            return []
+        return self._send_due(st)
+
+    def _send_due(self, st: Status) -> list[bytes]:
+        """Send as many commands as the status sequence says the controller will have consumed, + lead."""
+        due = seq_diff(st.seq, self._first_status_seq) + 1 + self.config.lead - self._sent_since_start
+        out: list[bytes] = []
+        for _ in range(max(due, 0)):
+            if self._last_data_sent:
+                break
+            out.append(self._command(st))
+        return out
+
+    def _command(self, st: Status) -> bytes:
+        last = 0
+        if self._end_requested and self.motion.at_rest():
+            last = 1
+            q = self._q_last if self._q_last is not None else self.motion.next_command(st)
+        else:
+            q = self.motion.next_command(st)
+        self._q_last = q
+        write = self._io_writes.pop(0) if self._io_writes else None
+        read = self.io_read
+        cmd = Command(
+            seq=self._next_cmd_seq,
+            values=tuple(float(v) for v in q),
+            data_format=DataFormat.JOINT,
+            last_data=last,
+            read_io_type=read.io_type if read else 0,
+            read_io_index=read.index if read else 0,
+            read_io_mask=read.mask if read else 0,
+            write_io_type=write.io_type if write else 0,
+            write_io_index=write.index if write else 0,
+            write_io_mask=write.mask if write else 0,
+            write_io_value=write.value if write else 0,
+        )
+        data = cmd.encode()
+        self.sent.append(SentCommand(cmd, data))
+        self._next_cmd_seq = next_seq(self._next_cmd_seq)
+        self._sent_since_start += 1
+        self.stats.commands_sent += 1
+        if last:
+            self._last_data_sent = True
+            self.phase = Phase.ENDING
+        return data
+
+
+def joints_of(values: Sequence[float], n: int = 6) -> np.ndarray:
+    return np.asarray(values[:n], dtype=float)

@@ -1,0 +1,121 @@
+"""Per-cycle session log: every status packet received and every command sent, to disk.
+
+Format (version 1), little-endian:
+
+- ``b"SERVOLOG"`` magic, u32 header length, header as UTF-8 JSON (model, interval, j23 factor,
+  start time, protocol, format version);
+- then fixed 56-byte records, one per datagram:
+
+  ====== ===== ==============================================================================
+  offset type  field
+  ====== ===== ==============================================================================
+  0      u8    kind: 0 status received, 1 command sent
+  1      f64   t: seconds since the session opened (monotonic clock)
+  9      u32   seq: status or command sequence number
+  13     u8    flags: status bits (status) / last_data | data_format << 1 (command)
+  14     u16   io: read I/O value (status) / write I/O value (command)
+  16     f32   latency_us: status receipt to this command's send (command), 0 for status
+  20     9xf32 values: servo joints J1..J9 (status) / commanded values (command)
+  ====== ===== ==============================================================================
+
+The writer flushes at least once per second of records, so a crash loses at most the last second.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+MAGIC = b"SERVOLOG"
+FORMAT_VERSION = 1
+KIND_STATUS = 0
+KIND_COMMAND = 1
+_RECORD = struct.Struct("<BdIBHf9f")
+RECORD_SIZE = _RECORD.size
+RECORD_DTYPE = np.dtype(
+    [("kind", "u1"), ("t", "<f8"), ("seq", "<u4"), ("flags", "u1"), ("io", "<u2"), ("latency_us", "<f4"),
+     ("values", "<f4", (9,))]
+)
+assert RECORD_DTYPE.itemsize == RECORD_SIZE == 56
+
+
+class SessionLogWriter:
+    def __init__(self, path: Path, header: dict[str, Any], flush_every: int = 100) -> None:
+        self.path = path
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._f: IO[bytes] = open(path, "wb")  # noqa: SIM115 - closed by close()
+        meta = {"format_version": FORMAT_VERSION, "opened_unix": time.time(), **header}
+        blob = json.dumps(meta).encode()
+        self._f.write(MAGIC + struct.pack("<I", len(blob)) + blob)
+        self._f.flush()
+        self._pending = 0
+        self._flush_every = flush_every
+        self.records = 0
+
+    def status(self, t: float, seq: int, bits: int, io: int, joints: tuple[float, ...]) -> None:
+        self._write(KIND_STATUS, t, seq, bits, io, 0.0, joints)
+
+    def command(self, t: float, seq: int, last_data: int, data_format: int, io: int, latency_us: float,
+                values: tuple[float, ...]) -> None:
+        self._write(KIND_COMMAND, t, seq, last_data | (data_format << 1), io, latency_us, values)
+
+    def _write(self, kind: int, t: float, seq: int, flags: int, io: int, latency_us: float,
+               values: tuple[float, ...]) -> None:
+        vals = tuple(values[:9]) + (0.0,) * (9 - len(values[:9]))
+        self._f.write(_RECORD.pack(kind, t, seq, flags, io, latency_us, *vals))
+        self.records += 1
+        self._pending += 1
+        if self._pending >= self._flush_every:
+            self._f.flush()
+            self._pending = 0
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self._f.flush()
+            self._f.close()
+
+
+@dataclass
+class SessionLog:
+    header: dict[str, Any]
+    records: np.ndarray  # RECORD_DTYPE
+
+    @property
+    def commands(self) -> np.ndarray:
+        return self.records[self.records["kind"] == KIND_COMMAND]
+
+    @property
+    def statuses(self) -> np.ndarray:
+        return self.records[self.records["kind"] == KIND_STATUS]
+
+
+class SessionLogError(ValueError):
+    pass
+
+
+def is_session_log(path: Path) -> bool:
+    with open(path, "rb") as f:
+        return f.read(len(MAGIC)) == MAGIC
+
+
+def read_session_log(path: Path) -> SessionLog:
+    """Read a log; a trailing partial record (a crash mid-write) is dropped."""
+    data = Path(path).read_bytes()
+    if data[: len(MAGIC)] != MAGIC:
+        raise SessionLogError(f"{path}: not a servo_app session log (magic={data[:8]!r})")
+    (n,) = struct.unpack_from("<I", data, len(MAGIC))
+    start = len(MAGIC) + 4
+    try:
+        header = json.loads(data[start:start + n])
+    except json.JSONDecodeError as exc:
+        raise SessionLogError(f"{path}: header is not valid JSON: {exc}") from exc
+    body = data[start + n:]
+    usable = len(body) - len(body) % RECORD_SIZE
+    records = np.frombuffer(body[:usable], dtype=RECORD_DTYPE)
+    return SessionLog(header=header, records=records)

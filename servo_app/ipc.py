@@ -1,0 +1,53 @@
+"""Latest-value slots in shared memory between the servo process and the rest of the service.
+
+A slot is a float64 array behind a sequence counter (a seqlock): the single writer makes the counter
+odd, writes, makes it even; a reader copies and retries while the counter was odd or changed. Nothing
+blocks the writer, so the servo cycle never waits on a reader.
+"""
+
+from __future__ import annotations
+
+from multiprocessing import shared_memory
+
+import numpy as np
+
+
+class LatestValueSlot:
+    def __init__(self, size: int, name: str | None = None, create: bool = True) -> None:
+        nbytes = 8 * (size + 1)
+        self._shm = shared_memory.SharedMemory(name=name, create=create, size=nbytes if create else 0)
+        self._owner = create
+        buf = np.ndarray((size + 1,), dtype=np.float64, buffer=self._shm.buf)
+        self._seq = buf[:1].view(np.uint64)
+        self._data = buf[1:]
+        if create:
+            buf[:] = 0.0
+        self.size = size
+
+    @property
+    def name(self) -> str:
+        return self._shm.name
+
+    def write(self, values: np.ndarray) -> None:
+        s = int(self._seq[0])
+        self._seq[0] = s + 1
+        self._data[: values.size] = values
+        self._seq[0] = s + 2
+
+    def read(self, retries: int = 1000) -> tuple[int, np.ndarray]:
+        """(version, copy of the values); version 0 means never written."""
+        for _ in range(retries):
+            s1 = int(self._seq[0])
+            if s1 % 2:
+                continue
+            out = self._data.copy()
+            if int(self._seq[0]) == s1:
+                return s1 // 2, out
+        raise TimeoutError("slot kept changing while being read")
+
+    def close(self) -> None:
+        # Views into the buffer must go before the mapping can close.
+        del self._seq, self._data
+        self._shm.close()
+        if self._owner:
+            self._shm.unlink()

@@ -1,0 +1,102 @@
+"""MuJoCo model of a profile: load its MJCF, apply the profile's joint ranges and the cell's tool.
+
+The MJCF world frame *is* the FANUC world frame (the base body sits at z = -d1), so site poses read
+from MuJoCo compare directly with :meth:`ArmKinematics.fk`.
+
+Every model returned by :func:`load_model` has two sites on the last link:
+
+- ``flange``: the flange frame (z out of the flange), fixed by the MJCF file;
+- ``tcp``: the tool centre point, ``flange @ xyzwpr_to_matrix(tool_xyzwpr)``; identical to the
+  flange when no tool is given. A cell configures its tool as FANUC UTOOL data (X Y Z mm, W P R deg)
+  and passes it here; an MJCF that already has a ``tcp`` site gets it moved, not duplicated.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from servo_app.robots.conventions import ArrayLike, xyzwpr_to_matrix
+from servo_app.robots.profile import ProfileError, RobotProfile
+
+JOINT_NAMES = tuple(f"joint{i}" for i in range(1, 7))
+FLANGE_SITE = "flange"
+TCP_SITE = "tcp"
+
+
+def load_spec(profile: RobotProfile, tool_xyzwpr: ArrayLike | None = None) -> mujoco.MjSpec:
+    """The editable MjSpec (add tool geoms, obstacles, ... before ``compile()``)."""
+    try:
+        spec = mujoco.MjSpec.from_file(str(profile.mjcf))
+    except ValueError as exc:
+        raise ProfileError(f"{profile.mjcf}: MJCF does not load: {exc}") from exc
+    for i, name in enumerate(JOINT_NAMES):
+        joint = spec.joint(name)
+        if joint is None:
+            raise ProfileError(f"{profile.mjcf}: missing joint '{name}' (profile {profile.source})")
+        # The profile is the single source of truth for ranges; the MJCF values are informative.
+        joint.range = [profile.joint_min_rad[i], profile.joint_max_rad[i]]
+        joint.limited = mujoco.mjtLimited.mjLIMITED_TRUE
+    flange = spec.site(FLANGE_SITE)
+    if flange is None:
+        raise ProfileError(f"{profile.mjcf}: missing site '{FLANGE_SITE}' (profile {profile.source})")
+    set_tool(spec, tool_xyzwpr)
+    return spec
+
+
+def set_tool(spec: mujoco.MjSpec, tool_xyzwpr: ArrayLike | None) -> mujoco.MjsSite:
+    """Add or move the ``tcp`` site to ``flange @ tool`` (tool in FANUC units, relative to the flange)."""
+    flange = spec.site(FLANGE_SITE)
+    body = flange.parent
+    flange_t = _compiled_site_in_body(spec, FLANGE_SITE)
+    tool = np.eye(4) if tool_xyzwpr is None else xyzwpr_to_matrix(tool_xyzwpr)
+    t = flange_t @ tool  # in the flange's body frame
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(t[:3, :3]).reshape(9))
+    site = spec.site(TCP_SITE)
+    if site is not None and site.parent.name != body.name:
+        spec.delete(site)
+        site = None
+    if site is None:
+        site = body.add_site(name=TCP_SITE)
+        site.size = flange.size
+        site.rgba = [0.0, 1.0, 0.0, 1.0]
+    site.pos = t[:3, 3]
+    site.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT
+    site.quat = quat
+    return site
+
+
+def load_model(profile: RobotProfile, tool_xyzwpr: ArrayLike | None = None) -> mujoco.MjModel:
+    """Compiled MjModel of the profile's MJCF with the profile's joint ranges and a ``tcp`` site."""
+    return load_spec(profile, tool_xyzwpr).compile()
+
+
+def site_pose(model: mujoco.MjModel, data: mujoco.MjData, name: str) -> np.ndarray:
+    """4x4 world pose of a site after kinematics have been computed on ``data``."""
+    sid = model.site(name).id
+    t = np.eye(4)
+    t[:3, :3] = data.site_xmat[sid].reshape(3, 3)
+    t[:3, 3] = data.site_xpos[sid]
+    return t
+
+
+def mujoco_fk(model: mujoco.MjModel, data: mujoco.MjData, q: ArrayLike, site: str = FLANGE_SITE
+              ) -> np.ndarray:
+    """Set the six arm joints (model convention, rad), run mj_kinematics, return the site's 4x4 pose."""
+    for i, name in enumerate(JOINT_NAMES):
+        data.qpos[model.joint(name).qposadr[0]] = q[i]
+    mujoco.mj_kinematics(model, data)
+    return site_pose(model, data, site)
+
+
+def _compiled_site_in_body(spec: mujoco.MjSpec, name: str) -> np.ndarray:
+    """4x4 pose of a site relative to its body; compiling resolves euler/axisangle/xyaxes forms."""
+    model = spec.compile()
+    site = model.site(name)
+    mat = np.zeros(9)
+    mujoco.mju_quat2Mat(mat, site.quat)
+    t = np.eye(4)
+    t[:3, :3] = mat.reshape(3, 3)
+    t[:3, 3] = site.pos
+    return t
