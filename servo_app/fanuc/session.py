@@ -130,7 +130,7 @@ class StreamSession:
     def __post_init__(self) -> None:
         self._pending_tables: list[tuple[int, int]] = []
         self._table_rows: dict[tuple[int, int], LimitTableResponse] = {}
-        self._table_sent_at = 0.0
+        self._table_sent_at = -1e9
         self._table_tries = 0
         self._phase_since = 0.0
         self._last_status_at = 0.0
@@ -210,6 +210,7 @@ class StreamSession:
             self._table_rows[key] = resp
             self._pending_tables.pop(0)
             self._table_tries = 0
+            self._table_sent_at = -1e9  # ask for the next one at the next status packet
 
     def _table_requests(self, now: float) -> list[bytes]:
         """One request per status interval; move on to streaming when all are in or given up."""
@@ -250,7 +251,9 @@ class StreamSession:
         self.last_status = st
         self._last_status_at = now
         if self.phase == Phase.FETCHING_TABLES:
-            return self._table_requests(now)
+            out = self._table_requests(now)
+            if self.phase == Phase.FETCHING_TABLES:
+                return out
         if self.phase == Phase.WAITING_READY:
             if self._end_requested:  # ended before streaming began: nothing to drain
                 self._enter(Phase.CLOSED, now)

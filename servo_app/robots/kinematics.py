@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from servo_app.robots.configuration import ArmConfiguration, configuration_of
 from servo_app.robots.conventions import ArrayLike, fanuc_deg_to_model_rad, xyzwpr_to_matrix
 
 if TYPE_CHECKING:
@@ -108,23 +109,28 @@ class ArmKinematics:
 
     # ---- inverse kinematics (servo_app.robots.ik) -----------------------------------------------
 
-    def ik(self, pose: np.ndarray, *, with_turns: bool = False, within_limits: bool = False
-           ) -> list[IkSolution]:
+    def ik(self, pose: np.ndarray, *, with_turns: bool = False, within_limits: bool = False,
+           seed: ArrayLike | None = None) -> list[IkSolution]:
         """All closed-form solutions for a 4x4 flange pose; see :func:`servo_app.robots.ik.solve`."""
-        from servo_app.robots.ik import solve
+        from servo_app.robots.ik import solve  # ik imports this module
 
-        return solve(self, pose, with_turns=with_turns, within_limits=within_limits)
+        return solve(self, pose, with_turns=with_turns, within_limits=within_limits, seed=seed)
 
-    def ik_nearest(self, pose: np.ndarray, seed_q: ArrayLike, config: object | None = None
+    def ik_nearest(self, pose: np.ndarray, seed_q: ArrayLike, config: ArmConfiguration | None = None
                    ) -> np.ndarray | None:
         """The in-limits solution nearest ``seed_q``; see :func:`servo_app.robots.ik.nearest`."""
         from servo_app.robots.ik import nearest
 
         return nearest(self, pose, seed_q, config)
 
-    def ik_tcp(self, tcp_pose: np.ndarray, **kwargs: bool) -> list[IkSolution]:
+    def configuration(self, q_model_rad: ArrayLike) -> ArmConfiguration:
+        """FANUC configuration of a joint vector; see :mod:`servo_app.robots.configuration`."""
+        return configuration_of(q_model_rad, self)
+
+    def ik_tcp(self, tcp_pose: np.ndarray, *, with_turns: bool = False, within_limits: bool = False,
+               seed: ArrayLike | None = None) -> list[IkSolution]:
         """Like :meth:`ik` for a TCP pose (the configured tool offset is removed first)."""
-        return self.ik(tcp_pose @ self.tool_inv, **kwargs)
+        return self.ik(tcp_pose @ self.tool_inv, with_turns=with_turns, within_limits=within_limits, seed=seed)
 
     def within_limits(self, q_model_rad: ArrayLike, tol: float = 1e-9) -> bool:
         q = np.asarray(q_model_rad, dtype=float)[:6]

@@ -40,7 +40,10 @@ def load_spec(profile: RobotProfile, tool_xyzwpr: ArrayLike | None = None) -> mu
     flange = spec.site(FLANGE_SITE)
     if flange is None:
         raise ProfileError(f"{profile.mjcf}: missing site '{FLANGE_SITE}' (profile {profile.source})")
-    set_tool(spec, tool_xyzwpr)
+    try:
+        set_tool(spec, tool_xyzwpr)  # compiles once to resolve the flange site's frame
+    except ValueError as exc:
+        raise ProfileError(f"{profile.mjcf}: MJCF does not compile: {exc}") from exc
     return spec
 
 
@@ -67,9 +70,32 @@ def set_tool(spec: mujoco.MjSpec, tool_xyzwpr: ArrayLike | None) -> mujoco.MjsSi
     return site
 
 
-def load_model(profile: RobotProfile, tool_xyzwpr: ArrayLike | None = None) -> mujoco.MjModel:
-    """Compiled MjModel of the profile's MJCF with the profile's joint ranges and a ``tcp`` site."""
-    return load_spec(profile, tool_xyzwpr).compile()
+def load_model(profile: RobotProfile, tool_xyzwpr: ArrayLike | None = None, *, verify: bool = True
+               ) -> mujoco.MjModel:
+    """Compiled MjModel of the profile's MJCF with the profile's joint ranges and a ``tcp`` site.
+
+    ``verify`` checks that the MJCF's kinematics match the profile's dimensions (see
+    :func:`check_against_profile`), so a hand-written model cannot silently disagree with FK/IK.
+    """
+    model = load_spec(profile, tool_xyzwpr).compile()
+    if verify:
+        check_against_profile(profile, model)
+    return model
+
+
+def check_against_profile(profile: RobotProfile, model: mujoco.MjModel, tol_m: float = 1e-6) -> None:
+    """Raise ProfileError when the model's flange pose differs from ArmKinematics.fk at test poses."""
+    from servo_app.robots.kinematics import ArmKinematics
+
+    kin = ArmKinematics(profile)
+    data = mujoco.MjData(model)
+    probes = np.array([[0.0] * 6, [0.3, -0.4, 0.5, -0.6, 0.7, -0.8], [-1.1, 0.9, -0.7, 1.3, -1.2, 2.0]])
+    for q in probes:
+        err = float(np.abs(mujoco_fk(model, data, q) - kin.fk(q)).max())
+        if err > tol_m:
+            raise ProfileError(
+                f"{profile.mjcf}: flange pose differs from the dimensions of {profile.source} by {err:.3g} "
+                f"at q = {q.tolist()} rad (world frame, axes, offsets or flange site orientation)")
 
 
 def site_pose(model: mujoco.MjModel, data: mujoco.MjData, name: str) -> np.ndarray:

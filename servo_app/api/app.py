@@ -1,0 +1,279 @@
+"""The FastAPI application: REST, WebSocket telemetry, Prometheus metrics and the web console.
+
+Thin by design: it validates, authenticates and forwards to :class:`~servo_app.service.ServoService`.
+Reads are open (on the configured interface, 127.0.0.1 by default); anything that moves the arm,
+writes I/O or changes state needs ``Authorization: Bearer <token>``, and motion also the control lease
+(``X-Lease-Id``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from fastapi import Depends, FastAPI, Header, HTTPException, Request, WebSocket, WebSocketDisconnect
+from fastapi.responses import FileResponse, PlainTextResponse, RedirectResponse
+from fastapi.staticfiles import StaticFiles
+from pydantic import BaseModel, Field, field_validator
+
+from servo_app.api.auth import AuditLog, LeaseManager, RateLimiter, token_matches
+from servo_app.api.metrics import Metrics
+from servo_app.motion.servo import CommandRejected
+from servo_app.service import ServoService
+
+WEB_DIR = Path(__file__).resolve().parents[2] / "web"
+
+
+def _finite(name: str, values: list[float]) -> list[float]:
+    for i, v in enumerate(values):
+        if not math.isfinite(v):
+            raise ValueError(f"{name}[{i}]={v} is not a finite number")
+    return values
+
+
+class TwistJog(BaseModel):
+    model_config = {"extra": "forbid"}
+    frame: Literal["base", "tool"] = "base"
+    linear: list[float] = Field(min_length=3, max_length=3, description="mm/s along x y z")
+    angular: list[float] = Field(default=[0.0, 0.0, 0.0], min_length=3, max_length=3, description="deg/s")
+    hold_ms: float = Field(200.0, gt=0, le=2000, description="hold-to-run time: keep sending to keep moving")
+
+    @field_validator("linear", "angular")
+    @classmethod
+    def _fin(cls, v: list[float], info: Any) -> list[float]:
+        return _finite(info.field_name, v)
+
+
+class JointJog(BaseModel):
+    model_config = {"extra": "forbid"}
+    joints: list[float] = Field(min_length=6, max_length=6, description="deg/s per joint (FANUC axes)")
+    hold_ms: float = Field(200.0, gt=0, le=2000)
+
+    @field_validator("joints")
+    @classmethod
+    def _fin(cls, v: list[float]) -> list[float]:
+        return _finite("joints", v)
+
+
+class JointTarget(BaseModel):
+    model_config = {"extra": "forbid"}
+    joints: list[float] = Field(min_length=6, max_length=6, description="deg, FANUC convention")
+    speed_scale: float = Field(1.0, gt=0, le=1)
+
+    @field_validator("joints")
+    @classmethod
+    def _fin(cls, v: list[float]) -> list[float]:
+        return _finite("joints", v)
+
+
+class StopRequest(BaseModel):
+    model_config = {"extra": "forbid"}
+    fast: bool = False
+
+
+class LeaseRequest(BaseModel):
+    model_config = {"extra": "forbid"}
+    client: str = Field(min_length=1, max_length=64)
+    force: bool = False
+
+
+class IoWrite(BaseModel):
+    model_config = {"extra": "forbid"}
+    type: str = Field(description="DO, RO, F, M, ...")
+    index: int = Field(ge=1, le=65535)
+    mask: int = Field(0xFFFF, ge=0, le=0xFFFF)
+    value: int = Field(ge=0, le=0xFFFF)
+
+
+class Ack(BaseModel):
+    ok: bool = True
+    detail: Any = None
+
+
+def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
+               cors_origins: list[str] | None = None, lease_ttl_s: float = 10.0) -> FastAPI:
+    app = FastAPI(title="servo_app", version="0.1.0",
+                  description="Online servo control of industrial robot arms (FANUC Stream Motion J519).")
+    leases = LeaseManager(ttl_s=lease_ttl_s)
+    jog_limiter = RateLimiter(jog_rate_per_s)
+    audit = AuditLog(service.cfg.var_dir / "audit.log")
+    metrics = Metrics()
+    app.state.service, app.state.leases, app.state.metrics = service, leases, metrics
+    if cors_origins:
+        from fastapi.middleware.cors import CORSMiddleware
+
+        app.add_middleware(CORSMiddleware, allow_origins=cors_origins, allow_methods=["*"], allow_headers=["*"])
+
+    def client_of(request: Request) -> str:
+        host = request.client.host if request.client else "?"
+        return f"{host}:{request.client.port if request.client else 0}"
+
+    def authed(request: Request, authorization: Annotated[str | None, Header()] = None) -> str:
+        if not token_matches(token, authorization):
+            audit.record(client_of(request), f"{request.method} {request.url.path}", False, "bad token")
+            raise HTTPException(401, "missing or wrong bearer token", headers={"WWW-Authenticate": "Bearer"})
+        return client_of(request)
+
+    def controlling(request: Request, client: Annotated[str, Depends(authed)],
+                    x_lease_id: Annotated[str | None, Header()] = None) -> str:
+        try:
+            lease = leases.check(x_lease_id)
+        except PermissionError as exc:
+            audit.record(client, f"{request.method} {request.url.path}", False, str(exc))
+            raise HTTPException(409, str(exc)) from None
+        return f"{lease.client}@{client}"
+
+    def forward(client: str, action: str, op: str, **kw: Any) -> Ack:
+        try:
+            result = service.request(op, **kw)
+        except CommandRejected as exc:
+            audit.record(client, action, False, str(exc))
+            raise HTTPException(409, str(exc)) from None
+        except TimeoutError as exc:
+            audit.record(client, action, False, str(exc))
+            raise HTTPException(503, str(exc)) from None
+        audit.record(client, action, True, kw or None)
+        return Ack(detail=result)
+
+    # ---------------------------------------------------------------- session
+    @app.post("/api/session/start", tags=["session"])
+    def session_start(client: Annotated[str, Depends(controlling)]) -> Ack:
+        return forward(client, "session.start", "start")
+
+    @app.post("/api/session/stop", tags=["session"])
+    def session_stop(client: Annotated[str, Depends(authed)], body: StopRequest | None = None) -> Ack:
+        # Any authenticated client may stop the arm, with or without the lease.
+        fast = bool(body and body.fast)
+        service.stops_by_reason["request"] += 1
+        return forward(client, "session.stop", "stop", fast=fast)
+
+    @app.post("/api/session/resume", tags=["session"])
+    def session_resume(client: Annotated[str, Depends(controlling)]) -> Ack:
+        return forward(client, "session.resume", "resume")
+
+    @app.post("/api/session/end", tags=["session"])
+    def session_end(client: Annotated[str, Depends(authed)]) -> Ack:
+        return forward(client, "session.end", "end")
+
+    @app.post("/api/reset", tags=["session"])
+    def reset(client: Annotated[str, Depends(controlling)]) -> Ack:
+        try:
+            service.reset()
+        except CommandRejected as exc:
+            raise HTTPException(409, str(exc)) from None
+        audit.record(client, "reset", True)
+        return Ack()
+
+    # ----------------------------------------------------------------- motion
+    @app.post("/api/jog", tags=["motion"])
+    def jog(body: TwistJog | JointJog, request: Request, client: Annotated[str, Depends(controlling)]) -> Ack:
+        if not jog_limiter.allow(client.split("@")[-1]):
+            metrics.jog_rejected.inc()
+            raise HTTPException(429, f"jog requests limited to {jog_limiter.per_second} per second per client")
+        if isinstance(body, JointJog):
+            return forward(client, "jog", "jog", joints=body.joints, hold_s=body.hold_ms / 1000)
+        return forward(client, "jog", "twist", frame=body.frame, linear=body.linear, angular=body.angular,
+                       hold_s=body.hold_ms / 1000)
+
+    @app.post("/api/target", tags=["motion"])
+    def target(body: JointTarget, client: Annotated[str, Depends(controlling)]) -> Ack:
+        return forward(client, "target", "target", joints=body.joints, speed_scale=body.speed_scale)
+
+    # ------------------------------------------------------------------ lease
+    @app.get("/api/lease", tags=["lease"])
+    def lease_get() -> dict[str, Any]:
+        lease = leases.current()
+        return {"held": lease is not None, "client": lease.client if lease else None,
+                "expires_in_s": round(lease.expires_at - time.monotonic(), 3) if lease else None}
+
+    @app.post("/api/lease", tags=["lease"])
+    def lease_acquire(body: LeaseRequest, client: Annotated[str, Depends(authed)]) -> dict[str, Any]:
+        try:
+            lease = leases.acquire(body.client, force=body.force)
+        except PermissionError as exc:
+            raise HTTPException(409, str(exc)) from None
+        audit.record(client, "lease.acquire", True, body.client)
+        return {"lease_id": lease.lease_id, "client": lease.client, "ttl_s": leases.ttl_s}
+
+    @app.post("/api/lease/renew", tags=["lease"])
+    def lease_renew(client: Annotated[str, Depends(authed)],
+                    x_lease_id: Annotated[str | None, Header()] = None) -> dict[str, Any]:
+        try:
+            lease = leases.renew(x_lease_id)
+        except PermissionError as exc:
+            raise HTTPException(409, str(exc)) from None
+        return {"lease_id": lease.lease_id, "ttl_s": leases.ttl_s}
+
+    @app.delete("/api/lease", tags=["lease"])
+    def lease_release(client: Annotated[str, Depends(authed)],
+                      x_lease_id: Annotated[str | None, Header()] = None) -> Ack:
+        leases.release(x_lease_id)
+        audit.record(client, "lease.release", True)
+        return Ack()
+
+    # ------------------------------------------------------------------ views
+    @app.get("/api/health", tags=["state"])
+    def health() -> dict[str, Any]:
+        return {"ok": True}
+
+    @app.get("/api/state", tags=["state"])
+    def state() -> dict[str, Any]:
+        s = service.state()
+        lease = leases.current()
+        s["lease"] = {"held": lease is not None, "client": lease.client if lease else None}
+        s["stops_by_reason"] = dict(service.stops_by_reason)
+        return s
+
+    @app.get("/api/limits", tags=["state"])
+    def limits() -> dict[str, Any]:
+        return service.limits()
+
+    @app.get("/api/io", tags=["io"])
+    def io_read(type: str, index: int, client: Annotated[str, Depends(authed)], mask: int = 0xFFFF) -> Ack:
+        return forward(client, "io.read", "io_read", type=type, index=index, mask=mask)
+
+    @app.post("/api/io", tags=["io"])
+    def io_write(body: IoWrite, client: Annotated[str, Depends(controlling)]) -> Ack:
+        return forward(client, "io.write", "io_write", type=body.type, index=body.index, mask=body.mask,
+                       value=body.value)
+
+    @app.get("/api/sessions", tags=["logs"])
+    def sessions() -> list[dict[str, Any]]:
+        return service.session_logs()
+
+    @app.get("/api/sessions/{name}", tags=["logs"])
+    def session_download(name: str) -> FileResponse:
+        try:
+            path = service.session_log_path(name)
+        except FileNotFoundError as exc:
+            raise HTTPException(404, str(exc)) from None
+        return FileResponse(path, media_type="application/octet-stream", filename=name)
+
+    @app.get("/metrics", tags=["state"], response_class=PlainTextResponse)
+    def prometheus() -> PlainTextResponse:
+        return PlainTextResponse(metrics.render(service.state(), service.stops_by_reason),
+                                 media_type="text/plain; version=0.0.4")
+
+    @app.websocket("/ws/telemetry")
+    async def telemetry(ws: WebSocket, hz: float = 30.0) -> None:
+        await ws.accept()
+        period = 1.0 / min(max(hz, 1.0), 100.0)
+        try:
+            while True:
+                s = await asyncio.to_thread(state)
+                await ws.send_json(s)
+                await asyncio.sleep(period)
+        except (WebSocketDisconnect, RuntimeError):
+            return
+
+    if WEB_DIR.is_dir():
+        app.mount("/web", StaticFiles(directory=WEB_DIR, html=True), name="web")
+
+        @app.get("/", include_in_schema=False)
+        def index() -> RedirectResponse:
+            return RedirectResponse("/web/")
+
+    return app

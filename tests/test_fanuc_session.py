@@ -1,0 +1,176 @@
+"""The client-side stream session as a pure state machine: sequencing, lead, losses, ending."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from servo_app.fanuc import packets as P
+from servo_app.fanuc.session import Phase, SessionConfig, StreamSession
+from servo_app.motion.limit_tables import LimitTables
+
+
+class Hold:
+    """A motion source that holds the start position and counts its calls."""
+
+    def __init__(self) -> None:
+        self.q0: np.ndarray | None = None
+        self.tables: LimitTables | None = None
+        self.calls = 0
+        self.rest_requested = False
+        self.rest_after = 0  # commands until "at rest" once rest is requested
+
+    def begin(self, q_start: np.ndarray, tables: LimitTables | None) -> None:
+        self.q0, self.tables = q_start, tables
+
+    def next_command(self, status: P.Status) -> np.ndarray:
+        self.calls += 1
+        if self.rest_requested:
+            self.rest_after -= 1
+        assert self.q0 is not None
+        return self.q0 + 0.001 * self.calls
+
+    def request_rest(self) -> None:
+        self.rest_requested = True
+
+    def at_rest(self) -> bool:
+        return self.rest_requested and self.rest_after <= 0
+
+
+BITS = P.StatusBit.WAITING_FOR_COMMAND | P.StatusBit.SYSRDY
+
+
+def status(seq: int, bits: int = BITS, joints: tuple[float, ...] = (1, 2, 3, 4, 5, 6)) -> bytes:
+    return P.Status(seq=seq, status=bits, joints=joints).encode()
+
+
+def commands(out: list[bytes]) -> list[P.Command]:
+    return [c for c in map(P.decode_from_pc, out) if isinstance(c, P.Command)]
+
+
+def open_streaming(lead: int = 0, first_seq: int = 5) -> tuple[StreamSession, Hold, list[bytes]]:
+    m = Hold()
+    s = StreamSession(m, SessionConfig(lead=lead, fetch_tables=False))
+    out = s.open(0.0)
+    assert out == [P.StatusStart().encode()]
+    assert s.on_datagram(status(first_seq - 1, bits=P.StatusBit.SYSRDY), 0.008) == []  # not ready yet
+    return s, m, s.on_datagram(status(first_seq), 0.016)
+
+
+def test_first_command_carries_the_status_seq_then_plus_one() -> None:
+    s, m, out = open_streaming(first_seq=41)
+    (c,) = commands(out)
+    assert c.seq == 41 and c.data_format == P.DataFormat.JOINT and c.last_data == 0
+    assert m.q0 is not None and list(m.q0) == [1, 2, 3, 4, 5, 6]
+    for k in range(1, 5):
+        (c,) = commands(s.on_datagram(status(41 + k), 0.016 + 0.008 * k))
+        assert c.seq == 41 + k
+    assert s.phase == Phase.STREAMING
+
+
+def test_exactly_one_command_per_status_and_none_for_duplicates() -> None:
+    s, _, _ = open_streaming()
+    assert len(commands(s.on_datagram(status(6), 0.1))) == 1
+    assert s.on_datagram(status(6), 0.1) == []  # duplicated status packet
+    assert s.on_datagram(status(4), 0.1) == []  # reordered, older
+    assert s.stats.status_duplicated == 2
+
+
+def test_lost_status_packets_are_made_up_for() -> None:
+    s, _, _ = open_streaming(lead=1)
+    (c,) = commands(s.on_datagram(status(6), 0.1))
+    out = commands(s.on_datagram(status(9), 0.2))  # 7 and 8 lost on the wire
+    assert [c.seq for c in out] == [c.seq + 1, c.seq + 2, c.seq + 3]
+    assert s.stats.status_lost == 2
+
+
+def test_lead_fills_the_buffer_once() -> None:
+    _, _, out = open_streaming(lead=3, first_seq=10)
+    assert [c.seq for c in commands(out)] == [10, 11, 12, 13]
+
+
+def test_lead_bounded_by_the_controller_buffer() -> None:
+    with pytest.raises(ValueError, match="lead=9"):
+        SessionConfig(lead=9)
+
+
+def test_sequence_wraps_to_zero() -> None:
+    s, _, out = open_streaming(first_seq=0xFFFFFFFF)
+    assert commands(out)[0].seq == 0xFFFFFFFF
+    (c,) = commands(s.on_datagram(status(0), 0.1))
+    assert c.seq == 0
+
+
+def test_end_decelerates_then_last_data_then_stops_output_after_bit0_clears() -> None:
+    s, m, _ = open_streaming(first_seq=5)
+    m.rest_after = 3
+    s.request_end()
+    assert m.rest_requested
+    seq, last = 6, []
+    for _ in range(6):
+        cs = commands(s.on_datagram(status(seq), 0.1))
+        seq += 1
+        last += [c.last_data for c in cs]
+        if s.phase == Phase.ENDING:
+            break
+    assert last[-1] == 1 and all(v == 0 for v in last[:-1])
+    # No more commands after last data, and no stop packet while bit 0 is still set.
+    assert s.on_datagram(status(seq), 0.2) == []
+    assert s.on_datagram(status(seq + 1, bits=P.StatusBit.SYSRDY), 0.21) == [P.StatusStop().encode()]
+    assert s.phase == Phase.CLOSED
+
+
+def test_bit0_dropping_mid_stream_is_a_fault() -> None:
+    s, _, _ = open_streaming()
+    assert s.on_datagram(status(6, bits=0), 0.1) == []
+    assert s.phase == Phase.FAULT and "status bit 0" in s.fault_reason
+
+
+def test_status_silence_is_a_fault() -> None:
+    s, _, _ = open_streaming()
+    s.on_idle(0.05)
+    assert s.phase == Phase.STREAMING
+    s.on_idle(0.5)
+    assert s.phase == Phase.FAULT and "no status packet" in s.fault_reason
+
+
+def test_malformed_datagram_is_counted_not_fatal() -> None:
+    s, _, _ = open_streaming()
+    assert s.on_datagram(b"\x00\x00\x00\x00\x00\x00\x00\x01junk", 0.1) == []
+    assert s.stats.malformed == 1 and "length=12" in s.stats.last_error
+    assert len(commands(s.on_datagram(status(6), 0.1))) == 1
+
+
+def test_limit_tables_requested_one_per_interval_then_used() -> None:
+    m = Hold()
+    s = StreamSession(m, SessionConfig(table_axes=1, max_payload_kg=7.0))
+    s.open(0.0)
+    seen: list[P.LimitTableRequest] = []
+    seq = 1
+    for i in range(3):
+        out = s.on_datagram(status(seq, bits=P.StatusBit.SYSRDY), 0.3 * i)
+        seq += 1
+        reqs = [p for p in map(P.decode_from_pc, out) if isinstance(p, P.LimitTableRequest)]
+        assert len(reqs) == 1
+        seen += reqs
+        r = reqs[0]
+        s.on_datagram(P.LimitTableResponse(r.axis, r.limit_type, 2000, 5, (10.0 + r.limit_type,) * 20,
+                                           (5.0,) * 20).encode(), 0.3 * i + 0.001)
+    assert [(r.axis, r.limit_type) for r in seen] == [(1, 0), (1, 1), (1, 2)]
+    s.on_datagram(status(seq), 1.0)
+    assert s.tables is not None and s.tables.vmax == 2000
+    assert m.tables is s.tables and s.phase == Phase.STREAMING
+    assert s.tables.at_speed(1, 0.0, 0.0)[0] == pytest.approx(11.0)
+
+
+def test_unanswered_limit_tables_fall_back_to_the_profile() -> None:
+    m = Hold()
+    s = StreamSession(m, SessionConfig(table_axes=1, table_retries=2, table_timeout_s=0.1))
+    s.open(0.0)
+    t, seq = 0.0, 1
+    while s.phase == Phase.FETCHING_TABLES and t < 5:
+        s.on_datagram(status(seq, bits=P.StatusBit.SYSRDY), t)
+        t += 0.05
+        seq += 1
+    assert s.phase == Phase.WAITING_READY and s.tables is None
+    assert "using the profile's limits" in s.stats.last_error
