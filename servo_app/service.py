@@ -7,6 +7,7 @@ object forwards requests, reads the published state and keeps the lists the API 
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from collections import Counter
@@ -18,6 +19,7 @@ from servo_app.fanuc.alarms import ALARMS
 from servo_app.fanuc.packets import ROBOT_PORT
 from servo_app.fanuc.runner import StreamConfig, StreamProcess
 from servo_app.motion.limit_tables import default_tables
+from servo_app.motion.servo import CommandRejected
 from servo_app.robots.profile import RobotProfile, load_profile
 
 
@@ -63,6 +65,8 @@ class ServoService:
         self.faults: list[dict[str, Any]] = []
         self._lock = threading.Lock()
         self.robot_address: tuple[str, int] | None = None
+        self._alarms_seen = 0
+        self._sim_events: list[dict[str, Any]] = []
 
     # ------------------------------------------------------------------ life
     def open(self) -> None:
@@ -110,17 +114,33 @@ class ServoService:
         self.request("stop", fast=fast, reason=reason)
 
     def reset(self) -> None:
-        """Clear a fault: the simulator's alarm (as an operator at the pendant would) and the session."""
+        """Clear a fault: the simulator's alarm (as an operator at the pendant would), then the supervisor."""
         if self.sim is not None:
             self.sim.reset()
-        self.request("close")
+        self.request("reset")
+
+    def _forward_alarms(self) -> None:
+        """The J519 status carries no alarm code: the embedded simulator's alarm list supplies it."""
+        if self.sim is None or self.stream is None:
+            return
+        events = self.sim.events()
+        for ev in events[self._alarms_seen:]:
+            spec = ALARMS.get(ev["code"])
+            if spec is not None and not spec.warning:
+                self.faults.append(ev)
+                with contextlib.suppress(CommandRejected):
+                    self.request("controller_alarm", code=ev["code"], message=ev["message"])
+        self._alarms_seen = len(events)
+        self._sim_events = events
 
     # ----------------------------------------------------------------- views
     def state(self) -> dict[str, Any]:
         if self.stream is None:
             return {"phase": "disconnected"}
         s = self.stream.state()
-        self.stream.poll_events()
+        self._forward_alarms()
+        safety = self.stream.last_event("safety") or {}
+        s.update({k: v for k, v in safety.items() if k != "event"})
         s["model"] = self.profile.name
         s["robot"] = f"{self.robot_address[0]}:{self.robot_address[1]}" if self.robot_address else None
         s["simulated"] = self.sim is not None
@@ -132,7 +152,7 @@ class ServoService:
         if self.sim is None:
             return []
         out = []
-        for ev in self.sim.events()[-20:]:
+        for ev in self._sim_events[-20:]:
             spec = ALARMS.get(ev["code"])
             out.append({**ev, "cause": spec.cause if spec else "", "remedy": spec.remedy if spec else "",
                         "warning": bool(spec and spec.warning)})
@@ -171,11 +191,11 @@ class ServoService:
             raise FileNotFoundError(f"no session log named {name!r}")
         return p
 
-    def wait_phase(self, phase: str, timeout: float = 10.0) -> dict[str, Any]:
+    def wait_state(self, state: str, timeout: float = 10.0) -> dict[str, Any]:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             s = self.state()
-            if s["phase"] == phase:
+            if s["state"] == state:
                 return s
             time.sleep(0.01)
-        raise TimeoutError(f"phase {phase!r} not reached within {timeout} s (now {self.state()['phase']})")
+        raise TimeoutError(f"state {state!r} not reached within {timeout} s (now {self.state()['state']})")

@@ -10,11 +10,14 @@ from typing import Any
 
 import numpy as np
 
-PHASES = ("idle", "fetching_tables", "waiting_ready", "streaming", "ending", "closed", "fault")
+# The link (stream session) phases and the safety modes, by index.
+PHASES = ("idle", "fetching_tables", "connected", "waiting_ready", "streaming", "ending", "closed", "fault")
+MODES = ("disconnected", "connected", "ready", "streaming", "stopping", "stopped", "ending", "ended", "fault")
 
 _FIELDS: list[tuple[str, int]] = [
     ("published_unix", 1),
     ("phase", 1),
+    ("mode", 1),
     ("session_time", 1),
     ("status_seq", 1),
     ("status_bits", 1),
@@ -78,7 +81,8 @@ def decode_state(data: np.ndarray) -> dict[str, Any]:
             out[name] = [float(v) for v in data[sl]]
         else:
             out[name] = float(data[sl.start])
-    out["phase"] = PHASES[int(out["phase"])]
+    out["link"] = PHASES[int(out.pop("phase"))]
+    out["state"] = MODES[int(out.pop("mode"))]
     for k in ("at_rest", "stopped", "tables_from_controller"):
         out[k] = bool(out[k])
     for k in ("status_seq", "status_bits", "commands_sent", "status_received", "status_lost", "status_duplicated",

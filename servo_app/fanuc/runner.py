@@ -27,14 +27,17 @@ from typing import Any
 import numpy as np
 
 from servo_app.fanuc.packets import ROBOT_PORT, IoType, Status
-from servo_app.fanuc.session import IoRequest, Phase, SessionConfig, StreamSession
+from servo_app.fanuc.session import Phase, SessionConfig
 from servo_app.fanuc.session_log import SessionLogWriter
+from servo_app.fanuc.supervisor import StreamSupervisor
 from servo_app.ipc import LatestValueSlot
 from servo_app.motion.servo import CommandRejected, ServoCycle, ServoSettings
 from servo_app.robots.profile import load_profile
-from servo_app.state import PHASES, STATE_SIZE, StateVector, decode_state
+from servo_app.safety import Mode
+from servo_app.state import MODES, PHASES, STATE_SIZE, StateVector, decode_state
 
 assert all(p.value in PHASES for p in Phase)
+assert all(m.value in MODES for m in Mode)
 
 
 @dataclass
@@ -88,18 +91,22 @@ class _ServoProcess:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.connect((cfg.host, cfg.port))
         self.sock.settimeout(0.02)
-        self.cycle: ServoCycle | None = None
-        self.session: StreamSession | None = None
+        settings = ServoSettings(limit_fraction=cfg.limit_fraction, flange_speed_cap=cfg.flange_speed_cap,
+                                 payload_kg=cfg.payload_kg)
+        self.cycle = ServoCycle(self.profile, self.dt, settings)
+        self.sup = StreamSupervisor(self.cycle, SessionConfig(
+            lead=cfg.lead, status_timeout_s=cfg.status_timeout_s, max_payload_kg=self.profile.max_payload_kg))
         self.log: SessionLogWriter | None = None
         self.t0 = time.monotonic()
         self.state = StateVector()
         self.latency = _Latency()
         self.late_us = (cfg.late_threshold_ms or self.dt * 1000 / 2) * 1000
         self.hist: deque[np.ndarray] = deque(maxlen=4)  # last commanded positions, for finite differences
-        self.signalled = False
+        self.pending_signal: int | None = None
         self.quit = False
         self.last_status_t = 0.0
-        self.last_phase = Phase.IDLE
+        self._logged_seq: int | None = None
+        self._last_link = Phase.IDLE
 
     # -- main loop
     def run(self) -> None:
@@ -114,31 +121,38 @@ class _ServoProcess:
             self.sock.close()
             self.slot.close()
 
+    def _send(self, out: list[bytes]) -> None:
+        for b in out:
+            self.sock.send(b)
+
     def _step(self) -> None:
-        s = self.session
         try:
             data = self.sock.recv(1024)
         except (TimeoutError, ConnectionRefusedError):
             data = b""
         now = time.monotonic()
-        if s is not None and data:
-            out = s.on_datagram(data, now)
-            for b in out:
-                self.sock.send(b)
+        if data:
+            self._send(self.sup.on_datagram(data, now))
             t_sent = time.monotonic()
-            self._after_datagram(s, now, t_sent)
-        elif s is not None:
-            s.on_idle(now)
+            self._after_datagram(now, t_sent)
+        else:
+            self._send(self.sup.on_idle(now))
+        if self.pending_signal is not None:  # handled here, not inside the signal handler
+            sig, self.pending_signal = self.pending_signal, None
+            self._send(self.sup.signal(sig, time.monotonic()))
         self._poll_requests()
-        self._watch_phase()
+        self._watch_link()
         self._publish()
+        if self.sup.finished:
+            self.quit = True
 
-    def _after_datagram(self, s: StreamSession, t_recv: float, t_sent: float) -> None:
+    def _after_datagram(self, t_recv: float, t_sent: float) -> None:
+        s = self.sup.session
         st = s.last_status
         if st is None or self.log is None:
             return
         t = t_recv - self.t0
-        if st.seq != getattr(self, "_logged_seq", None):
+        if st.seq != self._logged_seq:
             self._logged_seq = st.seq
             self.log.status(t, st.seq, st.status, st.read_io_value, st.joints)
             if self.last_status_t:
@@ -156,92 +170,54 @@ class _ServoProcess:
         while self.conn.poll():
             try:
                 req = self.conn.recv()
-            except EOFError:
-                self._on_signal(signal.SIGTERM, None)
+            except EOFError:  # the parent is gone: end the stream as on SIGTERM
+                self.pending_signal = int(signal.SIGTERM)
                 return
-            rid = req.get("id")
+            rid = req.pop("id", None)
+            op = req.pop("op")
             try:
-                result = self._handle(req)
-                self.conn.send({"id": rid, "ok": True, "result": result})
-            except (CommandRejected, ValueError, RuntimeError) as exc:
-                self.conn.send({"id": rid, "ok": False, "error": str(exc)})
+                if op == "start":
+                    self._open_log()
+                if op in ("io_read", "io_write"):
+                    req["type"] = _io_type(req["type"])
+                result = self.sup.request(op, time.monotonic(), **req)
+                self._send(self.sup._take())
+                reply = {"id": rid, "ok": True, "result": result}
+            except (CommandRejected, ValueError, KeyError, RuntimeError) as exc:
+                reply = {"id": rid, "ok": False, "error": str(exc)}
+            if rid is not None:
+                self.conn.send(reply)
+        if self.sup.changed:
+            self.sup.changed = False
+            self._event("safety", **self.sup.describe())
 
-    def _handle(self, req: dict[str, Any]) -> Any:
-        op = req["op"]
-        if op == "start":
-            return self._start()
-        if op == "shutdown":
-            self._on_signal(signal.SIGTERM, None)
-            return None
-        s, c = self.session, self.cycle
-        if op == "end":
-            if s is None or s.phase in (Phase.CLOSED, Phase.FAULT):
-                raise RuntimeError("no open stream session to end")
-            s.request_end()
-            return None
-        if op == "close":  # status output off without streaming (after a fault)
-            if s is not None:
-                for b in s.close_now():
-                    self.sock.send(b)
-            return None
-        if op == "io_read":
-            if s is None:
-                raise RuntimeError("no session")
-            s.io_read = IoRequest(_io_type(req["type"]), int(req["index"]), int(req.get("mask", 0xFFFF)))
-            return None
-        if op == "io_write":
-            if s is None or s.phase != Phase.STREAMING:
-                raise RuntimeError("I/O is written through command packets: only while streaming")
-            s.write_io(IoRequest(_io_type(req["type"]), int(req["index"]), int(req.get("mask", 0xFFFF)),
-                                 int(req["value"])))
-            return None
-        if c is None or s is None or s.phase != Phase.STREAMING:
-            raise CommandRejected(f"'{op}' needs a streaming session (phase is {s.phase if s else 'idle'})")
-        if op == "target":
-            c.set_joint_target(np.asarray(req["joints"], float), float(req.get("speed_scale", 1.0)))
-        elif op == "jog":
-            c.jog_joints(np.asarray(req["joints"], float), float(req.get("hold_s", 0.2)))
-        elif op == "stop":
-            c.stop(fast=bool(req.get("fast", False)))
-        elif op == "resume":
-            c.resume()
-        else:
-            raise CommandRejected(f"op={op!r} is unknown")
-        return None
-
-    def _start(self) -> str:
-        if self.session is not None and self.session.phase not in (Phase.CLOSED, Phase.FAULT):
-            raise RuntimeError(f"a session is already open (phase {self.session.phase})")
-        self._finish_log()
-        settings = ServoSettings(limit_fraction=self.cfg.limit_fraction, flange_speed_cap=self.cfg.flange_speed_cap,
-                                 payload_kg=self.cfg.payload_kg)
-        self.cycle = ServoCycle(self.profile, self.dt, settings)
-        self.session = StreamSession(self.cycle, SessionConfig(
-            lead=self.cfg.lead, status_timeout_s=self.cfg.status_timeout_s,
-            max_payload_kg=self.profile.max_payload_kg))
+    def _open_log(self) -> None:
+        if self.log is not None:
+            return
         self.t0 = time.monotonic()
         self.latency = _Latency()
         self.hist.clear()
+        self._logged_seq = None
         stamp = time.strftime("%Y%m%d-%H%M%S")
         path = Path(self.cfg.log_dir) / f"session-{stamp}-{os.getpid()}-{int(self.t0 * 1000) % 100000}.srvlog"
+        per_s = max(1, int(1 / self.dt))
         self.log = SessionLogWriter(path, {"model": self.profile.name, "interval_ms": self.dt * 1000,
                                            "j23_factor": self.profile.j23_factor, "protocol": "fanuc-j519-v1",
-                                           "robot": f"{self.cfg.host}:{self.cfg.port}",
-                                           "flush_every": int(1 / self.dt)}, flush_every=max(1, int(1 / self.dt)))
-        for b in self.session.open(time.monotonic()):
-            self.sock.send(b)
-        return str(path)
+                                           "robot": f"{self.cfg.host}:{self.cfg.port}"}, flush_every=per_s)
+        self._event("log_opened", path=str(path))
 
-    def _watch_phase(self) -> None:
-        s = self.session
-        if s is None or s.phase == self.last_phase:
+    def _watch_link(self) -> None:
+        link = self.sup.session.phase
+        if self.sup.changed:
+            self.sup.changed = False
+            self._event("safety", **self.sup.describe())
+        if link == self._last_link:
             return
-        self.last_phase = s.phase
-        self._event("phase", phase=s.phase.value, reason=s.fault_reason)
-        if s.phase in (Phase.CLOSED, Phase.FAULT):
+        self._last_link = link
+        self._event("phase", phase=link.value, reason=self.sup.session.fault_reason)
+        if link in (Phase.CLOSED, Phase.FAULT, Phase.CONNECTED) and self.sup.state.mode in (
+                Mode.ENDED, Mode.FAULT, Mode.DISCONNECTED):
             self._finish_log()
-            if self.signalled:
-                self.quit = True
 
     def _finish_log(self) -> None:
         if self.log is not None:
@@ -250,16 +226,7 @@ class _ServoProcess:
             self.log = None
 
     def _on_signal(self, signum: int, frame: object) -> None:
-        self.signalled = True
-        s = self.session
-        if s is None or s.phase in (Phase.CLOSED, Phase.FAULT, Phase.IDLE):
-            self.quit = True
-        elif s.phase in (Phase.FETCHING_TABLES, Phase.WAITING_READY):
-            for b in s.close_now():
-                self.sock.send(b)
-            self.quit = True
-        else:
-            s.request_end()
+        self.pending_signal = signum
 
     def _event(self, kind: str, **kw: Any) -> None:
         with contextlib.suppress(BrokenPipeError, OSError):
@@ -267,38 +234,38 @@ class _ServoProcess:
 
     # -- publishing
     def _publish(self) -> None:
-        sv, s, c = self.state, self.session, self.cycle
+        sv, s, c = self.state, self.sup.session, self.cycle
         sv.set("published_unix", time.time())
-        if s is not None:
-            sv.set("phase", PHASES.index(s.phase.value))
-            sv.set("session_time", time.monotonic() - self.t0)
-            st = s.last_status
-            if isinstance(st, Status):
-                sv.set("status_seq", st.seq)
-                sv.set("status_bits", st.status)
-                sv.set("q_servo", np.array(st.joints[:6]))
-                sv.set("cart_servo", np.array(st.cartesian[:6]))
-                sv.set("io_read_value", st.read_io_value)
-            for k in ("commands_sent", "status_received", "status_lost", "status_duplicated", "malformed"):
-                sv.set(k, getattr(s.stats, k))
+        sv.set("phase", PHASES.index(s.phase.value))
+        sv.set("mode", MODES.index(self.sup.state.mode.value))
+        sv.set("session_time", time.monotonic() - self.t0)
+        st = s.last_status
+        if isinstance(st, Status):
+            sv.set("status_seq", st.seq)
+            sv.set("status_bits", st.status)
+            sv.set("q_servo", np.array(st.joints[:6]))
+            sv.set("cart_servo", np.array(st.cartesian[:6]))
+            sv.set("io_read_value", st.read_io_value)
+        for k in ("commands_sent", "status_received", "status_lost", "status_duplicated", "malformed"):
+            sv.set(k, getattr(s.stats, k))
         lat = self.latency
         if lat.samples:
-            p50, p99 = lat.percentiles() if len(lat.samples) % 16 == 0 else (None, None)
             sv.set("latency_last_us", lat.samples[-1])
-            if p50 is not None:
+            if len(lat.samples) % 16 == 0:
+                p50, p99 = lat.percentiles()
                 sv.set("latency_p50_us", p50)
                 sv.set("latency_p99_us", p99)
             sv.set("latency_max_us", lat.max_us)
             sv.set("late_commands", lat.late)
-        if c is not None and c.limits is not None:
+        if c.limits is not None:
             sv.set("at_rest", float(c.at_rest()))
-            sv.set("stopped", float(c._stopped))
+            sv.set("stopped", float(c.stopped))
             sv.set("tables_from_controller", float(c.tables_source == "controller"))
             vel_l, acc_l, jerk_l = c.limits
             sv.set("vel_limit", vel_l)
             sv.set("acc_limit", acc_l)
             sv.set("jerk_limit", jerk_l)
-        if len(self.hist) >= 1:
+        if self.hist:
             h = list(self.hist)
             while len(h) < 4:
                 h.insert(0, h[0])
@@ -378,6 +345,13 @@ class StreamProcess:
         else:
             self._replies[msg["id"]] = msg
         return True
+
+    def last_event(self, kind: str) -> dict[str, Any] | None:
+        self.poll_events()
+        for ev in reversed(self.events):
+            if ev["event"] == kind:
+                return ev
+        return None
 
     def poll_events(self) -> list[dict[str, Any]]:
         while self._pump(0.0001):

@@ -46,9 +46,10 @@ MAX_PKT_STACK = 10  # $PKT_STACK default and maximum (61.6): at most 9 unprocess
 
 
 class Phase(StrEnum):
-    IDLE = "idle"
+    IDLE = "idle"  # status output off
     FETCHING_TABLES = "fetching_tables"
-    WAITING_READY = "waiting_ready"
+    CONNECTED = "connected"  # status flowing, not streaming
+    WAITING_READY = "waiting_ready"  # armed: the first command goes out at the next ready status
     STREAMING = "streaming"
     ENDING = "ending"  # last data sent, waiting for status bit 0 to clear
     CLOSED = "closed"  # status output stopped
@@ -126,6 +127,7 @@ class StreamSession:
     fault_reason: str = ""
     last_status: Status | None = None
     io_read: IoRequest | None = None
+    close_after_end: bool = True  # stop the status output once the stream has ended
 
     def __post_init__(self) -> None:
         self._pending_tables: list[tuple[int, int]] = []
@@ -138,6 +140,7 @@ class StreamSession:
         self._next_cmd_seq = 0
         self._sent_since_start = 0
         self._end_requested = False
+        self._armed = False
         self._last_data_sent = False
         self._io_writes: list[IoRequest] = []
         self._q_last: np.ndarray | None = None
@@ -146,16 +149,30 @@ class StreamSession:
     # ----------------------------------------------------------------- requests
     def open(self, now: float) -> list[bytes]:
         """Start the status output (and queue the limit-table requests)."""
-        if self.phase not in (Phase.IDLE, Phase.CLOSED):
+        if self.phase not in (Phase.IDLE, Phase.CLOSED, Phase.FAULT):
             raise RuntimeError(f"open() in phase {self.phase}")
-        if self.config.fetch_tables:
+        self.last_status = None  # the controller restarts its sequence at 1
+        if self.config.fetch_tables and self.tables is None:
             self._pending_tables = [(axis, lt) for axis in range(1, self.config.table_axes + 1)
                                     for lt in LimitType]
             self._enter(Phase.FETCHING_TABLES, now)
         else:
-            self._enter(Phase.WAITING_READY, now)
+            self._enter(Phase.WAITING_READY if self._armed else Phase.CONNECTED, now)
         self._last_status_at = now
         return [StatusStart().encode()]
+
+    def arm(self) -> None:
+        """Stream from the next status packet that shows the controller waiting (bit 0, SYSRDY)."""
+        if self.phase not in (Phase.CONNECTED, Phase.FETCHING_TABLES, Phase.FAULT):
+            raise RuntimeError(f"cannot start streaming in phase {self.phase}")
+        self._armed = True
+        self._end_requested = False
+        if self.phase != Phase.FETCHING_TABLES:
+            self.phase = Phase.WAITING_READY
+
+    @property
+    def output_on(self) -> bool:
+        return self.phase not in (Phase.IDLE, Phase.CLOSED)
 
     def request_end(self) -> None:
         """Decelerate, send last data, then stop the status output."""
@@ -164,21 +181,35 @@ class StreamSession:
 
     def close_now(self) -> list[bytes]:
         """Stop the status output at once (only safe when not streaming)."""
+        self._armed = False
         self._enter(Phase.CLOSED, self._phase_since)
         return [StatusStop().encode()]
+
+    def abandon(self, reason: str, now: float) -> None:
+        """Stop sending commands (the controller stopped, or will alarm); status output stays as it is."""
+        self._armed = False
+        self._fault(reason, now)
 
     def write_io(self, req: IoRequest) -> None:
         self._io_writes.append(req)
 
     # ------------------------------------------------------------------ inputs
-    def on_datagram(self, data: bytes, now: float) -> list[bytes]:
-        self.sent = []
+    def decode(self, data: bytes) -> Status | LimitTableResponse | None:
+        """Decode a datagram from the controller; a malformed one is counted and gives None."""
         try:
-            packet = decode_from_robot(data)
+            return decode_from_robot(data)
         except PacketError as exc:
             self.stats.malformed += 1
             self.stats.last_error = str(exc)
-            return []
+            return None
+
+    def on_datagram(self, data: bytes, now: float) -> list[bytes]:
+        self.sent = []
+        packet = self.decode(data)
+        return [] if packet is None else self.on_packet(packet, now)
+
+    def on_packet(self, packet: Status | LimitTableResponse, now: float) -> list[bytes]:
+        self.sent = []
         if isinstance(packet, LimitTableResponse):
             self._on_table(packet)
             return []
@@ -187,8 +218,9 @@ class StreamSession:
     def on_idle(self, now: float) -> list[bytes]:
         """Call when no datagram arrived for a while: time-outs live here."""
         self.sent = []
-        if self.phase in (Phase.STREAMING, Phase.ENDING) and now - self._last_status_at > self.config.status_timeout_s:
-            self._fault(f"no status packet for {now - self._last_status_at:.3f} s", now)
+        silent = now - self._last_status_at
+        if self.phase in (Phase.STREAMING, Phase.ENDING) and silent > self.config.status_timeout_s:
+            self._fault(f"no status packet for {silent:.3f} s", now)
         elif self.phase == Phase.WAITING_READY and now - self._phase_since > self.config.ready_timeout_s:
             self._fault(f"controller not ready (status bit 0) within {self.config.ready_timeout_s} s", now)
         elif self.phase == Phase.FETCHING_TABLES and now - self._last_status_at > 1.0:
@@ -226,7 +258,7 @@ class StreamSession:
                 return [LimitTableRequest(axis, lt).encode()]
         if not self._pending_tables:
             self.tables = self._assemble_tables()
-            self._enter(Phase.WAITING_READY, now)
+            self._enter(Phase.WAITING_READY if self._armed else Phase.CONNECTED, now)
         return []
 
     def _assemble_tables(self) -> LimitTables | None:
@@ -256,19 +288,25 @@ class StreamSession:
                 return out
         if self.phase == Phase.WAITING_READY:
             if self._end_requested:  # ended before streaming began: nothing to drain
+                self._armed = False
                 self._enter(Phase.CLOSED, now)
                 return [StatusStop().encode()]
             return self._maybe_start(st)
         if self.phase == Phase.STREAMING:
             return self._stream(st, now)
         if self.phase == Phase.ENDING and not st.waiting_for_command:
+            if not self.close_after_end:
+                self._enter(Phase.CONNECTED, now)
+                return []
             self._enter(Phase.CLOSED, now)
             return [StatusStop().encode()]
         return []
 
     def _maybe_start(self, st: Status) -> list[bytes]:
-        if not (st.waiting_for_command and st.sysrdy) or st.moving:
+        # Ready: waiting for commands, none received yet in this run of IBGN start, servo ready.
+        if not (st.waiting_for_command and st.sysrdy) or st.command_received or st.moving:
             return []
+        self._armed = False
         q0 = np.array(st.joints[: self.config.n_axes], dtype=float)
         self.motion.begin(q0, self.tables)
         self._first_status_seq = st.seq

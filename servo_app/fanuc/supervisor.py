@@ -1,0 +1,279 @@
+"""The servo process's brain: the safety state machine driving the stream session and the servo cycle.
+
+Pure (no sockets, no clock of its own): the runner hands it datagrams, requests and ``now``; it
+returns the datagrams to send. Every decision about motion goes through
+:func:`servo_app.safety.transition`, and every stop is the shaper's jerk-limited deceleration:
+
+- requests (start, stop, resume, end, reset, jog, target) become safety events; refused ones raise
+  :class:`CommandRejected` with the state machine's message and change nothing;
+- hold-to-run: each jog renews a deadline; when it passes, ``JogExpired`` stops the arm;
+- status packets feed ``StatusReceived``; silence feeds ``StatusLost``;
+- the shaper reaching rest during a stop feeds ``ShaperAtRest``;
+- a controller alarm (reported by whoever can see it, e.g. the embedded simulator) feeds
+  ``ControllerAlarm`` and so a fault carrying the manual's cause and remedy.
+"""
+
+from __future__ import annotations
+
+import signal as _signal
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from servo_app.fanuc.packets import LimitTableResponse, Status
+from servo_app.fanuc.session import IoRequest, Phase, SessionConfig, StreamSession
+from servo_app.motion.servo import CommandRejected, ServoCycle
+from servo_app.safety import (
+    AbandonStream,
+    Action,
+    BeginDeceleration,
+    ConnectRequested,
+    ControllerAlarm,
+    EndRequested,
+    Event,
+    HoldToRun,
+    JogExpired,
+    LeaseLost,
+    Mode,
+    RecordFault,
+    ReportWarning,
+    ResetRequested,
+    ResumeMotion,
+    ResumeRequested,
+    SafetyState,
+    SendFirstCommand,
+    SendLastData,
+    ShaperAtRest,
+    Signal,
+    StartRequested,
+    StartStatusOutput,
+    StatusLost,
+    StatusReceived,
+    StopRequested,
+    StopStatusOutput,
+    motion_allowed,
+    safe_to_exit,
+    transition,
+)
+
+JOG_EXPIRED = "hold-to-run released"
+
+
+@dataclass
+class SupervisorLog:
+    """What happened, for the parent process and the API (fault texts, warnings, stops)."""
+
+    transitions: list[tuple[float, str, str, str]] = field(default_factory=list)  # (t, from, to, event)
+    warnings: list[dict[str, Any]] = field(default_factory=list)
+    stops: dict[str, int] = field(default_factory=dict)
+
+
+class StreamSupervisor:
+    def __init__(self, cycle: ServoCycle, session_config: SessionConfig | None = None) -> None:
+        self.cycle = cycle
+        self.session = StreamSession(cycle, session_config or SessionConfig())
+        self.state = SafetyState()
+        self.hold = HoldToRun(timeout_s=0.2)
+        self.log = SupervisorLog()
+        self._start_pending = False
+        self._now = 0.0
+        self._out: list[bytes] = []
+        self.changed = False  # set when the safety state changed; the runner clears it after publishing
+
+    # ------------------------------------------------------------------ events
+    def _feed(self, event: Event, now: float) -> str | None:
+        t = transition(self.state, event)
+        if t.state != self.state:
+            self.log.transitions.append((now, self.state.mode.value, t.state.mode.value, type(event).__name__))
+            self.changed = True
+        self.state = t.state
+        for action in t.actions:
+            self._do(action, now)
+        return t.error
+
+    def _request(self, event: Event, now: float) -> None:
+        err = self._feed(event, now)
+        if err:
+            raise CommandRejected(err)
+
+    def _do(self, action: Action, now: float) -> None:
+        s, c = self.session, self.cycle
+        if isinstance(action, StartStatusOutput):
+            if not s.output_on:
+                self._out += s.open(now)
+        elif isinstance(action, StopStatusOutput):
+            if s.output_on:
+                self._out += s.close_now()
+        elif isinstance(action, SendFirstCommand):
+            s.arm()
+        elif isinstance(action, BeginDeceleration):
+            if c.shaper is not None:
+                c.stop(fast=action.fast)
+            reason = self.state.stop_reason or "stop"
+            self.log.stops[reason] = self.log.stops.get(reason, 0) + 1
+            self.hold = self.hold.release()
+        elif isinstance(action, ResumeMotion):
+            c.resume()
+        elif isinstance(action, SendLastData):
+            s.request_end()
+        elif isinstance(action, AbandonStream):
+            s.abandon(self.state.fault.message if self.state.fault else "stream abandoned", now)
+            self.hold = self.hold.release()
+        elif isinstance(action, RecordFault):
+            self.changed = True
+        elif isinstance(action, ReportWarning):
+            self.log.warnings.append({"code": action.code, "message": action.message})
+        # HoldPosition: the shaper holds by itself once at rest.
+
+    # ----------------------------------------------------------------- requests
+    def request(self, op: str, now: float, **kw: Any) -> Any:
+        """Carry out one request from the API; raises CommandRejected with a clear message if refused."""
+        self._now = now
+        if op == "start":
+            return self._start(now)
+        if op == "stop":
+            self._request(StopRequested(reason=str(kw.get("reason", "stop requested")),
+                                        fast=bool(kw.get("fast", False))), now)
+        elif op == "resume":
+            self._request(ResumeRequested(), now)
+        elif op == "end":
+            self._start_pending = False
+            self._request(EndRequested(), now)
+        elif op == "reset":
+            self._request(ResetRequested(), now)
+        elif op == "lease_lost":
+            self._feed(LeaseLost(holder=str(kw.get("holder", ""))), now)
+        elif op == "controller_alarm":
+            self._feed(ControllerAlarm(code=str(kw["code"]), message=str(kw.get("message", ""))), now)
+        elif op == "jog":
+            self._jog(np.asarray(kw["joints"], dtype=float), float(kw.get("hold_s", 0.2)), now)
+        elif op == "target":
+            self._motion_gate("target")
+            self.cycle.set_joint_target(np.asarray(kw["joints"], dtype=float), float(kw.get("speed_scale", 1.0)))
+        elif op == "io_read":
+            self.session.io_read = IoRequest(int(kw["type"]), int(kw["index"]), int(kw.get("mask", 0xFFFF)))
+        elif op == "io_write":
+            if not self.session.phase == Phase.STREAMING:
+                raise CommandRejected("I/O is written through command packets: only while streaming")
+            self.session.write_io(IoRequest(int(kw["type"]), int(kw["index"]), int(kw.get("mask", 0xFFFF)),
+                                            int(kw["value"])))
+        else:
+            raise CommandRejected(f"op={op!r} is unknown")
+        return None
+
+    def _start(self, now: float) -> None:
+        mode = self.state.mode
+        if mode in (Mode.STREAMING, Mode.STOPPING, Mode.STOPPED, Mode.ENDING):
+            raise CommandRejected(f"StartRequested refused in {mode.value}: a stream is already running")
+        if mode == Mode.FAULT:
+            raise CommandRejected("StartRequested refused in fault: reset first")
+        if self.state.shutdown:
+            raise CommandRejected("StartRequested refused: the service is shutting down")
+        if mode == Mode.READY or (mode == Mode.ENDED and self.state.status and self.state.status.waiting):
+            self._request(StartRequested(), now)
+            return
+        # Status output first; StartRequested follows when the controller shows it is waiting.
+        self._feed(ConnectRequested(), now)
+        self._start_pending = True
+
+    def _motion_gate(self, what: str) -> None:
+        if not motion_allowed(self.state):
+            raise CommandRejected(f"{what} refused in {self.state.mode.value}"
+                                  + (f" (stopped: {self.state.stop_reason})" if self.state.stop_reason else ""))
+
+    def _jog(self, v: np.ndarray, hold_s: float, now: float) -> None:
+        # A new press after the hold-to-run ran out resumes by itself; any other stop needs a resume.
+        if self.state.mode in (Mode.STOPPED, Mode.STOPPING) and self.state.stop_reason == JOG_EXPIRED:
+            self._request(ResumeRequested(), now)
+        self._motion_gate("jog")
+        self.cycle.jog_joints(v)
+        self.hold = HoldToRun(timeout_s=hold_s).renew(now)
+
+    def signal(self, sig: int, now: float) -> list[bytes]:
+        self._out = []
+        self._feed(Signal(sig=sig), now)
+        return self._take()
+
+    @property
+    def finished(self) -> bool:
+        """After a signal: the stream ended (or never ran) and the status output is off."""
+        return self.state.shutdown and safe_to_exit(self.state) and not self.session.output_on
+
+    # ------------------------------------------------------------------ cycle
+    def on_datagram(self, data: bytes, now: float) -> list[bytes]:
+        self._out = []
+        packet = self.session.decode(data)
+        if packet is None:
+            return []
+        if isinstance(packet, Status):
+            self._on_status_before(packet, now)
+        self._out += self.session.on_packet(packet, now)
+        if isinstance(packet, Status):
+            self._after_status(packet, now)
+        elif isinstance(packet, LimitTableResponse):
+            pass
+        return self._take()
+
+    def _on_status_before(self, st: Status, now: float) -> None:
+        prev = self.session.last_status
+        if prev is not None and prev.seq == st.seq:
+            return  # a duplicate carries no news
+        self._feed(StatusReceived(bit0=st.waiting_for_command, bit1=st.command_received, sysrdy=st.sysrdy,
+                                  moving=st.moving), now)
+        if self._start_pending and self.state.mode == Mode.READY and self.session.phase != Phase.FETCHING_TABLES:
+            self._start_pending = False
+            self._feed(StartRequested(), now)
+        # Hold-to-run and rest are judged before the command for this status is computed.
+        self.hold, expired = self.hold.poll(now)
+        if expired is not None and self.state.mode == Mode.STREAMING:
+            self._feed(JogExpired(source=JOG_EXPIRED), now)
+            if self.state.stop is not None and self.state.stop_reason != JOG_EXPIRED:
+                pass
+
+    def _after_status(self, st: Status, now: float) -> None:
+        if self.state.mode == Mode.STOPPING and self.cycle.at_rest():
+            self._feed(ShaperAtRest(), now)
+        if self.session.phase == Phase.CLOSED and self.state.mode == Mode.ENDING:
+            self._feed(StatusReceived(bit0=st.waiting_for_command, bit1=st.command_received, sysrdy=st.sysrdy),
+                       now)
+        if self.session.phase == Phase.FAULT and self.state.mode in (Mode.STREAMING, Mode.STOPPING,
+                                                                    Mode.STOPPED, Mode.ENDING):
+            self._feed(StatusLost(detail=self.session.fault_reason), now)
+
+    def on_idle(self, now: float) -> list[bytes]:
+        self._out = []
+        self.session.on_idle(now)
+        if self.session.phase == Phase.FAULT and self.state.mode not in (Mode.FAULT, Mode.DISCONNECTED,
+                                                                        Mode.ENDED):
+            self._feed(StatusLost(detail=self.session.fault_reason), now)
+        elif (self.session.phase == Phase.CLOSED and self.state.mode == Mode.ENDED
+              and self.state.status is not None):
+            self._feed(StatusLost(detail="status output stopped"), now)
+        return self._take()
+
+    def _take(self) -> list[bytes]:
+        out, self._out = self._out, []
+        return out
+
+    # ------------------------------------------------------------------ views
+    def describe(self) -> dict[str, Any]:
+        st = self.state
+        fault = st.fault
+        return {
+            "state": st.mode.value,
+            "stop_reason": st.stop_reason,
+            "stop_fast": st.stop_fast,
+            "resumable": st.resumable,
+            "shutdown": st.shutdown,
+            "fault": None if fault is None else {"message": fault.message, "code": fault.code,
+                                                 "cause": fault.cause, "remedy": fault.remedy,
+                                                 "during": fault.during.value if fault.during else None},
+            "link": self.session.phase.value,
+            "link_error": self.session.fault_reason or self.session.stats.last_error,
+            "stops": dict(self.log.stops),
+            "warnings": self.log.warnings[-10:],
+        }
+
+
+SIGNALS = {int(_signal.SIGTERM), int(_signal.SIGINT)}

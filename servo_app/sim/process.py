@@ -1,0 +1,94 @@
+"""The embedded simulator in a process of its own.
+
+``servo-app run`` starts it beside the servo process, so neither the API's event loop nor the servo
+cycle shares a GIL with the simulator's tick thread (a late tick would look like a late controller).
+The parent calls simulator controls (reset, mode, override, program start, jog) through a pipe.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing as mp
+import time
+from multiprocessing.connection import Connection
+from typing import Any
+
+_CALLS = {"reset", "start_program", "abort_program", "set_mode", "set_override", "set_joints", "jog_to"}
+
+
+def _event_dict(ev: Any) -> dict[str, Any]:
+    return {"code": ev.code, "message": ev.message, "time_s": ev.time_s, "axis": ev.axis, "seq": ev.seq}
+
+
+def _serve(kwargs: dict[str, Any], conn: Connection) -> None:
+    from servo_app.sim.fanuc_server import FanucSimulator
+
+    sim = FanucSimulator(**kwargs).start()
+    conn.send({"address": sim.address})
+    try:
+        while True:
+            if not conn.poll(0.5):
+                continue
+            try:
+                msg = conn.recv()
+            except EOFError:
+                return
+            name = msg["call"]
+            if name == "quit":
+                conn.send({"ok": True})
+                return
+            try:
+                if name == "events":
+                    result: Any = [_event_dict(e) for e in sim.events()]
+                elif name in _CALLS:
+                    with sim.lock:
+                        result = getattr(sim, name)(*msg.get("args", ()))
+                else:
+                    raise ValueError(f"unknown simulator call {name!r}")
+                conn.send({"ok": True, "result": result})
+            except Exception as exc:  # a refused control is reported, the simulator keeps running
+                conn.send({"ok": False, "error": f"{type(exc).__name__}: {exc}"})
+    finally:
+        sim.stop()
+
+
+class SimulatorProcess:
+    def __init__(self, **kwargs: Any) -> None:
+        ctx = mp.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        kwargs.setdefault("host", "127.0.0.1")
+        self.process = ctx.Process(target=_serve, args=(kwargs, child), name="fanuc-sim", daemon=True)
+        self.address: tuple[str, int] = ("", 0)
+
+    def start(self, timeout: float = 30.0) -> SimulatorProcess:
+        self.process.start()
+        if not self._conn.poll(timeout):
+            raise TimeoutError("simulator process did not start")
+        self.address = tuple(self._conn.recv()["address"])  # type: ignore[assignment]
+        return self
+
+    def call(self, name: str, *args: Any, timeout: float = 5.0) -> Any:
+        self._conn.send({"call": name, "args": args})
+        if not self._conn.poll(timeout):
+            raise TimeoutError(f"simulator did not answer {name}")
+        reply = self._conn.recv()
+        if not reply["ok"]:
+            raise RuntimeError(reply["error"])
+        return reply.get("result")
+
+    def events(self) -> list[dict[str, Any]]:
+        return self.call("events")  # type: ignore[no-any-return]
+
+    def reset(self) -> None:
+        self.call("reset")
+
+    def stop(self, timeout: float = 5.0) -> None:
+        if self.process.is_alive():
+            with contextlib.suppress(TimeoutError, OSError, EOFError):
+                self.call("quit", timeout=timeout)
+            self.process.join(timeout)
+            if self.process.is_alive():
+                self.process.kill()
+        deadline = time.monotonic() + 1
+        while self.process.is_alive() and time.monotonic() < deadline:
+            time.sleep(0.01)
