@@ -1,0 +1,80 @@
+"""Request and response models of the HTTP/WebSocket feeds (they are the OpenAPI contract).
+
+`stamp` is the sender's wall-clock time (Unix seconds) when the value was measured; the registry
+uses it for the latency and to place the sample on the service's monotonic clock. Without a stamp
+the receive time is used and the latency is unknown.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from servo_app.inputs.errors import KeyedError
+from servo_app.inputs.fields import FieldConfig
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Vec3 = tuple[Finite, Finite, Finite]
+
+
+class _Feed(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    stamp: Finite | None = Field(None, description="sender wall-clock time of the value, Unix seconds")
+    seq: int | None = Field(None, description="sender's counter; a sample older than the last one is dropped")
+
+
+class PoseFeed(_Feed):
+    kind: Literal["pose"]
+    xyzwpr: tuple[Finite, Finite, Finite, Finite, Finite, Finite] = Field(
+        description="X Y Z in mm, W P R in deg (rotations about fixed X, Y, Z)")
+    frame: str = "base"
+
+
+class TwistFeed(_Feed):
+    kind: Literal["twist"]
+    linear: Vec3 = Field(description="mm/s")
+    angular: Vec3 = Field((0.0, 0.0, 0.0), description="deg/s")
+    frame: str = "base"
+
+
+class MeasurementFeed(_Feed):
+    kind: Literal["measurement"]
+    values: dict[str, Finite] = Field(min_length=1)
+
+
+FeedMessage = Annotated[PoseFeed | TwistFeed | MeasurementFeed, Field(discriminator="kind")]
+
+
+class FeedAck(BaseModel):
+    source: str
+    accepted: bool = True
+    seq: int = Field(description="the source slot's sequence number after this sample")
+    latency_ms: float | None = Field(None, description="receive time minus the sample's stamp")
+    detail: str | None = None
+
+
+class FeedSourceConfig(BaseModel):
+    """One feed source in the service configuration ([feeds.<name>])."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    kind: Literal["pose", "twist", "measurement"]
+    priority: int = 0
+    stale_after_s: float = Field(0.2, gt=0.0)
+    yield_when_idle: bool = False
+    max_future_s: float = Field(0.5, ge=0.0, description="reject stamps further ahead than this (clock skew)")
+    max_linear_mm_s: float | None = Field(None, gt=0.0)  # twist feeds: reject faster commands
+    max_angular_deg_s: float | None = Field(None, gt=0.0)
+    # Pose feeds: limits per axis name x y z w p r; measurement feeds: per value name.
+    limits: dict[str, FieldConfig] = Field(default_factory=dict)
+    required: list[str] = Field(default_factory=list)  # measurement names every sample must carry
+
+    @model_validator(mode="after")
+    def _kind_options(self) -> FeedSourceConfig:
+        if self.kind != "twist" and (self.max_linear_mm_s or self.max_angular_deg_s):
+            raise KeyedError("kind", self.kind, "max_linear_mm_s / max_angular_deg_s apply to twist feeds only")
+        if self.kind == "pose" and set(self.limits) - set("xyzwpr"):
+            raise KeyedError("limits", sorted(self.limits), "pose limits take the axes x y z w p r")
+        return self

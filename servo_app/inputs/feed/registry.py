@@ -1,0 +1,217 @@
+"""Feed sources that arrive over HTTP/WebSocket: validate, place on our clock, measure, publish.
+
+The sender stamps each sample with its wall clock; latency = our wall clock at receipt minus that
+stamp, and the sample goes into its slot at (monotonic now - latency), so staleness and tracking
+extrapolation see how old the value really is. Stamps from the future beyond `max_future_s`
+(unsynchronised clocks) are rejected; slightly-future stamps count as zero latency. A sample older
+than the last published one (by seq or stamp) is dropped: a late packet must not move the robot back.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import TypeAdapter, ValidationError
+
+from servo_app.inputs.adapter import Clock, SourceSpec
+from servo_app.inputs.feed.models import FeedAck, FeedMessage, FeedSourceConfig, MeasurementFeed, PoseFeed, TwistFeed
+from servo_app.inputs.fields import DEFAULT_FIELD
+from servo_app.inputs.samples import Measurement, PoseSample, TwistSample
+from servo_app.inputs.slots import LatestValue
+from servo_app.inputs.validate import ValueRejected
+
+_MESSAGE = TypeAdapter(FeedMessage)
+_AXES = "xyzwpr"
+
+
+class UnknownSource(KeyError):
+    pass
+
+
+class FeedRejected(ValueError):
+    pass
+
+
+@dataclass(frozen=True)
+class FeedStats:
+    source: str
+    kind: str
+    accepted: int
+    rejected: int
+    out_of_order: int
+    rate_hz: float
+    latency_ms_last: float | None
+    latency_ms_mean: float | None
+    latency_ms_max: float | None
+    last_error: str | None
+
+
+class _Source:
+    def __init__(self, name: str, config: FeedSourceConfig) -> None:
+        self.name = name
+        self.config = config
+        self.slot: LatestValue[Any] = LatestValue(name)
+        self.arrivals: deque[float] = deque()
+        self.latencies: deque[float] = deque(maxlen=200)
+        self.accepted = self.rejected = self.out_of_order = 0
+        self.last_seq: int | None = None
+        self.last_error: str | None = None
+
+
+def parse_feed_message(payload: Mapping[str, Any] | str | bytes) -> FeedMessage:
+    """Validate a raw message (dict or JSON text); raises FeedRejected naming the field and value."""
+    try:
+        if isinstance(payload, str | bytes):
+            return _MESSAGE.validate_json(payload)
+        return _MESSAGE.validate_python(payload)
+    except ValidationError as exc:
+        raise FeedRejected(describe_validation(exc)) from None
+
+
+_KINDS = ("pose", "twist", "measurement")
+
+
+def field_path(loc: Sequence[Any]) -> str:
+    """A pydantic error location as the sender wrote it: no "body", no union tag in front."""
+    parts = [p for p in loc if p != "body"]
+    if parts and parts[0] in _KINDS:
+        parts = parts[1:]
+    return ".".join(str(p) for p in parts)
+
+
+def describe_validation(exc: ValidationError) -> str:
+    return "; ".join(f"field {field_path(e['loc'])!r} value {e.get('input')!r}: {e['msg']}" for e in exc.errors())
+
+
+class FeedRegistry:
+    def __init__(self, sources: Mapping[str, FeedSourceConfig] | None = None, *, clock: Clock = time.monotonic,
+                 wall_clock: Clock = time.time, rate_window_s: float = 2.0) -> None:
+        self._clock = clock
+        self._wall = wall_clock
+        self._window = rate_window_s
+        self._sources: dict[str, _Source] = {}
+        self._lock = threading.Lock()
+        for name, cfg in (sources or {}).items():
+            self.add_source(name, cfg)
+
+    def add_source(self, name: str, config: FeedSourceConfig) -> LatestValue[Any]:
+        with self._lock:
+            if name in self._sources:
+                raise ValueError(f"feed source {name!r} already exists")
+            self._sources[name] = _Source(name, config)
+            return self._sources[name].slot
+
+    def names(self) -> list[str]:
+        return list(self._sources)
+
+    def _get(self, name: str) -> _Source:
+        try:
+            return self._sources[name]
+        except KeyError:
+            raise UnknownSource(f"unknown feed source {name!r}; configured: {sorted(self._sources)}") from None
+
+    def slot(self, name: str) -> LatestValue[Any]:
+        return self._get(name).slot
+
+    def config(self, name: str) -> FeedSourceConfig:
+        return self._get(name).config
+
+    def specs(self) -> list[SourceSpec]:
+        """Command sources (pose, twist) for the arbiter; measurement feeds feed applications instead."""
+        return [SourceSpec(s.name, s.config.priority, s.config.stale_after_s, s.slot, s.config.yield_when_idle)
+                for s in self._sources.values() if s.config.kind != "measurement"]
+
+    def submit(self, source: str, message: FeedMessage | Mapping[str, Any] | str | bytes) -> FeedAck:
+        src = self._get(source)
+        with self._lock:
+            try:
+                if not isinstance(message, PoseFeed | TwistFeed | MeasurementFeed):
+                    message = parse_feed_message(message)
+                return self._accept(src, message)
+            except (FeedRejected, ValueRejected) as exc:
+                src.rejected += 1
+                src.last_error = str(exc)
+                raise FeedRejected(str(exc)) from None
+
+    def note_rejected(self, source: str, detail: str) -> None:
+        """Count a message rejected before it reached `submit` (e.g. by the HTTP layer's validation)."""
+        src = self._sources.get(source)
+        if src is not None:
+            with self._lock:
+                src.rejected += 1
+                src.last_error = detail
+
+    def _accept(self, src: _Source, msg: PoseFeed | TwistFeed | MeasurementFeed) -> FeedAck:
+        cfg = src.config
+        if msg.kind != cfg.kind:
+            raise FeedRejected(f"field 'kind' value {msg.kind!r}: source {src.name!r} takes {cfg.kind} samples")
+        now, wall = self._clock(), self._wall()
+        latency: float | None = None
+        stamp = now
+        if msg.stamp is not None:
+            latency = wall - msg.stamp
+            if latency < -cfg.max_future_s:
+                raise FeedRejected(f"field 'stamp' value {msg.stamp!r}: {-latency:.3f} s in the future "
+                                   f"(more than max_future_s {cfg.max_future_s}); are the clocks synchronised?")
+            stamp = now - max(latency, 0.0)
+        prev = src.slot.read()
+        if (msg.seq is not None and src.last_seq is not None and msg.seq <= src.last_seq) or (
+                prev is not None and stamp < prev.stamp):
+            src.out_of_order += 1
+            return FeedAck(source=src.name, accepted=False, seq=src.slot.seq,
+                           latency_ms=None if latency is None else latency * 1e3,
+                           detail="older than the last accepted sample; dropped")
+        sample = self._sample(src, msg, stamp)
+        seq = src.slot.publish(sample)
+        src.accepted += 1
+        src.last_seq = msg.seq if msg.seq is not None else src.last_seq
+        src.arrivals.append(now)
+        while src.arrivals and now - src.arrivals[0] > self._window:
+            src.arrivals.popleft()
+        if latency is not None:
+            src.latencies.append(latency)
+        return FeedAck(source=src.name, seq=seq, latency_ms=None if latency is None else latency * 1e3)
+
+    def _sample(self, src: _Source, msg: PoseFeed | TwistFeed | MeasurementFeed,
+                stamp: float) -> PoseSample | TwistSample | Measurement:
+        cfg = src.config
+        if isinstance(msg, PoseFeed):
+            xyzwpr = [cfg.limits.get(a, DEFAULT_FIELD).convert(a, v) for a, v in zip(_AXES, msg.xyzwpr, strict=True)]
+            return PoseSample(tuple(xyzwpr), stamp, src.name, msg.frame)  # type: ignore[arg-type]
+        if isinstance(msg, TwistFeed):
+            for field, vec, limit in (("linear", msg.linear, cfg.max_linear_mm_s),
+                                      ("angular", msg.angular, cfg.max_angular_deg_s)):
+                speed = math.sqrt(sum(c * c for c in vec))
+                if limit is not None and speed > limit:
+                    raise ValueRejected(field, list(vec), f"speed {speed:.6g} above the limit {limit}")
+            return TwistSample(msg.linear, msg.angular, msg.frame, stamp, src.name)
+        missing = [k for k in cfg.required if k not in msg.values]
+        if missing:
+            raise FeedRejected(f"field 'values' value {dict(msg.values)!r}: missing {missing}")
+        values = {k: cfg.limits.get(k, DEFAULT_FIELD).convert(k, v) for k, v in msg.values.items()}
+        return Measurement(values, stamp, src.name)
+
+    def stats(self, source: str) -> FeedStats:
+        src = self._get(source)
+        with self._lock:
+            now = self._clock()
+            arr = [t for t in src.arrivals if now - t <= self._window]
+            span = arr[-1] - arr[0] if len(arr) >= 2 else 0.0
+            lat = list(src.latencies)
+            return FeedStats(
+                source=src.name, kind=src.config.kind, accepted=src.accepted, rejected=src.rejected,
+                out_of_order=src.out_of_order, rate_hz=(len(arr) - 1) / span if span > 0 else 0.0,
+                latency_ms_last=lat[-1] * 1e3 if lat else None,
+                latency_ms_mean=sum(lat) / len(lat) * 1e3 if lat else None,
+                latency_ms_max=max(lat) * 1e3 if lat else None,
+                last_error=src.last_error,
+            )
+
+    def all_stats(self) -> list[FeedStats]:
+        return [self.stats(n) for n in self._sources]

@@ -1,0 +1,125 @@
+"""FastAPI router for the feeds: POST /api/feed/{source} and WS /ws/feed/{source}.
+
+`auth_dependency` guards both endpoints. It must work for WebSockets too, so it should take
+`starlette.requests.HTTPConnection` (not `Request`) and read the token from a header or, because
+browsers cannot set headers on a WebSocket, from a query parameter.
+
+Validation errors are rendered by this router, not FastAPI's default handler: the default echoes the
+offending input, and a NaN in it makes the JSON encoder fail with a 500 instead of the 422 we want.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Coroutine
+from dataclasses import asdict
+from typing import Any
+
+from fastapi import APIRouter, Depends, HTTPException, Request, Response, WebSocket, WebSocketDisconnect
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from fastapi.routing import APIRoute
+
+from servo_app.inputs.feed.models import FeedAck, FeedMessage
+from servo_app.inputs.feed.registry import FeedRegistry, FeedRejected, UnknownSource, field_path
+
+
+def _json_safe(v: Any) -> Any:
+    if isinstance(v, float) and not math.isfinite(v):
+        return repr(v)
+    if isinstance(v, dict):
+        return {str(k): _json_safe(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_json_safe(x) for x in v]
+    if v is None or isinstance(v, str | int | float | bool):
+        return v
+    return repr(v)
+
+
+def _validation_detail(errors: Any) -> list[dict[str, Any]]:
+    out = []
+    for e in errors:
+        out.append({
+            "loc": list(e.get("loc", ())), "type": e.get("type"), "msg": e.get("msg"),
+            "input": _json_safe(e.get("input")),
+            "message": f"field {field_path(e.get('loc', ()))!r} value {e.get('input')!r}: {e.get('msg')}",
+        })
+    return out
+
+
+def _route_class(registry: FeedRegistry) -> type[APIRoute]:
+    class FeedRoute(APIRoute):
+        def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
+            handler = super().get_route_handler()
+
+            async def guarded(request: Request) -> Response:
+                try:
+                    return await handler(request)
+                except RequestValidationError as exc:
+                    detail = _validation_detail(exc.errors())
+                    source = request.path_params.get("source")
+                    if source:
+                        registry.note_rejected(source, "; ".join(d["message"] for d in detail))
+                    return JSONResponse({"detail": detail}, status_code=422)
+
+            return guarded
+
+    return FeedRoute
+
+
+def feed_router(registry: FeedRegistry, auth_dependency: Callable[..., Any] | None = None) -> APIRouter:
+    deps = [Depends(auth_dependency)] if auth_dependency is not None else []
+    router = APIRouter(tags=["feeds"], route_class=_route_class(registry))
+
+    @router.post("/api/feed/{source}", response_model=FeedAck, dependencies=deps,
+                 responses={404: {"description": "unknown source"}, 422: {"description": "rejected sample"}})
+    async def post_feed(source: str, body: FeedMessage) -> FeedAck:
+        try:
+            return registry.submit(source, body)
+        except UnknownSource as exc:
+            raise HTTPException(404, str(exc.args[0])) from None
+        except FeedRejected as exc:
+            raise HTTPException(422, str(exc)) from None
+
+    @router.get("/api/feed", dependencies=deps)
+    async def feed_stats() -> list[dict[str, Any]]:
+        return [_json_safe(asdict(s)) for s in registry.all_stats()]
+
+    @router.websocket("/ws/feed/{source}", dependencies=deps)
+    async def ws_feed(ws: WebSocket, source: str, ack: bool = False) -> None:
+        """One JSON feed message per text frame. Replies only to rejected messages unless ?ack=true."""
+        await ws.accept()
+        if source not in registry.names():
+            await ws.close(code=1008, reason=f"unknown feed source {source!r}")
+            return
+        try:
+            while True:
+                text = await ws.receive_text()
+                reply = _submit_text(registry, source, text)
+                if ack or not reply["accepted"]:
+                    await ws.send_text(json.dumps(reply, allow_nan=False))
+        except WebSocketDisconnect:
+            return
+
+    return router
+
+
+def _submit_text(registry: FeedRegistry, source: str, text: str) -> dict[str, Any]:
+    def rejected(detail: str) -> dict[str, Any]:
+        return {"source": source, "accepted": False, "seq": registry.slot(source).seq, "latency_ms": None,
+                "detail": detail}
+
+    try:
+        payload = json.loads(text)  # Python's parser accepts NaN, so it is rejected by name in submit
+    except ValueError as exc:
+        detail = f"not JSON: {exc}"
+    else:
+        if isinstance(payload, dict):
+            try:
+                return registry.submit(source, payload).model_dump()
+            except FeedRejected as exc:  # already counted by the registry
+                return rejected(str(exc))
+        detail = f"message must be a JSON object, got {type(payload).__name__}"
+    registry.note_rejected(source, detail)
+    return rejected(detail)

@@ -1,0 +1,57 @@
+"""Counting and logging of bad input without flooding the log.
+
+Every problem is counted by kind and kept in a short history (with the offending bytes in hex); the
+log gets at most one line per kind per interval, with the number suppressed since the last one.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import Counter, deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, slots=True)
+class Problem:
+    stamp: float
+    kind: str
+    message: str
+    data_hex: str | None
+
+
+class ProblemLog:
+    def __init__(self, logger: logging.Logger, clock: Callable[[], float], *,
+                 min_interval_s: float = 1.0, keep: int = 32) -> None:
+        self._logger = logger
+        self._clock = clock
+        self._min_interval = min_interval_s
+        self.counts: Counter[str] = Counter()
+        self.recent: deque[Problem] = deque(maxlen=keep)
+        self._last_logged: dict[str, float] = {}
+        self._suppressed: Counter[str] = Counter()
+        self._lock = threading.Lock()
+
+    def record(self, kind: str, message: str, data: bytes | None = None,
+               level: int = logging.WARNING, exc_info: bool = False) -> Problem:
+        now = self._clock()
+        p = Problem(now, kind, message, None if data is None else data.hex(" "))
+        with self._lock:
+            self.counts[kind] += 1
+            self.recent.append(p)
+            last = self._last_logged.get(kind)
+            if last is not None and now - last < self._min_interval:
+                self._suppressed[kind] += 1
+                return p
+            self._last_logged[kind] = now
+            suppressed = self._suppressed.pop(kind, 0)
+        more = f" (+{suppressed} more since last report)" if suppressed else ""
+        raw = f" bytes: {p.data_hex}" if p.data_hex is not None else ""
+        self._logger.log(level, "%s: %s%s%s", kind, message, raw, more, exc_info=exc_info)
+        return p
+
+    def snapshot(self) -> tuple[Counter[str], list[Problem]]:
+        """Counts and recent problems, copied under the lock (the adapter thread keeps adding)."""
+        with self._lock:
+            return Counter(self.counts), list(self.recent)

@@ -1,0 +1,1 @@
+"""3Dconnexion SpaceMouse: HID report parsing, the drain-to-newest reader, shaping, spacenavd client."""

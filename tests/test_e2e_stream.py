@@ -1,0 +1,139 @@
+"""End to end on loopback: the servo process streams to the FANUC simulator over real UDP."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from servo_app.fanuc.runner import StreamConfig, StreamProcess
+from servo_app.fanuc.session_log import read_session_log
+from servo_app.motion.checker import ControllerLimitChecker  # noqa: F401 - the simulator's own checker
+from servo_app.sim.fanuc_server import FanucSimulator
+
+pytestmark = pytest.mark.e2e
+
+HOME = [0.0, 0.0, 0.0, 0.0, -90.0, 0.0]
+
+
+def wait_for(sp: StreamProcess, state: str, timeout: float = 10.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        s = sp.state()
+        sp.poll_events()
+        if s["state"] == state:
+            return s
+        time.sleep(0.005)
+    raise AssertionError(f"state {state!r} not reached; now {sp.state()['state']}; events {sp.events[-4:]}")
+
+
+def wait_rest(sp: StreamProcess, timeout: float = 10.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        s = sp.state()
+        if s["at_rest"]:
+            return s
+        time.sleep(0.01)
+    raise AssertionError("never came to rest")
+
+
+@pytest.fixture(params=[8, 4], ids=["8ms", "4ms"])
+def rig(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[tuple[FanucSimulator, StreamProcess, Path]]:
+    sim = FanucSimulator(port=0, interval_ms=request.param, initial_joints=HOME).start()
+    host, port = sim.address
+    sp = StreamProcess(StreamConfig(host=host, port=port, interval_ms=request.param, log_dir=str(tmp_path)))
+    sp.start()
+    yield sim, sp, tmp_path
+    sp.shutdown()
+    sim.stop()
+
+
+def test_joint_move_out_and_back_with_zero_alarms(rig: tuple[FanucSimulator, StreamProcess, Path]) -> None:
+    sim, sp, logs = rig
+    sp.request("start")
+    wait_for(sp, "streaming")
+    out = [25.0, 15.0, -20.0, 40.0, -60.0, 90.0]
+    sp.request("target", joints=out)
+    s = wait_rest(sp)
+    time.sleep(0.1)
+    s = wait_rest(sp)
+    assert np.allclose(s["q_cmd"], out, atol=1e-3)
+    sp.request("target", joints=HOME)
+    time.sleep(0.1)
+    s = wait_rest(sp)
+    assert np.allclose(s["q_cmd"], HOME, atol=1e-3)
+    sp.request("end")
+    s = wait_for(sp, "ended")
+    assert s["link"] == "closed"
+    assert sim.alarms == [], [e.message for e in sim.alarms]
+    # The simulator followed: its servo position is the last command.
+    assert np.allclose(sim.controller.command_position[:6], HOME, atol=1e-3)
+    # The session log holds every command with consecutive sequence numbers and ends with last data.
+    sp.wait_event("log_closed", 5)
+    (path,) = logs.glob("*.srvlog")
+    log = read_session_log(path)
+    cmds = log.commands
+    assert len(cmds) > 100
+    assert np.all(np.diff(cmds["seq"].astype(np.int64)) == 1)
+    assert cmds["flags"][-1] & 1 == 1 and np.all(cmds["flags"][:-1] & 1 == 0)
+    assert len(log.statuses) >= len(cmds)
+
+
+def test_sigterm_mid_motion_decelerates_and_ends_cleanly(rig: tuple[FanucSimulator, StreamProcess, Path]) -> None:
+    sim, sp, _ = rig
+    sp.request("start")
+    wait_for(sp, "streaming")
+    sp.request("jog", joints=[60.0, 0, 0, 0, 0, 0], hold_s=2.0)
+    time.sleep(0.4)
+    assert abs(sp.state()["vel"][0]) > 10.0  # moving
+    assert sp.process.pid is not None
+    os.kill(sp.process.pid, signal.SIGTERM)
+    sp.process.join(10)
+    assert sp.process.exitcode == 0
+    kinds = [e.get("state") for e in sp.poll_events() if e["event"] == "safety"]
+    assert "stopping" in kinds and kinds[-1] == "ended"
+    assert sim.alarms == [], [e.message for e in sim.alarms]
+    assert not sim.controller.status_output_on
+
+
+def test_hold_to_run_expiry_stops_the_jog(rig: tuple[FanucSimulator, StreamProcess, Path]) -> None:
+    sim, sp, _ = rig
+    sp.request("start")
+    wait_for(sp, "streaming")
+    sp.request("jog", joints=[0, 0, 0, 40.0, 0, 0], hold_s=0.2)
+    s = wait_for(sp, "stopped", timeout=5)
+    assert s["at_rest"]
+    moved = s["q_cmd"][3]
+    assert 0.5 < moved < 20.0  # it moved, then stopped on its own
+    # A new press resumes by itself (the stop was the hold running out).
+    sp.request("jog", joints=[0, 0, 0, -40.0, 0, 0], hold_s=0.2)
+    assert sp.state()["state"] == "streaming"
+    wait_for(sp, "stopped", timeout=5)
+    sp.request("end")
+    wait_for(sp, "ended")
+    assert sim.alarms == []
+
+
+def test_controller_alarm_mid_stream_is_a_fault_and_needs_reset(
+        rig: tuple[FanucSimulator, StreamProcess, Path]) -> None:
+    sim, sp, _ = rig
+    sp.request("start")
+    wait_for(sp, "streaming")
+    sim.set_override(50)  # changing the override while IBGN start runs: MOTN-606, a power-off stop
+    s = wait_for(sp, "fault", timeout=5)
+    assert [e.code for e in sim.alarms] == ["MOTN-606"]
+    sp.request("controller_alarm", code="MOTN-606", message=sim.alarms[0].message)
+    ev = sp.last_event("safety")
+    assert ev is not None and ev["fault"]["code"] == "MOTN-606" and "100% OVERRIDE" in ev["fault"]["cause"]
+    with pytest.raises(Exception, match="reset first"):
+        sp.request("start")
+    sim.set_override(100)
+    sim.reset()
+    sp.request("reset")
+    assert sp.state()["state"] in ("connected", "ready", "disconnected")
+    assert s["link"] == "fault"

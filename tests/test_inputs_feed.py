@@ -1,0 +1,219 @@
+"""HTTP/WebSocket feeds: the registry on injected clocks, the router through TestClient, and one
+end-to-end run on a real uvicorn server on 127.0.0.1 (port chosen by the OS)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+import threading
+import time
+from collections.abc import Iterator
+
+import httpx
+import pytest
+import uvicorn
+import websockets
+from fastapi import FastAPI, HTTPException
+from fastapi.testclient import TestClient
+from starlette.requests import HTTPConnection
+
+from servo_app.inputs import Arbiter, Measurement, PoseSample, TwistSample
+from servo_app.inputs.feed import FeedRegistry, FeedRejected, FeedSourceConfig, UnknownSource
+from servo_app.inputs.feed.router import feed_router
+
+TOKEN = "s3cret"
+
+
+class Clocks:
+    def __init__(self) -> None:
+        self.mono = 500.0
+        self.wall = 1_700_000_000.0
+
+    def advance(self, dt: float) -> None:
+        self.mono += dt
+        self.wall += dt
+
+
+def make_registry(clocks: Clocks | None = None) -> FeedRegistry:
+    sources = {
+        "vision": FeedSourceConfig(kind="pose", priority=5, stale_after_s=0.3, max_future_s=0.05,
+                                   limits={"z": {"min": -200.0, "max": 1500.0}}),
+        "jog": FeedSourceConfig(kind="twist", priority=10, stale_after_s=0.1, max_linear_mm_s=250.0),
+        "gauge": FeedSourceConfig(kind="measurement", required=["distance"],
+                                  limits={"distance": {"min": 0.0, "max": 1000.0}}),
+    }
+    if clocks is None:
+        return FeedRegistry(sources)
+    return FeedRegistry(sources, clock=lambda: clocks.mono, wall_clock=lambda: clocks.wall)
+
+
+def auth(conn: HTTPConnection) -> str:
+    """Works for HTTP and WebSocket: header, or ?token= for browsers' WebSockets."""
+    header = conn.headers.get("authorization", "")
+    token = header.removeprefix("Bearer ") if header.startswith("Bearer ") else conn.query_params.get("token")
+    if token != TOKEN:
+        raise HTTPException(401, "missing or wrong bearer token")
+    return "client"
+
+
+# -- registry --------------------------------------------------------------------------------------
+
+def test_registry_latency_rate_and_clock_placement() -> None:
+    c = Clocks()
+    reg = make_registry(c)
+    for i in range(11):
+        # Each pose was measured 40 ms before it arrives (sender clock = our wall clock here).
+        ack = reg.submit("vision", {"kind": "pose", "xyzwpr": [400 + i, 0, 300, 180, 0, 0], "stamp": c.wall - 0.04,
+                                    "seq": i})
+        assert ack.accepted and ack.latency_ms == pytest.approx(40.0)
+        if i < 10:
+            c.advance(0.01)
+    cur = reg.slot("vision").read()
+    assert isinstance(cur.value, PoseSample) and cur.value.xyzwpr[0] == 410
+    assert cur.stamp == pytest.approx(c.mono - 0.04)  # placed on our monotonic clock, 40 ms in the past
+    st = reg.stats("vision")
+    assert st.accepted == 11 and st.rate_hz == pytest.approx(100.0) and st.latency_ms_max == pytest.approx(40.0)
+
+    # Out of order: an older seq (or an older stamp) never overwrites a newer sample.
+    ack = reg.submit("vision", {"kind": "pose", "xyzwpr": [1, 0, 300, 180, 0, 0], "seq": 3})
+    assert not ack.accepted and reg.slot("vision").read().value.xyzwpr[0] == 410
+    assert reg.stats("vision").out_of_order == 1
+    # No stamp: receive time, latency unknown.
+    ack = reg.submit("vision", {"kind": "pose", "xyzwpr": [420, 0, 300, 180, 0, 0]})
+    assert ack.accepted and ack.latency_ms is None and reg.slot("vision").read().stamp == c.mono
+
+
+def test_registry_rejections_name_field_and_value() -> None:
+    c = Clocks()
+    reg = make_registry(c)
+    cases = [
+        ("vision", {"kind": "pose", "xyzwpr": [0, 0, 2000, 0, 0, 0]}, r"field 'z' value 2000.0 rejected: out of range"),
+        ("vision", {"kind": "pose", "xyzwpr": [0, 0, float("nan"), 0, 0, 0]}, r"field 'xyzwpr.2' value nan"),
+        ("vision", {"kind": "pose", "xyzwpr": [0, 0, 0, 0, 0, 0], "stamp": c.wall + 1.0}, r"field 'stamp' value"),
+        ("vision", {"kind": "twist", "linear": [1, 0, 0]}, r"field 'kind' value 'twist': source 'vision' takes pose"),
+        ("jog", {"kind": "twist", "linear": [300, 0, 0]}, r"field 'linear' value \[300.0, 0.0, 0.0\]"),
+        ("gauge", {"kind": "measurement", "values": {"temp": 21.0}}, r"missing \['distance'\]"),
+        ("gauge", {"kind": "measurement", "values": {"distance": -5}}, r"field 'distance' value -5.0"),
+        ("gauge", '{"kind": "measurement", "values": {"distance": Infinity}}', r"field 'values.distance' value"),
+        ("gauge", {"values": {"distance": 5}}, r"Unable to extract tag"),
+    ]
+    for source, payload, pattern in cases:
+        with pytest.raises(FeedRejected, match=pattern):
+            reg.submit(source, payload)
+    assert reg.stats("vision").rejected == 4 and reg.stats("gauge").last_error is not None
+    with pytest.raises(UnknownSource):
+        reg.submit("nope", {"kind": "pose", "xyzwpr": [0] * 6})
+    # Slightly-future stamps (within max_future_s) count as zero latency.
+    ack = reg.submit("vision", {"kind": "pose", "xyzwpr": [0, 0, 0, 0, 0, 0], "stamp": c.wall + 0.01})
+    assert ack.accepted and reg.slot("vision").read().stamp == c.mono
+
+
+def test_feed_sources_plug_into_the_arbiter() -> None:
+    c = Clocks()
+    reg = make_registry(c)
+    assert {s.name for s in reg.specs()} == {"vision", "jog"}  # measurements feed applications, not the arbiter
+    arb = Arbiter(reg.specs(), clock=lambda: c.mono)
+    reg.submit("vision", {"kind": "pose", "xyzwpr": [1, 2, 3, 0, 0, 0], "stamp": c.wall - 0.1})
+    reg.submit("jog", {"kind": "twist", "linear": [10, 0, 0]})
+    assert arb.select().active == "jog"
+    c.advance(0.15)
+    d = arb.select()
+    assert d.active == "vision" and d.went_stale == "jog"
+    c.advance(0.1)  # vision's sample was 0.1 s old on arrival: now 0.35 s > 0.3 s
+    assert arb.select().decelerate
+
+
+# -- router ----------------------------------------------------------------------------------------
+
+@pytest.fixture
+def client() -> Iterator[tuple[TestClient, FeedRegistry]]:
+    reg = make_registry()
+    app = FastAPI()
+    app.include_router(feed_router(reg, auth))
+    with TestClient(app) as c:
+        yield c, reg
+
+
+def test_post_feed(client: tuple[TestClient, FeedRegistry]) -> None:
+    c, reg = client
+    h = {"Authorization": f"Bearer {TOKEN}"}
+    r = c.post("/api/feed/jog", json={"kind": "twist", "linear": [10, 0, 0], "stamp": time.time()}, headers=h)
+    assert r.status_code == 200 and r.json()["accepted"] and r.json()["seq"] == 1
+    assert isinstance(reg.slot("jog").read().value, TwistSample)
+    assert c.post("/api/feed/jog", json={"kind": "twist", "linear": [1, 0, 0]}).status_code == 401
+    assert c.post("/api/feed/nope", json={"kind": "twist", "linear": [1, 0, 0]}, headers=h).status_code == 404
+    r = c.post("/api/feed/vision", content=b'{"kind": "pose", "xyzwpr": [1, 2, NaN, 4, 5, 6]}',
+               headers={**h, "Content-Type": "application/json"})
+    assert r.status_code == 422 and r.json()["detail"][0]["message"].startswith("field 'xyzwpr.2' value nan")
+    r = c.post("/api/feed/jog", json={"kind": "twist", "linear": [900, 0, 0]}, headers=h)
+    assert r.status_code == 422 and "field 'linear' value [900.0, 0.0, 0.0]" in r.json()["detail"]
+    r = c.post("/api/feed/gauge", json={"kind": "measurement", "values": {"distance": 12.5}}, headers=h)
+    assert r.status_code == 200 and isinstance(reg.slot("gauge").read().value, Measurement)
+    stats = {s["source"]: s for s in c.get("/api/feed", headers=h).json()}
+    assert stats["jog"]["accepted"] == 1 and stats["jog"]["rejected"] == 1 and stats["vision"]["rejected"] == 1
+    assert "/api/feed/{source}" in c.get("/openapi.json").json()["paths"]
+
+
+def test_websocket_feed(client: tuple[TestClient, FeedRegistry]) -> None:
+    c, reg = client
+    with c.websocket_connect(f"/ws/feed/vision?token={TOKEN}&ack=true") as ws:
+        for i in range(5):
+            ws.send_text(json.dumps({"kind": "pose", "xyzwpr": [i, 0, 300, 180, 0, 0], "seq": i}))
+            assert ws.receive_json()["seq"] == i + 1
+        ws.send_text('{"kind": "pose", "xyzwpr": [0, 0, 0, 0, 0, NaN]}')
+        reply = ws.receive_json()
+        assert not reply["accepted"] and reply["detail"].startswith("field 'xyzwpr.5' value nan")
+        ws.send_text("not json")
+        assert not ws.receive_json()["accepted"]
+        ws.send_text("[1, 2]")
+        assert "JSON object" in ws.receive_json()["detail"]
+        ws.send_text(json.dumps({"kind": "pose", "xyzwpr": [9, 0, 300, 180, 0, 0], "seq": 9}))
+        assert ws.receive_json()["accepted"]  # the stream keeps going after bad messages
+    assert reg.slot("vision").read().value.xyzwpr[0] == 9 and reg.stats("vision").rejected == 3
+    with pytest.raises(Exception) as ei, c.websocket_connect("/ws/feed/vision") as ws:
+        pass
+    assert getattr(ei.value, "status_code", None) == 401
+    with c.websocket_connect(f"/ws/feed/nope?token={TOKEN}") as ws:
+        with pytest.raises(Exception) as ei:
+            ws.receive_text()
+        assert getattr(ei.value, "code", None) == 1008
+
+
+# -- end to end on a real server -------------------------------------------------------------------
+
+@pytest.mark.e2e
+def test_feed_over_real_uvicorn() -> None:
+    reg = make_registry()
+    app = FastAPI()
+    app.include_router(feed_router(reg, auth))
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.bind(("127.0.0.1", 0))
+    port = sock.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="off"))
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 20.0
+        while not server.started:
+            assert time.monotonic() < deadline and thread.is_alive(), "server did not start"
+            time.sleep(0.02)
+        r = httpx.post(f"http://127.0.0.1:{port}/api/feed/gauge", headers={"Authorization": f"Bearer {TOKEN}"},
+                       json={"kind": "measurement", "values": {"distance": 42.0}, "stamp": time.time()}, timeout=10)
+        assert r.status_code == 200 and r.json()["latency_ms"] is not None
+
+        async def stream() -> list[dict]:
+            replies = []
+            async with websockets.connect(f"ws://127.0.0.1:{port}/ws/feed/jog?token={TOKEN}&ack=true") as ws:
+                for i in range(3):
+                    await ws.send(json.dumps({"kind": "twist", "linear": [i, 0, 0], "stamp": time.time()}))
+                    replies.append(json.loads(await asyncio.wait_for(ws.recv(), 10)))
+            return replies
+
+        replies = asyncio.run(stream())
+        assert [r["seq"] for r in replies] == [1, 2, 3] and all(r["accepted"] for r in replies)
+        assert reg.slot("jog").read().value.linear[0] == 2 and reg.slot("gauge").read().value["distance"] == 42.0
+    finally:
+        server.should_exit = True
+        thread.join(20.0)
+        sock.close()
