@@ -51,6 +51,15 @@ def rig(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[tuple[FanucS
     yield sim, sp, tmp_path
     sp.shutdown()
     sim.stop()
+    if sim.alarms:  # show what the wire looked like just before, for whoever reads the failure
+        print("alarms:", [(e.message, round(e.time_s, 4)) for e in sim.alarms], sim.interval_stats())
+        for path in tmp_path.glob("*.srvlog"):
+            log = read_session_log(path)
+            st, c = log.statuses, log.commands
+            print(path.name, "status t/seq/bits:", [(round(float(t), 4), int(q), int(b)) for t, q, b in
+                                                   zip(st["t"][-8:], st["seq"][-8:], st["flags"][-8:], strict=True)])
+            print(" commands t/seq/latency_us:", [(round(float(t), 4), int(q), int(lat)) for t, q, lat in
+                                                 zip(c["t"][-8:], c["seq"][-8:], c["latency_us"][-8:], strict=True)])
 
 
 def test_joint_move_out_and_back_with_zero_alarms(rig: tuple[FanucSimulator, StreamProcess, Path]) -> None:

@@ -53,6 +53,9 @@ def open_streaming(lead: int = 0, first_seq: int = 5) -> tuple[StreamSession, Ho
     s = StreamSession(m, SessionConfig(lead=lead, fetch_tables=False))
     out = s.open(0.0)
     assert out == [P.StatusStart().encode()]
+    assert s.phase == Phase.CONNECTED
+    assert s.on_datagram(status(first_seq - 2), 0.004) == []  # ready, but streaming is not armed
+    s.arm()
     assert s.on_datagram(status(first_seq - 1, bits=P.StatusBit.SYSRDY), 0.008) == []  # not ready yet
     return s, m, s.on_datagram(status(first_seq), 0.016)
 
@@ -145,6 +148,7 @@ def test_limit_tables_requested_one_per_interval_then_used() -> None:
     m = Hold()
     s = StreamSession(m, SessionConfig(table_axes=1, max_payload_kg=7.0))
     s.open(0.0)
+    s.arm()
     seen: list[P.LimitTableRequest] = []
     seq = 1
     for i in range(3):
@@ -172,5 +176,5 @@ def test_unanswered_limit_tables_fall_back_to_the_profile() -> None:
         s.on_datagram(status(seq, bits=P.StatusBit.SYSRDY), t)
         t += 0.05
         seq += 1
-    assert s.phase == Phase.WAITING_READY and s.tables is None
+    assert s.phase == Phase.CONNECTED and s.tables is None
     assert "using the profile's limits" in s.stats.last_error

@@ -57,7 +57,7 @@ from servo_app.safety import (
     transition,
 )
 
-JOG_EXPIRED = "hold-to-run released"
+JOG_EXPIRED = "hold-to-run expired"  # the state machine's stop reason for JogExpired
 
 
 @dataclass
@@ -184,7 +184,8 @@ class StreamSupervisor:
 
     def _jog(self, v: np.ndarray, hold_s: float, now: float) -> None:
         # A new press after the hold-to-run ran out resumes by itself; any other stop needs a resume.
-        if self.state.mode in (Mode.STOPPED, Mode.STOPPING) and self.state.stop_reason == JOG_EXPIRED:
+        reason = self.state.stop_reason or ""
+        if self.state.mode in (Mode.STOPPED, Mode.STOPPING) and reason.startswith(JOG_EXPIRED):
             self._request(ResumeRequested(), now)
         self._motion_gate("jog")
         self.cycle.jog_joints(v)
@@ -227,9 +228,7 @@ class StreamSupervisor:
         # Hold-to-run and rest are judged before the command for this status is computed.
         self.hold, expired = self.hold.poll(now)
         if expired is not None and self.state.mode == Mode.STREAMING:
-            self._feed(JogExpired(source=JOG_EXPIRED), now)
-            if self.state.stop is not None and self.state.stop_reason != JOG_EXPIRED:
-                pass
+            self._feed(JogExpired(), now)
 
     def _after_status(self, st: Status, now: float) -> None:
         if self.state.mode == Mode.STOPPING and self.cycle.at_rest():

@@ -1,0 +1,189 @@
+"""Benchmark: the diff-IK QP solved by our persistent OSQP, by mink.solve_ik (OSQP, DAQP) and by DAQP.
+
+Same inputs for every solver: the LR Mate 200iD diff-IK problem (TCP frame task + posture task, all
+limits incl. collisions) at teleop states of two kinds:
+
+- ``stream``: consecutive cycles of a random twist stream (what the servo cycle sees; warm starts help);
+- ``random``: independent random poses, previous velocities and twists (no continuity).
+
+Reported per solver: time per solve p50/p99 (mink's numbers include building its problem, which is
+what ``solve_ik`` costs per cycle; our build time is reported on its own row), and the largest
+difference from the exact reference (DAQP through mink) in rad/s (p99 and max). The table is printed and written to
+bench/RESULTS.md under "## ik_solvers" (other sections are kept).
+
+    .venv/bin/python bench/ik_solvers.py [--states 2000] [--seed 0] [--no-write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import platform
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import mink
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from servo_app.motion.commands import Twist  # noqa: E402
+from servo_app.motion.diffik import DifferentialIK  # noqa: E402
+from servo_app.motion.qp import PersistentQP  # noqa: E402
+from servo_app.robots.profile import load_profile  # noqa: E402
+
+DT = 0.008
+SECTION = "## ik_solvers"
+
+
+def stream_states(ik: DifferentialIK, n: int, rng: np.random.Generator):
+    """The IK's own QP along a random teleop stream (twists held for ~0.3 s, then changed)."""
+    q = np.radians([0.0, 10.0, 10.0, 0.0, -70.0, 0.0])
+    ik.reset(q)
+    cmd = None
+    for k in range(n):
+        if k % 40 == 0:
+            cmd = Twist(linear=tuple(rng.uniform(-400, 400, 3)), angular=tuple(rng.uniform(-60, 60, 3)),
+                        source="bench", stamp=0.0)
+        q_next = ik.step(q, cmd).q_next
+        yield [ik.frame_task, ik.posture_task]  # the step left configuration and limits at its state
+        q = q_next
+
+
+def random_states(ik: DifferentialIK, n: int, rng: np.random.Generator):
+    """Independent states: pose, last cycle's increment and a commanded twist, all random."""
+    lo, hi = np.radians(ik.profile.joint_min_deg), np.radians(ik.profile.joint_max_deg)
+    made = 0
+    while made < n:
+        q = rng.uniform(lo * 0.85, hi * 0.85)
+        if ik.condition_number(q) > 80.0:
+            continue
+        ik.reset(q)
+        ik.configuration.update(q)
+        ik.accel_limit.set_previous(rng.uniform(-1, 1, 6) * ik.vel * DT * rng.uniform(0, 0.6))
+        tcp = ik.configuration.get_transform_frame_to_world(ik.site, "site")
+        xi = np.concatenate([rng.uniform(-0.8, 0.8, 3), np.radians(rng.uniform(-90, 90, 3))])
+        ik.frame_task.set_target(tcp @ mink.SE3.exp(xi * DT))
+        tasks = [ik.frame_task, ik.posture_task]
+        p, c = ik.objective(tasks)
+        ik.path_braking.set_direction(np.linalg.solve(p, -c))
+        made += 1
+        yield tasks
+
+
+def timed(fn, *args):
+    """fn(*args) and its wall time in microseconds."""
+    t0 = time.perf_counter_ns()
+    out = fn(*args)
+    return out, (time.perf_counter_ns() - t0) / 1000.0
+
+
+def run(kind: str, n: int, seed: int) -> dict[str, dict[str, float]]:
+    rng = np.random.default_rng(seed)
+    ik = DifferentialIK(load_profile("lrmate200id"), DT, collision=True)
+    gen = stream_states(ik, n, rng) if kind == "stream" else random_states(ik, n, rng)
+    ours_osqp: PersistentQP | None = None
+    ours_daqp: PersistentQP | None = None
+    times: dict[str, list[float]] = {k: [] for k in ("build (ours)", "persistent OSQP", "persistent DAQP",
+                                                     "mink.solve_ik osqp", "mink.solve_ik daqp")}
+    diffs: dict[str, list[float]] = {k: [] for k in times}
+    fails: dict[str, int] = dict.fromkeys(times, 0)
+    m = 0
+    gc.disable()
+    try:
+        for tasks in gen:
+            t0 = time.perf_counter_ns()
+            p, c = ik.objective(tasks)
+            g, h = ik.inequalities()
+            t1 = time.perf_counter_ns()
+            times["build (ours)"].append((t1 - t0) / 1000.0)
+            m = g.shape[0]
+            if ours_osqp is None or ours_daqp is None:
+                ours_osqp = PersistentQP(6, m, "osqp", var_scale=DT)
+                ours_daqp = PersistentQP(6, m, "daqp", var_scale=DT)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                ref, t_ref = timed(_mink, ik, tasks, "daqp")
+                mo, t_mo = timed(_mink, ik, tasks, "osqp")
+            so, t_so = timed(ours_osqp.solve, p, c, g, h)
+            sd, t_sd = timed(ours_daqp.solve, p, c, g, h)
+            for name, x, t in (("persistent OSQP", so.x if so.ok else None, t_so),
+                               ("persistent DAQP", sd.x if sd.ok else None, t_sd),
+                               ("mink.solve_ik osqp", mo, t_mo), ("mink.solve_ik daqp", ref, t_ref)):
+                times[name].append(t)
+                if x is None:
+                    fails[name] += 1
+                elif ref is not None:
+                    diffs[name].append(float(np.max(np.abs(x - ref))) / DT)
+    finally:
+        gc.enable()
+    out = {}
+    for name, ts in times.items():
+        d = diffs[name]
+        out[name] = {"p50": float(np.percentile(ts, 50)), "p99": float(np.percentile(ts, 99)),
+                     "maxdiff": max(d) if d else float("nan"),
+                     "p99diff": float(np.percentile(d, 99)) if d else float("nan"),
+                     "fails": fails[name], "n": len(ts), "m": m}
+    return out
+
+
+def _mink(ik: DifferentialIK, tasks, solver: str) -> np.ndarray | None:
+    try:
+        return mink.solve_ik(ik.configuration, tasks, DT, solver, damping=ik.settings.damping, limits=ik.limits) * DT
+    except mink.NoSolutionFound:
+        return None
+
+
+def table(results: dict[str, dict[str, dict[str, float]]]) -> str:
+    lines = ["| states | solver | p50 us | p99 us | diff vs exact p99 / max (rad/s) | failed |",
+             "|---|---|---|---|---|---|"]
+    for kind, rows in results.items():
+        for name, r in rows.items():
+            diff = ("-" if name.startswith("build") or name == "mink.solve_ik daqp"
+                    else f"{r['p99diff']:.1e} / {r['maxdiff']:.1e}")
+            fails = "-" if name.startswith("build") else str(r["fails"])
+            lines.append(f"| {kind} ({r['n']}, {r['m']} rows) | {name} | {r['p50']:.0f} | {r['p99']:.0f} "
+                         f"| {diff} | {fails} |")
+    return "\n".join(lines)
+
+
+def write_results(text: str, command: str) -> Path:
+    path = ROOT / "bench" / "RESULTS.md"
+    body = (f"{SECTION}\n\nDiff-IK QP (LR Mate 200iD, 6 variables, collisions on), "
+            f"{time.strftime('%Y-%m-%d')}, {platform.python_implementation()} {platform.python_version()} on "
+            f"{platform.machine()} (2 shared cores: p99 includes other people's load).\n\n"
+            f"Command: `{command}`\n\n{text}\n\n"
+            "mink's rows include building its problem (what `solve_ik` costs each cycle); ours are the solve "
+            "only, our build is its own row. \"failed\": no solution accepted (infeasible states are "
+            "counted for every solver). Reference for the differences: DAQP through `mink.solve_ik`.\n")
+    old = path.read_text() if path.exists() else "# Benchmark results\n"
+    start = old.find(SECTION)
+    if start < 0:
+        new = old.rstrip("\n") + "\n\n" + body
+    else:
+        nxt = old.find("\n## ", start + len(SECTION))
+        new = old[:start] + body + (old[nxt + 1:] if nxt >= 0 else "")
+    path.write_text(new)
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--states", type=int, default=2000, help="states per kind (stream and random)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-write", action="store_true", help="print only, leave bench/RESULTS.md alone")
+    args = ap.parse_args(argv)
+    results = {kind: run(kind, args.states, args.seed) for kind in ("stream", "random")}
+    text = table(results)
+    print(text)
+    if not args.no_write:
+        command = ".venv/bin/python bench/ik_solvers.py " + " ".join(argv if argv is not None else sys.argv[1:])
+        print(f"written to {write_results(text, command.strip())}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

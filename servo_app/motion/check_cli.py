@@ -1,0 +1,325 @@
+"""``servo-app check FILE --model MODEL``: validate a trajectory as the controller would.
+
+Input: a CSV (comma, semicolon, tab or space separated; ``#`` comments; an optional header row)
+with one row per communication interval: J1..J6 in FANUC convention degrees (extra columns, e.g.
+extended axes, are ignored), or X Y Z W P R of the flange centre (mm, deg, FANUC world). ``--format
+auto`` decides from the header (``x,y,z,w,p,r`` -> xyzwpr; otherwise joints); without a header it
+assumes joints. Cartesian rows go through the analytic IK: the first row takes the solution nearest
+the all-zero posture, later rows the solution nearest the previous one in the SAME configuration
+(the controller keeps the configuration of IBGN start: MOTN-156 otherwise).
+
+The first row is taken as the controller's command position (no MOTN-617 check on it). Output:
+the first violation (code, axis, row, value, limit), then peak usage per axis in % of each limit.
+Exit code: 0 no violation (warnings allowed), 1 violation, 2 bad input.
+
+``load_trajectory(path)`` dispatches on the file type: a servo_app session log (``SERVOLOG`` magic,
+any suffix) gives its command records with their wire sequence numbers, each stream (up to a
+command with last data) checked on its own; anything else is read as CSV.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import math
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from servo_app.fanuc.alarms import ALARMS, AlarmSpec
+from servo_app.motion.checker import ControllerLimitChecker, Usage, Violation, check_trajectory
+
+FORMATS = ("auto", "joints", "xyzwpr")
+CSV_SUFFIXES = {".csv", ".txt", ".tsv", ".dat", ""}
+UNREACHABLE_CODE = "MOTN-018"
+ALARMS.setdefault(UNREACHABLE_CODE, AlarmSpec(
+    UNREACHABLE_CODE, "Position not reachable (Sq.{seq})",
+    "The Cartesian desired position has no joint solution (outside the work envelope or the joint ranges).",
+    "Keep the Cartesian path inside the reachable space of the arm.",
+))
+
+
+class TrajectoryError(ValueError):
+    """A file that is not a usable trajectory; the message names the file, the line and the value."""
+
+
+@dataclass
+class Trajectory:
+    """Rows of one stream, one per interval: ``values`` (N, 6); ``lines[i]`` = source line of row i."""
+
+    values: np.ndarray
+    fmt: str  # "joints" (FANUC deg) or "xyzwpr" (mm, deg)
+    lines: list[int]
+    source: Path
+    meta: dict[str, Any] = field(default_factory=dict)
+    seqs: np.ndarray | None = None  # wire sequence numbers (session logs); None: rows count from 1
+    stream_ends: list[int] = field(default_factory=list)  # row indices that carried last data
+
+    def row_of_seq(self, seq: int) -> int | None:
+        """0-based row of a violation's sequence number."""
+        if self.seqs is None:
+            return seq - 1 if 1 <= seq <= len(self.lines) else None
+        hits = np.flatnonzero(self.seqs == seq)
+        return int(hits[0]) if len(hits) else None
+
+
+def load_trajectory(path: str | Path, fmt: str = "auto") -> Trajectory:
+    """Read a trajectory file; the type decides the reader (CSV today; session logs later)."""
+    p = Path(path)
+    if not p.is_file():
+        raise TrajectoryError(f"{p}: no such file")
+    if fmt not in FORMATS:
+        raise TrajectoryError(f"format {fmt!r} is not one of {', '.join(FORMATS)}")
+    if _is_session_log(p):
+        return _load_session_log(p, fmt)
+    if p.suffix.lower() in CSV_SUFFIXES:
+        return _load_csv(p, fmt)
+    raise TrajectoryError(f"{p}: unknown file type {p.suffix!r} (supported: CSV of joints or X Y Z W P R)")
+
+
+def _is_session_log(p: Path) -> bool:
+    try:
+        from servo_app.fanuc.session_log import is_session_log
+    except ImportError:
+        return False
+    try:
+        return is_session_log(p)
+    except OSError as exc:
+        raise TrajectoryError(f"{p}: cannot read: {exc}") from exc
+
+
+def _load_session_log(p: Path, fmt: str) -> Trajectory:
+    from servo_app.fanuc.session_log import SessionLogError, read_session_log
+
+    try:
+        log = read_session_log(p)
+    except (SessionLogError, OSError) as exc:
+        raise TrajectoryError(str(exc)) from exc
+    cmds = log.commands
+    if len(cmds) == 0:
+        raise TrajectoryError(f"{p}: the session log holds no command records")
+    formats = set(((cmds["flags"] >> 1) & 1).tolist())  # flags = last_data | data_format << 1
+    if len(formats) > 1:
+        raise TrajectoryError(f"{p}: the log mixes joint and Cartesian commands")
+    logged = "joints" if formats == {1} else "xyzwpr"
+    if fmt != "auto" and fmt != logged:
+        raise TrajectoryError(f"{p}: the log holds {logged} commands, not {fmt}")
+    ends = np.flatnonzero(cmds["flags"] & 1).tolist()
+    return Trajectory(cmds["values"][:, :6].astype(float), logged, list(range(1, len(cmds) + 1)), p,
+                      {"header": log.header, "interval_ms": log.header.get("interval_ms")},
+                      seqs=cmds["seq"].astype(np.int64), stream_ends=ends)
+
+
+_SPLIT = re.compile(r"[,;\t ]+")
+
+
+def _load_csv(p: Path, fmt: str) -> Trajectory:
+    try:
+        text = p.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise TrajectoryError(f"{p}: cannot read: {exc}") from exc
+    rows: list[list[float]] = []
+    lines: list[int] = []
+    header: list[str] | None = None
+    width: int | None = None
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        if "," in line:
+            cells = [c.strip() for c in next(csv.reader(io.StringIO(line)))]
+        else:
+            cells = [c for c in _SPLIT.split(line) if c]
+        try:  # NaN / inf parse and are kept: the checker reports them as the controller does (605)
+            vals = [float(c) for c in cells]
+        except ValueError:
+            if not rows and header is None:
+                header = [c.lower() for c in cells]
+                continue
+            raise TrajectoryError(f"{p}:{lineno}: not a number in {raw.strip()!r}") from None
+        if len(vals) < 6:
+            raise TrajectoryError(f"{p}:{lineno}: {len(vals)} values, need at least 6")
+        if width is None:
+            width = len(vals)
+        elif len(vals) != width:
+            raise TrajectoryError(f"{p}:{lineno}: {len(vals)} values, the rows above have {width}")
+        rows.append(vals[:6])
+        lines.append(lineno)
+    if not rows:
+        raise TrajectoryError(f"{p}: no data rows")
+    if fmt == "auto":
+        fmt = "xyzwpr" if header is not None and header[:6] == ["x", "y", "z", "w", "p", "r"] else "joints"
+    return Trajectory(np.array(rows, dtype=float), fmt, lines, p, {"header": header})
+
+
+def cartesian_to_joints(traj: Trajectory, profile: Any) -> tuple[np.ndarray, Violation | None]:
+    """FANUC joints (deg) for the X Y Z W P R rows; stops at the first unreachable row."""
+    try:
+        from servo_app.robots.configuration import configuration_of
+        from servo_app.robots.conventions import model_rad_to_fanuc_deg, xyzwpr_to_matrix
+        from servo_app.robots.ik import nearest
+        from servo_app.robots.kinematics import ArmKinematics
+    except ImportError as exc:
+        raise NotImplementedError(f"X Y Z W P R input is not yet supported (no IK: {exc})") from exc
+    arm = ArmKinematics(profile)
+    out = np.zeros((len(traj.values), 6))
+    seed = np.zeros(6)
+    config = None
+    for i, row in enumerate(traj.values):
+        pose = xyzwpr_to_matrix(row)
+        q = nearest(arm, pose, seed, config)
+        if q is None:
+            code = "MOTN-156" if config is not None and nearest(arm, pose, seed) is not None else UNREACHABLE_CODE
+            return out[:i], Violation(code, "cartesian", None, i + 1, math.nan, math.nan, detected_seq=i + 1)
+        if config is None:
+            config = configuration_of(q, arm)
+        out[i] = model_rad_to_fanuc_deg(q, arm.j23_factor)
+        seed = q
+    return out, None
+
+
+@dataclass
+class CheckReport:
+    violations: list[Violation]  # alarms (and CHK-001), in stream order
+    warnings: list[Violation]
+    usage: Usage
+    rows: int
+    vmax: float
+
+
+def check_joints(joints: np.ndarray, checker: ControllerLimitChecker, seqs: np.ndarray | None = None,
+                 stream_ends: list[int] | None = None) -> CheckReport:
+    """Check the rows; each stream (ending at a row in ``stream_ends``) starts the checker afresh.
+    Violations carry ``seqs[row]`` (default: the 1-based row)."""
+    seq_list = [int(s) for s in seqs] if seqs is not None else list(range(1, len(joints) + 1))
+    bounds = sorted({e + 1 for e in (stream_ends or []) if e + 1 < len(joints)} | {len(joints)})
+    found: list[Violation] = []
+    usage = None
+    start = 0
+    for end in bounds:
+        checker.reset()
+        found.extend(check_trajectory(checker, joints[start:end], seq_list[start:end]))
+        usage = _merge_usage(usage, checker.usage)
+        start = end
+    assert usage is not None
+    return CheckReport([v for v in found if not v.warning], [v for v in found if v.warning],
+                       usage, len(joints), checker.vmax)
+
+
+def _merge_usage(a: Usage | None, b: Usage) -> Usage:
+    if a is None:
+        return Usage(b.ratio.copy(), b.peak.copy(), b.ratio_seq.copy(), b.max_flange_speed, b.steps)
+    take = b.ratio > a.ratio
+    return Usage(np.where(take, b.ratio, a.ratio), np.maximum(a.peak, b.peak),
+                 np.where(take, b.ratio_seq, a.ratio_seq), max(a.max_flange_speed, b.max_flange_speed),
+                 a.steps + b.steps)
+
+
+def add_check_parser(sub: Any) -> argparse.ArgumentParser:
+    """Register ``check`` on the ``servo-app`` subparsers."""
+    p = sub.add_parser("check", help="validate a trajectory as the controller would (J519 limits)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("file", help="CSV of J1..J6 (FANUC deg) or X Y Z W P R rows, one per interval")
+    p.add_argument("--model", required=True, help="robot profile name or TOML path")
+    p.add_argument("--interval-ms", type=float, default=None, help="interval (default: the profile's)")
+    p.add_argument("--payload", type=float, default=None, help="payload kg (default: maximum payload)")
+    p.add_argument("--format", choices=FORMATS, default="auto", dest="fmt")
+    p.add_argument("--warn-lim", type=float, default=80.0, help="$WARN_LIM %% (default 80)")
+    p.set_defaults(handler=run_check)
+    return p
+
+
+def run_check(args: argparse.Namespace) -> int:
+    from servo_app.robots.profile import ProfileError, load_profile
+
+    try:
+        profile = load_profile(args.model)
+        traj = load_trajectory(args.file, args.fmt)
+        if args.interval_ms is not None and args.interval_ms <= 0:
+            raise TrajectoryError(f"--interval-ms {args.interval_ms} must be > 0")
+    except (ProfileError, TrajectoryError) as exc:
+        print(f"servo-app check: {exc}", file=sys.stderr)
+        return 2
+    flange = None
+    try:
+        from servo_app.robots.kinematics import ArmKinematics
+
+        flange = ArmKinematics(profile).flange_xyz_mm_fanuc_deg
+    except ImportError:
+        print("note: no kinematics, acceleration/jerk judged at the Vmax/20 (stage 1) limits only",
+              file=sys.stderr)
+    interval_ms = args.interval_ms or traj.meta.get("interval_ms") or profile.interval_ms
+    interval_s = float(interval_ms) / 1000.0
+    checker = ControllerLimitChecker.for_profile(profile, flange, interval_s=interval_s,
+                                                 payload_kg=args.payload, warn_lim_pct=args.warn_lim)
+    ik_failure = None
+    joints = traj.values
+    if traj.fmt == "xyzwpr":
+        try:
+            joints, ik_failure = cartesian_to_joints(traj, profile)
+        except NotImplementedError as exc:
+            print(f"servo-app check: {exc}", file=sys.stderr)
+            return 2
+    n = len(joints)
+    report = check_joints(joints, checker, None if traj.seqs is None else traj.seqs[:n],
+                          [e for e in traj.stream_ends if e < n])
+    if ik_failure is not None:
+        report.violations.append(ik_failure)
+    print(render_report(report, traj, float(interval_ms)))
+    return 1 if report.violations else 0
+
+
+_UNITS = {"velocity": "deg/s", "acceleration": "deg/s^2", "jerk": "deg/s^3", "position": "deg",
+          "discontinuity": "deg", "flange_speed": "mm/s", "non_finite": "", "cartesian": ""}
+
+
+def _row_text(v: Violation, traj: Trajectory) -> str:
+    row = None if v.seq is None else traj.row_of_seq(v.seq)
+    if row is None:
+        return "row ?"
+    if traj.seqs is not None:
+        return f"command {row + 1} of the log (Sq.{v.seq})"
+    return f"row {row + 1} (line {traj.lines[row]})"
+
+
+def describe(v: Violation, traj: Trajectory) -> str:
+    where = _row_text(v, traj)
+    axis = f"axis J{v.axis}, " if v.axis is not None else ""
+    unit = _UNITS.get(v.kind, "")
+    text = f"{v.message}\n  {axis}{where}"
+    if math.isfinite(v.value) and math.isfinite(v.limit) and v.kind not in ("non_finite", "cartesian"):
+        text += f": {v.kind} {v.value:.6g} {unit}, limit {v.limit:.6g} {unit}"
+        if v.kind in ("velocity", "acceleration", "jerk"):
+            text += f" ({100 * v.excess:.1f} %)"
+    if v.flange_speed is not None:
+        text += f", judged at Vpeak {v.flange_speed:.0f} mm/s"
+    if v.detected_seq is not None and v.detected_seq != v.seq:
+        row = traj.row_of_seq(v.detected_seq)
+        if row is not None:
+            text += f", detected at row {row + 1}"
+    return text
+
+
+def render_report(report: CheckReport, traj: Trajectory, interval_ms: float) -> str:
+    out = [f"{traj.source}: {report.rows} rows ({traj.fmt}) at {interval_ms:g} ms = "
+           f"{report.rows * interval_ms / 1000.0:.3f} s"]
+    if report.violations:
+        first = report.violations[0]  # in detection order (IK failures come last: they end the rows)
+        out.append(f"FIRST VIOLATION: {describe(first, traj)}")
+        out.append(f"violations: {len(report.violations)}, warnings: {len(report.warnings)}")
+    else:
+        out.append(f"OK: no violation ({len(report.warnings)} warnings)")
+        if report.warnings:
+            out.append(f"first warning: {describe(report.warnings[0], traj)}")
+    u = report.usage
+    out.append("peak usage in % of the limit (acc/jerk: of the limit the controller judged against)")
+    out.append("axis   velocity  acceleration      jerk")
+    for i in range(u.ratio.shape[1]):
+        out.append(f"J{i + 1}   {100 * u.ratio[0, i]:9.1f}  {100 * u.ratio[1, i]:12.1f}  {100 * u.ratio[2, i]:8.1f}")
+    out.append(f"peak flange speed {u.max_flange_speed:.0f} mm/s ($MAX_SPD {report.vmax:.0f})")
+    return "\n".join(out)

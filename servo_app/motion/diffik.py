@@ -1,0 +1,674 @@
+"""Differential IK of the servo cycle: the live command -> this cycle's joint increment request.
+
+One ``DifferentialIK.step`` per interval (8 or 4 ms), pure (no I/O, no clock). Joints are in the
+model convention, radians; the jerk-limited shaper downstream turns the request into the positions
+actually sent, so the request must already be deliverable:
+
+1. **Desired motion** from the command: a TCP twist (base or tool frame, rotating about the TCP), a
+   pose target (P-control clipped by its speed caps and a braking profile: no overshoot), a joint jog
+   or a joint target (straight joint-space line, synchronised, braking profile). No command: stop.
+2. **mink problem**: a ``FrameTask`` on the TCP site (target = reference pose advanced by the twist;
+   the reference integrates what was achieved, so a held twist of zero never drifts), a low-weight
+   ``PostureTask`` toward the start posture, damping; limits ``ConfigurationLimit``,
+   ``VelocityLimit`` and ours (:mod:`servo_app.motion.ik_limits`): joint rates in the FANUC
+   convention with an acceleration bound, braking distance to every joint bound, the arm
+   configuration, optionally collisions. Assembled from the tasks' and limits' own
+   ``compute_qp_objective`` / ``compute_qp_inequalities`` (mink's QP, fixed row layout).
+3. **On the line**: ``d`` = the unconstrained optimum of that objective (the increment the command
+   asks for). All limits are linear in the increment, so the scalars ``s`` with ``G (s d) <= h``
+   form an interval: we take the ``s`` nearest 1 in it and send ``s d``. The WHOLE increment is
+   scaled, so the TCP keeps its direction (no joint is clipped alone). Acceleration rows make this a
+   ramp along the path; a reversal decelerates along the same line (``s < 0``); no command brakes
+   along the last line (``s -> 0``). Braking rows here brake the whole path together
+   (:class:`~servo_app.motion.ik_limits.PathBraking`), so a stop before a bound stays on the line.
+4. **Blend** (a commanded change of direction the acceleration limit cannot follow at once): a
+   straight line in joint-velocity space from last cycle's increment toward the command scaled to
+   the position and velocity limits, as far as every row allows: first order a ramp between the two
+   TCP velocities, again without clipping joints one by one. Flagged ``PATH_BLEND``.
+5. **QP** (persistent OSQP or DAQP, :mod:`servo_app.motion.qp`) when neither fits: the best tracking
+   within every limit (each joint braking on its own, always feasible), flagged ``QP_FALLBACK``. If
+   the solver fails too: every joint brakes at its acceleration limit, flagged ``SOLVER_FAILED``.
+   Never NaN.
+
+Singularities: the condition number of the flange Jacobian (linear rows divided by the arm's reach,
+so both halves are comparable) is probed one small step along the commanded direction. Between
+``singularity_slow`` and ``singularity_stop`` a command that *increases* it is slowed smoothly (to
+zero at ``singularity_stop``); a command that decreases it, or keeps it, runs at full speed, so the
+arm never freezes in a singular pose (a known failure of halting servo stacks).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+
+import mink
+import mujoco
+import numpy as np
+
+from servo_app.motion.commands import Command, JointJog, JointTarget, PoseTarget, Twist
+from servo_app.motion.ik_limits import (
+    AccelerationLimit,
+    BrakingLimit,
+    CollisionLimit,
+    ConfigurationGuard,
+    ConfigurationMargins,
+    PathBraking,
+    braking_speed,
+    default_collision_pairs,
+    fanuc_rate_matrix,
+)
+from servo_app.motion.qp import PersistentQP, QpSettings, SolverName
+from servo_app.robots.configuration import ArmConfiguration
+from servo_app.robots.conventions import ArrayLike, fanuc_deg_to_model_rad, model_rad_to_fanuc_deg, xyzwpr_to_matrix
+from servo_app.robots.kinematics import ArmKinematics
+from servo_app.robots.model import FLANGE_SITE, JOINT_NAMES, TCP_SITE, load_model
+from servo_app.robots.profile import RobotProfile
+
+N = 6
+
+
+class IkFlag(enum.IntFlag):
+    NONE = 0
+    JOINT_LIMIT = enum.auto()  # a joint range / braking-distance row binds
+    VELOCITY_LIMIT = enum.auto()
+    ACCEL_LIMIT = enum.auto()  # ramping: the change of velocity is at its bound
+    NEAR_SINGULARITY = enum.auto()  # condition number above singularity_slow
+    SINGULARITY_SLOWDOWN = enum.auto()  # approach toward a singularity slowed
+    COLLISION = enum.auto()  # a collision row binds
+    CONFIGURATION = enum.auto()  # a configuration-keeping row binds (flip/up/top/turns)
+    PATH_BLEND = enum.auto()  # direction change the acceleration cannot follow at once: straight velocity blend
+    QP_FALLBACK = enum.auto()  # neither line nor blend fits the limits: the QP's best tracking
+    SOLVER_FAILED = enum.auto()  # QP failed: every joint brakes at its acceleration limit
+    NO_COMMAND = enum.auto()  # no live command: stopping along the current motion
+    ARRIVED = enum.auto()  # pose / joint target reached
+
+
+LIMIT_FLAGS = IkFlag.JOINT_LIMIT | IkFlag.VELOCITY_LIMIT | IkFlag.ACCEL_LIMIT
+
+
+@dataclass(frozen=True)
+class IkSettings:
+    """Tuning of the diff-IK; units in the names. Fractions are of the profile's limits."""
+
+    vel_fraction: float = 0.9  # joint speed the IK may request
+    acc_fraction: float = 0.5  # joint acceleration: headroom for the shaper's jerk limit
+    brake_fraction: float = 0.8  # of the IK acceleration, used for braking-distance rows
+    joint_margin_deg: float = 0.5  # keep this far inside the joint ranges
+    margins: ConfigurationMargins = field(default_factory=ConfigurationMargins)
+    position_cost: float = 1.0  # 1/m
+    orientation_cost: float = 0.3  # 1/rad: 1 rad ~ 0.3 m
+    posture_cost: float = 1e-3  # 1/rad: a regulariser, far below the frame task
+    posture_gain: float = 0.1
+    damping: float = 1e-8
+    singularity_slow: float = 40.0  # condition number where approaching motion starts to slow
+    singularity_stop: float = 150.0  # ... and where it stops (J5 ~ 2-3 deg on an LR Mate)
+    singularity_rate: float = 1.0  # relative growth of the condition number per rad counted as "approaching"
+    pose_gain: float = 10.0  # 1/s, P-gain of pose and joint targets (gain * dt must stay < 1)
+    target_linear_acc: float = 2000.0  # mm/s^2, braking profile toward a pose target
+    target_angular_acc: float = 720.0  # deg/s^2
+    arrive_mm: float = 0.01
+    arrive_deg: float = 0.01
+    reference_tolerance_m: float = 1e-3  # re-latch the integrated TCP reference beyond this drift
+    binding_tol: float = 1e-9  # rad per cycle: a row counts as binding within this of its bound
+
+    def __post_init__(self) -> None:
+        for name in ("vel_fraction", "acc_fraction", "brake_fraction"):
+            v = getattr(self, name)
+            if not 0.0 < v <= 1.0:
+                raise ValueError(f"{name}={v} must be in (0, 1]")
+        if not 0.0 < self.singularity_slow < self.singularity_stop:
+            raise ValueError(f"singularity_slow={self.singularity_slow} must be in (0, singularity_stop="
+                             f"{self.singularity_stop})")
+
+
+@dataclass(frozen=True)
+class IkResult:
+    dq: np.ndarray  # increment this cycle, model convention, rad
+    q_next: np.ndarray  # q + dq
+    velocity: np.ndarray  # dq / dt, rad/s
+    scale: float  # share of the commanded motion delivered this cycle, [0, 1]
+    flags: IkFlag
+    condition: float  # condition number of the normalised flange Jacobian at q
+    mode: str  # "twist", "pose", "joint_jog", "joint_target", "stop"
+    solver_status: str  # "" when the QP solution was not needed
+
+    @property
+    def limit_binding(self) -> bool:
+        return bool(self.flags & LIMIT_FLAGS)
+
+    @property
+    def near_singularity(self) -> bool:
+        return bool(self.flags & (IkFlag.NEAR_SINGULARITY | IkFlag.SINGULARITY_SLOWDOWN))
+
+    @property
+    def collision_guard(self) -> bool:
+        return bool(self.flags & IkFlag.COLLISION)
+
+    @property
+    def configuration_guard(self) -> bool:
+        return bool(self.flags & IkFlag.CONFIGURATION)
+
+    @property
+    def arrived(self) -> bool:
+        return bool(self.flags & IkFlag.ARRIVED)
+
+
+class DifferentialIK:
+    """Per-cycle diff-IK of one arm; see the module docstring.
+
+    ``collision=True`` adds the collision limit over ``collision_pairs`` (default:
+    :func:`~servo_app.motion.ik_limits.default_collision_pairs`: the arm against the floor and any
+    world geom, and against itself). A cell with walls or fixtures passes its own ``model`` (built
+    with :func:`servo_app.robots.model.load_spec`, geoms added to the world body).
+    """
+
+    def __init__(self, profile: RobotProfile, dt: float, tool_xyzwpr: ArrayLike | None = None,
+                 solver: SolverName = "osqp", *, settings: IkSettings | None = None, collision: bool = False,
+                 collision_pairs: list | None = None, model: mujoco.MjModel | None = None,
+                 qp_settings: QpSettings | None = None) -> None:
+        if not (isinstance(dt, int | float) and math.isfinite(dt) and 0.0 < dt <= 0.1):
+            raise ValueError(f"dt={dt!r} must be a cycle time in (0, 0.1] s")
+        self.profile = profile
+        self.dt = float(dt)
+        self.settings = st = settings or IkSettings()
+        self.model = model if model is not None else load_model(profile, tool_xyzwpr)
+        self.kin = ArmKinematics(profile, tool_xyzwpr)
+        self.configuration = mink.Configuration(self.model)
+        self._probe = mujoco.MjData(self.model)
+        self._qadr = np.array([self.model.jnt_qposadr[self.model.joint(n).id] for n in JOINT_NAMES])
+        self._cols = np.array([self.model.jnt_dofadr[self.model.joint(n).id] for n in JOINT_NAMES])
+        if self.model.nv != N or self.model.nq != N:
+            raise ValueError(f"model has nq={self.model.nq}, nv={self.model.nv}; the diff-IK expects a 6-joint arm")
+        self.site = TCP_SITE if mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, TCP_SITE) >= 0 else FLANGE_SITE
+        self._site_id = self.model.site(self.site).id
+        self._flange_id = self.model.site(FLANGE_SITE).id
+        d = profile.dims
+        self._reach = d.a2 + d.d4  # m: scales the Jacobian's linear rows for the condition number
+
+        # Limits in rad, FANUC axes for rates; the braking deceleration of the model's q3 must leave
+        # the FANUC J3 enough acceleration while q2 brakes too (q3 = J3 + j23 * q2).
+        self.c = fanuc_rate_matrix(profile.j23_factor)
+        self.c_inv = np.linalg.inv(self.c)
+        self.vel = np.radians(profile.vel_limit) * st.vel_fraction
+        self.acc = np.radians(profile.acc_limit) * st.acc_fraction
+        brake = self.acc * st.brake_fraction
+        brake[2] = min(brake[2], self.acc[2] - abs(profile.j23_factor) * brake[1])
+        if brake[2] <= 0.0:
+            brake[2] = 0.5 * self.acc[2] * st.brake_fraction
+        self.brake_acc = brake
+        margin = math.radians(st.joint_margin_deg)
+        lo = np.radians(profile.joint_min_deg) + margin
+        hi = np.radians(profile.joint_max_deg) - margin
+
+        self.frame_task = mink.FrameTask(self.site, "site", position_cost=st.position_cost,
+                                         orientation_cost=st.orientation_cost, gain=1.0)
+        self.posture_task = mink.PostureTask(self.model, cost=st.posture_cost, gain=st.posture_gain)
+        self.joint_task = mink.PostureTask(self.model, cost=1.0, gain=1.0)
+        uncoupled = {n: np.array([self.vel[i]]) for i, n in enumerate(JOINT_NAMES)
+                     if not (i == 2 and profile.j23_factor != 0.0)}
+        self.accel_limit = AccelerationLimit(self.model, self.vel, self.acc, profile.j23_factor)
+        self.path_braking = PathBraking(self.c, self.acc * st.brake_fraction)
+        self.braking_limit = BrakingLimit(self.model, lo, hi, brake, self.path_braking)
+        self.config_guard = ConfigurationGuard(self.model, self.kin, brake, st.margins, path=self.path_braking)
+        self.limits: list[mink.Limit] = [
+            mink.ConfigurationLimit(self.model, gain=0.95),
+            mink.VelocityLimit(self.model, uncoupled),
+            self.accel_limit,
+            self.braking_limit,
+            self.config_guard,
+        ]
+        self.collision_limit: CollisionLimit | None = None
+        if collision:
+            pairs = collision_pairs if collision_pairs is not None else default_collision_pairs(self.model)
+            self.collision_limit = CollisionLimit(self.model, pairs, path=self.path_braking)
+            self.limits.append(self.collision_limit)
+        self._row_flags: np.ndarray | None = None  # IkFlag per QP row, built on the first problem
+        self._row_counts: list[int] = []
+        self._accel_rows: slice | None = None
+        self.qp: PersistentQP | None = None
+        self._solver: SolverName = solver
+        self._qp_settings = qp_settings
+        if solver not in ("osqp", "daqp"):
+            raise ValueError(f"solver={solver!r} must be 'osqp' or 'daqp'")
+
+        self._dq_prev = np.zeros(N)
+        self._started = False
+        self._ref: np.ndarray | None = None  # integrated TCP reference pose (4x4), Cartesian modes
+        self._last_xi: np.ndarray | None = None  # last commanded twist: the line to brake along
+        self._mode = ""
+
+    # ---------------------------------------------------------------------------------- public
+    @property
+    def reference_configuration(self) -> ArmConfiguration | None:
+        return self.config_guard.reference
+
+    @property
+    def previous_increment(self) -> np.ndarray:
+        return self._dq_prev.copy()
+
+    def reset(self, q_model_rad: ArrayLike, dq_prev: ArrayLike | None = None) -> None:
+        """Start streaming from ``q`` (at rest unless ``dq_prev`` is given): latches the configuration
+        to keep and the posture to stay near."""
+        q = self._checked(q_model_rad, "q_model_rad")
+        self.configuration.update(self._full_q(q))
+        self.config_guard.reset(q)
+        self.posture_task.set_target(self._full_q(q))
+        self._dq_prev = np.zeros(N) if dq_prev is None else self._checked(dq_prev, "dq_prev")
+        self._ref = None
+        self._last_xi = None
+        self._mode = ""
+        self._started = True
+        if self.qp is not None:
+            self.qp.reset()
+
+    def step(self, q_model_rad: ArrayLike, command: Command | None, *, dq_prev: ArrayLike | None = None
+             ) -> IkResult:
+        """One cycle from the commanded joints ``q`` (model rad). ``command=None``: no live command,
+        stop along the current motion. ``dq_prev`` overrides last cycle's increment (e.g. what the
+        shaper actually delivered); by default the IK's own last output."""
+        q = self._checked(q_model_rad, "q_model_rad")
+        if not self._started:
+            self.reset(q)
+        if dq_prev is not None:
+            self._dq_prev = self._checked(dq_prev, "dq_prev")
+        st, dt = self.settings, self.dt
+        cfg = self.configuration
+        cfg.update(self._full_q(q))
+        self.accel_limit.set_previous(self._dq_prev)
+        kappa = self._condition(cfg.data)
+        flags = IkFlag.NEAR_SINGULARITY if kappa > st.singularity_slow else IkFlag.NONE
+        s_sing = 1.0
+        xi: np.ndarray | None = None  # base-frame twist the frame task follows (Cartesian modes)
+        arrived = False
+        moving = bool(np.any(self._dq_prev))
+        cartesian_stop = command is None and self._last_xi is not None and moving
+
+        if isinstance(command, Twist | PoseTarget) or cartesian_stop:
+            tcp = self._site_pose(cfg.data, self._site_id)
+            if isinstance(command, Twist):
+                mode, xi = "twist", self._twist_base(command, tcp)
+            elif isinstance(command, PoseTarget):
+                mode = "pose"
+                xi, arrived = self._pose_twist(command, tcp)
+            else:
+                mode, xi = "stop", np.zeros(6)
+                flags |= IkFlag.NO_COMMAND
+            cartesian_mode = mode if mode != "stop" else self._mode
+            if self._mode != cartesian_mode or self._ref is None or not self._near(self._ref, tcp):
+                self._ref = tcp
+            if np.any(xi):
+                s_sing = self._singularity_factor(q, xi, kappa)
+                if s_sing < 1.0:
+                    flags |= IkFlag.SINGULARITY_SLOWDOWN
+                xi = xi * s_sing
+                s_goal = 1.0
+                self._last_xi = xi
+            elif self._last_xi is not None and moving:
+                xi, s_goal = self._last_xi, 0.0  # brake along the last commanded Cartesian line
+            else:
+                s_goal, self._last_xi = 0.0, None
+            self.frame_task.set_target(mink.SE3.from_matrix(_advance(self._ref, xi * dt)))
+            tasks: list[mink.Task] = [self.frame_task, self.posture_task]
+            asks_motion = bool(np.any(xi))
+            state_mode = cartesian_mode
+        else:
+            self._ref = None
+            self._last_xi = None
+            if isinstance(command, JointJog):
+                mode, d_des = "joint_jog", self._jog_increment(command)
+            elif isinstance(command, JointTarget):
+                mode = "joint_target"
+                d_des, arrived = self._target_increment(command, q)
+            elif command is None:
+                mode, d_des = "stop", np.zeros(N)
+                flags |= IkFlag.NO_COMMAND
+            else:
+                raise TypeError(f"command={command!r} is not a motion command")
+            self.joint_task.set_target(self._full_q(q + d_des))
+            tasks = [self.joint_task]
+            asks_motion = bool(np.any(d_des))
+            s_goal = 1.0 if asks_motion else 0.0
+            state_mode = mode
+        if arrived:
+            flags |= IkFlag.ARRIVED
+        self._mode = state_mode  # a Cartesian stop keeps its mode: the reference pose stays valid
+
+        p, c = self.objective(tasks)
+        d = np.linalg.solve(p, -c)  # the increment the command asks for (P is positive definite)
+        # Part of d only pulls the TCP back onto the integrated reference (drift, linearisation);
+        # it is added unscaled so that scaling the command (even below 0 while reversing) never
+        # turns the correction into a push away from the line.
+        d_corr = np.zeros(N)
+        if xi is not None and asks_motion and self._ref is not None:
+            self.frame_task.set_target(mink.SE3.from_matrix(self._ref))
+            d_corr = np.linalg.solve(p, -self.objective(tasks)[1])
+            self.frame_task.set_target(mink.SE3.from_matrix(_advance(self._ref, xi * dt)))
+        # Keep the direction: the commanded one (s -> 1), or while braking the current line (s -> 0).
+        direction = d - d_corr if asks_motion else self._dq_prev
+        self.path_braking.set_direction(direction)
+        g, h = self.inequalities()
+        h_path = self._path_rows(h)
+
+        solver_status = ""
+        dq: np.ndarray | None = None
+        s = _path_scale(direction, s_goal, g, h_path - g @ d_corr)
+        if s is None and np.any(d_corr):
+            d_corr = np.zeros(N)  # the correction does not fit this cycle: the line alone
+            s = _path_scale(direction, s_goal, g, h_path)
+        if s is not None:  # 1. on the line
+            dq = s * direction + d_corr
+            if xi is not None and self._ref is not None and asks_motion:
+                self._ref = _advance(self._ref, s * xi * dt)  # the reference follows what was achieved
+            if s_goal == 0.0 and s == 0.0:
+                self._last_xi = None  # at rest
+        else:
+            self._ref = None  # off the line for a while: re-latch the reference when back on it
+            if asks_motion or moving:  # 2. straight blend in velocity space toward the limited command
+                goal = d if s_goal == 1.0 else np.zeros(N)
+                # Braking rows for the whole path first; if the state already needs more than they
+                # allow (after a direction change), each joint's own braking rows.
+                dq = self._blend(goal, g, h_path)
+                if dq is None:
+                    dq = self._blend(goal, g, h)
+                if dq is not None:
+                    flags |= IkFlag.PATH_BLEND
+        if dq is None:  # 3. the QP's best tracking within every limit; 4. every joint brakes
+            sol = self._qp_solve(p, c, g, h)
+            solver_status = sol.status
+            if sol.ok:
+                dq = sol.x
+                flags |= IkFlag.QP_FALLBACK
+            else:
+                dq = self._decelerate()
+                flags |= IkFlag.SOLVER_FAILED
+        dd = float(d @ d)
+        scale = min(max(float(dq @ d) / dd, 0.0), 1.0) * s_sing if s_goal == 1.0 and dd > 0.0 else 0.0
+        flags |= self._binding_flags(g, h, dq)
+        if not np.all(np.isfinite(dq)):  # defensive: every branch above is finite by construction
+            dq = np.zeros(N)
+            flags |= IkFlag.SOLVER_FAILED
+        self._dq_prev = dq.copy()
+        return IkResult(dq=dq, q_next=q + dq, velocity=dq / dt, scale=float(scale), flags=flags,
+                        condition=kappa, mode=mode, solver_status=solver_status)
+
+    def objective(self, tasks: list[mink.Task]) -> tuple[np.ndarray, np.ndarray]:
+        """mink's QP objective (P, c) for ``tasks`` at the current configuration, with our damping."""
+        cfg = self.configuration
+        p = np.zeros((N, N))
+        c = np.zeros(N)
+        for task in tasks:
+            obj = task.compute_qp_objective(cfg)
+            p += obj.H
+            c += obj.c
+        p.flat[:: N + 1] += self.settings.damping
+        return p, c
+
+    def inequalities(self) -> tuple[np.ndarray, np.ndarray]:
+        """All limits stacked as ``G dq <= h`` (fixed row layout) at the current configuration."""
+        cfg, dt = self.configuration, self.dt
+        rows = [limit.compute_qp_inequalities(cfg, dt) for limit in self.limits]
+        g = np.vstack([r.G for r in rows if r.G is not None])
+        h = np.concatenate([r.h for r in rows if r.h is not None])
+        self._ensure_rows(g.shape[0])
+        return g, h
+
+    def _blend(self, d: np.ndarray, g: np.ndarray, h: np.ndarray) -> np.ndarray | None:
+        """From last cycle's increment straight toward ``sigma * d`` (``sigma``: the share of the
+        command the position and velocity rows allow; 0 brakes), as far as all rows allow. A straight
+        line in joint-velocity space is one in TCP-velocity space to first order: a ramp between the
+        old and the new direction with no joint clipped on its own."""
+        assert self._accel_rows is not None
+        h_vel = h.copy()
+        h_vel[self._accel_rows] = self.accel_limit.h_velocity
+        sigma = _path_scale(d, 1.0, g, h_vel) if np.any(d) else None
+        target = d * min(max(sigma, 0.0), 1.0) if sigma is not None else np.zeros(N)
+        base = self._dq_prev
+        interval = _scale_interval(target - base, g, h - g @ base)
+        if interval is None:
+            return None
+        lo, hi = max(interval[0], 0.0), min(interval[1], 1.0)
+        if lo > hi + 1e-9:  # rounding: a bound met exactly at t = 0 may read -1e-13
+            return None
+        return base + max(hi, lo) * (target - base)
+
+    def _path_rows(self, h: np.ndarray) -> np.ndarray:
+        """``h`` with the braking rows of the limits that brake the whole path together."""
+        out = h.copy()
+        start = 0
+        for limit, k in zip(self.limits, self._row_counts, strict=True):
+            hp = getattr(limit, "h_path", None)
+            if hp is not None:
+                out[start:start + k] = hp
+            start += k
+        return out
+
+    def to_fanuc_deg(self, q_model_rad: ArrayLike) -> np.ndarray:
+        """Model joints (rad) -> FANUC joints (deg), for the shaper."""
+        return model_rad_to_fanuc_deg(np.asarray(q_model_rad, dtype=float), self.profile.j23_factor)
+
+    def velocity_fanuc_deg_s(self, velocity_model_rad_s: ArrayLike) -> np.ndarray:
+        return np.degrees(self.c @ np.asarray(velocity_model_rad_s, dtype=float))
+
+    def condition_number(self, q_model_rad: ArrayLike) -> float:
+        """Condition number of the normalised flange Jacobian at ``q`` (the singularity measure)."""
+        q = self._checked(q_model_rad, "q_model_rad")
+        return self._condition_at(q)
+
+    # -------------------------------------------------------------------------- desired motion
+    def _twist_base(self, cmd: Twist, tcp: np.ndarray) -> np.ndarray:
+        v = np.array(cmd.linear) / 1000.0
+        w = np.radians(cmd.angular)
+        if cmd.frame == "tool":
+            r = tcp[:3, :3]
+            v, w = r @ v, r @ w
+        return np.concatenate([v, w])
+
+    def _pose_twist(self, cmd: PoseTarget, tcp: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Straight-line P-control: one rate for translation and rotation (they arrive together),
+        capped by the speed caps and by the speed from which the target can still be reached
+        braking at the target accelerations."""
+        st, dt = self.settings, self.dt
+        goal = xyzwpr_to_matrix(cmd.xyzwpr)
+        dp = goal[:3, 3] - tcp[:3, 3]
+        dth = _log_so3(goal[:3, :3] @ tcp[:3, :3].T)
+        lin, ang = float(np.linalg.norm(dp)), float(np.linalg.norm(dth))
+        if lin * 1000.0 < st.arrive_mm and math.degrees(ang) < st.arrive_deg:
+            return np.zeros(6), True
+        rate = st.pose_gain
+        for dist, cap, acc in ((lin, cmd.linear_speed / 1000.0, st.target_linear_acc / 1000.0),
+                               (ang, math.radians(cmd.angular_speed), math.radians(st.target_angular_acc))):
+            if dist > 0.0:
+                rate = min(rate, cap / dist, float(braking_speed(dist, acc, dt)) / dist)
+        return rate * np.concatenate([dp, dth]), False
+
+    def _jog_increment(self, cmd: JointJog) -> np.ndarray:
+        return self.c_inv @ np.radians(cmd.velocity) * self.dt
+
+    def _target_increment(self, cmd: JointTarget, q: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Straight joint-space line (FANUC axes, all joints arriving together) at the speed scale,
+        braking so that it arrives without overshoot."""
+        goal = fanuc_deg_to_model_rad(cmd.position, self.profile.j23_factor)
+        err_f = self.c @ (goal - q)
+        dist = np.abs(err_f)
+        if float(np.max(np.degrees(dist))) < self.settings.arrive_deg * 0.1:
+            return np.zeros(N), True
+        rate = self.settings.pose_gain
+        moving = dist > 0.0
+        vmax = self.vel[moving] * cmd.speed_scale
+        vbrake = braking_speed(dist[moving], self.brake_acc[moving], self.dt)
+        rate = min(rate, float(np.min(np.minimum(vmax, vbrake) / dist[moving])))
+        return self.c_inv @ (rate * err_f) * self.dt, False
+
+    # ---------------------------------------------------------------------------- singularity
+    def _condition(self, data: mujoco.MjData) -> float:
+        jac = np.empty((6, N))
+        mujoco.mj_jacSite(self.model, data, jac[:3], jac[3:], self._flange_id)
+        jac[:3] /= self._reach
+        sv = np.linalg.svd(jac, compute_uv=False)
+        return float(sv[0] / sv[-1]) if sv[-1] > 1e-12 * sv[0] else 1e12
+
+    def _condition_at(self, q: np.ndarray) -> float:
+        self._probe.qpos[:] = self._full_q(q)
+        mujoco.mj_kinematics(self.model, self._probe)
+        mujoco.mj_comPos(self.model, self._probe)
+        return self._condition(self._probe)
+
+    def _singularity_factor(self, q: np.ndarray, xi: np.ndarray, kappa: float) -> float:
+        """1 away from singularities or when the command leaves them; slows an approach smoothly
+        to 0 between the two thresholds."""
+        st = self.settings
+        if kappa <= st.singularity_slow or not np.any(xi):
+            return 1.0
+        # Joint direction of the command: damped least squares on the TCP Jacobian (world frame).
+        jac = np.empty((6, N))
+        mujoco.mj_jacSite(self.model, self.configuration.data, jac[:3], jac[3:], self._site_id)
+        jac[:3] /= self._reach
+        xn = xi.copy()
+        xn[:3] /= self._reach
+        lam2 = 1e-4
+        dq = jac.T @ np.linalg.solve(jac @ jac.T + lam2 * np.eye(6), xn)
+        norm = float(np.linalg.norm(dq))
+        if norm == 0.0:
+            return 1.0
+        eps = 1e-3  # rad along the command
+        k1 = self._condition_at(q + dq * (eps / norm))
+        approach = min(max((k1 - kappa) / (kappa * eps * st.singularity_rate), 0.0), 1.0)
+        x = min(max((kappa - st.singularity_slow) / (st.singularity_stop - st.singularity_slow), 0.0), 1.0)
+        weight = x * x * (3.0 - 2.0 * x)  # smoothstep: no kink at either threshold
+        return 1.0 - weight * approach
+
+    # -------------------------------------------------------------------------------- helpers
+    def _qp_solve(self, p: np.ndarray, c: np.ndarray, g: np.ndarray, h: np.ndarray):
+        if self.qp is None:
+            self.qp = PersistentQP(N, g.shape[0], self._solver, var_scale=self.dt, settings=self._qp_settings)
+        return self.qp.solve(p, c, g, h)
+
+    def _decelerate(self) -> np.ndarray:
+        """Last resort: every joint brakes at its own acceleration limit (FANUC axes). The path bends,
+        but each joint stops within the braking distance the braking rows kept free."""
+        p = self.c @ self._dq_prev
+        da = self.acc * self.dt * self.dt
+        return self.c_inv @ (np.sign(p) * np.maximum(np.abs(p) - da, 0.0))
+
+    def _ensure_rows(self, m: int) -> None:
+        """Map each QP row to the flag it raises when binding (the limits' row counts are fixed)."""
+        if self._row_flags is not None and len(self._row_flags) == m:
+            return
+        cfg = self.configuration
+        flags: list[int] = []
+        self._row_counts = []
+        for limit in self.limits:
+            rows = limit.compute_qp_inequalities(cfg, self.dt)
+            k = 0 if rows.G is None else rows.G.shape[0]
+            self._row_counts.append(k)
+            if limit is self.accel_limit:
+                self._accel_rows = slice(len(flags), len(flags) + k)
+                flag = IkFlag.ACCEL_LIMIT
+            elif isinstance(limit, mink.VelocityLimit):
+                flag = IkFlag.VELOCITY_LIMIT
+            elif isinstance(limit, mink.ConfigurationLimit | BrakingLimit):
+                flag = IkFlag.JOINT_LIMIT
+            elif limit is self.config_guard:
+                flag = IkFlag.CONFIGURATION
+            else:
+                flag = IkFlag.COLLISION
+            flags.extend([int(flag)] * k)
+        if len(flags) != m:
+            raise RuntimeError(f"limit rows changed size ({len(flags)} != {m}); a persistent QP needs fixed rows")
+        self._row_flags = np.array(flags)
+        self.qp = None
+
+    def _binding_flags(self, g: np.ndarray, h: np.ndarray, dq: np.ndarray) -> IkFlag:
+        assert self._row_flags is not None
+        slack = h - g @ dq
+        tol = self.settings.binding_tol + 1e-6 * np.abs(h)
+        binding = np.isfinite(h) & (slack <= tol)
+        out = IkFlag.NONE
+        for f in np.unique(self._row_flags[binding]):
+            out |= IkFlag(int(f))
+        if self._accel_rows is not None:
+            vel_rows = self.accel_limit.velocity_bound & binding[self._accel_rows]
+            if np.any(vel_rows):
+                out |= IkFlag.VELOCITY_LIMIT
+            if not np.any(binding[self._accel_rows] & ~self.accel_limit.velocity_bound):
+                out &= ~IkFlag.ACCEL_LIMIT
+        return out
+
+    def _site_pose(self, data: mujoco.MjData, site_id: int) -> np.ndarray:
+        t = np.eye(4)
+        t[:3, :3] = data.site_xmat[site_id].reshape(3, 3)
+        t[:3, 3] = data.site_xpos[site_id]
+        return t
+
+    def _near(self, a: np.ndarray, b: np.ndarray) -> bool:
+        tol = self.settings.reference_tolerance_m
+        if float(np.linalg.norm(a[:3, 3] - b[:3, 3])) > tol:
+            return False
+        return float(np.linalg.norm(_log_so3(a[:3, :3] @ b[:3, :3].T))) * self._reach <= tol
+
+    def _full_q(self, q: np.ndarray) -> np.ndarray:
+        full = self.configuration.data.qpos.copy()
+        full[self._qadr] = q
+        return full
+
+    @staticmethod
+    def _checked(v: ArrayLike, name: str) -> np.ndarray:
+        a = np.asarray(v, dtype=float)
+        if a.shape != (N,):
+            raise ValueError(f"{name} has shape {a.shape}, expected ({N},)")
+        if not np.all(np.isfinite(a)):
+            i = int(np.flatnonzero(~np.isfinite(a))[0])
+            raise ValueError(f"{name}[{i}]={a[i]} is not a finite number")
+        return a.copy()
+
+
+# ------------------------------------------------------------------------------ pure functions
+def _scale_interval(direction: np.ndarray, g: np.ndarray, h: np.ndarray) -> tuple[float, float] | None:
+    """The interval of ``s`` with ``g @ (s * direction) <= h`` (the rows are linear), or None."""
+    a = g @ direction
+    tiny = 1e-15
+    pos, neg, zero = a > tiny, a < -tiny, np.abs(a) <= tiny
+    if np.any(h[zero] < -1e-12):
+        return None
+    s_hi = float(np.min(h[pos] / a[pos])) if np.any(pos) else math.inf
+    s_lo = float(np.max(h[neg] / a[neg])) if np.any(neg) else -math.inf
+    return (s_lo, s_hi) if s_lo <= s_hi else None
+
+
+def _path_scale(direction: np.ndarray, s_goal: float, g: np.ndarray, h: np.ndarray) -> float | None:
+    """The ``s`` nearest ``s_goal`` with ``g @ (s * direction) <= h``, or None if there is none."""
+    interval = _scale_interval(direction, g, h)
+    if interval is None:
+        return None
+    s = min(max(s_goal, interval[0]), interval[1])
+    return s if math.isfinite(s) else None
+
+
+def _advance(pose: np.ndarray, xi_dt: np.ndarray) -> np.ndarray:
+    """Pose moved by a base-frame displacement (translation of the TCP, rotation about the TCP)."""
+    out = pose.copy()
+    out[:3, 3] = pose[:3, 3] + xi_dt[:3]
+    out[:3, :3] = _exp_so3(xi_dt[3:]) @ pose[:3, :3]
+    return out
+
+
+def _exp_so3(w: np.ndarray) -> np.ndarray:
+    th = float(np.linalg.norm(w))
+    k = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if th < 1e-9:
+        return np.eye(3) + k + 0.5 * k @ k
+    return np.eye(3) + (math.sin(th) / th) * k + ((1.0 - math.cos(th)) / (th * th)) * k @ k
+
+
+def _log_so3(r: np.ndarray) -> np.ndarray:
+    """Rotation vector of a rotation matrix (robust near 0 and pi)."""
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(r).reshape(9))
+    if quat[0] < 0.0:
+        quat = -quat
+    s = float(np.linalg.norm(quat[1:]))
+    if s < 1e-12:
+        return 2.0 * quat[1:]
+    return quat[1:] * (2.0 * math.atan2(s, quat[0]) / s)

@@ -1,0 +1,372 @@
+"""Our own mink limits: joint rates in the controller's convention, braking distance, arm
+configuration and a unit-consistent collision limit.
+
+Each class follows mink's ``Limit`` contract: ``compute_qp_inequalities(configuration, dt)`` returns
+``Constraint(G, h)`` with ``G @ dq <= h`` for the per-cycle increment ``dq`` (model convention, rad).
+Every limit here returns the SAME number of rows every cycle (inactive rows get ``h = +inf``), so a
+persistent QP can keep one sparsity pattern.
+
+Why not just mink's limits:
+
+- mink has no acceleration limit; the controller alarms on acceleration, and the jerk-limited shaper
+  after the IK can only follow increments whose change per cycle is bounded (``AccelerationLimit``);
+- mink's ``ConfigurationLimit`` lets a joint run at full speed until the last cycle before its limit;
+  ``BrakingLimit`` keeps every joint able to stop (at its braking deceleration) before its bound;
+- the controller's limits apply to the FANUC J3 (from the horizontal), not to the model's q3;
+- FANUC alarms when the configuration (flip, up, top, turns) changes (``ConfigurationGuard``);
+- mink's ``CollisionAvoidanceLimit`` divides the distance by ``dt`` although ``dq`` is a displacement,
+  so at dt = 8 ms it allows 1/dt times the remaining gap per step; ``CollisionLimit`` fixes the units.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from mink import Configuration
+from mink.limits import CollisionAvoidanceLimit, Constraint, Limit
+
+from servo_app.robots.configuration import ArmConfiguration, configuration_of, turn_number
+from servo_app.robots.kinematics import ArmKinematics
+from servo_app.robots.model import JOINT_NAMES
+
+TWO_PI = 2.0 * math.pi
+
+
+def fanuc_rate_matrix(j23_factor: float, n: int = 6) -> np.ndarray:
+    """``C`` with ``dq_fanuc = C @ dq_model`` (both rad): only J3 couples, J3 = q3 - j23 * q2."""
+    c = np.eye(n)
+    c[2, 1] = -j23_factor
+    return c
+
+
+def braking_speed(distance: np.ndarray | float, acc: np.ndarray | float, dt: float) -> np.ndarray:
+    """Largest speed ``v`` for which one more cycle at ``v`` and then braking at ``acc`` stays within
+    ``distance``: ``v * dt + v**2 / (2 acc) <= distance``. Non-positive distances give 0.
+
+    Recursively feasible with the acceleration limit: from ``v_k`` at this bound, ``v_k - acc * dt``
+    is within next cycle's bound, so a joint that obeys it every cycle can always stop in time.
+    """
+    d = np.maximum(np.asarray(distance, dtype=float), 0.0)
+    a = np.asarray(acc, dtype=float)
+    return a * (np.sqrt(dt * dt + 2.0 * d / a) - dt)
+
+
+def _dof_columns(model: mujoco.MjModel) -> np.ndarray:
+    return np.array([model.jnt_dofadr[model.joint(name).id] for name in JOINT_NAMES])
+
+
+def _qpos_indices(model: mujoco.MjModel) -> np.ndarray:
+    return np.array([model.jnt_qposadr[model.joint(name).id] for name in JOINT_NAMES])
+
+
+class PathBraking:
+    """Deceleration available when the WHOLE motion brakes together along one joint direction ``u``.
+
+    Braking every joint at its own limit would bend the path; braking with one common factor
+    ``s(t)`` (``dq = s u``) is limited by the joint that needs the most: ``s'' <= rate`` with
+    ``rate = min_i brake_i / |(C u)_i|`` (FANUC axes). A bound whose distance changes at
+    ``grad . u`` per unit of ``s`` then closes at most at ``rate * |grad . u|``: that is the
+    deceleration its braking row may count on, so stopping along the path is always possible
+    (recursively, for a steady direction). Rows the path does not approach get ``floor`` times
+    their own cap, so they stay usable when the direction changes.
+    """
+
+    def __init__(self, c: np.ndarray, brake_fanuc: Sequence[float], floor: float = 0.05) -> None:
+        self.c = np.asarray(c, dtype=float)
+        self.brake = np.asarray(brake_fanuc, dtype=float)
+        self.floor = floor
+        self.u: np.ndarray | None = None
+        self.rate = math.inf
+
+    def set_direction(self, u: np.ndarray | None) -> None:
+        """The joint-space direction (model convention, any scale) the arm moves or will move along."""
+        if u is None:
+            self.u, self.rate = None, math.inf
+            return
+        uf = np.abs(self.c @ u)
+        moving = uf > 1e-12 * max(float(np.max(uf)), 1e-300)
+        if not np.any(moving):
+            self.u, self.rate = None, math.inf
+            return
+        self.u = np.asarray(u, dtype=float).copy()
+        self.rate = float(np.min(self.brake[moving] / uf[moving]))
+
+    def decel(self, grad_dot_u: np.ndarray, caps: np.ndarray | float) -> np.ndarray:
+        """Deceleration for rows whose closing rate along ``u`` is ``grad_dot_u`` (per unit of s)."""
+        caps = np.asarray(caps, dtype=float)
+        if self.u is None:
+            return np.broadcast_to(caps, np.shape(grad_dot_u)).copy()
+        return np.minimum(caps, np.maximum(self.rate * np.abs(grad_dot_u), self.floor * caps))
+
+
+class AccelerationLimit(Limit):
+    """Velocity and acceleration of the six arm joints in the FANUC convention, per cycle:
+
+        |C dq| <= vel * dt                  (controller velocity check)
+        |C (dq - dq_prev)| <= acc * dt**2   (controller acceleration check; the shaper can follow)
+
+    ``set_previous(dq_prev)`` must be called with last cycle's increment (model convention) before
+    each solve. If the previous velocity is above ``vel`` (limits lowered), the box allows braking at
+    ``acc`` instead of becoming empty. 12 rows: upper bounds, then lower bounds.
+    """
+
+    def __init__(self, model: mujoco.MjModel, vel: Sequence[float], acc: Sequence[float],
+                 j23_factor: float) -> None:
+        self.vel = np.asarray(vel, dtype=float)
+        self.acc = np.asarray(acc, dtype=float)
+        self.c = fanuc_rate_matrix(j23_factor)
+        cols = _dof_columns(model)
+        g = np.zeros((12, model.nv))
+        g[:6, cols] = self.c
+        g[6:, cols] = -self.c
+        self._g = g
+        self.dq_prev = np.zeros(6)
+        self.velocity_bound = np.zeros(12, dtype=bool)  # rows whose bound came from vel (else acc)
+        self.h_velocity = np.full(12, np.inf)  # the same rows with the velocity bound only
+
+    def set_previous(self, dq_prev: np.ndarray) -> None:
+        self.dq_prev = np.asarray(dq_prev, dtype=float).copy()
+
+    def compute_qp_inequalities(self, configuration: Configuration, dt: float) -> Constraint:
+        del configuration
+        p = self.c @ self.dq_prev
+        vmax = self.vel * dt
+        da = self.acc * dt * dt
+        upper = np.minimum(np.maximum(vmax, p - da), p + da)
+        lower = np.maximum(np.minimum(-vmax, p + da), p - da)
+        self.velocity_bound[:6] = upper < p + da
+        self.velocity_bound[6:] = lower > p - da
+        self.h_velocity = np.concatenate([vmax, vmax])
+        return Constraint(G=self._g, h=np.concatenate([upper, -lower]))
+
+
+class BrakingLimit(Limit):
+    """Each joint stays within ``[lower, upper]`` (model convention, rad) and can always stop before
+    it: ``dq_i <= dt * braking_speed(upper_i - q_i, brake_i, dt)`` and the mirror image. A joint
+    already beyond a bound may only move back. 12 rows: upper bounds, then lower bounds.
+
+    The returned rows brake each joint on its own: always recursively feasible, whatever the
+    direction does. With a :class:`PathBraking`, ``h_path`` also holds the stricter rows for braking
+    the whole motion together along the path (for the path-keeping scale).
+    """
+
+    def __init__(self, model: mujoco.MjModel, lower: Sequence[float], upper: Sequence[float],
+                 brake_acc: Sequence[float], path: PathBraking | None = None) -> None:
+        self.lower = np.asarray(lower, dtype=float)
+        self.upper = np.asarray(upper, dtype=float)
+        self.brake_acc = np.asarray(brake_acc, dtype=float)
+        self.path = path
+        self.h_path = np.full(12, np.inf)  # rows with path-synchronised braking (see PathBraking)
+        self._qadr = _qpos_indices(model)
+        cols = _dof_columns(model)
+        self._cols = cols
+        g = np.zeros((12, model.nv))
+        g[np.arange(6), cols] = 1.0
+        g[6 + np.arange(6), cols] = -1.0
+        self._g = g
+
+    def set_bounds(self, lower: np.ndarray, upper: np.ndarray) -> None:
+        self.lower = np.asarray(lower, dtype=float)
+        self.upper = np.asarray(upper, dtype=float)
+
+    def compute_qp_inequalities(self, configuration: Configuration, dt: float) -> Constraint:
+        q = configuration.data.qpos[self._qadr]
+        h = self._rows(q, self.brake_acc, dt)
+        self.h_path = h
+        if self.path is not None and self.path.u is not None:
+            self.h_path = self._rows(q, self.path.decel(self.path.u[self._cols], self.brake_acc), dt)
+        return Constraint(G=self._g, h=h)
+
+    def _rows(self, q: np.ndarray, acc: np.ndarray, dt: float) -> np.ndarray:
+        h = np.full(12, np.inf)
+        up = np.isfinite(self.upper)
+        lo = np.isfinite(self.lower)
+        h[:6][up] = dt * braking_speed(self.upper[up] - q[up], acc[up], dt)
+        h[6:][lo] = dt * braking_speed(q[lo] - self.lower[lo], acc[lo], dt)
+        return h
+
+
+@dataclass(frozen=True)
+class ConfigurationMargins:
+    flip_deg: float = 1.0  # |J5| stays this far from 0 (and from +-180)
+    elbow_deg: float = 1.0  # q3 stays this far from the stretched-arm angle
+    turn_deg: float = 1.0  # J1, J4, J6 stay this far inside their 360-degree turn
+    shoulder_m: float = 0.01  # wrist centre stays this far from the J1 axis
+    shoulder_brake_acc: float = 2.0  # m/s^2, braking of the wrist centre toward the J1 axis
+
+
+def configuration_bounds(q_model_rad: np.ndarray, kin: ArmKinematics, margins: ConfigurationMargins
+                         ) -> tuple[ArmConfiguration, np.ndarray, np.ndarray]:
+    """The configuration of ``q`` and the joint intervals (model rad) that keep flip, up/down and the
+    J1/J4/J6 turn numbers, each shrunk by its margin. Top/bottom is not a joint interval (see
+    :class:`ConfigurationGuard`)."""
+    q = np.asarray(q_model_rad, dtype=float)
+    cfg = configuration_of(q, kin)
+    lo = np.full(6, -np.inf)
+    hi = np.full(6, np.inf)
+    turn = math.radians(margins.turn_deg)
+    for i, k in ((0, cfg.turn1), (3, cfg.turn4), (5, cfg.turn6)):
+        lo[i] = -math.pi + TWO_PI * k + turn
+        hi[i] = math.pi + TWO_PI * k - turn
+    # Flip is the sign of J5 wrapped into (-180, 180]; both 0 and +-180 change it.
+    flip = math.radians(margins.flip_deg)
+    k5 = turn_number(q[4])
+    if cfg.flip:
+        lo[4], hi[4] = TWO_PI * k5 + flip, TWO_PI * k5 + math.pi - flip
+    else:
+        lo[4], hi[4] = TWO_PI * k5 - math.pi + flip, TWO_PI * k5 - flip
+    # Up <=> cos(q3 + psi) > 0 with psi = atan2(a3, d4) (configuration.py): an interval of q3.
+    psi = math.atan2(kin.a3, kin.d4)
+    elbow = math.radians(margins.elbow_deg)
+    centre = 0.0 if cfg.up else math.pi
+    k3 = round((q[2] + psi - centre) / TWO_PI)
+    mid = centre + TWO_PI * k3 - psi
+    lo[2], hi[2] = mid - math.pi / 2 + elbow, mid + math.pi / 2 - elbow
+    return cfg, lo, hi
+
+
+def wrist_centre_offset(q: np.ndarray, kin: ArmKinematics) -> tuple[float, np.ndarray]:
+    """Signed distance (m) of the wrist centre in front of the J1 axis in the arm's plane (> 0: Top),
+    and its gradient with respect to the six model joints."""
+    q2, q3 = float(q[1]), float(q[2])
+    phi = q2 - q3
+    cphi, sphi = math.cos(phi), math.sin(phi)
+    x = kin.a1 + kin.a2 * math.sin(q2) + kin.d4 * cphi + kin.a3 * sphi
+    dphi = -kin.d4 * sphi + kin.a3 * cphi
+    grad = np.zeros(6)
+    grad[1] = kin.a2 * math.cos(q2) + dphi
+    grad[2] = -dphi
+    return x, grad
+
+
+class ConfigurationGuard(Limit):
+    """Keeps the arm configuration it was reset with (FANUC MOTN-156 in Cartesian format; we keep it
+    in joint format too).
+
+    Rows 0..11: joint intervals of :func:`configuration_bounds` with braking (as :class:`BrakingLimit`);
+    row 12: the wrist centre stays on its side of the J1 axis, linearised, with braking at
+    ``margins.shoulder_brake_acc``. 13 rows; ``h_path`` as in :class:`BrakingLimit`.
+    """
+
+    def __init__(self, model: mujoco.MjModel, kin: ArmKinematics, brake_acc: Sequence[float],
+                 margins: ConfigurationMargins | None = None, q_ref: np.ndarray | None = None,
+                 path: PathBraking | None = None) -> None:
+        self.kin = kin
+        self.margins = margins or ConfigurationMargins()
+        self.path = path
+        self._joints = BrakingLimit(model, np.full(6, -np.inf), np.full(6, np.inf), brake_acc, path)
+        self._qadr = _qpos_indices(model)
+        self._cols = _dof_columns(model)
+        self._g = np.zeros((13, model.nv))
+        self._g[:12] = self._joints._g
+        self.h_path = np.full(13, np.inf)
+        self.reference: ArmConfiguration | None = None
+        if q_ref is not None:
+            self.reset(q_ref)
+
+    @property
+    def lower(self) -> np.ndarray:
+        return self._joints.lower
+
+    @property
+    def upper(self) -> np.ndarray:
+        return self._joints.upper
+
+    def reset(self, q_model_rad: np.ndarray) -> ArmConfiguration:
+        """Latch the configuration to keep (call when streaming starts)."""
+        cfg, lo, hi = configuration_bounds(q_model_rad, self.kin, self.margins)
+        self._joints.set_bounds(lo, hi)
+        self.reference = cfg
+        return cfg
+
+    def compute_qp_inequalities(self, configuration: Configuration, dt: float) -> Constraint:
+        if self.reference is None:
+            self.reset(configuration.data.qpos[self._qadr])
+        assert self.reference is not None
+        joint_rows = self._joints.compute_qp_inequalities(configuration, dt)
+        q = configuration.data.qpos[self._qadr]
+        x, grad = wrist_centre_offset(q, self.kin)
+        sign = 1.0 if self.reference.top else -1.0
+        distance = sign * x - self.margins.shoulder_m
+        # Moving toward the axis decreases sign * x: -sign * grad . dq <= braking allowance.
+        self._g[12, self._cols] = -sign * grad
+        acc = self.margins.shoulder_brake_acc
+        h = np.empty(13)
+        h[:12] = joint_rows.h
+        h[12] = dt * float(braking_speed(distance, acc, dt))
+        self.h_path = h.copy()
+        self.h_path[:12] = self._joints.h_path
+        if self.path is not None and self.path.u is not None:
+            acc = float(self.path.decel(np.array([grad @ self.path.u[self._cols]]), acc)[0])
+            self.h_path[12] = dt * float(braking_speed(distance, acc, dt))
+        return Constraint(G=self._g, h=h)
+
+
+class CollisionLimit(CollisionAvoidanceLimit):
+    """mink's collision avoidance with the per-step units fixed and a braking allowance.
+
+    mink returns ``h = gain * (d - d_min) / dt``, a velocity, for a displacement ``dq``; evaluated with
+    dt = 1 the same code gives the displacement ``gain * (d - d_min)``. We further cap it so the two
+    geoms can always stop before ``d_min`` at ``brake_acc`` (m/s^2); ``h_path`` as in
+    :class:`BrakingLimit`. One row per geom pair; pairs out
+    of detection range give ``G = 0, h = inf``. Keep ``collision_detection_distance`` above the
+    braking distance at full speed (``v**2 / (2 brake_acc)``), or a fast approach is seen too late.
+    """
+
+    def __init__(self, model: mujoco.MjModel, geom_pairs: Sequence, *, brake_acc: float = 3.0,
+                 gain: float = 0.85, minimum_distance_from_collisions: float = 0.01,
+                 collision_detection_distance: float = 0.2, path: PathBraking | None = None) -> None:
+        super().__init__(model, geom_pairs, gain=gain,
+                         minimum_distance_from_collisions=minimum_distance_from_collisions,
+                         collision_detection_distance=collision_detection_distance)
+        self.brake_acc = brake_acc
+        self.path = path
+        self.h_path = np.full(self.max_num_contacts, np.inf)
+
+    def compute_qp_inequalities(self, configuration: Configuration, dt: float) -> Constraint:
+        c = super().compute_qp_inequalities(configuration, 1.0)
+        h = c.h
+        assert h is not None
+        active = np.isfinite(h)
+        gap = (h[active] - self.bound_relaxation) / self.gain
+        relax = self.bound_relaxation
+        self.h_path = h.copy()
+        if self.path is not None and self.path.u is not None and c.G is not None:
+            acc = self.path.decel(c.G[active] @ self.path.u, self.brake_acc)
+            self.h_path[active] = np.minimum(h[active], dt * braking_speed(gap, acc, dt) + relax)
+        h[active] = np.minimum(h[active], dt * braking_speed(gap, self.brake_acc, dt) + relax)
+        return Constraint(G=c.G, h=h)
+
+
+def default_collision_pairs(model: mujoco.MjModel) -> list[tuple[list[str], list[str]]]:
+    """Geom pairs worth checking on an arm model: every arm geom against every geom fixed to the world
+    (floor, walls, fixtures added to the cell's spec), and arm geoms against each other except pairs
+    the MJCF excludes (``<contact><exclude>``: housings that overlap by design). mink drops pairs on
+    the same body, on parent and child bodies, and pairs that fail contype/conaffinity."""
+    excluded = set(int(s) for s in model.exclude_signature)
+    world = [g for g in range(model.ngeom) if model.body_weldid[model.geom_bodyid[g]] == 0]
+    arm = [g for g in range(model.ngeom) if model.body_weldid[model.geom_bodyid[g]] != 0]
+
+    def name(g: int) -> str:
+        n = model.geom(g).name
+        if not n:
+            raise ValueError(f"geom {g} has no name; name it to use it in collision pairs")
+        return n
+
+    def is_excluded(g1: int, g2: int) -> bool:
+        b1, b2 = int(model.geom_bodyid[g1]), int(model.geom_bodyid[g2])
+        return (b1 << 16) + b2 in excluded or (b2 << 16) + b1 in excluded  # MuJoCo's signature
+
+    pairs: list[tuple[list[str], list[str]]] = []
+    for w in world:
+        for a in arm:
+            pairs.append(([name(w)], [name(a)]))
+    for i, g1 in enumerate(arm):
+        for g2 in arm[i + 1:]:
+            if model.geom_bodyid[g1] != model.geom_bodyid[g2] and not is_excluded(g1, g2):
+                pairs.append(([name(g1)], [name(g2)]))
+    return pairs

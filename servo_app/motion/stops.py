@@ -1,0 +1,43 @@
+"""Stops in place of the controller's HOLD (manual 61.7: HOLD is not supported during IBGN).
+
+Two modes, both a time-optimal jerk-limited deceleration to rest from the current commanded state:
+``soft`` within the normal (fraction-scaled) limits, ``fast`` within the full limits minus a small
+margin. This module holds the reference computation a benchmark compares a stop against: ruckig's
+own time-optimal profile from the same state to zero velocity.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from ruckig import ControlInterface, InputParameter, Result, Ruckig, Synchronization, Trajectory
+
+StopMode = Literal["soft", "fast"]
+STOP_MODES: tuple[StopMode, ...] = ("soft", "fast")
+
+
+def time_optimal_stop_duration(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray,
+                               vmax: np.ndarray, amax: np.ndarray, jmax: np.ndarray) -> float:
+    """Shortest time (s) in which every axis reaches zero velocity and acceleration.
+
+    Axes are planned independently (no synchronization): the arm is at rest when its slowest axis
+    is, so the maximum of the per-axis optima is the lower bound for any stop.
+    """
+    n = len(pos)
+    inp = InputParameter(n)
+    inp.control_interface = ControlInterface.Velocity
+    inp.synchronization = Synchronization.No
+    inp.current_position = [float(x) for x in pos]
+    inp.current_velocity = [float(x) for x in vel]
+    inp.current_acceleration = [float(x) for x in acc]
+    inp.target_velocity = [0.0] * n
+    inp.target_acceleration = [0.0] * n
+    inp.max_velocity = [float(x) for x in vmax]
+    inp.max_acceleration = [float(x) for x in amax]
+    inp.max_jerk = [float(x) for x in jmax]
+    traj = Trajectory(n)
+    result = Ruckig(n).calculate(inp, traj)
+    if result not in (Result.Working, Result.Finished):
+        raise ValueError(f"ruckig could not plan the stop: {result}")
+    return float(traj.duration)

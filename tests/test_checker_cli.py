@@ -1,0 +1,168 @@
+"""``servo-app check``: CSV of joints or X Y Z W P R, first violation, usage table, exit codes."""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_sim_model import PROFILE, STAGE1, smooth_move
+
+from servo_app.motion.check_cli import TrajectoryError, add_check_parser, load_trajectory
+from servo_app.robots.conventions import matrix_to_xyzwpr
+from servo_app.robots.kinematics import ArmKinematics
+
+
+def run_cli(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    parser = argparse.ArgumentParser()
+    add_check_parser(parser.add_subparsers())
+    args = parser.parse_args(["check", *argv])
+    code = args.handler(args)
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def write_csv(path: Path, rows: np.ndarray, header: str | None = "j1,j2,j3,j4,j5,j6", sep: str = ",") -> Path:
+    lines = [header] if header else []
+    lines += [sep.join(f"{v:.9f}" for v in r) for r in rows]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+SMOOTH = smooth_move(np.zeros(6), [20, -10, 15, 30, -20, 45], 0.5, 0.5, 0.5)
+
+
+def test_smooth_joint_trajectory_passes_with_a_usage_table(tmp_path: Path, capsys) -> None:
+    code, out, _ = run_cli(capsys, str(write_csv(tmp_path / "ok.csv", SMOOTH)), "--model", "lrmate200id")
+    assert code == 0
+    assert "OK: no violation" in out
+    table = [ln for ln in out.splitlines() if ln.startswith("J")]
+    assert len(table) == 6
+    pct = np.array([[float(x) for x in ln.split()[1:]] for ln in table])
+    assert 0 < pct.max() < 100
+
+
+def test_jerk_violation_reports_code_axis_row_value_limit_and_exit_1(tmp_path: Path, capsys) -> None:
+    rows = SMOOTH.copy()
+    rows[50:, 2] += 0.05  # a 0.05 deg step on J3 at row 51
+    code, out, _ = run_cli(capsys, str(write_csv(tmp_path / "bad.csv", rows)), "--model", "lrmate200id")
+    assert code == 1
+    first = out.split("FIRST VIOLATION: ", 1)[1]
+    assert first.startswith("MOTN-611 ST:Exceeded Jnt Jerk Limit.(A:3,Sq.51)")
+    assert "axis J3, row 51 (line 52): jerk" in first and "limit" in first
+
+
+def test_whitespace_separated_without_header_with_comments(tmp_path: Path, capsys) -> None:
+    p = tmp_path / "traj.txt"
+    write_csv(p, SMOOTH, header=None, sep=" ")
+    p.write_text("# recorded joints\n" + p.read_text())
+    code, out, _ = run_cli(capsys, str(p), "--model", "lrmate200id", "--interval-ms", "8")
+    assert code == 0 and f"{len(SMOOTH)} rows (joints)" in out
+
+
+def test_xyzwpr_rows_are_converted_through_ik(tmp_path: Path, capsys) -> None:
+    if importlib.util.find_spec("servo_app.robots.ik") is None:
+        pytest.skip("no IK yet")
+    arm = ArmKinematics(PROFILE)
+    start = np.array([0.0, 10.0, -10.0, 0.0, -40.0, 0.0])
+    joints = smooth_move(start, start + np.array([20, -10, 15, 30, -20, 45]), 0.4, 0.4, 0.4)
+    cart = np.array([matrix_to_xyzwpr(arm.fk_fanuc_deg(q)) for q in joints])
+    p = write_csv(tmp_path / "cart.csv", cart, header="x,y,z,w,p,r")
+    code, out, _ = run_cli(capsys, str(p), "--model", "lrmate200id")
+    assert code == 0, out
+    assert "(xyzwpr)" in out
+    # Without a header the format must be given.
+    p2 = write_csv(tmp_path / "cart2.csv", cart, header=None)
+    code, out, _ = run_cli(capsys, str(p2), "--model", "lrmate200id", "--format", "xyzwpr")
+    assert code == 0 and "(xyzwpr)" in out
+
+
+def test_unreachable_cartesian_row_is_a_violation(tmp_path: Path, capsys) -> None:
+    if importlib.util.find_spec("servo_app.robots.ik") is None:
+        pytest.skip("no IK yet")
+    rows = np.array([[465.0, 0, 365, 180, -90, 0]] * 3 + [[5000.0, 0, 365, 180, -90, 0]])
+    code, out, _ = run_cli(capsys, str(write_csv(tmp_path / "far.csv", rows, header="x,y,z,w,p,r")),
+                           "--model", "lrmate200id")
+    assert code == 1 and "MOTN-018" in out and "row 4" in out
+
+
+@pytest.mark.parametrize(("content", "needle"), [
+    ("j1,j2,j3,j4,j5,j6\n0,0,0,0,0,0\n0,0,x,0,0,0\n", ":3: not a number"),
+    ("0,0,0,0,0\n", "5 values, need at least 6"),
+    ("0,0,0,0,0,0\n0,0,0,0,0,0,0\n", "the rows above have 6"),
+    ("# nothing\n", "no data rows"),
+])
+def test_bad_input_exits_2(tmp_path: Path, capsys, content: str, needle: str) -> None:
+    p = tmp_path / "bad.csv"
+    p.write_text(content)
+    code, _, err = run_cli(capsys, str(p), "--model", "lrmate200id")
+    assert code == 2 and needle in err
+
+
+def test_missing_file_unknown_type_and_unknown_model_exit_2(tmp_path: Path, capsys) -> None:
+    assert run_cli(capsys, str(tmp_path / "nope.csv"), "--model", "lrmate200id")[0] == 2
+    odd = tmp_path / "log.bin"
+    odd.write_bytes(b"\x00")
+    code, _, err = run_cli(capsys, str(odd), "--model", "lrmate200id")
+    assert code == 2 and "unknown file type" in err
+    ok = write_csv(tmp_path / "ok.csv", SMOOTH[:5])
+    code, _, err = run_cli(capsys, str(ok), "--model", "no_such_robot")
+    assert code == 2 and "unknown" in err
+
+
+def test_nan_row_is_reported_like_the_controller(tmp_path: Path, capsys) -> None:
+    rows = SMOOTH[:10].copy()
+    rows[5, 4] = np.nan
+    code, out, _ = run_cli(capsys, str(write_csv(tmp_path / "nan.csv", rows)), "--model", "lrmate200id")
+    assert code == 1 and "MOTN-605 ST:Command is NaN or infinity.(A:5,Sq.6)" in out
+
+
+def test_warning_only_exits_0_and_payload_changes_the_limits(tmp_path: Path, capsys) -> None:
+    j6 = smooth_move([0, 0, 0, 0, 0, -340], [0, 0, 0, 0, 0, 340], 0.9, 0.85, 0.7, limits=STAGE1)
+    p = write_csv(tmp_path / "warn.csv", j6)
+    code, out, _ = run_cli(capsys, str(p), "--model", "lrmate200id")
+    assert code == 0 and "MOTN-613" in out and "OK: no violation" in out
+    acc_pct = float(next(ln for ln in out.splitlines() if ln.startswith("J6")).split()[2])
+    assert acc_pct == pytest.approx(85.0, abs=0.5)
+    # At no payload the stage-1 acceleration limit is 1.6 / 1.3 times higher (profile table shape).
+    code, out, _ = run_cli(capsys, str(p), "--model", "lrmate200id", "--payload", "0")
+    acc_pct0 = float(next(ln for ln in out.splitlines() if ln.startswith("J6")).split()[2])
+    assert code == 0 and acc_pct0 == pytest.approx(85.0 * 1.3 / 1.6, abs=0.5)
+
+
+def test_load_trajectory_is_the_dispatch_hook(tmp_path: Path) -> None:
+    t = load_trajectory(write_csv(tmp_path / "a.csv", SMOOTH[:3]))
+    assert t.fmt == "joints" and t.values.shape == (3, 6) and t.lines == [2, 3, 4]
+    with pytest.raises(TrajectoryError):
+        load_trajectory(tmp_path / "a.csv", fmt="quaternions")
+
+
+def write_log(path: Path, streams: list[tuple[int, np.ndarray]]) -> Path:
+    from servo_app.fanuc.session_log import SessionLogWriter
+
+    w = SessionLogWriter(path, {"model": "lrmate200id", "interval_ms": 8.0})
+    t = 0.0
+    for seq0, rows in streams:
+        for i, q in enumerate(rows):
+            w.status(t, seq0 + i, 0x07, 0, tuple(q))
+            w.command(t, seq0 + i, int(i == len(rows) - 1), 1, 0, 100.0, tuple(q))
+            t += 0.008
+    w.close()
+    return path
+
+
+def test_session_log_is_checked_per_stream_with_wire_sequence_numbers(tmp_path: Path, capsys) -> None:
+    back = smooth_move(SMOOTH[-1], np.zeros(6), 0.5, 0.5, 0.5)
+    ok = write_log(tmp_path / "ok.srvlog", [(1000, SMOOTH), (5000, back)])
+    code, out, _ = run_cli(capsys, str(ok), "--model", "lrmate200id")
+    assert code == 0, out
+    assert f"{len(SMOOTH) + len(back)} rows (joints)" in out
+    bad_rows = back.copy()
+    bad_rows[30:, 1] += 0.05
+    bad = write_log(tmp_path / "bad.log", [(1000, SMOOTH), (5000, bad_rows)])  # any suffix: the magic decides
+    code, out, _ = run_cli(capsys, str(bad), "--model", "lrmate200id")
+    assert code == 1
+    assert "MOTN-611 ST:Exceeded Jnt Jerk Limit.(A:2,Sq.5030)" in out
+    assert f"command {len(SMOOTH) + 31} of the log (Sq.5030)" in out
