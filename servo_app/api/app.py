@@ -6,23 +6,27 @@ writes I/O or changes state needs ``Authorization: Bearer <token>``, and motion 
 (``X-Lease-Id``).
 """
 
-from __future__ import annotations
-
+# No `from __future__ import annotations` here: FastAPI resolves the `Depends(authed)` annotations of
+# the closures inside create_app at runtime, and string annotations cannot see those locals (the
+# dependencies would silently become required query parameters).
 import asyncio
+import contextlib
 import math
 import time
+from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from fastapi import Depends, FastAPI, Header, HTTPException, Request, WebSocket, WebSocketDisconnect
 from fastapi.responses import FileResponse, PlainTextResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
-from pydantic import BaseModel, Field, field_validator
+from pydantic import BaseModel, Discriminator, Field, Tag, field_validator
 
 from servo_app.api.auth import AuditLog, LeaseManager, RateLimiter, token_matches
 from servo_app.api.metrics import Metrics
+from servo_app.api.robot_view import robot_view
 from servo_app.motion.servo import CommandRejected
-from servo_app.service import ServoService
+from servo_app.service import InvalidRequest, ServoService
 
 WEB_DIR = Path(__file__).resolve().parents[2] / "web"
 
@@ -69,6 +73,26 @@ class JointTarget(BaseModel):
         return _finite("joints", v)
 
 
+class PoseTargetBody(BaseModel):
+    model_config = {"extra": "forbid"}
+    xyzwpr: list[float] = Field(min_length=6, max_length=6, description="TCP pose: X Y Z mm, W P R deg (world)")
+    linear_speed: float = Field(100.0, gt=0, le=2000, description="mm/s")
+    angular_speed: float = Field(30.0, gt=0, le=360, description="deg/s")
+
+    @field_validator("xyzwpr")
+    @classmethod
+    def _fin(cls, v: list[float]) -> list[float]:
+        return _finite("xyzwpr", v)
+
+
+def _jog_kind(body: Any) -> str:
+    # Pick the model by its key, so a bad value is reported against that model's field alone.
+    return "joint" if isinstance(body, dict) and "joints" in body else "twist"
+
+
+JogBody = Annotated[Annotated[JointJog, Tag("joint")] | Annotated[TwistJog, Tag("twist")], Discriminator(_jog_kind)]
+
+
 class StopRequest(BaseModel):
     model_config = {"extra": "forbid"}
     fast: bool = False
@@ -78,6 +102,7 @@ class LeaseRequest(BaseModel):
     model_config = {"extra": "forbid"}
     client: str = Field(min_length=1, max_length=64)
     force: bool = False
+    ttl_s: float | None = Field(None, gt=0, description="shorter than the server's TTL if given (never longer)")
 
 
 class IoWrite(BaseModel):
@@ -95,12 +120,41 @@ class Ack(BaseModel):
 
 def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
                cors_origins: list[str] | None = None, lease_ttl_s: float = 10.0) -> FastAPI:
-    app = FastAPI(title="servo_app", version="0.1.0",
-                  description="Online servo control of industrial robot arms (FANUC Stream Motion J519).")
     leases = LeaseManager(ttl_s=lease_ttl_s)
     jog_limiter = RateLimiter(jog_rate_per_s)
     audit = AuditLog(service.cfg.var_dir / "audit.log")
-    metrics = Metrics()
+    metrics = Metrics(lambda: (service.state_vector(), service.stops()))
+
+    def stop_for_lost_lease(holder: str) -> None:
+        if service.state_vector().get("state") == "streaming":
+            with contextlib.suppress(CommandRejected, TimeoutError, RuntimeError):
+                service.request("lease_lost", holder=holder)
+                audit.record("service", "lease.lost", True, holder)
+
+    async def watch_lease() -> None:
+        """A lease that expires, is released or is taken over stops the arm (softly; resumable): nobody
+        may be left moving it without holding control."""
+        seen: tuple[str, str] | None = None  # (lease id, client)
+        while True:
+            await asyncio.sleep(0.05)
+            lease = leases.current()
+            now = (lease.lease_id, lease.client) if lease else None
+            if seen is not None and now != seen:
+                await asyncio.to_thread(stop_for_lost_lease, seen[1])
+            seen = now
+
+    @contextlib.asynccontextmanager
+    async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+        task = asyncio.create_task(watch_lease())
+        try:
+            yield
+        finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+
+    app = FastAPI(title="servo_app", version="0.1.0", lifespan=lifespan,
+                  description="Online servo control of industrial robot arms (FANUC Stream Motion J519).")
     app.state.service, app.state.leases, app.state.metrics = service, leases, metrics
     if cors_origins:
         from fastapi.middleware.cors import CORSMiddleware
@@ -113,6 +167,7 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
 
     def authed(request: Request, authorization: Annotated[str | None, Header()] = None) -> str:
         if not token_matches(token, authorization):
+            metrics.count("unauthorized")
             audit.record(client_of(request), f"{request.method} {request.url.path}", False, "bad token")
             raise HTTPException(401, "missing or wrong bearer token", headers={"WWW-Authenticate": "Bearer"})
         return client_of(request)
@@ -122,20 +177,28 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
         try:
             lease = leases.check(x_lease_id)
         except PermissionError as exc:
+            metrics.count("no_lease")
             audit.record(client, f"{request.method} {request.url.path}", False, str(exc))
             raise HTTPException(409, str(exc)) from None
         return f"{lease.client}@{client}"
 
     def forward(client: str, action: str, op: str, **kw: Any) -> Ack:
+        return call(client, action, lambda: service.request(op, **kw), kw)
+
+    def call(client: str, action: str, fn: Any, detail: Any = None) -> Ack:
+        """Run a service call; refusals become 422 (invalid here), 409 (refused by the state) or 503."""
         try:
-            result = service.request(op, **kw)
+            result = fn()
+        except InvalidRequest as exc:
+            audit.record(client, action, False, str(exc))
+            raise HTTPException(422, str(exc)) from None
         except CommandRejected as exc:
             audit.record(client, action, False, str(exc))
             raise HTTPException(409, str(exc)) from None
         except TimeoutError as exc:
             audit.record(client, action, False, str(exc))
             raise HTTPException(503, str(exc)) from None
-        audit.record(client, action, True, kw or None)
+        audit.record(client, action, True, detail or None)
         return Ack(detail=result)
 
     # ---------------------------------------------------------------- session
@@ -169,9 +232,11 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
 
     # ----------------------------------------------------------------- motion
     @app.post("/api/jog", tags=["motion"])
-    def jog(body: TwistJog | JointJog, request: Request, client: Annotated[str, Depends(controlling)]) -> Ack:
-        if not jog_limiter.allow(client.split("@")[-1]):
-            metrics.jog_rejected.inc()
+    def jog(body: JogBody, request: Request, client: Annotated[str, Depends(controlling)]) -> Ack:
+        # Keyed by host, not host:port: a new connection must not buy a fresh allowance.
+        if not jog_limiter.allow(client.split("@")[-1].rsplit(":", 1)[0]):
+            metrics.count("rate_limited")
+            audit.record(client, "jog", False, "rate limited")
             raise HTTPException(429, f"jog requests limited to {jog_limiter.per_second} per second per client")
         if isinstance(body, JointJog):
             return forward(client, "jog", "jog", joints=body.joints, hold_s=body.hold_ms / 1000)
@@ -179,7 +244,10 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
                        hold_s=body.hold_ms / 1000)
 
     @app.post("/api/target", tags=["motion"])
-    def target(body: JointTarget, client: Annotated[str, Depends(controlling)]) -> Ack:
+    def target(body: JointTarget | PoseTargetBody, client: Annotated[str, Depends(controlling)]) -> Ack:
+        if isinstance(body, PoseTargetBody):
+            return forward(client, "target", "pose", xyzwpr=body.xyzwpr, linear_speed=body.linear_speed,
+                           angular_speed=body.angular_speed)
         return forward(client, "target", "target", joints=body.joints, speed_scale=body.speed_scale)
 
     # ------------------------------------------------------------------ lease
@@ -192,11 +260,12 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
     @app.post("/api/lease", tags=["lease"])
     def lease_acquire(body: LeaseRequest, client: Annotated[str, Depends(authed)]) -> dict[str, Any]:
         try:
-            lease = leases.acquire(body.client, force=body.force)
+            lease = leases.acquire(body.client, force=body.force, ttl_s=body.ttl_s)
         except PermissionError as exc:
+            audit.record(client, "lease.acquire", False, str(exc))
             raise HTTPException(409, str(exc)) from None
-        audit.record(client, "lease.acquire", True, body.client)
-        return {"lease_id": lease.lease_id, "client": lease.client, "ttl_s": leases.ttl_s}
+        audit.record(client, "lease.acquire", True, {"client": body.client, "force": body.force})
+        return {"lease_id": lease.lease_id, "client": lease.client, "ttl_s": lease.ttl_s}
 
     @app.post("/api/lease/renew", tags=["lease"])
     def lease_renew(client: Annotated[str, Depends(authed)],
@@ -205,7 +274,7 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
             lease = leases.renew(x_lease_id)
         except PermissionError as exc:
             raise HTTPException(409, str(exc)) from None
-        return {"lease_id": lease.lease_id, "ttl_s": leases.ttl_s}
+        return {"lease_id": lease.lease_id, "ttl_s": lease.ttl_s}
 
     @app.delete("/api/lease", tags=["lease"])
     def lease_release(client: Annotated[str, Depends(authed)],
@@ -224,21 +293,31 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
         s = service.state()
         lease = leases.current()
         s["lease"] = {"held": lease is not None, "client": lease.client if lease else None}
-        s["stops_by_reason"] = dict(service.stops_by_reason)
+        s["stops_by_reason"] = service.stops()
         return s
 
     @app.get("/api/limits", tags=["state"])
     def limits() -> dict[str, Any]:
         return service.limits()
 
+    @app.get("/api/robot", tags=["state"])
+    def robot() -> dict[str, Any]:
+        """Arm geometry for the console: profile dimensions, ranges, FK points of the current joints."""
+        st = service.stream.state() if service.stream is not None else {}
+        q = st.get("q_servo") if st.get("status_received") else st.get("q_cmd")
+        return robot_view(service.profile, q or [0.0] * 6)
+
     @app.get("/api/io", tags=["io"])
     def io_read(type: str, index: int, client: Annotated[str, Depends(authed)], mask: int = 0xFFFF) -> Ack:
-        return forward(client, "io.read", "io_read", type=type, index=index, mask=mask)
+        """Read 16 points from ``index`` through the command packets (only while streaming)."""
+        return call(client, "io.read", lambda: service.io_read(type, index, mask),
+                    {"type": type, "index": index, "mask": mask})
 
     @app.post("/api/io", tags=["io"])
     def io_write(body: IoWrite, client: Annotated[str, Depends(controlling)]) -> Ack:
-        return forward(client, "io.write", "io_write", type=body.type, index=body.index, mask=body.mask,
-                       value=body.value)
+        """Write the masked points of the 16 from ``index`` with the next command packet."""
+        return call(client, "io.write", lambda: service.io_write(body.type, body.index, body.mask, body.value),
+                    body.model_dump())
 
     @app.get("/api/sessions", tags=["logs"])
     def sessions() -> list[dict[str, Any]]:
@@ -254,19 +333,23 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
 
     @app.get("/metrics", tags=["state"], response_class=PlainTextResponse)
     def prometheus() -> PlainTextResponse:
-        return PlainTextResponse(metrics.render(service.state(), service.stops_by_reason),
-                                 media_type="text/plain; version=0.0.4")
+        return PlainTextResponse(metrics.render(), media_type="text/plain; version=0.0.4")
 
     @app.websocket("/ws/telemetry")
-    async def telemetry(ws: WebSocket, hz: float = 30.0) -> None:
+    async def telemetry(ws: WebSocket, hz: float = 50.0) -> None:
         await ws.accept()
         period = 1.0 / min(max(hz, 1.0), 100.0)
+        loop = asyncio.get_running_loop()
+        due = loop.time()
         try:
             while True:
                 s = await asyncio.to_thread(state)
                 await ws.send_json(s)
-                await asyncio.sleep(period)
-        except (WebSocketDisconnect, RuntimeError):
+                # Absolute deadlines, so the time spent reading and sending does not lower the rate;
+                # after a stall, carry on from now rather than sending a burst.
+                due = max(due + period, loop.time() - period)
+                await asyncio.sleep(max(0.0, due - loop.time()))
+        except (WebSocketDisconnect, RuntimeError, OSError):  # the client went away
             return
 
     if WEB_DIR.is_dir():

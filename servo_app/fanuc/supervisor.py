@@ -23,6 +23,7 @@ import numpy as np
 
 from servo_app.fanuc.packets import LimitTableResponse, Status
 from servo_app.fanuc.session import IoRequest, Phase, SessionConfig, StreamSession
+from servo_app.motion.commands import PoseTarget, Twist
 from servo_app.motion.servo import CommandRejected, ServoCycle
 from servo_app.safety import (
     AbandonStream,
@@ -148,6 +149,24 @@ class StreamSupervisor:
             self._feed(ControllerAlarm(code=str(kw["code"]), message=str(kw.get("message", ""))), now)
         elif op == "jog":
             self._jog(np.asarray(kw["joints"], dtype=float), float(kw.get("hold_s", 0.2)), now)
+        elif op == "twist":
+            try:
+                cmd = Twist(source=str(kw.get("source", "api")), stamp=now, frame=kw.get("frame", "base"),
+                            linear=tuple(kw.get("linear", (0.0, 0.0, 0.0))),
+                            angular=tuple(kw.get("angular", (0.0, 0.0, 0.0))))
+            except ValueError as exc:
+                raise CommandRejected(str(exc)) from None
+            self._hold_to_run(float(kw.get("hold_s", 0.2)), now, "twist")
+            self.cycle.twist(cmd)
+        elif op == "pose":
+            try:
+                pose = PoseTarget(source=str(kw.get("source", "api")), stamp=now, xyzwpr=tuple(kw["xyzwpr"]),
+                                  linear_speed=float(kw.get("linear_speed", 100.0)),
+                                  angular_speed=float(kw.get("angular_speed", 30.0)))
+            except ValueError as exc:
+                raise CommandRejected(str(exc)) from None
+            self._motion_gate("pose target")
+            self.cycle.pose_target(pose)
         elif op == "target":
             self._motion_gate("target")
             self.cycle.set_joint_target(np.asarray(kw["joints"], dtype=float), float(kw.get("speed_scale", 1.0)))
@@ -183,12 +202,18 @@ class StreamSupervisor:
                                   + (f" (stopped: {self.state.stop_reason})" if self.state.stop_reason else ""))
 
     def _jog(self, v: np.ndarray, hold_s: float, now: float) -> None:
+        self._hold_to_run(hold_s, now, "jog")
+        self.cycle.jog_joints(v)
+
+    def _hold_to_run(self, hold_s: float, now: float, what: str) -> None:
+        """Gate a hold-to-run motion and renew its deadline."""
+        if not 0.0 < hold_s <= 2.0:
+            raise CommandRejected(f"hold_s={hold_s} must be in (0, 2]")
         # A new press after the hold-to-run ran out resumes by itself; any other stop needs a resume.
         reason = self.state.stop_reason or ""
         if self.state.mode in (Mode.STOPPED, Mode.STOPPING) and reason.startswith(JOG_EXPIRED):
             self._request(ResumeRequested(), now)
-        self._motion_gate("jog")
-        self.cycle.jog_joints(v)
+        self._motion_gate(what)
         self.hold = HoldToRun(timeout_s=hold_s).renew(now)
 
     def signal(self, sig: int, now: float) -> list[bytes]:

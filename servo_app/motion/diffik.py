@@ -112,6 +112,9 @@ class IkSettings:
     arrive_deg: float = 0.01
     reference_tolerance_m: float = 1e-3  # re-latch the integrated TCP reference beyond this drift
     binding_tol: float = 1e-9  # rad per cycle: a row counts as binding within this of its bound
+    # The jerk-limited shaper builds a deceleration at its jerk limit: braking distances allow for the
+    # time that takes (None: the largest acc/jerk ratio of the profile's axes).
+    follow_lag_s: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("vel_fraction", "acc_fraction", "brake_fraction"):
@@ -224,6 +227,11 @@ class DifferentialIK:
             pairs = collision_pairs if collision_pairs is not None else default_collision_pairs(self.model)
             self.collision_limit = CollisionLimit(self.model, pairs, path=self.path_braking)
             self.limits.append(self.collision_limit)
+        self.follow_lag = (st.follow_lag_s if st.follow_lag_s is not None
+                           else float(np.max(np.asarray(profile.acc_limit) / np.asarray(profile.jerk_limit))))
+        for limit in (self.braking_limit, self.config_guard, self.collision_limit):
+            if limit is not None:
+                limit.lag_s = self.follow_lag
         self._row_flags: np.ndarray | None = None  # IkFlag per QP row, built on the first problem
         self._row_counts: list[int] = []
         self._accel_rows: slice | None = None
@@ -480,7 +488,7 @@ class DifferentialIK:
         for dist, cap, acc in ((lin, cmd.linear_speed / 1000.0, st.target_linear_acc / 1000.0),
                                (ang, math.radians(cmd.angular_speed), math.radians(st.target_angular_acc))):
             if dist > 0.0:
-                rate = min(rate, cap / dist, float(braking_speed(dist, acc, dt)) / dist)
+                rate = min(rate, cap / dist, float(braking_speed(dist, acc, dt + self.follow_lag)) / dist)
         return rate * np.concatenate([dp, dth]), False
 
     def _jog_increment(self, cmd: JointJog) -> np.ndarray:
@@ -497,7 +505,7 @@ class DifferentialIK:
         rate = self.settings.pose_gain
         moving = dist > 0.0
         vmax = self.vel[moving] * cmd.speed_scale
-        vbrake = braking_speed(dist[moving], self.brake_acc[moving], self.dt)
+        vbrake = braking_speed(dist[moving], self.brake_acc[moving], self.dt + self.follow_lag)
         rate = min(rate, float(np.min(np.minimum(vmax, vbrake) / dist[moving])))
         return self.c_inv @ (rate * err_f) * self.dt, False
 

@@ -47,6 +47,9 @@ def braking_speed(distance: np.ndarray | float, acc: np.ndarray | float, dt: flo
     """Largest speed ``v`` for which one more cycle at ``v`` and then braking at ``acc`` stays within
     ``distance``: ``v * dt + v**2 / (2 acc) <= distance``. Non-positive distances give 0.
 
+    Callers pass ``dt`` plus their limit's ``lag_s``: the jerk-limited shaper downstream needs that
+    long to build up the deceleration, and travels on meanwhile.
+
     Recursively feasible with the acceleration limit: from ``v_k`` at this bound, ``v_k - acc * dt``
     is within next cycle's bound, so a joint that obeys it every cycle can always stop in time.
     """
@@ -146,13 +149,15 @@ class AccelerationLimit(Limit):
 
 class BrakingLimit(Limit):
     """Each joint stays within ``[lower, upper]`` (model convention, rad) and can always stop before
-    it: ``dq_i <= dt * braking_speed(upper_i - q_i, brake_i, dt)`` and the mirror image. A joint
+    it: ``dq_i <= dt * braking_speed(upper_i - q_i, brake_i, dt + lag_s)`` and the mirror image. A joint
     already beyond a bound may only move back. 12 rows: upper bounds, then lower bounds.
 
     The returned rows brake each joint on its own: always recursively feasible, whatever the
     direction does. With a :class:`PathBraking`, ``h_path`` also holds the stricter rows for braking
     the whole motion together along the path (for the path-keeping scale).
     """
+
+    lag_s: float = 0.0  # s: how long the shaper downstream takes to build up a deceleration
 
     def __init__(self, model: mujoco.MjModel, lower: Sequence[float], upper: Sequence[float],
                  brake_acc: Sequence[float], path: PathBraking | None = None) -> None:
@@ -185,8 +190,8 @@ class BrakingLimit(Limit):
         h = np.full(12, np.inf)
         up = np.isfinite(self.upper)
         lo = np.isfinite(self.lower)
-        h[:6][up] = dt * braking_speed(self.upper[up] - q[up], acc[up], dt)
-        h[6:][lo] = dt * braking_speed(q[lo] - self.lower[lo], acc[lo], dt)
+        h[:6][up] = dt * braking_speed(self.upper[up] - q[up], acc[up], dt + self.lag_s)
+        h[6:][lo] = dt * braking_speed(q[lo] - self.lower[lo], acc[lo], dt + self.lag_s)
         return h
 
 
@@ -252,6 +257,8 @@ class ConfigurationGuard(Limit):
     ``margins.shoulder_brake_acc``. 13 rows; ``h_path`` as in :class:`BrakingLimit`.
     """
 
+    lag_s: float = 0.0  # s: how long the shaper downstream takes to build up a deceleration
+
     def __init__(self, model: mujoco.MjModel, kin: ArmKinematics, brake_acc: Sequence[float],
                  margins: ConfigurationMargins | None = None, q_ref: np.ndarray | None = None,
                  path: PathBraking | None = None) -> None:
@@ -297,12 +304,12 @@ class ConfigurationGuard(Limit):
         acc = self.margins.shoulder_brake_acc
         h = np.empty(13)
         h[:12] = joint_rows.h
-        h[12] = dt * float(braking_speed(distance, acc, dt))
+        h[12] = dt * float(braking_speed(distance, acc, dt + self.lag_s))
         self.h_path = h.copy()
         self.h_path[:12] = self._joints.h_path
         if self.path is not None and self.path.u is not None:
             acc = float(self.path.decel(np.array([grad @ self.path.u[self._cols]]), acc)[0])
-            self.h_path[12] = dt * float(braking_speed(distance, acc, dt))
+            self.h_path[12] = dt * float(braking_speed(distance, acc, dt + self.lag_s))
         return Constraint(G=self._g, h=h)
 
 
@@ -316,6 +323,8 @@ class CollisionLimit(CollisionAvoidanceLimit):
     of detection range give ``G = 0, h = inf``. Keep ``collision_detection_distance`` above the
     braking distance at full speed (``v**2 / (2 brake_acc)``), or a fast approach is seen too late.
     """
+
+    lag_s: float = 0.0  # s: how long the shaper downstream takes to build up a deceleration
 
     def __init__(self, model: mujoco.MjModel, geom_pairs: Sequence, *, brake_acc: float = 3.0,
                  gain: float = 0.85, minimum_distance_from_collisions: float = 0.01,
@@ -337,8 +346,8 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self.h_path = h.copy()
         if self.path is not None and self.path.u is not None and c.G is not None:
             acc = self.path.decel(c.G[active] @ self.path.u, self.brake_acc)
-            self.h_path[active] = np.minimum(h[active], dt * braking_speed(gap, acc, dt) + relax)
-        h[active] = np.minimum(h[active], dt * braking_speed(gap, self.brake_acc, dt) + relax)
+            self.h_path[active] = np.minimum(h[active], dt * braking_speed(gap, acc, dt + self.lag_s) + relax)
+        h[active] = np.minimum(h[active], dt * braking_speed(gap, self.brake_acc, dt + self.lag_s) + relax)
         return Constraint(G=c.G, h=h)
 
 

@@ -6,7 +6,13 @@ start. Commands arrive from the runner (which got them from the API process):
 
 - joint target (absolute, FANUC deg) with a speed scale;
 - joint jog (deg/s per axis); hold-to-run is the supervisor's (it calls ``stop`` when the hold runs out);
-- stop (soft: resumable; fast: shortest stop) and resume.
+- Cartesian: a TCP twist (base or tool frame) or a pose target, through the differential IK, whose
+  per-cycle joint velocity the shaper then tracks jerk-limited;
+- stop (soft: resumable, and along the current Cartesian path where there is one; fast: shortest
+  stop) and resume.
+
+A flange-speed guard keeps joint-space motion under the speed cap at which the controller's
+acceleration and jerk tables were evaluated (Appendix B: above it the controller's limits fall).
 """
 
 from __future__ import annotations
@@ -16,9 +22,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from servo_app.fanuc.packets import Status
+from servo_app.motion.commands import PoseTarget, Twist
+from servo_app.motion.diffik import DifferentialIK, IkResult
 from servo_app.motion.limit_tables import LimitTables, default_tables
 from servo_app.motion.shaper import JointShaper, ShaperLimits
+from servo_app.robots.configuration import ArmConfiguration, boundary_distances, configuration_of
 from servo_app.robots.conventions import fanuc_deg_to_model_rad, model_rad_to_fanuc_deg
+from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import RobotProfile
 
 
@@ -32,7 +42,11 @@ class ServoSettings:
     flange_speed_cap: float | None = None  # mm/s; None: the profile's $MAX_SPD
     payload_kg: float | None = None  # None: the controller assumes max payload (Appendix B)
     joint_margin_deg: float = 0.5  # keep this far inside the joint ranges
-
+    flange_speed_margin: float = 0.8  # joint motion slows down above this share of the cap
+    ik_solver: str = "daqp"  # "daqp" or "osqp" (persistent workspaces either way)
+    tool_xyzwpr: tuple[float, ...] | None = None  # TCP offset from the flange, mm / deg
+    collision: bool = True  # self-collision and floor checks in the IK
+    config_margin_deg: float = 1.0  # joint motion keeps this far from any configuration boundary
 
 class ServoCycle:
     def __init__(self, profile: RobotProfile, dt: float, settings: ServoSettings | None = None) -> None:
@@ -49,6 +63,19 @@ class ServoCycle:
         lo = np.asarray(profile.joint_min_deg) + self.settings.joint_margin_deg
         hi = np.asarray(profile.joint_max_deg) - self.settings.joint_margin_deg
         self._range_model_deg = (lo, hi)
+        self.kin = ArmKinematics(profile)
+        self.ik = DifferentialIK(profile, dt, self.settings.tool_xyzwpr, self.settings.ik_solver,  # type: ignore[arg-type]
+                                 collision=self.settings.collision)
+        self._cart: Twist | PoseTarget | None = None
+        self._cart_active = False  # the IK drives the shaper (also while braking along the path)
+        self.last_ik: IkResult | None = None
+        self._speed_scale = 1.0  # flange-speed guard's current reduction of joint motion
+        self.flange_speed = 0.0  # mm/s, from the last two commanded positions
+        self.limit_scale = 1.0  # share of the IK's velocity the stopping-point guard let through
+        self.configuration: ArmConfiguration | None = None  # held from the start of streaming
+        self._margins = np.zeros(6)
+        self._q_prev: np.ndarray | None = None
+        self.cap = 0.0
 
     # ------------------------------------------------------------ MotionSource
     def begin(self, q_start: np.ndarray, tables: LimitTables | None) -> None:
@@ -58,6 +85,7 @@ class ServoCycle:
         else:
             self.tables_source = "controller"
         cap = self.settings.flange_speed_cap or tables.vmax
+        self.cap = cap
         vel, acc, jerk = (x[: self.profile.dof] for x in tables.for_cap(cap, self.settings.payload_kg))
         self.limits = (vel, acc, jerk)
         self.shaper = JointShaper(ShaperLimits(vel, acc, jerk, fraction=self.settings.limit_fraction),
@@ -67,12 +95,25 @@ class ServoCycle:
         self.stopped = False
         self._target = None
         self._jog = None
+        self._cart, self._cart_active = None, False
+        self._speed_scale = 1.0
+        self._q_prev = None
+        q_model = fanuc_deg_to_model_rad(np.asarray(q_start[: self.profile.dof], float), self.profile.j23_factor)
+        self.ik.reset(q_model)
+        self.configuration = configuration_of(q_model, self.kin)
+        # A stream may begin closer than the margin to a boundary: keep at least what it had there.
+        start = boundary_distances(q_model, self.kin)
+        self._margins = np.minimum(np.radians(self.settings.config_margin_deg), start * 0.999)
 
     def next_command(self, status: Status) -> np.ndarray:
         shaper = self._require()
-        if self._jog is not None and not self.stopped:
+        if self._cart_active:
+            self._steer_ik(shaper)
+        elif self._jog is not None and not self.stopped:
             self._steer_jog(shaper, self._jog)
-        return shaper.step()
+        q = shaper.step()
+        self._guard_flange_speed(shaper, q)
+        return q
 
     def request_rest(self) -> None:
         if self.shaper is not None and not self.shaper.at_rest:
@@ -87,9 +128,15 @@ class ServoCycle:
         if not (np.isfinite(speed_scale) and 0.0 < speed_scale <= 1.0):
             raise CommandRejected(f"speed_scale={speed_scale} must be in (0, 1]")
         shaper = self._require()
+        reach = self._config_keeping_reach(shaper.state[0], q)
+        if reach < 1.0:
+            raise CommandRejected(
+                f"joints={[round(float(v), 3) for v in q]} leave the arm configuration {self.configuration} held "
+                f"since the stream started (manual 61.5, MOTN-156): only {reach:.0%} of the way keeps it")
         self._target, self._jog = (q, speed_scale), None
+        self._cart, self._cart_active = None, False
         self.stopped = False
-        shaper.set_target(q, speed_scale)
+        shaper.set_target(q, speed_scale * self._speed_scale)
 
     def jog_joints(self, v_deg_s: np.ndarray) -> None:
         """Jog at joint velocities (deg/s): a target kept ahead in the jog direction, clipped to the ranges,
@@ -103,31 +150,155 @@ class ServoCycle:
             raise CommandRejected(f"joints[{bad[0]}]={v[bad[0]]} is not a finite number")
         self._require()
         self._jog, self._target = v, None
+        self._cart, self._cart_active = None, False
+        self.stopped = False
+
+    def twist(self, cmd: Twist) -> None:
+        """Move the TCP at a twist (base or tool frame) until replaced, stopped or the hold runs out."""
+        self._require()
+        speed = float(np.linalg.norm(cmd.linear))
+        if speed > self.cap * self.settings.flange_speed_margin:
+            raise CommandRejected(f"linear speed {speed:.1f} mm/s is above the flange-speed cap "
+                                  f"{self.cap * self.settings.flange_speed_margin:.0f} mm/s")
+        self._cart, self._cart_active = cmd, True
+        self._jog, self._target = None, None
+        self.stopped = False
+
+    def pose_target(self, cmd: PoseTarget) -> None:
+        """Reach a TCP pose in a straight line at the command's speed caps (same configuration)."""
+        self._require()
+        if cmd.linear_speed > self.cap * self.settings.flange_speed_margin:
+            raise CommandRejected(f"linear_speed={cmd.linear_speed} mm/s is above the flange-speed cap "
+                                  f"{self.cap * self.settings.flange_speed_margin:.0f} mm/s")
+        self._cart, self._cart_active = cmd, True
+        self._jog, self._target = None, None
         self.stopped = False
 
     def stop(self, fast: bool = False) -> None:
         shaper = self._require()
         self.stopped = True
         self._jog = None
-        shaper.stop("fast" if fast else "soft")
+        if self._cart_active and not fast:
+            self._cart = None  # the IK brakes along the current path, the shaper follows
+            return
+        self._cart, self._cart_active = None, False
+        if shaper.at_rest:
+            return
+        # Stop along the joint-space line the motion was on: a stop point checked like a jog target
+        # (in range, same configuration), reached by a straight position profile. Braking each axis
+        # on its own (a velocity stop) would leave the line that the jog or target was checked on.
+        q, v, _ = shaper.state
+        t_stop = shaper.optimal_stop_duration("soft")
+        ahead = self._clip_to_range(q + v * t_stop / 2)
+        shaper.set_target(q + (ahead - q) * self._config_keeping_reach(q, ahead), 1.0)
 
     def resume(self) -> None:
         """Continue after a soft stop: towards the target that was interrupted, if any."""
         self.stopped = False
         if self._target is not None and self.shaper is not None:
-            self.shaper.set_target(*self._target)
+            self.shaper.set_target(self._target[0], self._target[1] * self._speed_scale)
 
     # ----------------------------------------------------------------- helpers
+    def _steer_ik(self, shaper: JointShaper) -> None:
+        j23 = self.profile.j23_factor
+        q_f, v_f, _ = shaper.state
+        q_m = fanuc_deg_to_model_rad(q_f, j23)
+        dq_prev = self.ik.c_inv @ np.radians(v_f) * self.dt  # what the shaper delivers, model rad/cycle
+        res = self.ik.step(q_m, self._cart, dq_prev=dq_prev)
+        self.last_ik = res
+        v = self.ik.velocity_fanuc_deg_s(res.velocity)
+        v = v * self._stoppable_scale(q_f, v, shaper)
+        if self._cart is None and not np.any(res.dq) and not np.any(v_f):
+            self._cart_active = False  # braked to rest along the path
+            shaper.stop("soft")
+            return
+        shaper.set_velocity(v)
+
+    def _stoppable_scale(self, q: np.ndarray, v: np.ndarray, shaper: JointShaper) -> float:
+        """Largest share of ``v`` (whole vector, so the path keeps its direction) from which the arm can
+        still stop inside the joint ranges and the held configuration.
+
+        A safety net under the IK's own limits: the stopping point allows for the shaper's lag in
+        building up a deceleration (acc/jerk) and brakes at half the acceleration limit.
+        """
+        _, acc, jerk = shaper.limits.scaled("soft")
+        lag = self.dt + float(np.max(acc / jerk))
+        brake = 0.5 * acc
+
+        def stops_safely(s: float) -> bool:
+            w = v * s
+            stop = q + w * lag + w * np.abs(w) / (2 * brake)
+            return self._same_configuration(stop) and bool(np.allclose(self._clip_to_range(stop), stop, atol=1e-9))
+
+        if stops_safely(1.0):
+            self.limit_scale = 1.0
+            return 1.0
+        lo, hi = 0.0, 1.0
+        for _ in range(10):
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if stops_safely(mid) else (lo, mid)
+        self.limit_scale = lo
+        return lo
+
+    def _guard_flange_speed(self, shaper: JointShaper, q: np.ndarray) -> None:
+        """Slow joint-space motion down before the flange exceeds the cap (the IK caps Cartesian speed)."""
+        if self._q_prev is not None:
+            p0 = self.kin.flange_xyz_mm_fanuc_deg(self._q_prev)
+            p1 = self.kin.flange_xyz_mm_fanuc_deg(q)
+            self.flange_speed = float(np.linalg.norm(p1 - p0)) / self.dt
+        self._q_prev = q
+        if self._cart_active or self.stopped:
+            return
+        # Predict a few cycles ahead from the shaper's velocity: braking must start before the cap.
+        _, v_f, a_f = shaper.state
+        ahead = q + (v_f + a_f * 4 * self.dt) * 4 * self.dt
+        predicted = float(np.linalg.norm(self.kin.flange_xyz_mm_fanuc_deg(ahead)
+                                         - self.kin.flange_xyz_mm_fanuc_deg(q))) / (4 * self.dt)
+        limit = self.cap * self.settings.flange_speed_margin
+        if predicted > limit:
+            self._speed_scale = max(0.05, self._speed_scale * min(0.9, limit / predicted))
+            if self._target is not None:
+                shaper.set_target(self._target[0], max(0.01, self._target[1] * self._speed_scale))
+        elif self._speed_scale < 1.0 and predicted < 0.7 * limit:
+            self._speed_scale = min(1.0, self._speed_scale * 1.05)
+
     def _steer_jog(self, shaper: JointShaper, v: np.ndarray) -> None:
         vmax = shaper.limits.scaled("soft")[0]
+        v = v * self._speed_scale
         scale = float(np.max(np.abs(v) / vmax))
         if scale <= 1e-9:
             if not shaper.at_rest and shaper.mode != "stop-soft":
                 shaper.stop("soft")
             return
         q = shaper.state[0]
-        ahead = q + v * self._horizon
-        shaper.set_target(self._clip_to_range(ahead), min(scale, 1.0))
+        ahead = self._clip_to_range(q + v * self._horizon)
+        reach = self._config_keeping_reach(q, ahead)
+        shaper.set_target(q + (ahead - q) * reach, min(scale, 1.0))
+
+    def _same_configuration(self, q_fanuc_deg: np.ndarray) -> bool:
+        q = fanuc_deg_to_model_rad(q_fanuc_deg, self.profile.j23_factor)
+        # Near a boundary (wrist or elbow stretched, wrist over the J1 axis, a joint at +-180 deg) a
+        # rounding step can change the configuration: keep a margin from each.
+        return (configuration_of(q, self.kin) == self.configuration
+                and bool(np.all(boundary_distances(q, self.kin) >= self._margins)))
+
+    def _config_keeping_reach(self, q0: np.ndarray, q1: np.ndarray, samples: int = 24) -> float:
+        """Share of the joint-space line q0 -> q1 along which the configuration stays the held one."""
+        if self.configuration is None:
+            return 1.0
+        last = 0.0
+        for k in range(1, samples + 1):
+            f = k / samples
+            if not self._same_configuration(q0 + (q1 - q0) * f):
+                # Refine: a coarse answer would move the jog's target back and forth from one
+                # cycle to the next, and a target that jumps back can be overshot.
+                lo, hi = last, f
+                for _ in range(14):
+                    mid = (lo + hi) / 2
+                    lo, hi = (mid, hi) if self._same_configuration(q0 + (q1 - q0) * mid) else (lo, mid)
+                return lo
+            last = f
+        return 1.0
 
     def _clip_to_range(self, q_fanuc_deg: np.ndarray) -> np.ndarray:
         j23 = self.profile.j23_factor

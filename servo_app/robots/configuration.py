@@ -26,6 +26,8 @@ import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from servo_app.robots.conventions import ArrayLike
 
 if TYPE_CHECKING:
@@ -82,3 +84,27 @@ def configuration_of(q_model_rad: ArrayLike, kin: ArmKinematics) -> ArmConfigura
     x_wrist = kin.a1 + kin.a2 * math.sin(q2) + kin.d4 * math.cos(phi) + kin.a3 * math.sin(phi)
     return ArmConfiguration(flip=wrap_pi(q5) > 0.0, up=up, top=x_wrist > 0.0,
                             turn1=turn_number(q1), turn4=turn_number(q4), turn6=turn_number(q6))
+
+
+def boundary_distances(q_model_rad: ArrayLike, kin: ArmKinematics) -> np.ndarray:
+    """How far ``q`` is from each configuration boundary, as angles (rad) where the boundary is one.
+
+    [flip (J5 from 0 or 180 deg), up/down (elbow from the stretched-forearm line), top/bottom (wrist
+    centre from the J1 axis, divided by the arm's reach), turn boundaries of J1, J4, J6 (from +-180
+    deg)]. Used to keep joint-space motion a margin away from changing the configuration.
+    """
+    q1, q2, q3, q4, q5, q6 = (float(v) for v in q_model_rad[:6])
+    elbow = math.hypot(kin.d4, kin.a3)
+    up = (kin.d4 * math.cos(q3) - kin.a3 * math.sin(q3)) / elbow  # = cos(q3 + atan2(a3, d4))
+    phi = q2 - q3
+    x_wrist = kin.a1 + kin.a2 * math.sin(q2) + kin.d4 * math.cos(phi) + kin.a3 * math.sin(phi)
+
+    def from_pi(a: float) -> float:
+        return math.pi - abs(wrap_pi(a))
+
+    return np.array([
+        min(abs(wrap_pi(q5)), from_pi(q5)),
+        math.asin(min(1.0, abs(up))),
+        abs(x_wrist) / (kin.a2 + elbow),
+        from_pi(q1), from_pi(q4), from_pi(q6),
+    ])
