@@ -11,6 +11,7 @@ SIGINT/SIGTERM end the stream cleanly: decelerate, last data, then status output
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import gc
 import multiprocessing as mp
@@ -35,7 +36,7 @@ from servo_app.ipc import LatestValueSlot
 from servo_app.motion.servo import CommandRejected, ServoCycle, ServoSettings
 from servo_app.robots.profile import load_profile
 from servo_app.safety import Mode
-from servo_app.state import MODES, PHASES, STATE_SIZE, StateVector, decode_state
+from servo_app.state import LATENCY_BUCKETS_US, MODES, PHASES, STATE_SIZE, StateVector, decode_state
 
 assert all(p.value in PHASES for p in Phase)
 assert all(m.value in MODES for m in Mode)
@@ -102,6 +103,9 @@ class _ServoProcess:
         self.t0 = time.monotonic()
         self.state = StateVector()
         self.latency = _Latency()
+        # Histogram over the process's life (Prometheus wants counters that only grow).
+        self.lat_hist = np.zeros(len(LATENCY_BUCKETS_US) + 1)
+        self.lat_sum_us = 0.0
         self.late_us = (cfg.late_threshold_ms or self.dt * 1000 / 2) * 1000
         self.hist: deque[np.ndarray] = deque(maxlen=4)  # last commanded positions, for finite differences
         self.pending_signal: int | None = None
@@ -136,6 +140,7 @@ class _ServoProcess:
         self.latency = _Latency()
         cycle = ServoCycle(self.profile, self.dt, self.cycle.settings)
         q0 = np.zeros(self.profile.dof)
+        q0[4] = -90.0  # wrist bent: a regular pose, away from every configuration boundary
         cycle.begin(q0, None)
         cycle.set_joint_target(q0 + 1.0)
         cycle.jog_joints(np.ones(self.profile.dof))
@@ -189,6 +194,8 @@ class _ServoProcess:
             c = sent.command
             self.log.command(t_sent - self.t0, c.seq, c.last_data, c.data_format, c.write_io_value, lat_us, c.values)
             self.latency.add(lat_us, self.late_us)
+            self.lat_hist[bisect.bisect_left(LATENCY_BUCKETS_US, lat_us)] += 1  # le semantics
+            self.lat_sum_us += lat_us
             self.hist.append(np.array(c.values[:6]))
 
     # -- requests from the parent
@@ -273,8 +280,13 @@ class _ServoProcess:
             sv.set("q_servo", np.array(st.joints[:6]))
             sv.set("cart_servo", np.array(st.cartesian[:6]))
             sv.set("io_read_value", st.read_io_value)
+            sv.set("io_read_type", st.read_io_type)
+            sv.set("io_read_index", st.read_io_index)
+            sv.set("io_read_mask", st.read_io_mask)
         for k in ("commands_sent", "status_received", "status_lost", "status_duplicated", "malformed"):
             sv.set(k, getattr(s.stats, k))
+        sv.set("latency_hist", self.lat_hist)
+        sv.set("latency_sum_us", self.lat_sum_us)
         lat = self.latency
         if lat.samples:
             sv.set("latency_last_us", lat.samples[-1])

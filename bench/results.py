@@ -1,0 +1,25 @@
+"""Write one benchmark's section of bench/RESULTS.md, keeping the other sections."""
+
+from __future__ import annotations
+
+import platform
+import time
+from pathlib import Path
+
+RESULTS = Path(__file__).resolve().parent / "RESULTS.md"
+
+
+def write_section(name: str, command: str, text: str) -> Path:
+    header = f"## {name}"
+    body = (f"{header}\n\n{time.strftime('%Y-%m-%d')}, {platform.python_implementation()} "
+            f"{platform.python_version()} on {platform.machine()}, 2 shared cores (tails include other load).\n\n"
+            f"Command: `{command}`\n\n{text}\n")
+    old = RESULTS.read_text() if RESULTS.exists() else "# Benchmark results\n"
+    start = old.find(header + "\n")
+    if start < 0:
+        new = old.rstrip("\n") + "\n\n" + body
+    else:
+        nxt = old.find("\n## ", start + len(header))
+        new = old[:start] + body + (old[nxt + 1:] if nxt >= 0 else "")
+    RESULTS.write_text(new)
+    return RESULTS
