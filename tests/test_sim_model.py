@@ -295,8 +295,8 @@ def test_607_wrong_protocol_version_on_any_packet() -> None:
     assert r.tick() is None  # the start packet was not taken
 
 
-def test_619_cartesian_format_is_not_supported_by_this_build() -> None:
-    r = Rig()
+def test_619_cartesian_format_on_a_model_without_cartesian_support() -> None:
+    r = Rig(ControllerConfig(cartesian_supported=False))
     r.ready()
     r.send(r.cmd([465, 0, 365, 180, -90, 0], data_format=0))
     r.tick()

@@ -1,4 +1,5 @@
-"""The alarm codes of manual 61.9 with their texts, causes and remedies.
+"""The alarm codes of manual 61.9 with their texts, causes and remedies, plus the few codes outside
+61.9 that the simulator and ``servo-app check`` report (MOTN-017, MOTN-018, CHK-001).
 
 The simulator raises them; the service shows them (code, cause, remedy) when a controller reports
 a stop. ``format_alarm`` renders the one-line form the controller shows, e.g.
@@ -168,6 +169,32 @@ _SPECS = [
         "There is no I/O for this type",
         "The I/O to be read or written via the command packet is not set for allocation.",
         "Allocate the I/O to be read or written, or specify another I/O.",
+    ),
+    # Not in 61.9, which only says "the robot will stop with an alarm" for an unreachable desired
+    # position (61.5): FANUC's general motion alarms stand in for it.
+    AlarmSpec(
+        "MOTN-017",
+        "Limit error (G:1, A:{axis}, Sq.{seq})",
+        "The desired position of the command packet is outside the stroke limit of the axis "
+        "(manual 61.5 'Reachable positions'; FANUC's general joint limit alarm). For Cartesian format: "
+        "the joints converted from the pose.",
+        "Keep every commanded joint inside its range (J3 range in the model convention, after J2/J3 "
+        "conversion).",
+    ),
+    AlarmSpec(
+        "MOTN-018",
+        "Position not reachable (Sq.{seq})",
+        "The Cartesian desired position has no joint solution: the flange centre is outside the work "
+        "envelope of the arm (manual 61.5 'Reachable positions').",
+        "Keep the Cartesian path inside the reachable space of the arm (flange centre, world frame).",
+    ),
+    # Offline only (servo-app check): the controller has no such alarm.
+    AlarmSpec(
+        "CHK-001",
+        "Flange speed {pc} mm/s above $MAX_SPD {rob} mm/s.(Sq.{seq})",
+        "The flange-centre speed of the commanded path exceeds $STMO_GRP[].$MAX_SPD; above it the "
+        "acceleration/jerk limits fall by extrapolation (Appendix B). Offline checker only.",
+        "Slow the path down so that the flange centre stays below $MAX_SPD.",
     ),
 ]
 

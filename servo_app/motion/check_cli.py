@@ -4,9 +4,10 @@ Input: a CSV (comma, semicolon, tab or space separated; ``#`` comments; an optio
 with one row per communication interval: J1..J6 in FANUC convention degrees (extra columns, e.g.
 extended axes, are ignored), or X Y Z W P R of the flange centre (mm, deg, FANUC world). ``--format
 auto`` decides from the header (``x,y,z,w,p,r`` -> xyzwpr; otherwise joints); without a header it
-assumes joints. Cartesian rows go through the analytic IK: the first row takes the solution nearest
-the all-zero posture, later rows the solution nearest the previous one in the SAME configuration
-(the controller keeps the configuration of IBGN start: MOTN-156 otherwise).
+assumes joints. Cartesian rows are converted as the simulator converts them
+(servo_app.motion.cartesian): the first row takes the solution nearest the all-zero posture, later
+rows the solution nearest the previous one, which must keep the first row's configuration (turn
+numbers included: MOTN-156 otherwise); no solution at all is MOTN-018.
 
 The first row is taken as the controller's command position (no MOTN-617 check on it). Output:
 the first violation (code, axis, row, value, limit), then peak usage per axis in % of each limit.
@@ -31,17 +32,10 @@ from typing import Any
 
 import numpy as np
 
-from servo_app.fanuc.alarms import ALARMS, AlarmSpec
 from servo_app.motion.checker import ControllerLimitChecker, Usage, Violation, check_trajectory
 
 FORMATS = ("auto", "joints", "xyzwpr")
 CSV_SUFFIXES = {".csv", ".txt", ".tsv", ".dat", ""}
-UNREACHABLE_CODE = "MOTN-018"
-ALARMS.setdefault(UNREACHABLE_CODE, AlarmSpec(
-    UNREACHABLE_CODE, "Position not reachable (Sq.{seq})",
-    "The Cartesian desired position has no joint solution (outside the work envelope or the joint ranges).",
-    "Keep the Cartesian path inside the reachable space of the arm.",
-))
 
 
 class TrajectoryError(ValueError):
@@ -158,28 +152,27 @@ def _load_csv(p: Path, fmt: str) -> Trajectory:
 
 
 def cartesian_to_joints(traj: Trajectory, profile: Any) -> tuple[np.ndarray, Violation | None]:
-    """FANUC joints (deg) for the X Y Z W P R rows; stops at the first unreachable row."""
-    try:
-        from servo_app.robots.configuration import configuration_of
-        from servo_app.robots.conventions import model_rad_to_fanuc_deg, xyzwpr_to_matrix
-        from servo_app.robots.ik import nearest
-        from servo_app.robots.kinematics import ArmKinematics
-    except ImportError as exc:
-        raise NotImplementedError(f"X Y Z W P R input is not yet supported (no IK: {exc})") from exc
-    arm = ArmKinematics(profile)
+    """FANUC joints (deg) for the X Y Z W P R rows, converted as the simulator does
+    (:mod:`servo_app.motion.cartesian`); stops at the first row that has none (MOTN-156 / MOTN-018).
+
+    The start position of the first stream is unknown: its first row takes the solution nearest the
+    all-zero posture and sets the held configuration. A later stream of a session log starts from
+    the last row of the one before (the controller's command position at its IBGN start)."""
+    from servo_app.motion.cartesian import CartesianConverter
+
+    conv = CartesianConverter.for_profile(profile)
     out = np.zeros((len(traj.values), 6))
-    seed = np.zeros(6)
-    config = None
+    prev = np.zeros(6)
+    starts = {e + 1 for e in traj.stream_ends}
     for i, row in enumerate(traj.values):
-        pose = xyzwpr_to_matrix(row)
-        q = nearest(arm, pose, seed, config)
-        if q is None:
-            code = "MOTN-156" if config is not None and nearest(arm, pose, seed) is not None else UNREACHABLE_CODE
-            return out[:i], Violation(code, "cartesian", None, i + 1, math.nan, math.nan, detected_seq=i + 1)
-        if config is None:
-            config = configuration_of(q, arm)
-        out[i] = model_rad_to_fanuc_deg(q, arm.j23_factor)
-        seed = q
+        if i in starts:
+            conv.reset(prev)
+        res = conv.convert(row, prev)
+        if res.joints_deg is None:
+            assert res.code is not None
+            seq = int(traj.seqs[i]) if traj.seqs is not None else i + 1
+            return out[:i], Violation(res.code, "cartesian", None, seq, math.nan, math.nan, detected_seq=seq)
+        out[i] = prev = res.joints_deg
     return out, None
 
 
@@ -260,11 +253,7 @@ def run_check(args: argparse.Namespace) -> int:
     ik_failure = None
     joints = traj.values
     if traj.fmt == "xyzwpr":
-        try:
-            joints, ik_failure = cartesian_to_joints(traj, profile)
-        except NotImplementedError as exc:
-            print(f"servo-app check: {exc}", file=sys.stderr)
-            return 2
+        joints, ik_failure = cartesian_to_joints(traj, profile)
     n = len(joints)
     report = check_joints(joints, checker, None if traj.seqs is None else traj.seqs[:n],
                           [e for e in traj.stream_ends if e < n])

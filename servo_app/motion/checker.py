@@ -31,7 +31,8 @@ never checked, manual 61.5):
   check (MOTN-609) reports it instead;
 - joint position limits: the model-convention range of the profile after the J2/J3 conversion
   (``q3_model = J3 + j23_factor * J2``). The manual only says "the robot will stop with an alarm";
-  we report FANUC's general joint-limit alarm MOTN-017 "Limit error" (not in chapter 61.9);
+  we report FANUC's general joint-limit alarm MOTN-017 "Limit error" (not in chapter 61.9; its text
+  is in servo_app.fanuc.alarms with the other codes);
 - offline only (``check_max_spd=True``): flange speed above $MAX_SPD as violation CHK-001. The
   controller has no such alarm (its limits just extrapolate down above Vmax), a planner should
   never go there.
@@ -49,7 +50,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from servo_app.fanuc.alarms import ALARMS, AlarmSpec, format_alarm
+from servo_app.fanuc.alarms import format_alarm
 from servo_app.motion.limit_tables import ACC, JERK, VEL, LimitTables, evaluate_stages
 from servo_app.robots.profile import RobotProfile
 
@@ -63,28 +64,6 @@ NAN_CODE = "MOTN-605"
 JUMP_CODE = "MOTN-617"
 POSITION_CODE = "MOTN-017"
 MAX_SPD_CODE = "CHK-001"
-
-# Codes this checker reports that chapter 61.9 does not list. Registered here so that
-# format_alarm / AlarmEvent work for them; they belong in servo_app.fanuc.alarms eventually.
-EXTRA_ALARMS = (
-    AlarmSpec(
-        POSITION_CODE,
-        "Limit error (G:1, A:{axis}, Sq.{seq})",
-        "The desired position of the command packet is outside the stroke limit of the axis "
-        "(manual 61.5 'Reachable positions'; FANUC's general joint limit alarm).",
-        "Keep every commanded joint inside its range (J3 range in the model convention, after J2/J3 "
-        "conversion).",
-    ),
-    AlarmSpec(
-        MAX_SPD_CODE,
-        "Flange speed {pc} mm/s above $MAX_SPD {rob} mm/s.(Sq.{seq})",
-        "The flange-centre speed of the commanded path exceeds $STMO_GRP[].$MAX_SPD; above it the "
-        "acceleration/jerk limits fall by extrapolation (Appendix B). Offline checker only.",
-        "Slow the path down so that the flange centre stays below $MAX_SPD.",
-    ),
-)
-for _spec in EXTRA_ALARMS:
-    ALARMS.setdefault(_spec.code, _spec)
 
 
 @dataclass(frozen=True)

@@ -66,6 +66,7 @@ class ServoCycle:
         self.kin = ArmKinematics(profile)
         self.ik = DifferentialIK(profile, dt, self.settings.tool_xyzwpr, self.settings.ik_solver,  # type: ignore[arg-type]
                                  collision=self.settings.collision)
+        self._pending = False  # a joint motion waits for rest after a change of direction
         self._cart: Twist | PoseTarget | None = None
         self._cart_active = False  # the IK drives the shaper (also while braking along the path)
         self.last_ik: IkResult | None = None
@@ -96,6 +97,7 @@ class ServoCycle:
         self._target = None
         self._jog = None
         self._cart, self._cart_active = None, False
+        self._pending = False
         self._speed_scale = 1.0
         self._q_prev = None
         q_model = fanuc_deg_to_model_rad(np.asarray(q_start[: self.profile.dof], float), self.profile.j23_factor)
@@ -107,9 +109,13 @@ class ServoCycle:
 
     def next_command(self, status: Status) -> np.ndarray:
         shaper = self._require()
+        if self._pending and shaper.at_rest:  # at rest after a change of direction: start it now
+            self._pending = False
+            if self._target is not None:
+                shaper.set_target(self._target[0], self._target[1] * self._speed_scale)
         if self._cart_active:
             self._steer_ik(shaper)
-        elif self._jog is not None and not self.stopped:
+        elif self._jog is not None and not self.stopped and not self._pending:
             self._steer_jog(shaper, self._jog)
         q = shaper.step()
         self._guard_flange_speed(shaper, q)
@@ -136,6 +142,11 @@ class ServoCycle:
         self._target, self._jog = (q, speed_scale), None
         self._cart, self._cart_active = None, False
         self.stopped = False
+        if self._redirects(shaper, q - shaper.state[0]):
+            self._pending = True
+            self._stop_shaper(shaper, "soft")
+            return
+        self._pending = False
         shaper.set_target(q, speed_scale * self._speed_scale)
 
     def jog_joints(self, v_deg_s: np.ndarray) -> None:
@@ -148,10 +159,15 @@ class ServoCycle:
         bad = np.flatnonzero(~np.isfinite(v))
         if bad.size:
             raise CommandRejected(f"joints[{bad[0]}]={v[bad[0]]} is not a finite number")
-        self._require()
+        shaper = self._require()
+        renewal = self._jog is not None and np.array_equal(v, self._jog)  # the same button, still held
+        redirect = not renewal and not self._pending and self._redirects(shaper, v)
         self._jog, self._target = v, None
         self._cart, self._cart_active = None, False
         self.stopped = False
+        if redirect:
+            self._pending = True
+            self._stop_shaper(shaper, "soft")
 
     def twist(self, cmd: Twist) -> None:
         """Move the TCP at a twist (base or tool frame) until replaced, stopped or the hold runs out."""
@@ -182,15 +198,8 @@ class ServoCycle:
             self._cart = None  # the IK brakes along the current path, the shaper follows
             return
         self._cart, self._cart_active = None, False
-        if shaper.at_rest:
-            return
-        # Stop along the joint-space line the motion was on: a stop point checked like a jog target
-        # (in range, same configuration), reached by a straight position profile. Braking each axis
-        # on its own (a velocity stop) would leave the line that the jog or target was checked on.
-        q, v, _ = shaper.state
-        t_stop = shaper.optimal_stop_duration("soft")
-        ahead = self._clip_to_range(q + v * t_stop / 2)
-        shaper.set_target(q + (ahead - q) * self._config_keeping_reach(q, ahead), 1.0)
+        self._pending = False
+        self._stop_shaper(shaper, "fast" if fast else "soft")
 
     def resume(self) -> None:
         """Continue after a soft stop: towards the target that was interrupted, if any."""
@@ -199,6 +208,35 @@ class ServoCycle:
             self.shaper.set_target(self._target[0], self._target[1] * self._speed_scale)
 
     # ----------------------------------------------------------------- helpers
+    def _stop_shaper(self, shaper: JointShaper, mode: str) -> None:
+        """Time-optimal stop when its path stays in range and configuration, else along the line."""
+        if shaper.at_rest:
+            return
+        try:
+            path = shaper.stop_path(mode)  # type: ignore[arg-type]
+        except ValueError:
+            path = None
+        if path is not None and all(self._same_configuration(p) and np.allclose(self._clip_to_range(p), p, atol=1e-9)
+                                    for p in path):
+            shaper.stop(mode)  # type: ignore[arg-type]  # time-optimal, and its path stays in range and configuration
+            return
+        # Near a boundary: stop along the joint-space line the motion was on, at a stop point checked
+        # like a jog target (in range, same configuration), reached by a straight position profile.
+        q, v, _ = shaper.state
+        t_stop = shaper.optimal_stop_duration("soft")
+        ahead = self._clip_to_range(q + v * t_stop / 2)
+        shaper.set_target(q + (ahead - q) * self._config_keeping_reach(q, ahead), 1.0)
+
+    @staticmethod
+    def _redirects(shaper: JointShaper, direction: np.ndarray) -> bool:
+        """True when the arm moves and ``direction`` is not the way it goes: the shaper's blend would
+        curve off the straight line the new motion was checked on."""
+        _, v, _ = shaper.state
+        nv, nd = float(np.linalg.norm(v)), float(np.linalg.norm(direction))
+        if nv < 1e-6 or shaper.at_rest:
+            return False
+        return nd < 1e-9 or float(np.dot(v, direction)) < 0.999 * nv * nd
+
     def _steer_ik(self, shaper: JointShaper) -> None:
         j23 = self.profile.j23_factor
         q_f, v_f, _ = shaper.state

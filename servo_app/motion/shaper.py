@@ -50,7 +50,7 @@ from ruckig import (
 )
 
 from servo_app.motion.limit_tables import LimitTables
-from servo_app.motion.stops import STOP_MODES, StopMode, time_optimal_stop_duration
+from servo_app.motion.stops import STOP_MODES, StopMode, stop_path, time_optimal_stop_duration
 
 ArrayLike = Sequence[float] | np.ndarray
 
@@ -535,6 +535,12 @@ class JointShaper:
     def remaining_duration(self) -> float:
         """Time (s) until the current ruckig profile ends (0 when finished)."""
         return max(float(self._out.trajectory.duration - self._out.time), 0.0)
+
+    def stop_path(self, mode: StopMode = "soft", samples: int = 16) -> np.ndarray:
+        """Where ``stop(mode)`` would take the axes from the current state: ``samples`` positions."""
+        e = self._env[mode]
+        p, v, a = self.state
+        return stop_path(p, v, a, e.plan_vel, e.plan_acc, e.plan_jerk, samples)
 
     def optimal_stop_duration(self, mode: StopMode = "soft", planned: bool = False) -> float:
         """Theoretical time-optimal stop time (s) from the current state: ruckig's profile to zero

@@ -24,8 +24,21 @@ Behaviour (manual chapter 61) and the choices where the manual is silent:
 - Commands are buffered ($PKT_STACK - 1 unprocessed, MOTN-604 beyond); motion starts once
   $START_MOVE are buffered; from then on each control cycle needs one in the buffer (MOTN-603).
   Processing checks, in order: sequence (600), data format (602 unless 0/1), Cartesian format
-  (MOTN-619: not supported by this build), NaN/Inf (605), I/O assignment (PRIO-023), then the
-  controller limit checker (609/610/611/617, joint range MOTN-017, warnings 612/613/614).
+  on a model without it (619), NaN/Inf (605), I/O assignment (PRIO-023), for Cartesian format the
+  conversion to joints (156, 018), then the controller limit checker (609/610/611/617, joint range
+  MOTN-017, warnings 612/613/614).
+- Cartesian format (data format 0): X Y Z W P R of the flange centre in the world frame (61.7),
+  converted by :mod:`servo_app.motion.cartesian` (the code ``servo-app check`` uses): the IK
+  solution nearest the previous command position, whose configuration (turn numbers included) must
+  be the one of the command position when the stream began (MOTN-156 otherwise); no solution at all
+  is MOTN-018 "Position not reachable" (our choice of code). The converted joints then get exactly
+  the joint-format checks (FAQ), MOTN-617 on the first command included; the command position, the
+  status joints and the status Cartesian pose (always the FK of the servo joints) are joints as usual.
+  Formats may be mixed within one stream (our choice; the manual is silent): each command is
+  converted on its own, continuing from the previous command position whatever its format, and the
+  held configuration stays the one of the stream's start. ``ControllerConfig.cartesian_supported``
+  = False models a robot without Cartesian support (MOTN-619 for every format-0 command); so does a
+  profile the kinematics cannot handle.
 - Last data = 1 ends control once that command is processed (an Appendix B window still open is
   judged then). Commands arriving while the program is not waiting are ignored and counted.
 - A stop packet while commands are being processed (bit 1 set) posts MOTN-608 (note 2 of 61.3:
@@ -70,6 +83,7 @@ from servo_app.fanuc.packets import (
     decode_from_pc,
     next_seq,
 )
+from servo_app.motion.cartesian import CartesianConverter
 from servo_app.motion.checker import ControllerLimitChecker, Violation
 from servo_app.motion.limit_tables import N_STAGES, LimitTables, default_tables
 from servo_app.robots.profile import RobotProfile, load_profile
@@ -109,6 +123,7 @@ class ControllerConfig:
     jump_cycles: float = 2.0
     timestamp_offset_ms: int = 0  # added to the status timestamp (to test its wrap)
     jog_speed_fraction: float = 0.2  # of the velocity / stage-1 acceleration limits
+    cartesian_supported: bool = True  # False: the robot model posts MOTN-619 for Cartesian format
 
     def __post_init__(self) -> None:
         if not 2 <= self.pkt_stack <= 10:
@@ -165,6 +180,8 @@ class FanucControllerModel:
             first_jump_cycles=self.config.first_jump_cycles, jump_cycles=self.config.jump_cycles,
             check_max_spd=False,
         )
+        self.cartesian = (CartesianConverter(self.kin.arm)
+                          if self.config.cartesian_supported and self.kin.arm is not None else None)
         self.io = IoTable(self.config.io_points)
         q0 = np.zeros(N_JOINTS)
         if initial_joints is not None:
@@ -312,7 +329,8 @@ class FanucControllerModel:
         if cmd.data_format not in (DataFormat.CARTESIAN, DataFormat.JOINT):
             self._alarm("MOTN-602")
             return
-        if cmd.data_format == DataFormat.CARTESIAN:
+        cartesian = cmd.data_format == DataFormat.CARTESIAN
+        if cartesian and self.cartesian is None:
             self._alarm("MOTN-619")
             return
         axis = cmd.non_finite_axis()
@@ -328,7 +346,18 @@ class FanucControllerModel:
         self._read_io = (cmd.read_io_type, cmd.read_io_index, cmd.read_io_mask)
         if first:
             self.checker.reset(start_q_deg=self.cmd_q[:6])
-        q = np.asarray(cmd.values[:6], dtype=float)
+            if self.cartesian is not None:  # held for the whole stream, whatever the formats
+                self.cartesian.reset(self.cmd_q[:6])
+        if cartesian:
+            assert self.cartesian is not None
+            conv = self.cartesian.convert(cmd.values[:6], self.cmd_q[:6])
+            if conv.joints_deg is None:
+                assert conv.code is not None
+                self._alarm(conv.code, seq=cmd.seq)
+                return
+            q = conv.joints_deg
+        else:
+            q = np.asarray(cmd.values[:6], dtype=float)
         if self._post(self.checker.step(q, cmd.seq)):
             return
         self.processed_commands += 1

@@ -1,17 +1,23 @@
-"""The simulator's view of the arm kinematics: flange position for the limit checker, XYZWPR for status.
+"""The simulator's view of the arm kinematics: flange position for the limit checker, XYZWPR for status,
+and the arm itself for converting Cartesian-format commands.
 
-Kept behind two plain callables so that the controller model runs (with zeros for the Cartesian
-pose and stage-1 acceleration/jerk limits) even for a profile the kinematics cannot handle.
+Kept behind plain optional fields so that the controller model runs (with zeros for the Cartesian
+pose, stage-1 acceleration/jerk limits and MOTN-619 for Cartesian commands) even for a profile the
+kinematics cannot handle.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from servo_app.robots.profile import RobotProfile
+
+if TYPE_CHECKING:
+    from servo_app.robots.kinematics import ArmKinematics
 
 FlangeFn = Callable[[np.ndarray], np.ndarray]
 
@@ -20,6 +26,7 @@ FlangeFn = Callable[[np.ndarray], np.ndarray]
 class SimKinematics:
     flange_xyz_mm: FlangeFn | None  # FANUC joints (deg) -> flange centre XYZ (mm), FANUC world
     pose_xyzwpr: Callable[[np.ndarray], np.ndarray] | None  # FANUC joints (deg) -> X Y Z W P R
+    arm: ArmKinematics | None = None  # IK for Cartesian-format commands; None: MOTN-619
 
 
 def load_kinematics(profile: RobotProfile) -> SimKinematics:
@@ -35,7 +42,7 @@ def load_kinematics(profile: RobotProfile) -> SimKinematics:
     def pose(q_deg: np.ndarray) -> np.ndarray:
         return matrix_to_xyzwpr(arm.fk_fanuc_deg(q_deg[:6]))
 
-    return SimKinematics(arm.flange_xyz_mm_fanuc_deg, pose)
+    return SimKinematics(arm.flange_xyz_mm_fanuc_deg, pose, arm)
 
 
 NO_KINEMATICS = SimKinematics(None, None)
