@@ -26,7 +26,12 @@ from servo_app.motion.commands import PoseTarget, Twist
 from servo_app.motion.diffik import DifferentialIK, IkResult
 from servo_app.motion.limit_tables import LimitTables, default_tables
 from servo_app.motion.shaper import JointShaper, ShaperLimits
-from servo_app.robots.configuration import ArmConfiguration, boundary_distances, configuration_of
+from servo_app.robots.configuration import (
+    ArmConfiguration,
+    boundary_distances,
+    configuration_of,
+    keeps_configuration,
+)
 from servo_app.robots.conventions import fanuc_deg_to_model_rad, model_rad_to_fanuc_deg
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import RobotProfile
@@ -216,8 +221,7 @@ class ServoCycle:
             path = shaper.stop_path(mode)  # type: ignore[arg-type]
         except ValueError:
             path = None
-        if path is not None and all(self._same_configuration(p) and np.allclose(self._clip_to_range(p), p, atol=1e-9)
-                                    for p in path):
+        if path is not None and bool(self._safe(path).all()):
             shaper.stop(mode)  # type: ignore[arg-type]  # time-optimal, and its path stays in range and configuration
             return
         # Near a boundary: stop along the joint-space line the motion was on, at a stop point checked
@@ -263,18 +267,22 @@ class ServoCycle:
         lag = self.dt + float(np.max(acc / jerk))
         brake = 0.5 * acc
 
-        def stops_safely(s: float) -> bool:
-            w = v * s
-            stop = q + w * lag + w * np.abs(w) / (2 * brake)
-            return self._same_configuration(stop) and bool(np.allclose(self._clip_to_range(stop), stop, atol=1e-9))
+        def stop_points(scales: np.ndarray) -> np.ndarray:
+            w = np.outer(scales, v)
+            return q + w * lag + w * np.abs(w) / (2 * brake)
 
-        if stops_safely(1.0):
+        if self._safe(stop_points(np.ones(1)))[0]:
             self.limit_scale = 1.0
             return 1.0
         lo, hi = 0.0, 1.0
-        for _ in range(10):
-            mid = (lo + hi) / 2
-            lo, hi = (mid, hi) if stops_safely(mid) else (lo, mid)
+        for _ in range(2):  # two rounds of 16: ~0.4 % resolution
+            scales = np.linspace(lo, hi, 17)[1:]
+            ok = self._safe(stop_points(scales))
+            first_bad = int(np.argmin(ok)) if not ok.all() else len(ok)
+            if first_bad == len(ok):
+                lo = hi
+                break
+            lo, hi = (scales[first_bad - 1] if first_bad else lo), scales[first_bad]
         self.limit_scale = lo
         return lo
 
@@ -313,30 +321,38 @@ class ServoCycle:
         reach = self._config_keeping_reach(q, ahead)
         shaper.set_target(q + (ahead - q) * reach, min(scale, 1.0))
 
+    def _safe(self, q_fanuc_deg: np.ndarray) -> np.ndarray:
+        """Per row (or for one vector): inside the joint ranges and the held configuration, with margins.
+
+        Near a configuration boundary (wrist or elbow stretched, wrist over the J1 axis, a joint at
+        +-180 deg) a rounding step can change the configuration: hence the margins.
+        """
+        q = np.atleast_2d(fanuc_deg_to_model_rad(q_fanuc_deg, self.profile.j23_factor))
+        deg = np.degrees(q[:, :6])
+        lo, hi = self._range_model_deg
+        ok = np.all((deg >= lo - 1e-9) & (deg <= hi + 1e-9), axis=1)
+        if self.configuration is not None:
+            ok &= keeps_configuration(q, self.kin, self.configuration, self._margins)
+        return ok
+
     def _same_configuration(self, q_fanuc_deg: np.ndarray) -> bool:
-        q = fanuc_deg_to_model_rad(q_fanuc_deg, self.profile.j23_factor)
-        # Near a boundary (wrist or elbow stretched, wrist over the J1 axis, a joint at +-180 deg) a
-        # rounding step can change the configuration: keep a margin from each.
-        return (configuration_of(q, self.kin) == self.configuration
-                and bool(np.all(boundary_distances(q, self.kin) >= self._margins)))
+        return bool(self._safe(q_fanuc_deg)[0])
 
     def _config_keeping_reach(self, q0: np.ndarray, q1: np.ndarray, samples: int = 24) -> float:
-        """Share of the joint-space line q0 -> q1 along which the configuration stays the held one."""
-        if self.configuration is None:
-            return 1.0
-        last = 0.0
-        for k in range(1, samples + 1):
-            f = k / samples
-            if not self._same_configuration(q0 + (q1 - q0) * f):
-                # Refine: a coarse answer would move the jog's target back and forth from one
-                # cycle to the next, and a target that jumps back can be overshot.
-                lo, hi = last, f
-                for _ in range(14):
-                    mid = (lo + hi) / 2
-                    lo, hi = (mid, hi) if self._same_configuration(q0 + (q1 - q0) * mid) else (lo, mid)
-                return lo
-            last = f
-        return 1.0
+        """Share of the joint-space line q0 -> q1 along which the arm stays in range and configuration.
+
+        Found to ~1e-4 of the line: a coarse answer would move a jog's target back and forth from one
+        cycle to the next, and a target that jumps back can be overshot.
+        """
+        lo, hi = 0.0, 1.0
+        for _ in range(3):
+            f = np.linspace(lo, hi, samples + 1)[1:]
+            ok = self._safe(q0 + np.outer(f, q1 - q0))
+            if ok.all():
+                return hi if hi == 1.0 else lo
+            first_bad = int(np.argmin(ok))
+            lo, hi = (f[first_bad - 1] if first_bad else lo), f[first_bad]
+        return lo
 
     def _clip_to_range(self, q_fanuc_deg: np.ndarray) -> np.ndarray:
         j23 = self.profile.j23_factor

@@ -108,3 +108,33 @@ def boundary_distances(q_model_rad: ArrayLike, kin: ArmKinematics) -> np.ndarray
         abs(x_wrist) / (kin.a2 + elbow),
         from_pi(q1), from_pi(q4), from_pi(q6),
     ])
+
+
+def keeps_configuration(q_model_rad: np.ndarray, kin: ArmKinematics, ref: ArmConfiguration,
+                        margins: np.ndarray) -> np.ndarray:
+    """For each row of ``q_model_rad`` (n, 6): same configuration as ``ref`` and at least ``margins``
+    (as :func:`boundary_distances`) from every boundary. Vectorised: the servo cycle checks whole
+    paths of joint vectors every cycle."""
+    q = np.atleast_2d(np.asarray(q_model_rad, dtype=float))
+    q1, q2, q3, q4, q5, q6 = q[:, :6].T
+    elbow = math.hypot(kin.d4, kin.a3)
+    up = (kin.d4 * np.cos(q3) - kin.a3 * np.sin(q3)) / elbow
+    phi = q2 - q3
+    x_wrist = kin.a1 + kin.a2 * np.sin(q2) + kin.d4 * np.cos(phi) + kin.a3 * np.sin(phi)
+
+    def wrap(a: np.ndarray) -> np.ndarray:
+        return np.remainder(a + np.pi, 2 * np.pi) - np.pi  # [-pi, pi)
+
+    def turns(a: np.ndarray) -> np.ndarray:
+        return np.ceil((a - np.pi) / (2 * np.pi)).astype(int)  # k with a in (-pi + 2 pi k, pi + 2 pi k]
+
+    w5 = wrap(q5)
+    same = ((w5 > 0) == ref.flip) & ((up > 0) == ref.up) & ((x_wrist > 0) == ref.top)
+    same &= (turns(q1) == ref.turn1) & (turns(q4) == ref.turn4) & (turns(q6) == ref.turn6)
+    dist = np.stack([
+        np.minimum(np.abs(w5), np.pi - np.abs(w5)),
+        np.arcsin(np.minimum(1.0, np.abs(up))),
+        np.abs(x_wrist) / (kin.a2 + elbow),
+        np.pi - np.abs(wrap(q1)), np.pi - np.abs(wrap(q4)), np.pi - np.abs(wrap(q6)),
+    ], axis=1)
+    return same & np.all(dist >= margins, axis=1)
