@@ -3,24 +3,40 @@
 It lives in the API process and stays thin: every motion decision is taken in the servo process
 (the cycle owns stops, hold-to-run and watchdogs, so a frozen API cannot leave the arm moving). This
 object forwards requests, reads the published state and keeps the lists the API shows.
+
+Threads: the API calls in from many worker threads at once (requests, telemetry, metrics). One
+reader thread owns the servo process's pipe (replies and events) and callers wait on their own
+reply, so a stop never queues behind other requests; a monitor thread polls the embedded simulator's
+alarm list and forwards new alarms to the servo process at once, whether or not anyone reads state.
 """
 
 from __future__ import annotations
 
 import contextlib
+import signal
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from servo_app.fanuc.alarms import ALARMS
-from servo_app.fanuc.packets import ROBOT_PORT
+from servo_app.fanuc.packets import ROBOT_PORT, IoType
 from servo_app.fanuc.runner import StreamConfig, StreamProcess
 from servo_app.motion.limit_tables import default_tables
 from servo_app.motion.servo import CommandRejected
 from servo_app.robots.profile import RobotProfile, load_profile
+
+IO_SPAN = 16  # a command packet's read or write covers 16 points from its index (manual 61.7)
+
+# The embedded simulator's assigned I/O (points per type). SI/SO/WI/WO/WSI/WSO are not assigned
+# there, and UI/UO drive the controller itself: not offered.
+DEFAULT_IO_ALLOW: dict[str, int] = {"DI": 512, "DO": 512, "RI": 8, "RO": 8, "F": 1024, "M": 1024}
+
+
+class InvalidRequest(ValueError):
+    """A request the service refuses before it reaches the controller (the API answers 422)."""
 
 
 def parse_robot(spec: str | None) -> tuple[str, str, int] | None:
@@ -42,13 +58,24 @@ class ServiceConfig:
     robot: str | None = None  # None: embedded simulator
     model: str = "lrmate200id"
     interval_ms: int | None = None
-    lead: int = 0
+    # Two commands ahead in the controller's buffer: a lost status packet is made up at the next one,
+    # and with lead 2 only three lost in a row starve the controller (MOTN-603). Measured with the
+    # simulator dropping 5 % of status packets: lead 1 alarmed within 1 s, lead 2 ran 15 s clean
+    # (tests/test_faults_e2e.py). The price is two intervals of extra response time.
+    lead: int = 2
     var_dir: Path = Path("var")
     sim_port: int = 0  # embedded simulator UDP port (0: any free port)
     limit_fraction: float = 0.9
     flange_speed_cap: float | None = None
     payload_kg: float | None = None
-    sim_options: dict[str, Any] = field(default_factory=dict)
+    # The embedded controller starts at the usual FANUC home (wrist bent down), as a cell would after
+    # a taught joint move before IBGN start; all-zero joints would be a wrist singularity.
+    sim_options: dict[str, Any] = field(default_factory=lambda: {"initial_joints": [0.0, 0.0, 0.0, 0.0, -90.0, 0.0]})
+    # I/O the service lets clients read and write (type -> assigned points). A 16-point access
+    # outside it would make the controller post PRIO-023 and stop: refuse it here instead.
+    io_allow: dict[str, int] = field(default_factory=lambda: dict(DEFAULT_IO_ALLOW))
+    alarm_poll_s: float = 0.05  # how often the embedded simulator's alarm list is read
+    request_timeout_s: float = 2.0
 
     @property
     def log_dir(self) -> Path:
@@ -63,20 +90,26 @@ class ServoService:
         self.stream: StreamProcess | None = None
         self.stops_by_reason: Counter[str] = Counter()
         self.faults: list[dict[str, Any]] = []
-        self._lock = threading.Lock()
         self.robot_address: tuple[str, int] | None = None
+        self.events: deque[dict[str, Any]] = deque(maxlen=2000)
+        self._last_event: dict[str, dict[str, Any]] = {}
+        self._send_lock = threading.Lock()
+        self._sim_lock = threading.Lock()
+        self._cv = threading.Condition()
+        self._replies: dict[int, dict[str, Any]] = {}
+        self._waiting: set[int] = set()
+        self._next_id = 0
         self._alarms_seen = 0
         self._sim_events: list[dict[str, Any]] = []
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self.servo_alive = False
 
     # ------------------------------------------------------------------ life
     def open(self) -> None:
         robot = parse_robot(self.cfg.robot)
         if robot is None:
-            from servo_app.sim.process import SimulatorProcess
-
-            self.sim = SimulatorProcess(model=self.cfg.model, port=self.cfg.sim_port,
-                                        interval_ms=self.cfg.interval_ms, **self.cfg.sim_options)
-            self.sim.start()
+            self.sim = self._start_simulator()
             host, port = self.sim.address
         else:
             _, host, port = robot
@@ -86,28 +119,130 @@ class ServoService:
             log_dir=str(self.cfg.log_dir), limit_fraction=self.cfg.limit_fraction,
             flange_speed_cap=self.cfg.flange_speed_cap, payload_kg=self.cfg.payload_kg))
         self.stream.start()
+        for ev in self.stream.events:  # "ready", read by start() before our reader owns the pipe
+            self._on_event(ev)
+        self.servo_alive = True
+        self._stop.clear()
+        self._threads = [threading.Thread(target=self._read_loop, name="servo-pipe", daemon=True),
+                         threading.Thread(target=self._monitor_loop, name="sim-alarms", daemon=True)]
+        for t in self._threads:
+            t.start()
 
-    def close(self) -> None:
+    def _start_simulator(self) -> Any:
+        from servo_app.sim.process import SimulatorProcess
+
+        sim = SimulatorProcess(model=self.cfg.model, port=self.cfg.sim_port, interval_ms=self.cfg.interval_ms,
+                               **self.cfg.sim_options)
+        # Ctrl-C reaches the whole process group: the simulator (the "controller") must keep sending
+        # status while the servo process decelerates and sends last data. A child inherits SIG_IGN.
+        if threading.current_thread() is not threading.main_thread():
+            return sim.start()
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            return sim.start()
+        finally:
+            signal.signal(signal.SIGINT, old)
+
+    def close(self, group_signal_wait_s: float = 0.0) -> dict[str, Any]:
+        """End the stream cleanly (the servo process decelerates, sends last data, stops the status
+        output), then stop the simulator. Returns what happened, for the operator.
+
+        ``group_signal_wait_s``: after a Ctrl-C the servo process got the terminal's SIGINT too; wait
+        this long to see it shutting down by itself, since a second signal would escalate its soft
+        stop to the fast ramp."""
+        summary: dict[str, Any] = {}
+        deadline = time.monotonic() + group_signal_wait_s
+        while self.stream is not None and time.monotonic() < deadline:
+            if (self._last_event.get("safety") or {}).get("shutdown"):
+                self.stream.process.join(10.0)  # then shutdown() finds it gone and sends no signal
+                break
+            time.sleep(0.01)
+        self._stop.set()
+        for t in self._threads:
+            t.join(timeout=2.0)
+        self._threads = []
         if self.stream is not None:
-            self.stream.shutdown()
+            n = len(self.stream.events)
+            summary["servo_exit_code"] = self.stream.shutdown()
+            for ev in self.stream.events[n:]:
+                self._on_event(ev)
+            self.servo_alive = False
+            safety = self._last_event.get("safety") or {}
+            summary.update(state=safety.get("state"), link=safety.get("link"),
+                           stop_reason=safety.get("stop_reason"), fault=safety.get("fault"))
             self.stream = None
         if self.sim is not None:
+            with contextlib.suppress(TimeoutError, RuntimeError, OSError, EOFError):
+                summary["alarms"] = [e["code"] for e in self.sim_call("events")]
             self.sim.stop()
             self.sim = None
+        return summary
 
-    # -------------------------------------------------------------- requests
-    def request(self, op: str, **kw: Any) -> Any:
+    # ------------------------------------------------------------ the pipe
+    def _read_loop(self) -> None:
+        assert self.stream is not None
+        conn = self.stream._conn  # this thread is its only reader while open
+        while not self._stop.is_set():
+            try:
+                if not conn.poll(0.05):
+                    continue
+                msg = conn.recv()
+            except (EOFError, OSError):  # the servo process is gone: wake every waiter
+                self.servo_alive = False
+                with self._cv:
+                    self._cv.notify_all()
+                return
+            if "event" in msg:
+                self._on_event(msg)
+            else:
+                with self._cv:
+                    if msg.get("id") in self._waiting:
+                        self._replies[msg["id"]] = msg
+                        self._cv.notify_all()
+
+    def _on_event(self, ev: dict[str, Any]) -> None:
+        self.events.append(ev)
+        self._last_event[ev["event"]] = ev
+
+    def last_event(self, kind: str) -> dict[str, Any] | None:
+        return self._last_event.get(kind)
+
+    def _send(self, msg: dict[str, Any]) -> None:
         if self.stream is None:
             raise RuntimeError("the service is not open")
-        with self._lock:
-            return self.stream.request(op, **kw)
+        with self._send_lock:
+            self.stream._conn.send(msg)  # StreamProcess.request is not thread-safe
+
+    def request(self, op: str, timeout: float | None = None, **kw: Any) -> Any:
+        """Send a request to the servo process and wait for its reply; a refusal raises CommandRejected."""
+        if self.stream is None or not self.servo_alive:
+            raise TimeoutError("the servo process is not running")
+        with self._send_lock:
+            self._next_id += 1
+            rid = self._next_id
+        with self._cv:
+            self._waiting.add(rid)
+        try:
+            self._send({"id": rid, "op": op, **kw})
+            deadline = time.monotonic() + (timeout or self.cfg.request_timeout_s)
+            with self._cv:
+                while rid not in self._replies:
+                    left = deadline - time.monotonic()
+                    if left <= 0 or not self.servo_alive:
+                        raise TimeoutError(f"servo process did not answer '{op}'")
+                    self._cv.wait(left)
+                reply = self._replies.pop(rid)
+        finally:
+            with self._cv:
+                self._waiting.discard(rid)
+                self._replies.pop(rid, None)
+        if not reply["ok"]:
+            raise CommandRejected(reply["error"])
+        return reply.get("result")
 
     def send(self, op: str, **kw: Any) -> None:
-        """Fire-and-forget (jog renewals): the servo process validates again and drops bad ones."""
-        if self.stream is None:
-            raise RuntimeError("the service is not open")
-        with self._lock:
-            self.stream.request(op, **kw)
+        """Fire-and-forget: no reply is asked for (the servo process validates and drops bad ones)."""
+        self._send({"op": op, **kw})
 
     def stop(self, reason: str, fast: bool = False) -> None:
         self.stops_by_reason[reason] += 1
@@ -116,31 +251,98 @@ class ServoService:
     def reset(self) -> None:
         """Clear a fault: the simulator's alarm (as an operator at the pendant would), then the supervisor."""
         if self.sim is not None:
-            self.sim.reset()
+            self.sim_call("reset")
         self.request("reset")
+
+    # ------------------------------------------------------------ simulator
+    def sim_call(self, name: str, *args: Any) -> Any:
+        """A control of the embedded simulator (reset, set_override, ...): the teach pendant's part."""
+        if self.sim is None:
+            raise RuntimeError("no embedded simulator: the robot is external")
+        with self._sim_lock:
+            return self.sim.call(name, *args)
+
+    def _monitor_loop(self) -> None:
+        while not self._stop.wait(self.cfg.alarm_poll_s):
+            with contextlib.suppress(TimeoutError, RuntimeError, OSError, EOFError):
+                self._forward_alarms()
 
     def _forward_alarms(self) -> None:
         """The J519 status carries no alarm code: the embedded simulator's alarm list supplies it."""
-        if self.sim is None or self.stream is None:
+        if self.sim is None:
             return
-        events = self.sim.events()
+        events = self.sim_call("events")
         for ev in events[self._alarms_seen:]:
             spec = ALARMS.get(ev["code"])
             if spec is not None and not spec.warning:
                 self.faults.append(ev)
-                with contextlib.suppress(CommandRejected):
-                    self.request("controller_alarm", code=ev["code"], message=ev["message"])
+            # Fire-and-forget: this thread must not wait on the pipe reader; warnings are reported too.
+            with contextlib.suppress(RuntimeError, OSError):
+                self.send("controller_alarm", code=ev["code"], message=ev["message"])
         self._alarms_seen = len(events)
         self._sim_events = events
 
+    # ----------------------------------------------------------------- I/O
+    def _check_io(self, io_type: str, index: int) -> str:
+        name = str(io_type).upper()
+        allowed = ", ".join(f"{t} 1..{n}" for t, n in self.cfg.io_allow.items())
+        if name not in self.cfg.io_allow:
+            known = name in IoType.__members__
+            raise InvalidRequest(
+                f"type={io_type!r}: {'this I/O type is not' if known else 'not an I/O type'} allowed by the "
+                f"service (allowed: {allowed}); the controller would post PRIO-023 and stop")
+        n = self.cfg.io_allow[name]
+        if n < IO_SPAN:
+            raise InvalidRequest(
+                f"type={name}: only {n} points are assigned and an access always covers {IO_SPAN} points, so "
+                f"any {name} access would make the controller post PRIO-023")
+        if not 1 <= index <= n - IO_SPAN + 1:
+            raise InvalidRequest(
+                f"index={index}: an access covers {IO_SPAN} points from the index, so {name} indexes must be in "
+                f"1..{n - IO_SPAN + 1} ({name} has points 1..{n}); the controller would post PRIO-023")
+        return name
+
+    def io_write(self, io_type: str, index: int, mask: int, value: int) -> None:
+        name = self._check_io(io_type, index)
+        self.request("io_write", type=name, index=index, mask=mask, value=value)
+
+    def io_read(self, io_type: str, index: int, mask: int = 0xFFFF, timeout: float = 1.0) -> int:
+        """Read 16 points through the command packets: the value comes back in a later status packet."""
+        name = self._check_io(io_type, index)
+        if self.state_vector()["link"] != "streaming":
+            raise CommandRejected("I/O is read through command packets: only while streaming")
+        self.request("io_read", type=name, index=index, mask=mask)
+        seq0 = self.state_vector()["status_seq"]  # published just before the reply: the request's cycle
+        # The read rides on the next command sent; with `lead` commands queued ahead, the controller
+        # processes it lead + 1 statuses later. Any earlier write is processed before it.
+        want = (int(IoType[name]), index, mask)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            s = self.state_vector()
+            if s["link"] != "streaming":
+                raise CommandRejected(f"the stream stopped ({s['state']}) before the read came back")
+            echo = (s["io_read_type"], s["io_read_index"], s["io_read_mask"])
+            if echo == want and s["status_seq"] - seq0 >= self.cfg.lead + 2:
+                return int(s["io_read_value"])
+            time.sleep(0.002)
+        raise TimeoutError(f"no status packet echoed the read of {name}[{index}] within {timeout} s")
+
     # ----------------------------------------------------------------- views
+    def state_vector(self) -> dict[str, Any]:
+        """The servo process's published state alone (cheap: a shared-memory copy)."""
+        if self.stream is None:
+            return {"state": "disconnected", "link": "idle"}
+        return self.stream.state()
+
     def state(self) -> dict[str, Any]:
         if self.stream is None:
-            return {"phase": "disconnected"}
+            return {"state": "disconnected", "link": "idle"}
         s = self.stream.state()
-        self._forward_alarms()
-        safety = self.stream.last_event("safety") or {}
-        s.update({k: v for k, v in safety.items() if k != "event"})
+        safety = self._last_event.get("safety") or {}
+        s.update({k: v for k, v in safety.items() if k not in ("event", "state", "link")})
+        s["servo_process"] = "running" if self.servo_alive else "stopped"
+        if "crashed" in self._last_event:
+            s["servo_process"] = "crashed"
         s["model"] = self.profile.name
         s["robot"] = f"{self.robot_address[0]}:{self.robot_address[1]}" if self.robot_address else None
         s["simulated"] = self.sim is not None
@@ -157,6 +359,13 @@ class ServoService:
             out.append({**ev, "cause": spec.cause if spec else "", "remedy": spec.remedy if spec else "",
                         "warning": bool(spec and spec.warning)})
         return out
+
+    def stops(self) -> dict[str, int]:
+        """Stops by reason: the servo process's (hold-to-run, lease, signals, API) plus API-only counts."""
+        out = Counter(self.stops_by_reason)
+        safety = self._last_event.get("safety") or {}
+        out.update(safety.get("stops") or {})
+        return dict(out)
 
     def limits(self) -> dict[str, Any]:
         tables = default_tables(self.profile)
@@ -176,6 +385,7 @@ class ServoService:
             "acc_deg_s2": [float(v) for v in acc],
             "jerk_deg_s3": [float(v) for v in jerk],
             "max_flange_speed_mm_s": tables.vmax,
+            "io_allow": {t: [1, n] for t, n in self.cfg.io_allow.items()},
         }
 
     def session_logs(self) -> list[dict[str, Any]]:

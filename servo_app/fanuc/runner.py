@@ -32,6 +32,7 @@ from servo_app.fanuc.packets import ROBOT_PORT, IoType, Status
 from servo_app.fanuc.session import Phase, SessionConfig
 from servo_app.fanuc.session_log import SessionLogWriter
 from servo_app.fanuc.supervisor import StreamSupervisor
+from servo_app.input_slot import InputSlotReader
 from servo_app.ipc import LatestValueSlot
 from servo_app.motion.servo import CommandRejected, ServoCycle, ServoSettings
 from servo_app.robots.profile import load_profile
@@ -56,6 +57,7 @@ class StreamConfig:
     status_timeout_s: float = 0.1
     late_threshold_ms: float | None = None  # None: half an interval
     realtime_priority: int | None = 20  # SCHED_FIFO priority for the servo process; None: leave as is
+    input_slot: str | None = None  # shared-memory name of the inputs bridge's live command
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -99,6 +101,7 @@ class _ServoProcess:
         self.cycle = ServoCycle(self.profile, self.dt, settings)
         self.sup = StreamSupervisor(self.cycle, SessionConfig(
             lead=cfg.lead, status_timeout_s=cfg.status_timeout_s, max_payload_kg=self.profile.max_payload_kg))
+        self.inputs = InputSlotReader(cfg.input_slot) if cfg.input_slot else None
         self.log: SessionLogWriter | None = None
         self.t0 = time.monotonic()
         self.state = StateVector()
@@ -113,6 +116,7 @@ class _ServoProcess:
         self.last_status_t = 0.0
         self._logged_seq: int | None = None
         self._last_link = Phase.IDLE
+        self._log_streamed = False
 
     # -- main loop
     def run(self) -> None:
@@ -163,6 +167,10 @@ class _ServoProcess:
             data = b""
         now = time.monotonic()
         if data:
+            if self.inputs is not None:  # the newest input before this status packet's command
+                cmd = self.inputs.poll()
+                if cmd is not None:
+                    self.sup.on_input(cmd, now)
             self._send(self.sup.on_datagram(data, now))
             t_sent = time.monotonic()
             self._after_datagram(now, t_sent)
@@ -228,6 +236,7 @@ class _ServoProcess:
     def _open_log(self) -> None:
         if self.log is not None:
             return
+        self._log_streamed = False
         self.t0 = time.monotonic()
         self.latency = _Latency()
         self.hist.clear()
@@ -245,12 +254,16 @@ class _ServoProcess:
         if self.sup.changed:
             self.sup.changed = False
             self._event("safety", **self.sup.describe())
+        if self.sup.state.mode in (Mode.STREAMING, Mode.STOPPING, Mode.STOPPED, Mode.ENDING):
+            self._log_streamed = True
         if link == self._last_link:
             return
         self._last_link = link
         self._event("phase", phase=link.value, reason=self.sup.session.fault_reason)
+        # A start from ended or disconnected reconnects (link -> connected) before the mode moves on:
+        # only a stream that has run since the log opened may close it.
         if link in (Phase.CLOSED, Phase.FAULT, Phase.CONNECTED) and self.sup.state.mode in (
-                Mode.ENDED, Mode.FAULT, Mode.DISCONNECTED):
+                Mode.ENDED, Mode.FAULT, Mode.DISCONNECTED) and self._log_streamed:
             self._finish_log()
 
     def _finish_log(self) -> None:

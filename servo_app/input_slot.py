@@ -1,0 +1,79 @@
+"""The live input command, from the inputs bridge (API process) to the servo process.
+
+One latest-value slot in shared memory (see :mod:`servo_app.ipc`): the bridge writes the arbiter's
+winning command whenever it changes or is renewed; the servo process reads it once per cycle, before
+it computes the command for the status packet it just received. Time stamps are ``time.monotonic()``,
+one clock for every process on the machine.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from servo_app.ipc import LatestValueSlot
+
+NONE, TWIST, POSE = 0, 1, 2
+FRAMES = ("base", "tool")
+SIZE = 16  # kind, frame, 6 values, linear speed, angular speed, stamp, timeout, source, stale, spare x2
+
+
+@dataclass(frozen=True)
+class InputCommand:
+    kind: int  # NONE, TWIST (mm/s, deg/s) or POSE (XYZWPR, with speed caps)
+    frame: str
+    values: tuple[float, ...]
+    linear_speed: float
+    angular_speed: float
+    stamp: float  # monotonic seconds of the sample the command comes from
+    timeout_s: float  # the source's staleness timeout: no renewal within it stops the arm
+    source: int  # index into the bridge's source list (names travel once, through the pipe)
+    stale: bool  # the active source went stale: the servo process stops with reason "input stale"
+
+    def encode(self) -> np.ndarray:
+        out = np.zeros(SIZE)
+        out[0] = self.kind
+        out[1] = FRAMES.index(self.frame)
+        out[2:8] = self.values[:6]
+        out[8:14] = (self.linear_speed, self.angular_speed, self.stamp, self.timeout_s, self.source,
+                     float(self.stale))
+        return out
+
+    @classmethod
+    def decode(cls, data: np.ndarray) -> InputCommand:
+        return cls(kind=int(data[0]), frame=FRAMES[int(data[1])], values=tuple(float(v) for v in data[2:8]),
+                   linear_speed=float(data[8]), angular_speed=float(data[9]), stamp=float(data[10]),
+                   timeout_s=float(data[11]), source=int(data[12]), stale=bool(data[13]))
+
+
+class InputSlotWriter:
+    def __init__(self) -> None:
+        self.slot = LatestValueSlot(SIZE)
+
+    @property
+    def name(self) -> str:
+        return self.slot.name
+
+    def publish(self, cmd: InputCommand) -> None:
+        self.slot.write(cmd.encode())
+
+    def close(self) -> None:
+        self.slot.close()
+
+
+class InputSlotReader:
+    def __init__(self, name: str) -> None:
+        self.slot = LatestValueSlot(SIZE, name=name, create=False)
+        self._version = 0
+
+    def poll(self) -> InputCommand | None:
+        """The command if it changed since the last poll, else None."""
+        version, data = self.slot.read()
+        if version == self._version:
+            return None
+        self._version = version
+        return InputCommand.decode(data)
+
+    def close(self) -> None:
+        self.slot.close()

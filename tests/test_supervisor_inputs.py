@@ -1,0 +1,76 @@
+"""Input commands reach the servo cycle only when enabled; a stale source stops the arm."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from servo_app.input_slot import NONE, POSE, TWIST, InputCommand, InputSlotReader, InputSlotWriter
+from servo_app.robots.conventions import matrix_to_xyzwpr
+from test_servo_cycle_property import KIN, Cell
+
+
+def twist(vx: float, stamp: float, stale: bool = False, kind: int = TWIST) -> InputCommand:
+    return InputCommand(kind=kind, frame="base", values=(vx, 0, 0, 0, 0, 0), linear_speed=0, angular_speed=0,
+                        stamp=stamp, timeout_s=0.1, source=0, stale=stale)
+
+
+def flange_x(cell: Cell) -> float:
+    return float(matrix_to_xyzwpr(KIN.fk_fanuc_deg(cell.sent[-1]))[0])
+
+
+def test_inputs_move_the_arm_only_when_enabled_and_stale_stops_it() -> None:
+    cell = Cell()
+    cell.start()
+    x0 = flange_x(cell)
+    for _ in range(30):  # not enabled: ignored
+        cell.sup.on_input(twist(100.0, cell.t), cell.t)
+        cell.cycle()
+    assert flange_x(cell) == x0
+    cell.request("inputs", enable=True, sources=["spacemouse"])
+    for _ in range(80):
+        cell.sup.on_input(twist(100.0, cell.t), cell.t)
+        cell.cycle()
+    assert flange_x(cell) > x0 + 20
+    cell.sup.on_input(twist(0.0, cell.t, stale=True, kind=NONE), cell.t)
+    assert cell.sup.state.mode.value == "stopping"
+    assert cell.sup.state.stop_reason == "input spacemouse stale"
+    for _ in range(100):
+        cell.cycle()
+    assert cell.sup.state.mode.value == "stopped" and cell.sup.cycle.at_rest()
+    # A fresh sample after a stale stop does not restart the arm by itself: the operator resumes.
+    before = flange_x(cell)
+    for _ in range(20):
+        cell.sup.on_input(twist(100.0, cell.t), cell.t)
+        cell.cycle()
+    assert flange_x(cell) == before and "refused in stopped" in cell.sup.input_error
+    assert not cell.ctrl.alarms()
+
+
+def test_pose_inputs_track_a_target() -> None:
+    cell = Cell()
+    cell.start()
+    cell.request("inputs", enable=True, sources=["tracker"])
+    goal = matrix_to_xyzwpr(KIN.fk_fanuc_deg(cell.sent[-1])) + np.array([30.0, 20.0, -10.0, 0, 0, 0])
+    cmd = InputCommand(kind=POSE, frame="base", values=tuple(goal), linear_speed=200.0, angular_speed=30.0,
+                       stamp=0.0, timeout_s=0.2, source=0, stale=False)
+    for _ in range(150):
+        cell.sup.on_input(cmd, cell.t)
+        cell.cycle()
+    assert np.allclose(matrix_to_xyzwpr(KIN.fk_fanuc_deg(cell.sent[-1]))[:3], goal[:3], atol=0.5)
+    assert not cell.ctrl.alarms()
+
+
+def test_slot_round_trip_between_writer_and_reader() -> None:
+    w = InputSlotWriter()
+    r = InputSlotReader(w.name)
+    try:
+        assert r.poll() is None
+        cmd = twist(12.5, time.monotonic())
+        w.publish(cmd)
+        assert r.poll() == cmd
+        assert r.poll() is None  # nothing new
+    finally:
+        r.close()
+        w.close()
