@@ -10,6 +10,11 @@ from typing import Any
 
 import numpy as np
 
+# Upper bounds (us) of the status-to-command latency histogram; one more bucket counts the rest.
+# Dense around the usual 0.2-1 ms, then out to the 8 ms interval where a command is surely late.
+LATENCY_BUCKETS_US = (100.0, 200.0, 300.0, 400.0, 500.0, 750.0, 1000.0, 1500.0, 2000.0, 3000.0, 4000.0,
+                      6000.0, 8000.0)
+
 # The link (stream session) phases and the safety modes, by index.
 PHASES = ("idle", "fetching_tables", "connected", "waiting_ready", "streaming", "ending", "closed", "fault")
 MODES = ("disconnected", "connected", "ready", "streaming", "stopping", "stopped", "ending", "ended", "fault")
@@ -33,6 +38,11 @@ _FIELDS: list[tuple[str, int]] = [
     ("latency_max_us", 1),
     ("status_interval_last_ms", 1),
     ("io_read_value", 1),
+    ("io_read_type", 1),  # the read I/O the status echoes, so a reader knows what the value is of
+    ("io_read_index", 1),
+    ("io_read_mask", 1),
+    ("latency_sum_us", 1),  # over the servo process's life, never reset (Prometheus counters)
+    ("latency_hist", len(LATENCY_BUCKETS_US) + 1),  # commands per latency bucket, not cumulative in le
     ("at_rest", 1),
     ("stopped", 1),
     ("tables_from_controller", 1),
@@ -86,6 +96,7 @@ def decode_state(data: np.ndarray) -> dict[str, Any]:
     for k in ("at_rest", "stopped", "tables_from_controller"):
         out[k] = bool(out[k])
     for k in ("status_seq", "status_bits", "commands_sent", "status_received", "status_lost", "status_duplicated",
-              "malformed", "late_commands", "io_read_value"):
+              "malformed", "late_commands", "io_read_value", "io_read_type", "io_read_index", "io_read_mask"):
         out[k] = int(out[k])
+    out["latency_hist"] = [int(v) for v in out["latency_hist"]]
     return out

@@ -5,10 +5,10 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from test_servo_cycle_property import KIN, Cell
 
 from servo_app.input_slot import NONE, POSE, TWIST, InputCommand, InputSlotReader, InputSlotWriter
 from servo_app.robots.conventions import matrix_to_xyzwpr
-from test_servo_cycle_property import KIN, Cell
 
 
 def twist(vx: float, stamp: float, stale: bool = False, kind: int = TWIST) -> InputCommand:

@@ -1,41 +1,91 @@
-"""Prometheus metrics: gauges from the servo state, counters kept by the API."""
+"""Prometheus metrics, rendered from the servo process's published state at each scrape.
+
+The servo process keeps the counts (commands, latency buckets, late commands, stops); the API only
+formats them, so a scrape costs one shared-memory read and never touches the cycle.
+"""
 
 from __future__ import annotations
 
-from collections import Counter
+import threading
+from collections.abc import Callable, Iterator
 from typing import Any
 
-from prometheus_client import CollectorRegistry, Gauge, generate_latest
-from prometheus_client import Counter as PCounter
+from prometheus_client import CollectorRegistry, generate_latest
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily, Metric
 
-from servo_app.state import PHASES
+from servo_app.state import LATENCY_BUCKETS_US, MODES, PHASES
+
+_COUNTERS = (
+    ("servo_commands_sent", "commands_sent", "command packets sent since the servo process started"),
+    ("servo_status_received", "status_received", "status packets received since the servo process started"),
+    ("servo_status_lost", "status_lost", "status packets lost (gaps in the status sequence)"),
+    ("servo_status_duplicated", "status_duplicated", "duplicated or reordered status packets"),
+    ("servo_malformed_packets", "malformed", "datagrams from the controller that did not decode"),
+    ("servo_late_commands", "late_commands", "commands sent over half an interval after their status (this session)"),
+)
+
+
+class _StateCollector:
+    def __init__(self, snapshot: Callable[[], tuple[dict[str, Any], dict[str, int]]],
+                 api_counts: dict[str, int], lock: threading.Lock) -> None:
+        self._snapshot = snapshot
+        self._api = api_counts
+        self._lock = lock
+
+    def describe(self) -> list[Metric]:
+        return []  # unchecked collector: metrics are built at each collect
+
+    def collect(self) -> Iterator[Metric]:
+        state, stops = self._snapshot()
+        g = GaugeMetricFamily("servo_state", "1 for the current safety state", labels=["state"])
+        for m in MODES:
+            g.add_metric([m], 1.0 if state.get("state") == m else 0.0)
+        yield g
+        g = GaugeMetricFamily("servo_link", "1 for the current stream (link) phase", labels=["phase"])
+        for p in PHASES:
+            g.add_metric([p], 1.0 if state.get("link") == p else 0.0)
+        yield g
+        for name, key, doc in _COUNTERS:
+            yield CounterMetricFamily(name, doc, value=float(state.get(key, 0)))
+        hist = state.get("latency_hist") or [0] * (len(LATENCY_BUCKETS_US) + 1)
+        buckets, total = [], 0
+        for bound, n in zip((*LATENCY_BUCKETS_US, float("inf")), hist, strict=True):
+            total += int(n)
+            buckets.append(("+Inf" if bound == float("inf") else f"{bound / 1e6:g}", float(total)))
+        yield HistogramMetricFamily(
+            "servo_cycle_latency_seconds", "status packet receipt to command send, per command sent",
+            buckets=buckets, sum_value=float(state.get("latency_sum_us", 0.0)) / 1e6)
+        g = GaugeMetricFamily("servo_latency_quantile_seconds",
+                              "status-to-command latency over the last 4096 commands", labels=["quantile"])
+        for q, key in (("0.5", "latency_p50_us"), ("0.99", "latency_p99_us"), ("1", "latency_max_us")):
+            g.add_metric([q], float(state.get(key, 0.0)) / 1e6)
+        yield g
+        yield GaugeMetricFamily("servo_status_interval_seconds", "last interval between status packets",
+                                value=float(state.get("status_interval_last_ms", 0.0)) / 1e3)
+        yield GaugeMetricFamily("servo_at_rest", "1 when the commanded motion is at rest",
+                                value=1.0 if state.get("at_rest") else 0.0)
+        c = CounterMetricFamily("servo_stops", "stops by reason", labels=["reason"])
+        for reason, n in sorted(stops.items()):
+            c.add_metric([reason], float(n))
+        yield c
+        with self._lock:
+            api = dict(self._api)
+        c = CounterMetricFamily("servo_api_refused", "API requests refused, by why", labels=["why"])
+        for why, n in sorted(api.items()):
+            c.add_metric([why], float(n))
+        yield c
 
 
 class Metrics:
-    def __init__(self) -> None:
-        r = self.registry = CollectorRegistry()
-        self.phase = Gauge("servo_phase", "1 for the current stream phase", ["phase"], registry=r)
-        self.latency = Gauge("servo_latency_us", "status receipt to command send, microseconds", ["quantile"],
-                             registry=r)
-        self.late = Gauge("servo_late_commands", "commands sent later than half an interval", registry=r)
-        self.lost = Gauge("servo_status_lost", "status packets lost (sequence gaps)", registry=r)
-        self.dup = Gauge("servo_status_duplicated", "duplicated or reordered status packets", registry=r)
-        self.sent = Gauge("servo_commands_sent", "command packets sent this session", registry=r)
-        self.stops = Gauge("servo_stops", "stops by reason", ["reason"], registry=r)
-        self.jog_rejected = PCounter("servo_jog_rate_limited", "jog requests refused by the rate limit",
-                                     registry=r)
-        self.interval = Gauge("servo_status_interval_ms", "last status packet interval", registry=r)
+    def __init__(self, snapshot: Callable[[], tuple[dict[str, Any], dict[str, int]]]) -> None:
+        self.registry = CollectorRegistry()
+        self._lock = threading.Lock()
+        self._api: dict[str, int] = {"rate_limited": 0, "unauthorized": 0, "no_lease": 0}
+        self.registry.register(_StateCollector(snapshot, self._api, self._lock))
 
-    def render(self, state: dict[str, Any], stops: Counter[str]) -> bytes:
-        for p in PHASES:
-            self.phase.labels(p).set(1.0 if state.get("phase") == p else 0.0)
-        for q, key in (("0.5", "latency_p50_us"), ("0.99", "latency_p99_us"), ("1", "latency_max_us")):
-            self.latency.labels(q).set(state.get(key, 0.0))
-        self.late.set(state.get("late_commands", 0))
-        self.lost.set(state.get("status_lost", 0))
-        self.dup.set(state.get("status_duplicated", 0))
-        self.sent.set(state.get("commands_sent", 0))
-        self.interval.set(state.get("status_interval_last_ms", 0.0))
-        for reason, n in stops.items():
-            self.stops.labels(reason).set(n)
+    def count(self, why: str) -> None:
+        with self._lock:
+            self._api[why] = self._api.get(why, 0) + 1
+
+    def render(self) -> bytes:
         return generate_latest(self.registry)
