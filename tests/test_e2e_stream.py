@@ -146,3 +146,31 @@ def test_controller_alarm_mid_stream_is_a_fault_and_needs_reset(
     sp.request("reset")
     assert sp.state()["state"] in ("connected", "ready", "disconnected")
     assert s["link"] == "fault"
+
+
+def test_cartesian_format_stream_moves_with_zero_alarms(tmp_path: Path) -> None:
+    """Data format 0: the flange pose of the shaped joints goes on the wire; the controller converts back."""
+    sim = FanucSimulator(port=0, initial_joints=HOME).start()
+    host, port = sim.address
+    sp = StreamProcess(StreamConfig(host=host, port=port, log_dir=str(tmp_path), data_format="cartesian"))
+    sp.start()
+    try:
+        sp.request("start")
+        wait_for(sp, "streaming")
+        c0 = np.array(sp.state()["cart_servo"])
+        out = [20.0, 10.0, -15.0, 30.0, -70.0, 40.0]
+        sp.request("target", joints=out)
+        time.sleep(0.1)
+        wait_rest(sp)
+        time.sleep(0.2)
+        assert np.allclose(sim.controller.command_position[:6], out, atol=1e-2)
+        assert not np.allclose(sp.state()["cart_servo"], c0, atol=1.0)
+        sp.request("end")
+        wait_for(sp, "ended")
+        assert sim.alarms == [], [e.message for e in sim.alarms]
+        sp.wait_event("log_closed", 5)
+        log = read_session_log(next(tmp_path.glob("*.srvlog")))
+        assert np.all((log.commands["flags"] >> 1) & 1 == 0)  # data format bit: 0 = Cartesian
+    finally:
+        sp.shutdown()
+        sim.stop()

@@ -35,6 +35,7 @@ from servo_app.fanuc.supervisor import StreamSupervisor
 from servo_app.input_slot import InputSlotReader
 from servo_app.ipc import LatestValueSlot
 from servo_app.motion.servo import CommandRejected, ServoCycle, ServoSettings
+from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.profile import load_profile
 from servo_app.safety import Mode
 from servo_app.state import LATENCY_BUCKETS_US, MODES, PHASES, STATE_SIZE, StateVector, decode_state
@@ -58,6 +59,7 @@ class StreamConfig:
     late_threshold_ms: float | None = None  # None: half an interval
     realtime_priority: int | None = 20  # SCHED_FIFO priority for the servo process; None: leave as is
     input_slot: str | None = None  # shared-memory name of the inputs bridge's live command
+    data_format: str = "joint"  # "joint", or "cartesian": the flange pose of the shaped joints (format 0)
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -102,6 +104,11 @@ class _ServoProcess:
         self.sup = StreamSupervisor(self.cycle, SessionConfig(
             lead=cfg.lead, status_timeout_s=cfg.status_timeout_s, max_payload_kg=self.profile.max_payload_kg))
         self.inputs = InputSlotReader(cfg.input_slot) if cfg.input_slot else None
+        if cfg.data_format == "cartesian":
+            kin = self.cycle.kin
+            self.sup.session.to_cartesian = lambda q: matrix_to_xyzwpr(kin.fk_fanuc_deg(q))
+        elif cfg.data_format != "joint":
+            raise ValueError(f"data_format={cfg.data_format!r} must be 'joint' or 'cartesian'")
         self.log: SessionLogWriter | None = None
         self.t0 = time.monotonic()
         self.state = StateVector()

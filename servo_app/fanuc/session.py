@@ -19,7 +19,7 @@ position, and it integrates nothing from the servo position.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Protocol
@@ -128,6 +128,8 @@ class StreamSession:
     last_status: Status | None = None
     io_read: IoRequest | None = None
     close_after_end: bool = True  # stop the status output once the stream has ended
+    # Cartesian format (data format 0): the flange X Y Z W P R (world) of each shaped joint position.
+    to_cartesian: Callable[[np.ndarray], np.ndarray] | None = None
 
     def __post_init__(self) -> None:
         self._pending_tables: list[tuple[int, int]] = []
@@ -345,8 +347,8 @@ class StreamSession:
         read = self.io_read
         cmd = Command(
             seq=self._next_cmd_seq,
-            values=tuple(float(v) for v in q),
-            data_format=DataFormat.JOINT,
+            values=tuple(float(v) for v in (self.to_cartesian(q) if self.to_cartesian else q)),
+            data_format=DataFormat.CARTESIAN if self.to_cartesian else DataFormat.JOINT,
             last_data=last,
             read_io_type=read.io_type if read else 0,
             read_io_index=read.index if read else 0,
