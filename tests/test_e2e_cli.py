@@ -1,0 +1,99 @@
+"""The command line, end to end: `servo-app sim fanuc` in one process, `servo-app run --robot` in another."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+
+pytestmark = pytest.mark.e2e
+TOKEN = "cli-test-token"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def servo_app(*args: str, **kw: object) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, "-m", "servo_app.cli", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, **kw)  # type: ignore[call-overload]
+
+
+def stop(p: subprocess.Popen[str]) -> tuple[int, str, str]:
+    if p.poll() is None:
+        p.send_signal(signal.SIGINT)
+    try:
+        out, err = p.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        p.kill()
+        out, err = p.communicate()
+    return p.returncode, out, err
+
+
+@pytest.fixture
+def sim() -> Iterator[tuple[subprocess.Popen[str], int]]:
+    p = servo_app("sim", "fanuc", "--port", "0", "--joints", "0,0,0,0,-90,0")
+    assert p.stdout is not None
+    line = p.stdout.readline()
+    m = re.search(r"udp://[\d.]+:(\d+)", line)
+    assert m, line
+    yield p, int(m.group(1))
+    stop(p)
+
+
+def test_run_against_an_external_simulator_process(sim: tuple[subprocess.Popen[str], int], tmp_path: Path) -> None:
+    sim_proc, udp_port = sim
+    http = free_port()
+    run = servo_app("run", "--robot", f"fanuc:127.0.0.1:{udp_port}", "--model", "lrmate200id", "--http-port",
+                    str(http), "--var-dir", str(tmp_path), "--token", TOKEN, env={**os.environ})
+    base = f"http://127.0.0.1:{http}"
+    try:
+        with httpx.Client(base_url=base, timeout=5) as c:
+            for _ in range(300):
+                try:
+                    if c.get("/api/health").status_code == 200:
+                        break
+                except httpx.TransportError:
+                    time.sleep(0.1)
+            auth = {"Authorization": f"Bearer {TOKEN}"}
+            lease = c.post("/api/lease", json={"client": "cli-test"}, headers=auth).json()["lease_id"]
+            hdr = {**auth, "X-Lease-Id": lease}
+            assert c.post("/api/session/start", headers=hdr).status_code == 200
+            for _ in range(200):
+                if c.get("/api/state").json()["state"] == "streaming":
+                    break
+                time.sleep(0.02)
+            state = c.get("/api/state").json()
+            assert state["state"] == "streaming" and state["simulated"] is False
+            assert state["robot"] == f"127.0.0.1:{udp_port}"
+            r = c.post("/api/target", json={"joints": [15, 5, -5, 10, -80, 20], "speed_scale": 0.5}, headers=hdr)
+            assert r.status_code == 200, r.text
+            for _ in range(300):
+                s = c.get("/api/state").json()
+                if s["at_rest"] and abs(s["q_cmd"][0] - 15) < 1e-3:
+                    break
+                time.sleep(0.02)
+            assert abs(s["q_servo"][0] - 15) < 0.5  # the external controller followed
+            assert c.post("/api/session/end", headers=auth).status_code == 200
+            for _ in range(200):
+                if c.get("/api/state").json()["state"] == "ended":
+                    break
+                time.sleep(0.02)
+            assert c.get("/api/state").json()["state"] == "ended"
+    finally:
+        code, _, run_err = stop(run)
+        _, _, sim_err = stop(sim_proc)
+    assert code == 0, run_err
+    alarms = [line for line in sim_err.splitlines() if re.match(r"(MOTN|PRIO)-\d+", line)]
+    assert alarms == [], alarms
