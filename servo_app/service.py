@@ -24,9 +24,11 @@ from typing import Any
 from servo_app.fanuc.alarms import ALARMS
 from servo_app.fanuc.packets import ROBOT_PORT, IoType
 from servo_app.fanuc.runner import StreamConfig, StreamProcess
+from servo_app.janome.profile import available_janome_profiles, load_janome_profile
+from servo_app.janome.runner import DEFAULT_PORT as JANOME_PORT
 from servo_app.motion.limit_tables import default_tables
 from servo_app.motion.servo import CommandRejected
-from servo_app.robots.profile import RobotProfile, load_profile
+from servo_app.robots.profile import load_profile
 
 IO_SPAN = 16  # a command packet's read or write covers 16 points from its index (manual 61.7)
 
@@ -40,15 +42,24 @@ class InvalidRequest(ValueError):
 
 
 def parse_robot(spec: str | None) -> tuple[str, str, int] | None:
-    """``fanuc:HOST[:PORT]`` -> ("fanuc", host, port); None means the embedded simulator."""
+    """The ``--robot`` option.
+
+    ``fanuc:HOST[:PORT]`` -> ("fanuc", host, port), a controller to stream to; ``janome:HOST[:PORT]``
+    -> ("janome", host, port), where servo_app listens for the robot's point job (it is the TCP
+    client); plain ``janome`` -> ("janome", "127.0.0.1", 0) with the embedded Janome simulator; None
+    means the embedded FANUC simulator.
+    """
     if not spec:
         return None
     kind, _, rest = spec.partition(":")
-    if kind != "fanuc" or not rest:
-        raise ValueError(f"--robot={spec!r}: expected fanuc:HOST[:PORT]")
+    if kind == "janome" and not rest:
+        return kind, "127.0.0.1", 0
+    if kind not in ("fanuc", "janome") or not rest:
+        raise ValueError(f"--robot={spec!r}: expected fanuc:HOST[:PORT], janome[:HOST[:PORT]]")
     host, _, port = rest.partition(":")
+    default = ROBOT_PORT if kind == "fanuc" else JANOME_PORT
     try:
-        return kind, host, int(port) if port else ROBOT_PORT
+        return kind, host, int(port) if port else default
     except ValueError:
         raise ValueError(f"--robot={spec!r}: port {port!r} is not a number") from None
 
@@ -85,7 +96,15 @@ class ServiceConfig:
 class ServoService:
     def __init__(self, cfg: ServiceConfig) -> None:
         self.cfg = cfg
-        self.profile: RobotProfile = load_profile(cfg.model)
+        robot = parse_robot(cfg.robot)
+        self.backend = robot[0] if robot else "fanuc"
+        if self.backend == "janome":
+            # A FANUC default model name means "the default Janome model" here.
+            self.model = cfg.model if cfg.model in available_janome_profiles() else "jr3000"
+            self.profile: Any = load_janome_profile(self.model)
+        else:
+            self.model = cfg.model
+            self.profile = load_profile(cfg.model)
         self.sim: Any = None
         self.stream: StreamProcess | None = None
         self.stops_by_reason: Counter[str] = Counter()
@@ -108,6 +127,9 @@ class ServoService:
     # ------------------------------------------------------------------ life
     def open(self) -> None:
         robot = parse_robot(self.cfg.robot)
+        if robot is not None and robot[0] == "janome":
+            self._open_janome(robot[1], robot[2], embedded=self.cfg.robot == "janome")
+            return
         if robot is None:
             self.sim = self._start_simulator()
             host, port = self.sim.address
@@ -119,6 +141,23 @@ class ServoService:
             log_dir=str(self.cfg.log_dir), limit_fraction=self.cfg.limit_fraction,
             flange_speed_cap=self.cfg.flange_speed_cap, payload_kg=self.cfg.payload_kg))
         self.stream.start()
+        self._start_threads()
+
+    def _open_janome(self, host: str, port: int, embedded: bool) -> None:
+        """Janome: servo_app listens, the robot's point job connects (the manual's Ethernet client)."""
+        from servo_app.janome.runner import JanomeConfig, JanomeProcess
+
+        self.stream = JanomeProcess(JanomeConfig(host=host, port=port, model=self.model))  # type: ignore[assignment]
+        self.stream.start()
+        self.robot_address = self.stream.address  # type: ignore[attr-defined]
+        if embedded:
+            from servo_app.sim.process import JanomeSimulatorProcess
+
+            self.sim = JanomeSimulatorProcess(server=self.robot_address, model=self.model).start()
+        self._start_threads()
+
+    def _start_threads(self) -> None:
+        assert self.stream is not None
         for ev in self.stream.events:  # "ready", read by start() before our reader owns the pipe
             self._on_event(ev)
         self.servo_alive = True
@@ -367,7 +406,26 @@ class ServoService:
         out.update(safety.get("stops") or {})
         return dict(out)
 
+    def _janome_limits(self) -> dict[str, Any]:
+        p = self.profile
+        return {
+            "model": p.name,
+            "backend": "janome",
+            "axes": ["X", "Y", "Z", "R"],
+            "source": "profile (configured)",
+            "axis_min": list(p.axis_min),
+            "axis_max": list(p.axis_max),
+            "speed": list(p.speed),
+            "accel": list(p.accel),
+            "cp_speed_mm_s": p.cp_speed,
+            "step_s": p.step_s,
+            "max_step_mm": p.max_step_mm,
+            "max_step_deg": p.max_step_deg,
+        }
+
     def limits(self) -> dict[str, Any]:
+        if self.backend == "janome":
+            return self._janome_limits()
         tables = default_tables(self.profile)
         vel, acc, jerk = tables.for_cap(self.cfg.flange_speed_cap or tables.vmax, self.cfg.payload_kg)
         st = self.stream.state() if self.stream else {}

@@ -97,3 +97,57 @@ def test_run_against_an_external_simulator_process(sim: tuple[subprocess.Popen[s
     assert code == 0, run_err
     alarms = [line for line in sim_err.splitlines() if re.match(r"(MOTN|PRIO)-\d+", line)]
     assert alarms == [], alarms
+
+
+def test_run_janome_with_its_embedded_simulator_through_rest(tmp_path: Path) -> None:
+    """Issue 8 through the API: start, jog, stop, end against the embedded Janome point-job simulator."""
+    http = free_port()
+    run = servo_app("run", "--robot", "janome", "--model", "jr3000", "--http-port", str(http), "--var-dir",
+                    str(tmp_path), "--token", TOKEN)
+    base = f"http://127.0.0.1:{http}"
+    try:
+        with httpx.Client(base_url=base, timeout=5) as c:
+            for _ in range(300):
+                try:
+                    if c.get("/api/health").status_code == 200:
+                        break
+                except httpx.TransportError:
+                    time.sleep(0.1)
+            auth = {"Authorization": f"Bearer {TOKEN}"}
+            lease = c.post("/api/lease", json={"client": "janome-test"}, headers=auth).json()["lease_id"]
+            hdr = {**auth, "X-Lease-Id": lease}
+            for _ in range(300):  # the point job connects on its own
+                if c.get("/api/state").json()["state"] == "ready":
+                    break
+                time.sleep(0.02)
+            assert c.get("/api/limits").json()["axes"] == ["X", "Y", "Z", "R"]
+            assert c.post("/api/session/start", headers=hdr).status_code == 200
+            for _ in range(300):
+                if c.get("/api/state").json()["state"] == "streaming":
+                    break
+                time.sleep(0.02)
+            x0 = c.get("/api/state").json()["q_servo"][0]
+            for _ in range(10):  # hold the jog button for about a second
+                r = c.post("/api/jog", json={"joints": [40.0, 0.0, 0.0, 0.0], "hold_ms": 500}, headers=hdr)
+                assert r.status_code == 200, r.text
+                time.sleep(0.1)
+            assert c.post("/api/session/stop", headers=auth).status_code == 200
+            for _ in range(300):
+                s = c.get("/api/state").json()
+                if s["state"] == "stopped":
+                    break
+                time.sleep(0.02)
+            assert s["state"] == "stopped"
+            assert s["q_servo"][0] > x0 + 5.0  # the robot moved along +X
+            r = c.post("/api/jog", content='{"joints": [NaN, 0, 0, 0]}',
+                       headers={**hdr, "content-type": "application/json"})
+            assert r.status_code == 422 and "joints[0]=nan" in r.text  # named; nothing reaches the robot
+            assert c.post("/api/session/end", headers=auth).status_code == 200
+            for _ in range(300):
+                if c.get("/api/state").json()["state"] == "ended":
+                    break
+                time.sleep(0.02)
+            assert c.get("/api/state").json()["state"] == "ended"
+    finally:
+        code, _, err = stop(run)
+    assert code == 0, err

@@ -1,4 +1,4 @@
-"""``servo-app sim``: janome is not there yet; fanuc runs standalone until Ctrl-C."""
+"""``servo-app sim``: fanuc runs standalone until Ctrl-C; janome needs the server to connect to."""
 
 from __future__ import annotations
 
@@ -23,10 +23,10 @@ def parse(*argv: str) -> argparse.Namespace:
     return parser.parse_args(["sim", *argv])
 
 
-def test_janome_is_not_available_yet(capsys: pytest.CaptureFixture[str]) -> None:
-    args = parse("janome")
-    assert args.handler(args) == 2
-    assert "not available yet" in capsys.readouterr().err
+def test_janome_needs_the_server_to_connect_to(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        parse("janome")  # the robot is the TCP client: --connect HOST:PORT is required
+    assert "--connect" in capsys.readouterr().err
 
 
 def test_bad_settings_exit_2(capsys: pytest.CaptureFixture[str]) -> None:

@@ -18,7 +18,10 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from fastapi import Depends, FastAPI, Header, HTTPException, Request, WebSocket, WebSocketDisconnect
-from fastapi.responses import FileResponse, PlainTextResponse, RedirectResponse
+from fastapi.concurrency import run_in_threadpool
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, JSONResponse, PlainTextResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, Discriminator, Field, Tag, field_validator
 
@@ -53,7 +56,7 @@ class TwistJog(BaseModel):
 
 class JointJog(BaseModel):
     model_config = {"extra": "forbid"}
-    joints: list[float] = Field(min_length=6, max_length=6, description="deg/s per joint (FANUC axes)")
+    joints: list[float] = Field(min_length=1, max_length=9, description="per axis: deg/s (FANUC J1..J6), or mm/s and deg/s (Janome X Y Z R); the backend checks the count")
     hold_ms: float = Field(200.0, gt=0, le=2000)
 
     @field_validator("joints")
@@ -64,7 +67,7 @@ class JointJog(BaseModel):
 
 class JointTarget(BaseModel):
     model_config = {"extra": "forbid"}
-    joints: list[float] = Field(min_length=6, max_length=6, description="deg, FANUC convention")
+    joints: list[float] = Field(min_length=1, max_length=9, description="per axis: deg (FANUC convention), or mm and deg (Janome X Y Z R); the backend checks the count")
     speed_scale: float = Field(1.0, gt=0, le=1)
 
     @field_validator("joints")
@@ -83,6 +86,20 @@ class PoseTargetBody(BaseModel):
     @classmethod
     def _fin(cls, v: list[float]) -> list[float]:
         return _finite("xyzwpr", v)
+
+
+def _json_safe(value: Any) -> Any:
+    """A validation error echoes its input: NaN or Infinity there would make the 422 itself fail to
+    encode (a 500). Non-finite numbers become their names, exceptions their messages."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, BaseException):
+        return str(value)
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(v) for v in value]
+    return value
 
 
 def _jog_kind(body: Any) -> str:
@@ -156,6 +173,11 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
     app = FastAPI(title="servo_app", version="0.1.0", lifespan=lifespan,
                   description="Online servo control of industrial robot arms (FANUC Stream Motion J519).")
     app.state.service, app.state.leases, app.state.metrics = service, leases, metrics
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
+        return JSONResponse(status_code=422, content={"detail": jsonable_encoder(_json_safe(list(exc.errors())))})
+
     if cors_origins:
         from fastapi.middleware.cors import CORSMiddleware
 
@@ -165,15 +187,17 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
         host = request.client.host if request.client else "?"
         return f"{host}:{request.client.port if request.client else 0}"
 
-    def authed(request: Request, authorization: Annotated[str | None, Header()] = None) -> str:
+    # The dependencies are async (they run on the event loop, no thread hop): a flood of jogs is
+    # refused without tying up the worker threads the real requests need.
+    async def authed(request: Request, authorization: Annotated[str | None, Header()] = None) -> str:
         if not token_matches(token, authorization):
             metrics.count("unauthorized")
             audit.record(client_of(request), f"{request.method} {request.url.path}", False, "bad token")
             raise HTTPException(401, "missing or wrong bearer token", headers={"WWW-Authenticate": "Bearer"})
         return client_of(request)
 
-    def controlling(request: Request, client: Annotated[str, Depends(authed)],
-                    x_lease_id: Annotated[str | None, Header()] = None) -> str:
+    async def controlling(request: Request, client: Annotated[str, Depends(authed)],
+                          x_lease_id: Annotated[str | None, Header()] = None) -> str:
         try:
             lease = leases.check(x_lease_id)
         except PermissionError as exc:
@@ -182,23 +206,25 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
             raise HTTPException(409, str(exc)) from None
         return f"{lease.client}@{client}"
 
-    def forward(client: str, action: str, op: str, **kw: Any) -> Ack:
-        return call(client, action, lambda: service.request(op, **kw), kw)
+    def forward(client: str, action: str, op: str, *, at: float | None = None, **kw: Any) -> Ack:
+        return call(client, action, lambda: service.request(op, **kw), kw, at)
 
-    def call(client: str, action: str, fn: Any, detail: Any = None) -> Ack:
-        """Run a service call; refusals become 422 (invalid here), 409 (refused by the state) or 503."""
+    def call(client: str, action: str, fn: Any, detail: Any = None, at: float | None = None) -> Ack:
+        """Run a service call; refusals become 422 (invalid here), 409 (refused by the state) or 503.
+        ``at``: when the request was admitted, for the audit line (default: now)."""
+        at = time.time() if at is None else at
         try:
             result = fn()
         except InvalidRequest as exc:
-            audit.record(client, action, False, str(exc))
+            audit.record(client, action, False, str(exc), at)
             raise HTTPException(422, str(exc)) from None
         except CommandRejected as exc:
-            audit.record(client, action, False, str(exc))
+            audit.record(client, action, False, str(exc), at)
             raise HTTPException(409, str(exc)) from None
         except TimeoutError as exc:
-            audit.record(client, action, False, str(exc))
+            audit.record(client, action, False, str(exc), at)
             raise HTTPException(503, str(exc)) from None
-        audit.record(client, action, True, detail or None)
+        audit.record(client, action, True, detail or None, at)
         return Ack(detail=result)
 
     # ---------------------------------------------------------------- session
@@ -209,8 +235,7 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
     @app.post("/api/session/stop", tags=["session"])
     def session_stop(client: Annotated[str, Depends(authed)], body: StopRequest | None = None) -> Ack:
         # Any authenticated client may stop the arm, with or without the lease.
-        fast = bool(body and body.fast)
-        service.stops_by_reason["request"] += 1
+        fast = bool(body and body.fast)  # counted by reason in the servo process ("stop requested")
         return forward(client, "session.stop", "stop", fast=fast)
 
     @app.post("/api/session/resume", tags=["session"])
@@ -232,16 +257,18 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
 
     # ----------------------------------------------------------------- motion
     @app.post("/api/jog", tags=["motion"])
-    def jog(body: JogBody, request: Request, client: Annotated[str, Depends(controlling)]) -> Ack:
+    async def jog(body: JogBody, request: Request, client: Annotated[str, Depends(controlling)]) -> Ack:
         # Keyed by host, not host:port: a new connection must not buy a fresh allowance.
         if not jog_limiter.allow(client.split("@")[-1].rsplit(":", 1)[0]):
             metrics.count("rate_limited")
             audit.record(client, "jog", False, "rate limited")
             raise HTTPException(429, f"jog requests limited to {jog_limiter.per_second} per second per client")
+        admitted = time.time()
         if isinstance(body, JointJog):
-            return forward(client, "jog", "jog", joints=body.joints, hold_s=body.hold_ms / 1000)
-        return forward(client, "jog", "twist", frame=body.frame, linear=body.linear, angular=body.angular,
-                       hold_s=body.hold_ms / 1000)
+            return await run_in_threadpool(forward, client, "jog", "jog", at=admitted, joints=body.joints,
+                                           hold_s=body.hold_ms / 1000)
+        return await run_in_threadpool(forward, client, "jog", "twist", at=admitted, frame=body.frame,
+                                       linear=body.linear, angular=body.angular, hold_s=body.hold_ms / 1000)
 
     @app.post("/api/target", tags=["motion"])
     def target(body: JointTarget | PoseTargetBody, client: Annotated[str, Depends(controlling)]) -> Ack:

@@ -32,14 +32,10 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
     f.add_argument("--seed", type=int, default=0, help="fault injection RNG seed")
     f.set_defaults(handler=_run_fanuc)
 
-    j = kinds.add_parser("janome", help="Janome JR3000 point-job simulator (not available yet)")
-    j.set_defaults(handler=_run_janome)
+    from servo_app.sim.janome_sim import add_janome_sim_parser
+
+    add_janome_sim_parser(kinds)
     return p
-
-
-def _run_janome(args: argparse.Namespace) -> int:
-    print("servo-app sim janome: the Janome simulator is not available yet", file=sys.stderr)
-    return 2
 
 
 def _run_fanuc(args: argparse.Namespace) -> int:

@@ -92,3 +92,58 @@ class SimulatorProcess:
         deadline = time.monotonic() + 1
         while self.process.is_alive() and time.monotonic() < deadline:
             time.sleep(0.01)
+
+
+def _serve_janome(server: tuple[str, int], model: str, conn: Connection) -> None:
+    from servo_app.sim.janome_sim import JanomeSimulator
+
+    # repeat: like a point job in a loop, it connects again after each session
+    sim = JanomeSimulator(server, model, repeat=True).start()
+    conn.send({"ok": True})
+    try:
+        while not conn.poll(0.5) or conn.recv().get("call") != "quit":
+            pass
+    except EOFError:
+        pass
+    finally:
+        sim.stop()
+
+
+class JanomeSimulatorProcess:
+    """The embedded Janome robot (its point job) in a process of its own; it connects to ``server``."""
+
+    def __init__(self, server: tuple[str, int], model: str = "jr3000") -> None:
+        ctx = mp.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self.process = ctx.Process(target=_serve_janome, args=(server, model, child), name="janome-sim",
+                                   daemon=True)
+        self.address = server
+
+    def start(self, timeout: float = 30.0) -> JanomeSimulatorProcess:
+        self.process.start()
+        if not self._conn.poll(timeout):
+            raise TimeoutError("Janome simulator process did not start")
+        self._conn.recv()
+        return self
+
+    def call(self, name: str, *args: Any, timeout: float = 5.0) -> Any:
+        """The controls the service asks of an embedded simulator; the Janome robot has none of FANUC's."""
+        if name == "events":
+            return []  # Janome faults reach the service through its own link supervisor
+        if name == "reset":
+            return None  # robot-side errors are reported over the link and reset there
+        raise RuntimeError(f"the Janome simulator has no control {name!r}")
+
+    def events(self) -> list[dict[str, Any]]:
+        return self.call("events")  # type: ignore[no-any-return]
+
+    def reset(self) -> None:
+        """Nothing to reset on the robot side: its errors are reported over the link and reset there."""
+
+    def stop(self, timeout: float = 5.0) -> None:
+        if self.process.is_alive():
+            with contextlib.suppress(OSError, BrokenPipeError):
+                self._conn.send({"call": "quit"})
+            self.process.join(timeout)
+            if self.process.is_alive():
+                self.process.kill()

@@ -1,0 +1,391 @@
+"""The Janome servo process: a TCP server for the robot's point job, the session, nothing else.
+
+Mirrors ``servo_app.fanuc.runner``: the cycle lives in a process of its own (spawned), the parent talks
+to it through a pipe (requests in, replies and events out) and reads its state from the same
+shared-memory latest-value slot layout (``servo_app.state``; q_cmd = X Y Z R padded with zeros).
+
+The robot is the TCP client (manual 21.1): the process listens on ``host:port`` and serves one
+connection at a time; a second one is refused (closed at once) so two robots can never share a
+stream. Per status frame: decode, compute, send, and only then publish and read the pipe.
+
+SIGINT/SIGTERM end cleanly: no further step, END at rest, the robot's BYE, then exit.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing as mp
+import os
+import select
+import signal
+import socket
+import time
+import traceback
+from collections import deque
+from dataclasses import asdict, dataclass
+from multiprocessing.connection import Connection
+from typing import Any
+
+import numpy as np
+
+from servo_app.ipc import LatestValueSlot
+from servo_app.janome.motion import JanomeMotion, MotionSettings
+from servo_app.janome.profile import load_janome_profile
+from servo_app.janome.protocol import Cmd
+from servo_app.janome.session import Phase, SessionConfig
+from servo_app.janome.supervisor import JanomeSupervisor
+from servo_app.motion.servo import CommandRejected
+from servo_app.safety import Mode
+from servo_app.state import MODES, PHASES, STATE_SIZE, StateVector, decode_state
+
+assert all(p.value in PHASES for p in Phase)
+assert all(m.value in MODES for m in Mode)
+
+DEFAULT_PORT = 10050  # any free port: the same number goes into the robot's client port settings
+
+
+@dataclass
+class JanomeConfig:
+    host: str = "127.0.0.1"  # address to listen on (the robot connects here)
+    port: int = DEFAULT_PORT  # 0: any free port (see JanomeProcess.address)
+    model: str = "jr3000"  # Janome profile name or TOML path
+    step_s: float | None = None  # None: the profile's link.step_s
+    speed_fraction: float = 0.9
+    move: str = "line"  # "line" (lineMove at the frame's speed) or "ptp" (moveAPTP, the robot's PTP condition)
+    ptp_cond: int = 0
+    status_timeout_s: float = 1.0  # beyond the expected move time
+    handshake_timeout_s: float = 2.0
+    hold_s: float = 0.5  # default hold-to-run for jogs (several link steps)
+    publish_interval_s: float = 0.05
+
+
+# --------------------------------------------------------------------------- child side
+
+
+class _JanomeServoProcess:
+    def __init__(self, cfg: JanomeConfig, conn: Connection, slot_name: str) -> None:
+        self.cfg = cfg
+        self.conn = conn
+        self.slot = LatestValueSlot(STATE_SIZE, name=slot_name, create=False)
+        self.profile = load_janome_profile(cfg.model)
+        if cfg.move not in ("line", "ptp"):
+            raise ValueError(f"move={cfg.move!r} must be 'line' or 'ptp'")
+        settings = MotionSettings(speed_fraction=cfg.speed_fraction,
+                                  move=Cmd.LINE if cfg.move == "line" else Cmd.PTP, ptp_cond=cfg.ptp_cond)
+        self.motion = JanomeMotion(self.profile, cfg.step_s, settings)
+        self.sup = JanomeSupervisor(self.motion, SessionConfig(
+            kind=self.profile.kind, status_timeout_s=cfg.status_timeout_s,
+            handshake_timeout_s=cfg.handshake_timeout_s, cp_accel=self.profile.cp_accel,
+            r_accel=self.profile.accel[3]), hold_s=cfg.hold_s)
+        self.listener = socket.create_server((cfg.host, cfg.port), reuse_port=False)
+        self.listener.setblocking(False)
+        self.sock: socket.socket | None = None
+        self.peer = ""
+        self.t0 = time.monotonic()
+        self.state = StateVector()
+        self.lat_us: deque[float] = deque(maxlen=1024)
+        self.lat_max = 0.0
+        self.hist: deque[np.ndarray] = deque(maxlen=4)
+        self.pending_signal: int | None = None
+        self.quit = False
+        self.last_status_t = 0.0
+        self._last_pub = 0.0
+        self._last_phase = self.sup.session.phase
+
+    # -- main loop
+    def run(self) -> None:
+        signal.signal(signal.SIGTERM, self._on_signal)
+        signal.signal(signal.SIGINT, self._on_signal)
+        self._event("ready", pid=os.getpid(), address=list(self.listener.getsockname()[:2]),
+                    model=self.profile.name, robot_kind=self.profile.kind.name.lower())
+        self._publish()
+        try:
+            while not self.quit:
+                self._step()
+        finally:
+            self._close_conn("servo process exiting", notify=False)
+            self.listener.close()
+            self.slot.close()
+
+    def _step(self) -> None:
+        rlist: list[Any] = [self.conn]
+        if self.sup.session.accepting:
+            rlist.append(self.listener)
+        if self.sock is not None:
+            rlist.append(self.sock)
+        try:
+            ready, _, _ = select.select(rlist, [], [], 0.02)
+        except InterruptedError:
+            ready = []
+        if self.sock is not None and self.sock in ready:
+            self._read()
+        if self.listener in ready:
+            self._accept()
+        now = time.monotonic()
+        self.sup.on_idle(now)
+        if self.pending_signal is not None:  # handled here, not inside the signal handler
+            sig, self.pending_signal = self.pending_signal, None
+            self.sup.signal(sig, now)
+        if self.conn in ready:
+            self._poll_requests()
+        self._maybe_close()
+        self._watch()
+        if time.monotonic() - self._last_pub >= self.cfg.publish_interval_s:
+            self._publish()
+        if self.sup.finished:
+            self.quit = True
+
+    def _accept(self) -> None:
+        try:
+            sock, addr = self.listener.accept()
+        except (BlockingIOError, InterruptedError):
+            return
+        peer = f"{addr[0]}:{addr[1]}"
+        if self.sock is not None:  # one robot per stream
+            sock.close()
+            self._event("connection_refused", peer=peer, reason=f"already serving {self.peer}")
+            return
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.setblocking(False)
+        self.sock, self.peer = sock, peer
+        self.sup.on_connect(time.monotonic())
+        self._event("connected", peer=peer)
+
+    def _read(self) -> None:
+        assert self.sock is not None
+        try:
+            data = self.sock.recv(4096)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as exc:  # reset by the peer, or the cable
+            self._lost(f"{type(exc).__name__}: {exc}")
+            return
+        if not data:
+            self._lost("the robot closed the connection")
+            return
+        t_recv = time.monotonic()
+        out = self.sup.on_bytes(data, t_recv)
+        if out:
+            try:
+                self.sock.sendall(b"".join(out))
+            except OSError as exc:
+                self._lost(f"send failed: {exc}")
+                return
+            us = (time.monotonic() - t_recv) * 1e6
+            self.lat_us.append(us)
+            self.lat_max = max(self.lat_max, us)
+        st = self.sup.session.last_status
+        if st is not None:
+            if self.last_status_t:
+                self.state.set("status_interval_last_ms", (t_recv - self.last_status_t) * 1000)
+            self.last_status_t = t_recv
+        if self.motion.last is not None:
+            self.hist.append(self.motion.last.copy())
+        self._publish()
+
+    def _lost(self, reason: str) -> None:
+        self._close_conn(reason, notify=True)
+
+    def _close_conn(self, reason: str, notify: bool) -> None:
+        if self.sock is None:
+            return
+        with contextlib.suppress(OSError):
+            self.sock.close()
+        self.sock = None
+        if notify:
+            self.sup.on_disconnect(reason, time.monotonic())
+            self._event("disconnected", peer=self.peer, reason=reason)
+
+    def _maybe_close(self) -> None:
+        s = self.sup.session
+        if s.want_close and self.sock is not None:
+            self._close_conn(s.fault_reason or s.stats.last_error or "closed by servo_app", notify=True)
+
+    # -- requests from the parent
+    def _poll_requests(self) -> None:
+        while self.conn.poll():
+            try:
+                req = self.conn.recv()
+            except EOFError:  # the parent is gone: end as on SIGTERM
+                self.pending_signal = int(signal.SIGTERM)
+                return
+            rid = req.pop("id", None)
+            op = req.pop("op")
+            try:
+                result = self.sup.request(op, time.monotonic(), **req)
+                reply = {"id": rid, "ok": True, "result": result}
+            except (CommandRejected, ValueError, KeyError, TypeError, RuntimeError) as exc:
+                reply = {"id": rid, "ok": False, "error": str(exc)}
+            if rid is not None:
+                self._maybe_close()
+                self._publish()  # a reader after the reply sees the request's effect
+                self.conn.send(reply)
+
+    def _watch(self) -> None:
+        if self.sup.changed:
+            self.sup.changed = False
+            self._event("safety", **self.sup.describe())
+        phase = self.sup.session.phase
+        if phase != self._last_phase:
+            self._last_phase = phase
+            self._event("phase", phase=phase.value, reason=self.sup.session.fault_reason)
+
+    def _on_signal(self, signum: int, frame: object) -> None:
+        self.pending_signal = signum
+
+    def _event(self, kind: str, **kw: Any) -> None:
+        with contextlib.suppress(BrokenPipeError, OSError):
+            self.conn.send({"event": kind, **kw})
+
+    # -- publishing
+    def _publish(self) -> None:
+        self._last_pub = time.monotonic()
+        sv, s, m = self.state, self.sup.session, self.motion
+        sv.set("published_unix", time.time())
+        sv.set("phase", PHASES.index(s.phase.value))
+        sv.set("mode", MODES.index(self.sup.state.mode.value))
+        sv.set("session_time", time.monotonic() - self.t0)
+        st = s.last_status
+        if st is not None:
+            sv.set("status_seq", st.seq)
+            sv.set("status_bits", int(st.state) | int(st.error) << 8)
+            sv.set("q_servo", _pad(st.xyzr))
+            sv.set("cart_servo", np.array([st.x, st.y, st.z, 0.0, 0.0, st.r]))
+        for k in ("commands_sent", "status_received", "status_lost", "status_duplicated", "malformed"):
+            sv.set(k, getattr(s.stats, k))
+        if self.lat_us:
+            a = np.fromiter(self.lat_us, float)
+            sv.set("latency_last_us", a[-1])
+            sv.set("latency_p50_us", float(np.percentile(a, 50)))
+            sv.set("latency_p99_us", float(np.percentile(a, 99)))
+            sv.set("latency_max_us", self.lat_max)
+        sv.set("at_rest", float(m.at_rest()))
+        sv.set("stopped", float(m.stopped))
+        sv.set("vel_limit", _pad(m.vel))
+        sv.set("acc_limit", _pad(m.acc))
+        sv.set("jerk_limit", _pad(m.jerk))
+        if self.hist:
+            h = list(self.hist)
+            while len(h) < 4:
+                h.insert(0, h[0])
+            q = np.array(h)
+            v = np.diff(q, axis=0) / m.step_s
+            a2 = np.diff(v, axis=0) / m.step_s
+            j = np.diff(a2, axis=0) / m.step_s
+            sv.set("q_cmd", _pad(q[-1]))
+            sv.set("vel", _pad(v[-1]))
+            sv.set("acc", _pad(a2[-1]))
+            sv.set("jerk", _pad(j[-1]))
+        self.slot.write(sv.data)
+
+
+def _pad(v: Any) -> np.ndarray:
+    out = np.zeros(6)
+    a = np.asarray(v, dtype=float)[:6]
+    out[: a.size] = a
+    return out
+
+
+def _child_main(cfg_dict: dict[str, Any], conn: Connection, slot_name: str) -> None:
+    try:
+        _JanomeServoProcess(JanomeConfig(**cfg_dict), conn, slot_name).run()
+    except Exception:  # report, then die: the parent turns this into a fault
+        with contextlib.suppress(OSError):
+            conn.send({"event": "crashed", "traceback": traceback.format_exc()})
+        raise
+
+
+# -------------------------------------------------------------------------- parent side
+
+
+class JanomeProcess:
+    """Parent-side handle of the Janome servo process; the same interface as ``StreamProcess``."""
+
+    def __init__(self, cfg: JanomeConfig) -> None:
+        self.cfg = cfg
+        self.slot = LatestValueSlot(STATE_SIZE)
+        ctx = mp.get_context("spawn")
+        self._conn, child_conn = ctx.Pipe()
+        self.process = ctx.Process(target=_child_main, args=(asdict(cfg), child_conn, self.slot.name),
+                                   name="janome-servo", daemon=True)
+        self.events: list[dict[str, Any]] = []
+        self._next_id = 0
+        self._replies: dict[int, dict[str, Any]] = {}
+        self.address: tuple[str, int] = (cfg.host, cfg.port)
+
+    def start(self, timeout: float = 30.0) -> None:
+        self.process.start()
+        ev = self.wait_event("ready", timeout)
+        self.address = (str(ev["address"][0]), int(ev["address"][1]))
+
+    def request(self, op: str, timeout: float = 2.0, **kw: Any) -> Any:
+        """Send a request to the servo process and wait for its reply; errors raise CommandRejected."""
+        self._next_id += 1
+        rid = self._next_id
+        self._conn.send({"id": rid, "op": op, **kw})
+        deadline = time.monotonic() + timeout
+        while rid not in self._replies:
+            if not self._pump(deadline - time.monotonic()):
+                raise TimeoutError(f"janome servo process did not answer '{op}' within {timeout} s")
+        reply = self._replies.pop(rid)
+        if not reply["ok"]:
+            raise CommandRejected(reply["error"])
+        return reply.get("result")
+
+    def _pump(self, timeout: float) -> bool:
+        if timeout <= 0 or not self._conn.poll(timeout):
+            return False
+        try:
+            msg = self._conn.recv()
+        except EOFError:
+            return False
+        if "event" in msg:
+            self.events.append(msg)
+        else:
+            self._replies[msg["id"]] = msg
+        return True
+
+    def last_event(self, kind: str) -> dict[str, Any] | None:
+        self.poll_events()
+        for ev in reversed(self.events):
+            if ev["event"] == kind:
+                return ev
+        return None
+
+    def poll_events(self) -> list[dict[str, Any]]:
+        while self._pump(0.0001):
+            pass
+        return self.events
+
+    def wait_event(self, kind: str, timeout: float, **match: Any) -> dict[str, Any]:
+        deadline = time.monotonic() + timeout
+        seen = 0
+        while True:
+            for ev in self.events[seen:]:
+                if ev["event"] == kind and all(ev.get(k) == v for k, v in match.items()):
+                    return ev
+                if ev["event"] == "crashed":
+                    raise RuntimeError(f"janome servo process crashed:\n{ev['traceback']}")
+            seen = len(self.events)
+            if not self.process.is_alive() and not self._conn.poll():
+                raise RuntimeError(f"janome servo process exited (code {self.process.exitcode}) before '{kind}'; "
+                                   f"events: {self.events[-5:]}")
+            if not self._pump(min(deadline - time.monotonic(), 0.5)) and time.monotonic() >= deadline:
+                raise TimeoutError(f"no '{kind}' event {match} within {timeout} s; events: {self.events[-5:]}")
+
+    def state(self) -> dict[str, Any]:
+        _, data = self.slot.read()
+        return decode_state(data)
+
+    def shutdown(self, timeout: float = 10.0) -> int | None:
+        """Signal the process (it ends a running stream cleanly) and wait for it."""
+        if self.process.is_alive():
+            assert self.process.pid is not None
+            os.kill(self.process.pid, signal.SIGTERM)
+            self.process.join(timeout)
+            if self.process.is_alive():
+                self.process.kill()
+                self.process.join(2)
+        self.poll_events()
+        self.slot.close()
+        return self.process.exitcode

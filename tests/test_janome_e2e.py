@@ -1,0 +1,138 @@
+"""End to end on loopback TCP: the Janome servo process serves the simulated point job."""
+
+from __future__ import annotations
+
+import socket
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+
+from servo_app.janome.runner import JanomeConfig, JanomeProcess
+from servo_app.motion.servo import CommandRejected
+from servo_app.sim.janome_sim import JanomeSimulator
+
+pytestmark = pytest.mark.e2e
+
+
+def wait_for(sp: JanomeProcess, cond: Any, what: str, timeout: float = 10.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        s = sp.state()
+        if cond(s):
+            return s
+        time.sleep(0.01)
+    raise AssertionError(f"{what} not reached; state {sp.state()['state']}; events {sp.poll_events()[-4:]}")
+
+
+def wait_state(sp: JanomeProcess, state: str, timeout: float = 10.0) -> dict:
+    return wait_for(sp, lambda s: s["state"] == state, f"state {state!r}", timeout)
+
+
+@pytest.fixture
+def rig(request: pytest.FixtureRequest) -> Iterator[tuple[JanomeProcess, JanomeSimulator]]:
+    model = getattr(request, "param", "jr3000")
+    sp = JanomeProcess(JanomeConfig(port=0, model=model))
+    sp.start()
+    sim = JanomeSimulator(sp.address, model).start()
+    yield sp, sim
+    sim.stop()
+    sp.shutdown()
+
+
+def test_start_jog_stop_end(rig: tuple[JanomeProcess, JanomeSimulator]) -> None:
+    sp, sim = rig
+    wait_state(sp, "ready")
+    with pytest.raises(CommandRejected, match="jog refused in ready"):
+        sp.request("jog", joints=[10.0, 0.0, 0.0, 0.0])
+    # one robot per stream: a second connection is closed at once
+    with socket.create_connection(sp.address, timeout=2.0) as other:
+        assert other.recv(16) == b""
+    assert sp.wait_event("connection_refused", 5.0)["reason"].startswith("already serving")
+    sp.request("start")
+    wait_state(sp, "streaming")
+    x0 = sim.position[0]
+    for _ in range(8):
+        sp.request("jog", joints=[40.0, 0.0, 0.0, 5.0], hold_s=0.5)
+        time.sleep(0.1)
+    sp.request("stop")
+    s = wait_state(sp, "stopped")
+    assert sim.moves >= 3 and sim.position[0] > x0
+    assert s["q_cmd"][:4] == pytest.approx(list(sim.position), abs=1e-3)
+    assert s["q_servo"][:4] == pytest.approx(s["q_cmd"][:4], abs=1e-3)  # the robot ended its last step
+    assert s["link"] == "streaming" and s["status_received"] > 3 and s["malformed"] == 0
+    moves = sim.moves
+    time.sleep(0.3)
+    assert sim.moves == moves  # stopped: no new target
+    sp.request("end")
+    wait_state(sp, "ended")
+    assert sim.wait_done(5.0) and sim.end_reason == "END received"
+    assert sp.wait_event("disconnected", 5.0)["reason"]
+
+
+def test_link_loss_mid_motion_is_a_fault(rig: tuple[JanomeProcess, JanomeSimulator]) -> None:
+    sp, sim = rig
+    wait_state(sp, "ready")
+    sp.request("start")
+    wait_state(sp, "streaming")
+    deadline = time.monotonic() + 5.0
+    while sim.plan is None and time.monotonic() < deadline:  # until a move is under way
+        sp.request("jog", joints=[0.0, 60.0, 0.0, 0.0], hold_s=0.5)
+        time.sleep(0.02)
+    sim.kill_link()
+    wait_state(sp, "fault")
+    safety = sp.wait_event("safety", 5.0, state="fault")
+    assert safety["fault"]["message"].startswith("connection lost while streaming")
+    assert "TCP connection closed or reset" in safety["fault"]["cause"]
+    assert sim.wait_done(5.0) and sim.end_reason == "link killed"
+    with pytest.raises(CommandRejected, match="refused in fault"):
+        sp.request("jog", joints=[0.0, 10.0, 0.0, 0.0])
+    sp.request("reset")
+    wait_state(sp, "disconnected")
+
+
+def test_bad_frames_are_rejected_without_a_crash(rig: tuple[JanomeProcess, JanomeSimulator]) -> None:
+    sp, sim = rig
+    wait_state(sp, "ready")
+    sp.request("start")
+    wait_state(sp, "streaming")
+    sim.corrupt_next_status()  # one status with a flipped byte: servo_app rejects it, answers HOLD
+    n = wait_for(sp, lambda s: s["malformed"] == 1, "the bad status counted")["status_received"]
+    wait_for(sp, lambda s: s["status_received"] > n, "a good status after it")
+    sim.inject(b"not a frame at all")  # no magic: skipped, counted
+    wait_for(sp, lambda s: s["malformed"] == 2, "the garbage counted")
+    sim.corrupt_next_target()  # one target garbled on the way: the robot rejects it, servo_app resends
+    for _ in range(6):
+        if sp.state()["state"] != "streaming":
+            raise AssertionError(f"{sp.last_event('safety')} {[(e.kind, e.message) for e in sim.events()]}")
+        sp.request("jog", joints=[30.0, 0.0, 0.0, 0.0], hold_s=0.5)
+        time.sleep(0.1)
+    rejected = sim.events("rejected")
+    assert rejected and rejected[0].error in ("BAD_CHECKSUM", "BAD_MAGIC", "BAD_TERMINATOR")
+    s = sp.state()
+    assert s["state"] == "streaming" and s["status_lost"] >= 1
+    safety = sp.last_event("safety") or {}
+    assert "checksum=" in (safety.get("link_error") or "") or s["malformed"] == 2
+    sp.request("stop")
+    wait_state(sp, "stopped")
+    assert sim.moves >= 2 and not sim.done.is_set()
+
+
+@pytest.mark.parametrize("rig", ["js3"], indirect=True)
+def test_scara_target_keeps_its_arm_configuration(rig: tuple[JanomeProcess, JanomeSimulator]) -> None:
+    sp, sim = rig
+    wait_state(sp, "ready")
+    sp.request("start")
+    wait_state(sp, "streaming")
+    with pytest.raises(CommandRejected, match=r"target refused: X=400\.000 mm is outside the stroke"):
+        sp.request("target", joints=[400.0, 0.0, 50.0, 0.0])
+    goal = [260.0, 120.0, 30.0, 20.0]
+    sp.request("target", joints=goal, speed_scale=1.0)
+    wait_for(sp, lambda s: np.allclose(s["q_servo"][:4], goal, atol=1e-3), "the target", timeout=15.0)
+    _j1, j2, z, _r = sim.robot.joints()
+    assert sim.robot.arm == 1 and j2 > 0 and z == pytest.approx(30.0)
+    assert not sim.events("rejected")
+    sp.request("end")
+    wait_state(sp, "ended")
