@@ -56,7 +56,8 @@ class TwistJog(BaseModel):
 
 class JointJog(BaseModel):
     model_config = {"extra": "forbid"}
-    joints: list[float] = Field(min_length=1, max_length=9, description="per axis: deg/s (FANUC J1..J6), or mm/s and deg/s (Janome X Y Z R); the backend checks the count")
+    joints: list[float] = Field(min_length=1, max_length=9, description=(
+        "per axis: deg/s (FANUC J1..J6), or mm/s and deg/s (Janome X Y Z R); the backend checks the count"))
     hold_ms: float = Field(200.0, gt=0, le=2000)
 
     @field_validator("joints")
@@ -67,7 +68,8 @@ class JointJog(BaseModel):
 
 class JointTarget(BaseModel):
     model_config = {"extra": "forbid"}
-    joints: list[float] = Field(min_length=1, max_length=9, description="per axis: deg (FANUC convention), or mm and deg (Janome X Y Z R); the backend checks the count")
+    joints: list[float] = Field(min_length=1, max_length=9, description=(
+        "per axis: deg (FANUC convention), or mm and deg (Janome X Y Z R); the backend checks the count"))
     speed_scale: float = Field(1.0, gt=0, le=1)
 
     @field_validator("joints")
