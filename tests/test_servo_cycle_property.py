@@ -211,7 +211,8 @@ def test_moving_pose_target_is_followed_with_bounded_lag(interval_ms: int) -> No
         if t > 1.0:  # after the catch-up from rest
             here = matrix_to_xyzwpr(KIN.fk_fanuc_deg(cell.sent[-1]))
             errors.append(float(np.linalg.norm(here[:3] - goal[:3])))
-    # Lag: about one P-control time constant (1/gain = 0.1 s) at 100 mm/s, plus a cycle or two.
+    # Steady lag of P-control toward a moving target: v / gain = 100 / 10 = 10 mm, plus the shaper's
+    # velocity lag (its acceleration ramp, acc/jerk ~ 0.05 s: 5 mm). Measured ~14.5 mm.
     print(f"tracking error max {max(errors):.2f} mm, mean {np.mean(errors):.2f} mm")
-    assert max(errors) < 15.0, max(errors)
+    assert max(errors) < 20.0, max(errors)
     assert not cell.ctrl.alarms()
