@@ -13,6 +13,7 @@ alarm list and forwards new alarms to the servo process at once, whether or not 
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import threading
 import time
@@ -35,6 +36,18 @@ IO_SPAN = 16  # a command packet's read or write covers 16 points from its index
 # The embedded simulator's assigned I/O (points per type). SI/SO/WI/WO/WSI/WSO are not assigned
 # there, and UI/UO drive the controller itself: not offered.
 DEFAULT_IO_ALLOW: dict[str, int] = {"DI": 512, "DO": 512, "RI": 8, "RO": 8, "F": 1024, "M": 1024}
+
+
+def _make_realtime(pid: int | None, priority: int | None) -> str:
+    """SCHED_FIFO for every thread of process ``pid`` (Linux; best effort, as for the servo process)."""
+    if priority is None or pid is None:
+        return "not requested"
+    try:
+        for tid in os.listdir(f"/proc/{pid}/task"):
+            os.sched_setscheduler(int(tid), os.SCHED_FIFO, os.sched_param(priority))
+    except (OSError, AttributeError) as exc:
+        return f"unavailable ({exc}); running at normal priority"
+    return f"SCHED_FIFO {priority}"
 
 
 class InvalidRequest(ValueError):
@@ -86,7 +99,13 @@ class ServiceConfig:
     # outside it would make the controller post PRIO-023 and stop: refuse it here instead.
     io_allow: dict[str, int] = field(default_factory=lambda: dict(DEFAULT_IO_ALLOW))
     alarm_poll_s: float = 0.05  # how often the embedded simulator's alarm list is read
+    # The embedded simulator stands in for a controller, which keeps its timing whatever else runs.
+    # At normal priority it was starved for 100 ms by a SCHED_FIFO process busy on its core (another
+    # servo process warming up): the servo process then saw no status and the simulator posted
+    # MOTN-603. Below the servo process's priority (20), so that one still comes first. None: leave.
+    sim_realtime_priority: int | None = 10
     request_timeout_s: float = 2.0
+    inputs_config: Path | None = None  # inputs TOML (servo-app run --inputs): adapters, feeds, applications
 
     @property
     def log_dir(self) -> Path:
@@ -123,6 +142,8 @@ class ServoService:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self.servo_alive = False
+        self.sim_scheduling = "no embedded simulator"
+        self.inputs: Any = None  # the InputsBridge, with cfg.inputs_config (FANUC backend)
 
     # ------------------------------------------------------------------ life
     def open(self) -> None:
@@ -130,6 +151,10 @@ class ServoService:
         if robot is not None and robot[0] == "janome":
             self._open_janome(robot[1], robot[2], embedded=self.cfg.robot == "janome")
             return
+        if self.cfg.inputs_config is not None:  # first: a bad file stops here; the servo process maps its slot
+            from servo_app.inputs.bridge import InputsBridge
+
+            self.inputs = InputsBridge.from_file(self.cfg.inputs_config)
         if robot is None:
             self.sim = self._start_simulator()
             host, port = self.sim.address
@@ -139,15 +164,19 @@ class ServoService:
         self.stream = StreamProcess(StreamConfig(
             host=host, port=port, model=self.cfg.model, interval_ms=self.cfg.interval_ms, lead=self.cfg.lead,
             log_dir=str(self.cfg.log_dir), limit_fraction=self.cfg.limit_fraction,
-            flange_speed_cap=self.cfg.flange_speed_cap, payload_kg=self.cfg.payload_kg))
+            flange_speed_cap=self.cfg.flange_speed_cap, payload_kg=self.cfg.payload_kg,
+            input_slot=self.inputs.slot_name if self.inputs is not None else None))
         self.stream.start()
         self._start_threads()
+        if self.inputs is not None:
+            self.inputs.start(request=self.request, feedback=self.state_vector)
 
     def _open_janome(self, host: str, port: int, embedded: bool) -> None:
         """Janome: servo_app listens, the robot's point job connects (the manual's Ethernet client)."""
         from servo_app.janome.runner import JanomeConfig, JanomeProcess
 
-        self.stream = JanomeProcess(JanomeConfig(host=host, port=port, model=self.model))  # type: ignore[assignment]
+        self.stream = JanomeProcess(JanomeConfig(host=host, port=port, model=self.model,  # type: ignore[assignment]
+                                                 log_dir=str(self.cfg.log_dir)))
         self.stream.start()
         self.robot_address = self.stream.address  # type: ignore[attr-defined]
         if embedded:
@@ -175,12 +204,15 @@ class ServoService:
         # Ctrl-C reaches the whole process group: the simulator (the "controller") must keep sending
         # status while the servo process decelerates and sends last data. A child inherits SIG_IGN.
         if threading.current_thread() is not threading.main_thread():
-            return sim.start()
-        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
-        try:
-            return sim.start()
-        finally:
-            signal.signal(signal.SIGINT, old)
+            sim.start()
+        else:
+            old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+            try:
+                sim.start()
+            finally:
+                signal.signal(signal.SIGINT, old)
+        self.sim_scheduling = _make_realtime(sim.process.pid, self.cfg.sim_realtime_priority)
+        return sim
 
     def close(self, group_signal_wait_s: float = 0.0) -> dict[str, Any]:
         """End the stream cleanly (the servo process decelerates, sends last data, stops the status
@@ -196,6 +228,8 @@ class ServoService:
                 self.stream.process.join(10.0)  # then shutdown() finds it gone and sends no signal
                 break
             time.sleep(0.01)
+        if self.inputs is not None:  # adapters close their devices; the slot lives until the servo process exits
+            self.inputs.stop()
         self._stop.set()
         for t in self._threads:
             t.join(timeout=2.0)
@@ -215,6 +249,9 @@ class ServoService:
                 summary["alarms"] = [e["code"] for e in self.sim_call("events")]
             self.sim.stop()
             self.sim = None
+        if self.inputs is not None:
+            self.inputs.close()
+            self.inputs = None
         return summary
 
     # ------------------------------------------------------------ the pipe
@@ -387,6 +424,8 @@ class ServoService:
         s["simulated"] = self.sim is not None
         s["alarms"] = self.alarms()
         s["faults"] = self.faults[-10:]
+        if self.inputs is not None:
+            s["inputs"] = self.inputs.summary()
         return s
 
     def alarms(self) -> list[dict[str, Any]]:

@@ -151,3 +151,12 @@ def test_run_janome_with_its_embedded_simulator_through_rest(tmp_path: Path) -> 
     finally:
         code, _, err = stop(run)
     assert code == 0, err
+    # The exchange was logged frame by frame, readable like any session log.
+    from servo_app.fanuc.session_log import read_session_log
+
+    logs = sorted((tmp_path / "sessions").glob("janome-*.srvlog"))
+    assert logs
+    log = read_session_log(logs[-1])
+    assert log.header["protocol"] == "janome-pointjob-v1"
+    xs = log.commands["values"][:, 0]
+    assert len(log.commands) > 5 and xs.max() > xs[0] + 5.0  # the +X jog is in it

@@ -24,14 +24,16 @@ import traceback
 from collections import deque
 from dataclasses import asdict, dataclass
 from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from servo_app.fanuc.session_log import SessionLogWriter
 from servo_app.ipc import LatestValueSlot
 from servo_app.janome.motion import JanomeMotion, MotionSettings
 from servo_app.janome.profile import load_janome_profile
-from servo_app.janome.protocol import Cmd
+from servo_app.janome.protocol import Cmd, FrameError, Target
 from servo_app.janome.session import Phase, SessionConfig
 from servo_app.janome.supervisor import JanomeSupervisor
 from servo_app.motion.servo import CommandRejected
@@ -57,6 +59,7 @@ class JanomeConfig:
     handshake_timeout_s: float = 2.0
     hold_s: float = 0.5  # default hold-to-run for jogs (several link steps)
     publish_interval_s: float = 0.05
+    log_dir: str = "var/sessions"  # every connection's exchange, per frame (servo_app/fanuc/session_log.py)
 
 
 # --------------------------------------------------------------------------- child side
@@ -91,6 +94,8 @@ class _JanomeServoProcess:
         self.last_status_t = 0.0
         self._last_pub = 0.0
         self._last_phase = self.sup.session.phase
+        self.log: SessionLogWriter | None = None
+        self._logged_seq: int | None = None
 
     # -- main loop
     def run(self) -> None:
@@ -148,6 +153,7 @@ class _JanomeServoProcess:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.setblocking(False)
         self.sock, self.peer = sock, peer
+        self._open_log()
         self.sup.on_connect(time.monotonic())
         self._event("connected", peer=peer)
 
@@ -165,6 +171,7 @@ class _JanomeServoProcess:
             return
         t_recv = time.monotonic()
         out = self.sup.on_bytes(data, t_recv)
+        us = 0.0
         if out:
             try:
                 self.sock.sendall(b"".join(out))
@@ -174,6 +181,7 @@ class _JanomeServoProcess:
             us = (time.monotonic() - t_recv) * 1e6
             self.lat_us.append(us)
             self.lat_max = max(self.lat_max, us)
+        self._log_exchange(t_recv, out, us)
         st = self.sup.session.last_status
         if st is not None:
             if self.last_status_t:
@@ -182,6 +190,38 @@ class _JanomeServoProcess:
         if self.motion.last is not None:
             self.hist.append(self.motion.last.copy())
         self._publish()
+
+    def _log_exchange(self, t_recv: float, out: list[bytes], latency_us: float) -> None:
+        """One record per new robot status and per target frame sent (the shared .srvlog format: flags
+        hold the robot state for a status, and stop | cmd << 1 for a target)."""
+        log = self.log
+        if log is None:
+            return
+        st = self.sup.session.last_status
+        t = t_recv - self.t0
+        if st is not None and st.seq != self._logged_seq:
+            self._logged_seq = st.seq
+            log.status(t, st.seq, int(st.state) & 0xFF, int(st.error) & 0xFFFF, st.xyzr)
+        for frame in out:
+            try:
+                tg = Target.decode(frame)
+            except FrameError:
+                continue
+            log.command(t, tg.seq, int(tg.stop), int(tg.cmd), 0, latency_us, (tg.x, tg.y, tg.z, tg.r))
+
+    def _open_log(self) -> None:
+        self._close_log()
+        path = Path(self.cfg.log_dir) / f"janome-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.srvlog"
+        self.log = SessionLogWriter(path, {"model": self.profile.name, "protocol": "janome-pointjob-v1",
+                                           "axes": ["X", "Y", "Z", "R"], "peer": self.peer}, flush_every=10)
+        self._logged_seq = None
+        self._event("log_opened", path=str(path))
+
+    def _close_log(self) -> None:
+        if self.log is not None:
+            self.log.close()
+            self._event("log_closed", path=str(self.log.path), records=self.log.records)
+            self.log = None
 
     def _lost(self, reason: str) -> None:
         self._close_conn(reason, notify=True)
@@ -192,6 +232,7 @@ class _JanomeServoProcess:
         with contextlib.suppress(OSError):
             self.sock.close()
         self.sock = None
+        self._close_log()
         if notify:
             self.sup.on_disconnect(reason, time.monotonic())
             self._event("disconnected", peer=self.peer, reason=reason)
