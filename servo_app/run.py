@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import signal
 from pathlib import Path
 from typing import Any
 
 from servo_app.api.auth import resolve_token
+from servo_app.inputs.errors import ConfigError
 from servo_app.service import ServiceConfig, ServoService
 
 
@@ -19,11 +21,15 @@ def add_run_parser(sub: Any) -> None:
     p.add_argument("--http-port", type=int, default=8000)
     p.add_argument("--interval-ms", type=int, choices=(4, 8), default=None,
                    help="communication interval; default: the profile's")
-    p.add_argument("--lead", type=int, default=0, help="extra commands kept in the controller's buffer (61.4)")
+    p.add_argument("--lead", type=int, default=ServiceConfig.lead,
+                   help="extra commands kept in the controller's buffer (61.4); the default 2 rides out two "
+                        "lost status packets in a row, 0 alarms (MOTN-603) at the first one")
     p.add_argument("--token", default=None, help="API token (else $SERVO_APP_TOKEN, else var/token)")
     p.add_argument("--var-dir", type=Path, default=Path("var"), help="session logs, audit log, token")
     p.add_argument("--payload-kg", type=float, default=None, help="payload for the limit tables")
     p.add_argument("--cors-origin", action="append", default=[], help="allow this origin (CORS closed by default)")
+    p.add_argument("--inputs", type=Path, default=None, metavar="FILE",
+                   help="inputs TOML: adapters, feeds and [[applications]] (examples in configs/inputs/)")
     p.set_defaults(handler=run)
 
 
@@ -36,21 +42,32 @@ def run(args: argparse.Namespace) -> int:
     if new:
         print(f"API token (saved in {args.var_dir / 'token'}, shown once): {token}", flush=True)
     service = ServoService(ServiceConfig(robot=args.robot, model=args.model, interval_ms=args.interval_ms,
-                                         lead=args.lead, var_dir=args.var_dir, payload_kg=args.payload_kg))
-    service.open()
+                                         lead=args.lead, var_dir=args.var_dir, payload_kg=args.payload_kg,
+                                         inputs_config=args.inputs))
+    try:
+        service.open()
+    except ConfigError as exc:  # nothing is started yet: the inputs file is read first
+        print(f"servo_app: invalid inputs configuration:\n{exc}", flush=True)
+        return 2
     target = "embedded simulator" if service.sim else args.robot
+    assert service.robot_address is not None
     print(f"servo_app: {service.profile.display_name} via {target} at "
           f"{service.robot_address[0]}:{service.robot_address[1]}; console http://{args.host}:{args.http_port}",
           flush=True)
     app = create_app(service, token, cors_origins=args.cors_origin or None)
     config = uvicorn.Config(app, host=args.host, port=args.http_port, log_level="warning")
     server = uvicorn.Server(config)
+    # uvicorn re-raises the signal that stopped it once it has shut down, with the handlers it found
+    # installed: these absorb it, so the `finally` below still ends the stream before we exit.
+    received: list[int] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda signum, frame: received.append(signum))
     try:
         server.run()  # returns on SIGINT/SIGTERM
     finally:
-        # The servo process got the same signal from the terminal, or gets it now: it decelerates,
-        # sends last data and stops the status output before it exits.
-        service.close()
-    return 0
-
-
+        # The servo process decelerates, sends last data and stops the status output before it exits.
+        summary = service.close(group_signal_wait_s=0.3 if signal.SIGINT in received else 0.0)
+        print(f"servo_app: stopped; stream {summary.get('state')}, link {summary.get('link')}, "
+              f"servo process exit code {summary.get('servo_exit_code')}, "
+              f"controller alarms {summary.get('alarms', [])}", flush=True)
+    return 0 if summary.get("servo_exit_code") == 0 else 1

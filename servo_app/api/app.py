@@ -145,6 +145,9 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
     metrics = Metrics(lambda: (service.state_vector(), service.stops()))
 
     def stop_for_lost_lease(holder: str) -> None:
+        if getattr(service, "inputs", None) is not None and service.inputs.enabled:  # a new holder enables afresh
+            with contextlib.suppress(CommandRejected, TimeoutError, RuntimeError):
+                service.inputs.enable(False)
         if service.state_vector().get("state") == "streaming":
             with contextlib.suppress(CommandRejected, TimeoutError, RuntimeError):
                 service.request("lease_lost", holder=holder)
@@ -380,6 +383,12 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
                 await asyncio.sleep(max(0.0, due - loop.time()))
         except (WebSocketDisconnect, RuntimeError, OSError):  # the client went away
             return
+
+    if getattr(service, "inputs", None) is not None:  # servo-app run --inputs: feeds, sources, applications
+        from servo_app.api.inputs_router import include_inputs
+
+        include_inputs(app, service.inputs, token=token, controlling=controlling, call=call, metrics=metrics,
+                       audit=audit)
 
     if WEB_DIR.is_dir():
         app.mount("/web", StaticFiles(directory=WEB_DIR, html=True), name="web")

@@ -46,6 +46,7 @@ class Lease:
     lease_id: str
     client: str
     expires_at: float
+    ttl_s: float
 
 
 class LeaseManager:
@@ -63,13 +64,15 @@ class LeaseManager:
                 self._lease = None
             return self._lease
 
-    def acquire(self, client: str, force: bool = False) -> Lease:
+    def acquire(self, client: str, force: bool = False, ttl_s: float | None = None) -> Lease:
+        """A new lease; ``ttl_s`` may shorten the manager's TTL for this lease, never lengthen it."""
+        ttl = self.ttl_s if ttl_s is None else min(float(ttl_s), self.ttl_s)
         with self._lock:
             now = self._clock()
             held = self._lease
             if held and now <= held.expires_at and not force:
                 raise PermissionError(f"control is held by '{held.client}' for {held.expires_at - now:.1f} s more")
-            self._lease = Lease(secrets.token_urlsafe(12), client, now + self.ttl_s)
+            self._lease = Lease(secrets.token_urlsafe(12), client, now + ttl, ttl)
             return self._lease
 
     def renew(self, lease_id: str | None) -> Lease:
@@ -77,7 +80,7 @@ class LeaseManager:
             held = self._lease
             if not held or held.lease_id != lease_id or self._clock() > held.expires_at:
                 raise PermissionError("this client does not hold the control lease (it may have expired)")
-            held.expires_at = self._clock() + self.ttl_s
+            held.expires_at = self._clock() + held.ttl_s
             return held
 
     def check(self, lease_id: str | None) -> Lease:
@@ -126,7 +129,9 @@ class AuditLog:
         self.path = path
         self._lock = threading.Lock()
 
-    def record(self, client: str, action: str, ok: bool, detail: Any = None) -> None:
-        line = json.dumps({"t": time.time(), "client": client, "action": action, "ok": ok, "detail": detail})
+    def record(self, client: str, action: str, ok: bool, detail: Any = None, t: float | None = None) -> None:
+        """``t``: when the request was admitted (default now), so lines order as the decisions did."""
+        line = json.dumps({"t": time.time() if t is None else t, "client": client, "action": action, "ok": ok,
+                           "detail": detail})
         with self._lock, open(self.path, "a") as f:
             f.write(line + "\n")

@@ -129,8 +129,10 @@ class _ServoProcess:
     def run(self) -> None:
         signal.signal(signal.SIGTERM, self._on_signal)
         signal.signal(signal.SIGINT, self._on_signal)
-        realtime = _make_realtime(self.cfg.realtime_priority)
+        # Warm up first: it is CPU-bound for most of a second, and at SCHED_FIFO it would starve every
+        # normal process on its core (a simulator there went silent for 100 ms: MOTN-603).
         self._warm_up()
+        realtime = _make_realtime(self.cfg.realtime_priority)
         # Objects made at start-up never become garbage: keep them out of the collector's scans.
         gc.collect()
         gc.freeze()

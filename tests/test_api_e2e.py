@@ -1,0 +1,312 @@
+"""The REST/WS API end to end: uvicorn on loopback, the servo process streaming to the embedded
+simulator over real UDP. One service for the module (start-up is the slow part); each test takes the
+control lease itself and leaves the stream in a state the next one can start from."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+import websockets.sync.client
+from prometheus_client.parser import text_string_to_metric_families
+from test_api_harness import AUTH, TOKEN, Rig, assert_came_to_rest, assert_log_complete, running_rig
+
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(120)]
+
+INTERVAL_S = 0.008  # the LR Mate 200iD profile's interval, the simulator's default
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+    with running_rig(tmp_path_factory.mktemp("api")) as r:
+        yield r
+        # Whatever the tests did, the service caused no alarm on the controller.
+        assert r.sim_alarms() == [], r.sim_alarms()
+
+
+def streaming(rig: Rig, client: str = "tester", ttl_s: float | None = None) -> dict[str, str]:
+    """Hold the lease and have a stream running (starting a new one if the last has ended)."""
+    h = rig.lease(client, ttl_s=ttl_s)
+    time.sleep(0.12)  # a new holder stops a streaming arm: let the lease watcher do that first
+    s = rig.wait(lambda s: s["state"] != "stopping", 5.0, "not stopping")
+    if s["state"] == "stopped":
+        if s["stop_fast"]:
+            rig.post("/api/reset", h)
+        rig.post("/api/session/resume", h)
+    elif s["state"] != "streaming":
+        rig.start_streaming(h)
+    return h
+
+
+# ------------------------------------------------------------------------------------------- auth
+
+
+def test_reads_are_open_and_anything_else_needs_the_token(rig: Rig) -> None:
+    for path in ("/api/state", "/api/limits", "/api/lease", "/api/sessions", "/metrics", "/openapi.json"):
+        assert rig.http.get(path).status_code == 200, path
+    bad = {"Authorization": "Bearer not-the-token"}
+    for headers in ({}, bad, {"Authorization": TOKEN}):  # none, wrong, not a bearer
+        for method, path, body in (("POST", "/api/session/start", None), ("POST", "/api/jog", {"joints": [0] * 6}),
+                                   ("POST", "/api/lease", {"client": "x"}), ("POST", "/api/session/stop", None),
+                                   ("POST", "/api/io", {"type": "DO", "index": 1, "value": 1}),
+                                   ("GET", "/api/io?type=DO&index=1", None), ("POST", "/api/reset", None)):
+            r = rig.http.request(method, path, json=body, headers=headers)
+            assert r.status_code == 401, (method, path, headers, r.text)
+            assert r.headers["www-authenticate"] == "Bearer"
+    audit = (rig.var_dir / "audit.log").read_text().splitlines()
+    assert any(json.loads(line)["detail"] == "bad token" for line in audit)
+
+
+# ------------------------------------------------------------------------------------------ lease
+
+
+def test_lease_acquire_renew_release_force_and_expiry(rig: Rig) -> None:
+    a = rig.lease("alice")
+    r = rig.http.post("/api/lease", json={"client": "bob"}, headers=AUTH)
+    assert r.status_code == 409 and "alice" in r.json()["detail"]
+    assert rig.http.get("/api/lease").json()["client"] == "alice"
+    # Motion needs the lease id: the token alone is refused.
+    r = rig.http.post("/api/session/start", headers=AUTH)
+    assert r.status_code == 409 and "alice" in r.json()["detail"]
+    assert rig.http.post("/api/lease/renew", headers=a).status_code == 200
+    assert rig.http.post("/api/lease/renew", headers={**AUTH, "X-Lease-Id": "forged"}).status_code == 409
+    # Force: bob takes over; alice's id no longer works.
+    b = rig.lease("bob", force=True)
+    assert rig.http.post("/api/lease/renew", headers=a).status_code == 409
+    assert rig.http.post("/api/session/resume", headers=a).status_code == 409
+    # Release, then a short lease that runs out.
+    assert rig.http.request("DELETE", "/api/lease", headers=b).status_code == 200
+    assert rig.http.get("/api/lease").json()["held"] is False
+    c = rig.lease("carol", force=False, ttl_s=0.3)
+    assert rig.http.get("/api/lease").json()["client"] == "carol"
+    time.sleep(0.5)
+    assert rig.http.get("/api/lease").json()["held"] is False
+    r = rig.http.post("/api/lease/renew", headers=c)
+    assert r.status_code == 409 and "expired" in r.json()["detail"]
+    # The TTL can be shortened by a client, never lengthened.
+    r = rig.http.post("/api/lease", json={"client": "dave", "ttl_s": 3600}, headers=AUTH)
+    assert r.status_code == 200 and r.json()["ttl_s"] == 10.0
+
+
+def test_an_expiring_lease_stops_a_moving_arm(rig: Rig) -> None:
+    h = streaming(rig, "shortlived", ttl_s=0.6)
+    s = rig.state()
+    goal = [q + (40.0 if i == 0 else 0.0) for i, q in enumerate(s["q_cmd"])]
+    rig.post("/api/target", h, {"joints": goal, "speed_scale": 0.05})  # takes longer than the lease
+    s = rig.wait(lambda s: s["state"] in ("stopping", "stopped"), 3.0, "a stop after the lease ran out")
+    assert s["stop_reason"].startswith("control lease lost"), s["stop_reason"]
+    s = rig.wait(lambda s: s["at_rest"], 5.0, "rest")
+    assert abs(s["q_cmd"][0] - goal[0]) > 1.0  # stopped short of the target
+    assert rig.http.get("/api/lease").json()["held"] is False
+    # A new holder resumes (the interrupted target continues).
+    h = rig.lease("next")
+    rig.post("/api/session/resume", h)
+    s = rig.wait(lambda s: s["at_rest"] and abs(s["q_cmd"][0] - goal[0]) < 1e-3, 10.0, "target reached")
+
+
+# --------------------------------------------------------------------------------------- motion
+
+
+def test_start_jog_hold_to_run_target_stop_resume_end(rig: Rig) -> None:
+    h = streaming(rig)
+    s = rig.state()
+    assert s["link"] == "streaming" and s["at_rest"]
+    q0 = s["q_cmd"][0]
+    # Hold-to-run: keep sending -> it moves.
+    assert rig.jog_for(h, [20.0, 0, 0, 0, 0, 0], 0.8) >= 8
+    s = rig.state()
+    assert s["state"] == "streaming" and s["vel"][0] > 5.0, s["vel"]
+    # Stop sending -> it decelerates by itself to stopped.
+    s = rig.wait(lambda s: s["state"] == "stopped" and s["at_rest"], 3.0, "hold-to-run stop")
+    assert s["stop_reason"] == "hold-to-run expired"
+    assert s["q_cmd"][0] > q0 + 5.0
+    assert s["stops_by_reason"].get("hold-to-run expired", 0) >= 1
+    # A joint target (a new jog press after hold-to-run resumes by itself; a target needs resume).
+    r = rig.http.post("/api/target", json={"joints": s["q_cmd"]}, headers=h)
+    assert r.status_code == 409 and "stopped" in r.json()["detail"]
+    rig.post("/api/session/resume", h)
+    goal = [q0, 10.0, -10.0, 20.0, -80.0, 30.0]
+    rig.post("/api/target", h, {"joints": goal, "speed_scale": 0.5})
+    time.sleep(0.2)
+    # Stop mid-move (any authenticated client may stop), then resume: the target is finished.
+    rig.post("/api/session/stop", AUTH)
+    s = rig.wait_state("stopped", timeout=5)
+    assert s["stop_reason"] == "stop requested" and s["at_rest"]
+    assert not np.allclose(s["q_cmd"], goal, atol=1e-2)
+    rig.post("/api/session/resume", h)
+    s = rig.wait(lambda s: s["at_rest"] and np.allclose(s["q_cmd"], goal, atol=1e-3), 10.0, "target reached")
+    assert s["state"] == "streaming"
+    # A target out of the joint range is refused with the field named, and nothing moves.
+    bad = list(goal)
+    bad[0] = 400.0
+    r = rig.http.post("/api/target", json={"joints": bad}, headers=h)
+    assert r.status_code == 409 and "joints[0]" in r.json()["detail"]
+    # Reset with no fault is refused; end decelerates, sends last data and stops the status output.
+    r = rig.http.post("/api/reset", headers=h)
+    assert r.status_code == 409 and "no fault" in r.json()["detail"]
+    s = rig.end_and_wait(h)
+    assert s["link"] == "closed"
+    assert rig.sim_alarms() == []
+
+
+def test_state_fields(rig: Rig) -> None:
+    s = rig.state()
+    for key in ("state", "link", "q_cmd", "q_servo", "cart_servo", "vel", "acc", "jerk", "at_rest", "stop_reason",
+                "fault", "alarms", "lease", "stops_by_reason", "latency_p50_us", "latency_p99_us", "late_commands",
+                "status_lost", "commands_sent", "model", "robot", "simulated", "servo_process", "resumable"):
+        assert key in s, key
+    assert s["model"] == "lrmate200id" and s["simulated"] is True and s["servo_process"] == "running"
+    assert len(s["q_cmd"]) == 6 and s["robot"].startswith("127.0.0.1:")
+
+
+def test_limits(rig: Rig) -> None:
+    lim = rig.http.get("/api/limits").json()
+    assert lim["model"] == "lrmate200id" and lim["interval_ms"] == 8
+    for key in ("joint_min_deg", "joint_max_deg", "vel_deg_s", "acc_deg_s2", "jerk_deg_s3"):
+        assert len(lim[key]) >= 6, key
+    assert all(v > 0 for v in lim["vel_deg_s"][:6])
+    assert lim["io_allow"]["DO"] == [1, 512] and "SO" not in lim["io_allow"]
+
+
+# ------------------------------------------------------------------------------------------- I/O
+
+
+def test_io_write_then_read_back_through_the_command_packets(rig: Rig) -> None:
+    h = streaming(rig)
+    rig.post("/api/io", h, {"type": "DO", "index": 17, "mask": 0x00FF, "value": 0x5AA5})
+    r = rig.http.get("/api/io", params={"type": "DO", "index": 17}, headers=AUTH)
+    assert r.status_code == 200, r.text
+    assert r.json()["detail"] == 0x00A5  # only the masked low byte was written
+    rig.post("/api/io", h, {"type": "do", "index": 17, "mask": 0xFFFF, "value": 0x1234})
+    assert rig.http.get("/api/io", params={"type": "DO", "index": 17}, headers=AUTH).json()["detail"] == 0x1234
+    assert rig.http.get("/api/io", params={"type": "DO", "index": 17, "mask": 0x00F0},
+                        headers=AUTH).json()["detail"] == 0x0030
+    # F flags: another assigned type, read back at an offset into the written 16 points.
+    rig.post("/api/io", h, {"type": "F", "index": 1, "value": 0b1000})
+    assert rig.http.get("/api/io", params={"type": "F", "index": 4}, headers=AUTH).json()["detail"] & 1 == 1
+
+
+@pytest.mark.parametrize(("body", "words"), [
+    ({"type": "SO", "index": 1, "value": 1}, ["SO", "not allowed", "PRIO-023"]),
+    ({"type": "WO", "index": 1, "value": 1}, ["WO", "not allowed"]),
+    ({"type": "XX", "index": 1, "value": 1}, ["not an I/O type"]),
+    ({"type": "DO", "index": 500, "value": 1}, ["index=500", "1..497"]),
+    ({"type": "RO", "index": 1, "value": 1}, ["RO", "only 8 points"]),
+])
+def test_io_outside_the_allow_list_is_refused_before_the_controller(rig: Rig, body: dict[str, Any],
+                                                                    words: list[str]) -> None:
+    h = streaming(rig)
+    r = rig.http.post("/api/io", json=body, headers=h)
+    assert r.status_code == 422, r.text
+    for w in words:
+        assert w in r.json()["detail"], (w, r.json())
+    r = rig.http.get("/api/io", params={"type": body["type"], "index": body["index"]}, headers=AUTH)
+    assert r.status_code == 422, r.text
+    time.sleep(0.05)
+    assert rig.state()["state"] == "streaming"
+    assert rig.sim_alarms() == []  # no PRIO-023
+
+
+# ------------------------------------------------------------------------------- logs and views
+
+
+def test_session_log_download_is_complete(rig: Rig) -> None:
+    h = streaming(rig)
+    rig.jog_for(h, [0, 0, 0, 30.0, 0, 0], 0.4)
+    rig.end_and_wait(h)
+    log = rig.latest_log()
+    assert log.header["model"] == "lrmate200id" and log.header["interval_ms"] == 8.0
+    assert_log_complete(log, ended=True)
+    assert_came_to_rest(log, INTERVAL_S)
+    assert len(log.statuses) >= len(log.commands) - 3  # one status per command, + lead
+    assert rig.http.get("/api/sessions/../../etc/passwd").status_code == 404
+    assert rig.http.get("/api/sessions/nope.srvlog").status_code == 404
+
+
+def test_telemetry_websocket_rate(rig: Rig) -> None:
+    streaming(rig)
+    with websockets.sync.client.connect(f"{rig.ws_url}/ws/telemetry") as ws:
+        first = json.loads(ws.recv(timeout=5))
+        t0, n = time.monotonic(), 1
+        while True:
+            json.loads(ws.recv(timeout=2))
+            if time.monotonic() - t0 > 1.0:
+                break
+            n += 1
+    print(f"telemetry: {n} messages in 1 s")
+    assert n >= 30, n
+    assert first["state"] in ("streaming", "stopped", "stopping") and "q_cmd" in first
+
+
+def test_metrics_in_prometheus_format(rig: Rig) -> None:
+    h = streaming(rig)
+    rig.jog_for(h, [0, 0, 0, 0, 0, 20.0], 0.3)
+    rig.wait(lambda s: s["state"] == "stopped", 3.0)
+    r = rig.http.get("/metrics")
+    assert r.headers["content-type"].startswith("text/plain")
+    fams = {f.name: f for f in text_string_to_metric_families(r.text)}
+    hist = fams["servo_cycle_latency_seconds"]
+    assert hist.type == "histogram"
+    buckets = [(s.labels["le"], s.value) for s in hist.samples if s.name.endswith("_bucket")]
+    counts = [v for _, v in buckets]
+    assert buckets[-1][0] == "+Inf" and counts == sorted(counts) and counts[-1] > 100
+    count = next(s.value for s in hist.samples if s.name.endswith("_count"))
+    total = next(s.value for s in hist.samples if s.name.endswith("_sum"))
+    assert count == counts[-1] and 0 < total / count < 0.004  # mean latency below half an interval
+    assert fams["servo_late_commands"].type == "counter"
+    state = {s.labels["state"]: s.value for s in fams["servo_state"].samples}
+    assert state["stopped"] == 1.0 and sum(state.values()) == 1.0
+    stops = {s.labels["reason"]: s.value for s in fams["servo_stops"].samples}
+    assert stops.get("hold-to-run expired", 0) >= 1
+    assert "servo_status_lost" in fams and "servo_api_refused" in fams
+
+
+def test_openapi_lists_the_endpoints(rig: Rig) -> None:
+    paths = rig.http.get("/openapi.json").json()["paths"]
+    for p in ("/api/session/start", "/api/session/stop", "/api/session/resume", "/api/session/end", "/api/reset",
+              "/api/jog", "/api/target", "/api/lease", "/api/lease/renew", "/api/state", "/api/limits", "/api/io",
+              "/api/sessions", "/api/sessions/{name}", "/metrics"):
+        assert p in paths, p
+
+
+def test_cors_is_closed_by_default(rig: Rig) -> None:
+    origin = {"Origin": "http://evil.example"}
+    r = rig.http.options("/api/session/stop", headers={**origin, "Access-Control-Request-Method": "POST"})
+    assert "access-control-allow-origin" not in r.headers
+    r = rig.http.get("/api/state", headers=origin)
+    assert r.status_code == 200 and "access-control-allow-origin" not in r.headers
+
+
+# ---------------------------------------------------------------------------- rate limit, audit
+
+
+def test_jog_rate_limit_and_audit(rig: Rig) -> None:
+    h = streaming(rig, client="burst")
+    n = 200
+
+    async def burst() -> list[int]:
+        async with httpx.AsyncClient(base_url=rig.base_url, timeout=10.0) as c:
+            rs = await asyncio.gather(*(c.post("/api/jog", json={"joints": [0, 0, 0, 0, 0, 5.0]}, headers=h)
+                                        for _ in range(n)))
+        return [r.status_code for r in rs]
+
+    t0 = time.monotonic()
+    codes = asyncio.run(burst())
+    elapsed = time.monotonic() - t0
+    ok, limited = codes.count(200), codes.count(429)
+    print(f"{n} jogs in {elapsed:.2f} s: {ok} ok, {limited} refused")
+    assert ok + limited == n, set(codes)
+    assert limited > 0 and ok <= 100 * (int(elapsed) + 1)
+    rig.wait(lambda s: s["state"] == "stopped", 3.0)
+    lines = [json.loads(x) for x in (rig.var_dir / "audit.log").read_text().splitlines()]
+    jogs = [x for x in lines if x["action"] == "jog"]
+    assert sum(x["ok"] for x in jogs) >= ok and sum(not x["ok"] for x in jogs) >= limited
+    assert all(x["client"].startswith("burst@127.0.0.1:") for x in jogs[-n:])
+    metric = rig.http.get("/metrics").text
+    assert 'servo_api_refused_total{why="rate_limited"}' in metric

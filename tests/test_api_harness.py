@@ -1,0 +1,194 @@
+"""A running service for end-to-end tests: uvicorn on loopback in a thread, the servo process and the
+embedded simulator in processes of their own (so this process's GIL cannot disturb the cycle).
+
+Imported by tests/test_api_e2e.py and tests/test_faults_e2e.py; its own test checks the harness.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+import uvicorn
+
+from servo_app.api.app import create_app
+from servo_app.fanuc.session_log import SessionLog, read_session_log
+from servo_app.service import ServiceConfig, ServoService
+
+TOKEN = "test-token-0123456789"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+
+
+class LiveServer:
+    """uvicorn.Server in a daemon thread on 127.0.0.1, any free port (signal handlers stay unset)."""
+
+    def __init__(self, app: Any) -> None:
+        self.server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning",
+                                                    lifespan="on", ws="websockets-sansio"))
+        self.thread = threading.Thread(target=self.server.run, name="uvicorn", daemon=True)
+
+    def start(self, timeout: float = 10.0) -> LiveServer:
+        self.thread.start()
+        deadline = time.monotonic() + timeout
+        while not self.server.started:
+            if time.monotonic() > deadline or not self.thread.is_alive():
+                raise RuntimeError("uvicorn did not start")
+            time.sleep(0.01)
+        return self
+
+    @property
+    def port(self) -> int:
+        return int(self.server.servers[0].sockets[0].getsockname()[1])
+
+    def stop(self) -> None:
+        self.server.should_exit = True
+        self.thread.join(10.0)
+
+
+@dataclass
+class Rig:
+    service: ServoService
+    server: LiveServer
+    var_dir: Path
+    http: httpx.Client = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.http = httpx.Client(base_url=self.base_url, timeout=10.0)
+
+    @property
+    def base_url(self) -> str:
+        return f"http://127.0.0.1:{self.server.port}"
+
+    @property
+    def ws_url(self) -> str:
+        return f"ws://127.0.0.1:{self.server.port}"
+
+    # -- control
+    def lease(self, client: str = "tester", force: bool = True, ttl_s: float | None = None) -> dict[str, str]:
+        """Acquire the control lease; returns the headers that carry it (and the token)."""
+        body: dict[str, Any] = {"client": client, "force": force}
+        if ttl_s is not None:
+            body["ttl_s"] = ttl_s
+        r = self.http.post("/api/lease", json=body, headers=AUTH)
+        assert r.status_code == 200, r.text
+        return {**AUTH, "X-Lease-Id": r.json()["lease_id"]}
+
+    def post(self, path: str, headers: dict[str, str], json: Any = None, expect: int = 200) -> httpx.Response:
+        r = self.http.post(path, json=json, headers=headers)
+        assert r.status_code == expect, f"POST {path}: {r.status_code} {r.text}"
+        return r
+
+    def state(self) -> dict[str, Any]:
+        r = self.http.get("/api/state")
+        assert r.status_code == 200, r.text
+        return r.json()  # type: ignore[no-any-return]
+
+    def wait(self, pred: Callable[[dict[str, Any]], bool], timeout: float = 10.0, what: str = "") -> dict[str, Any]:
+        deadline = time.monotonic() + timeout
+        s = self.state()
+        while not pred(s):
+            if time.monotonic() > deadline:
+                raise AssertionError(f"timed out waiting for {what or pred}: state={s['state']} link={s['link']} "
+                                     f"stop={s.get('stop_reason')} fault={s.get('fault')} alarms={s.get('alarms')}")
+            time.sleep(0.01)
+            s = self.state()
+        return s
+
+    def wait_state(self, *states: str, timeout: float = 10.0) -> dict[str, Any]:
+        return self.wait(lambda s: s["state"] in states, timeout, f"state in {states}")
+
+    def start_streaming(self, headers: dict[str, str]) -> dict[str, Any]:
+        self.post("/api/session/start", headers)
+        return self.wait_state("streaming")
+
+    def jog_for(self, headers: dict[str, str], joints: list[float], seconds: float, period: float = 0.05,
+                hold_ms: float = 300.0) -> int:
+        """Hold the jog button: renew a joint jog every ``period`` for ``seconds``; returns 200s seen."""
+        ok = 0
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            r = self.http.post("/api/jog", json={"joints": joints, "hold_ms": hold_ms}, headers=headers)
+            assert r.status_code in (200, 409), r.text
+            ok += r.status_code == 200
+            time.sleep(period)
+        return ok
+
+    def end_and_wait(self, headers: dict[str, str]) -> dict[str, Any]:
+        self.post("/api/session/end", headers)
+        return self.wait_state("ended", timeout=15.0)
+
+    def sim_alarms(self) -> list[str]:
+        return [e["code"] for e in self.service.sim_call("events")]
+
+    # -- logs
+    def latest_log(self, timeout: float = 5.0) -> SessionLog:
+        """Download the newest session log through the API once the servo process has closed it."""
+        deadline = time.monotonic() + timeout
+        while self.service.last_event("log_closed") is None or (
+                self.service.last_event("log_opened") or {}).get("path") != (
+                self.service.last_event("log_closed") or {}).get("path"):
+            if time.monotonic() > deadline:
+                raise AssertionError("the session log was not closed")
+            time.sleep(0.02)
+        logs = self.http.get("/api/sessions").json()
+        assert logs, "no session logs listed"
+        r = self.http.get(f"/api/sessions/{logs[0]['name']}")
+        assert r.status_code == 200
+        path = self.var_dir / "download.srvlog"
+        path.write_bytes(r.content)
+        return read_session_log(path)
+
+
+def assert_log_complete(log: SessionLog, ended: bool, min_records: int = 10) -> None:
+    """Every command has the next sequence number; status records are there; ended: last data last."""
+    cmds, sts = log.commands, log.statuses
+    assert len(cmds) >= min_records and len(sts) >= min_records, (len(cmds), len(sts))
+    gaps = np.flatnonzero(np.diff(cmds["seq"].astype(np.int64)) != 1)
+    assert gaps.size == 0, f"command sequence gaps at {cmds['seq'][gaps][:5]}"
+    if ended:
+        assert cmds["flags"][-1] & 1 == 1, "the last command is not last data"
+        assert np.all(cmds["flags"][:-1] & 1 == 0), "last data sent before the end"
+
+
+def assert_came_to_rest(log: SessionLog, interval_s: float, tail: int = 2) -> None:
+    """The commanded motion ended at rest (the shaper's rest: below 0.1 deg/s) after moving; the
+    deceleration itself is judged by the simulator's limit checker (an alarm otherwise)."""
+    q = log.commands["values"][:, :6].astype(float)
+    v = np.diff(q, axis=0) / interval_s
+    assert np.abs(v[-tail:]).max() < 0.1, f"the last commands still move: {np.abs(v[-tail:]).max()} deg/s"
+    assert np.abs(v).max() > 1.0, "the arm never moved"
+
+
+@contextlib.contextmanager
+def running_rig(tmp: Path, jog_rate_per_s: int = 100, **cfg: Any) -> Iterator[Rig]:
+    service = ServoService(ServiceConfig(var_dir=tmp, **cfg))
+    service.open()
+    server = None
+    try:
+        server = LiveServer(create_app(service, TOKEN, jog_rate_per_s=jog_rate_per_s)).start()
+        rig = Rig(service, server, tmp)
+        try:
+            yield rig
+        finally:
+            rig.http.close()
+    finally:
+        if server is not None:
+            server.stop()
+        service.close()
+
+
+@pytest.mark.e2e
+def test_harness_serves_the_api_and_stops(tmp_path: Path) -> None:
+    with running_rig(tmp_path) as rig:
+        assert rig.http.get("/api/health").json() == {"ok": True}
+        assert rig.state()["state"] in ("disconnected", "connected", "ready")
+        thread = rig.server.thread
+    assert not thread.is_alive()
