@@ -37,7 +37,7 @@ from servo_app.janome.protocol import Cmd, FrameError, Target
 from servo_app.janome.session import Phase, SessionConfig
 from servo_app.janome.supervisor import JanomeSupervisor
 from servo_app.motion.servo import CommandRejected
-from servo_app.safety import Mode
+from servo_app.safety import Mode, safe_to_exit
 from servo_app.state import MODES, PHASES, STATE_SIZE, StateVector, decode_state
 
 assert all(p.value in PHASES for p in Phase)
@@ -114,7 +114,7 @@ class _JanomeServoProcess:
 
     def _step(self) -> None:
         rlist: list[Any] = [self.conn]
-        if self.sup.session.accepting:
+        if self.sup.session.accepting and not self.sup.state.shutdown:  # shutting down: no new robot
             rlist.append(self.listener)
         if self.sock is not None:
             rlist.append(self.sock)
@@ -134,6 +134,10 @@ class _JanomeServoProcess:
         if self.conn in ready:
             self._poll_requests()
         self._maybe_close()
+        if self.sup.state.shutdown and safe_to_exit(self.sup.state) and self.sock is not None:
+            # Nothing left to stream: hang up, so the robot's point job sees the end (its inCOM times out
+            # or its socket closes) and this process can exit.
+            self._close_conn("servo_app is shutting down", notify=True)
         self._watch()
         if time.monotonic() - self._last_pub >= self.cfg.publish_interval_s:
             self._publish()
