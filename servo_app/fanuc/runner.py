@@ -14,14 +14,13 @@ from __future__ import annotations
 import bisect
 import contextlib
 import gc
-import multiprocessing as mp
 import os
 import signal
 import socket
 import time
 import traceback
 from collections import deque
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -35,10 +34,11 @@ from servo_app.fanuc.supervisor import StreamSupervisor
 from servo_app.input_slot import InputSlotReader
 from servo_app.ipc import LatestValueSlot
 from servo_app.motion.servo import CommandRejected, ServoCycle, ServoSettings
+from servo_app.process_handle import ServoProcessHandle
 from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.profile import load_profile
 from servo_app.safety import Mode
-from servo_app.state import LATENCY_BUCKETS_US, MODES, PHASES, STATE_SIZE, StateVector, decode_state
+from servo_app.state import LATENCY_BUCKETS_US, MODES, PHASES, STATE_SIZE, StateVector
 
 assert all(p.value in PHASES for p in Phase)
 assert all(m.value in MODES for m in Mode)
@@ -373,89 +373,8 @@ def _child_main(cfg_dict: dict[str, Any], conn: Connection, slot_name: str) -> N
 # -------------------------------------------------------------------------- parent side
 
 
-class StreamProcess:
-    """Parent-side handle of the servo process."""
+class StreamProcess(ServoProcessHandle):
+    """Parent-side handle of the FANUC servo process."""
 
     def __init__(self, cfg: StreamConfig) -> None:
-        self.cfg = cfg
-        self.slot = LatestValueSlot(STATE_SIZE)
-        ctx = mp.get_context("spawn")
-        self._conn, child_conn = ctx.Pipe()
-        self.process = ctx.Process(target=_child_main, args=(asdict(cfg), child_conn, self.slot.name),
-                                   name="servo-cycle", daemon=True)
-        self.events: list[dict[str, Any]] = []
-        self._next_id = 0
-        self._replies: dict[int, dict[str, Any]] = {}
-
-    def start(self, timeout: float = 30.0) -> None:
-        self.process.start()
-        self.wait_event("ready", timeout)
-
-    def request(self, op: str, timeout: float = 2.0, **kw: Any) -> Any:
-        """Send a request to the servo process and wait for its reply; errors raise CommandRejected."""
-        self._next_id += 1
-        rid = self._next_id
-        self._conn.send({"id": rid, "op": op, **kw})
-        deadline = time.monotonic() + timeout
-        while rid not in self._replies:
-            if not self._pump(deadline - time.monotonic()):
-                raise TimeoutError(f"servo process did not answer '{op}' within {timeout} s")
-        reply = self._replies.pop(rid)
-        if not reply["ok"]:
-            raise CommandRejected(reply["error"])
-        return reply.get("result")
-
-    def _pump(self, timeout: float) -> bool:
-        if timeout <= 0 or not self._conn.poll(timeout):
-            return False
-        try:
-            msg = self._conn.recv()
-        except EOFError:
-            return False
-        if "event" in msg:
-            self.events.append(msg)
-        else:
-            self._replies[msg["id"]] = msg
-        return True
-
-    def last_event(self, kind: str) -> dict[str, Any] | None:
-        self.poll_events()
-        for ev in reversed(self.events):
-            if ev["event"] == kind:
-                return ev
-        return None
-
-    def poll_events(self) -> list[dict[str, Any]]:
-        while self._pump(0.0001):
-            pass
-        return self.events
-
-    def wait_event(self, kind: str, timeout: float, **match: Any) -> dict[str, Any]:
-        deadline = time.monotonic() + timeout
-        seen = 0
-        while True:
-            for ev in self.events[seen:]:
-                if ev["event"] == kind and all(ev.get(k) == v for k, v in match.items()):
-                    return ev
-                if ev["event"] == "crashed":
-                    raise RuntimeError(f"servo process crashed:\n{ev['traceback']}")
-            seen = len(self.events)
-            if not self._pump(deadline - time.monotonic()) and time.monotonic() >= deadline:
-                raise TimeoutError(f"no '{kind}' event {match} within {timeout} s; events: {self.events[-5:]}")
-
-    def state(self) -> dict[str, Any]:
-        _, data = self.slot.read()
-        return decode_state(data)
-
-    def shutdown(self, timeout: float = 10.0) -> int | None:
-        """Signal the process (it ends a running stream cleanly) and wait for it."""
-        if self.process.is_alive():
-            assert self.process.pid is not None
-            os.kill(self.process.pid, signal.SIGTERM)
-            self.process.join(timeout)
-            if self.process.is_alive():
-                self.process.kill()
-                self.process.join(2)
-        self.poll_events()
-        self.slot.close()
-        return self.process.exitcode
+        super().__init__(cfg, _child_main, "servo process")

@@ -14,7 +14,6 @@ SIGINT/SIGTERM end cleanly: no further step, END at rest, the robot's BYE, then 
 from __future__ import annotations
 
 import contextlib
-import multiprocessing as mp
 import os
 import select
 import signal
@@ -22,7 +21,7 @@ import socket
 import time
 import traceback
 from collections import deque
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -37,8 +36,9 @@ from servo_app.janome.protocol import Cmd, FrameError, Target
 from servo_app.janome.session import Phase, SessionConfig
 from servo_app.janome.supervisor import JanomeSupervisor
 from servo_app.motion.servo import CommandRejected
+from servo_app.process_handle import ServoProcessHandle
 from servo_app.safety import Mode, safe_to_exit
-from servo_app.state import MODES, PHASES, STATE_SIZE, StateVector, decode_state
+from servo_app.state import MODES, PHASES, STATE_SIZE, StateVector
 
 assert all(p.value in PHASES for p in Phase)
 assert all(m.value in MODES for m in Mode)
@@ -343,94 +343,14 @@ def _child_main(cfg_dict: dict[str, Any], conn: Connection, slot_name: str) -> N
 # -------------------------------------------------------------------------- parent side
 
 
-class JanomeProcess:
-    """Parent-side handle of the Janome servo process; the same interface as ``StreamProcess``."""
+class JanomeProcess(ServoProcessHandle):
+    """Parent-side handle of the Janome servo process; ``address`` is where it listens for the robot."""
 
     def __init__(self, cfg: JanomeConfig) -> None:
-        self.cfg = cfg
-        self.slot = LatestValueSlot(STATE_SIZE)
-        ctx = mp.get_context("spawn")
-        self._conn, child_conn = ctx.Pipe()
-        self.process = ctx.Process(target=_child_main, args=(asdict(cfg), child_conn, self.slot.name),
-                                   name="janome-servo", daemon=True)
-        self.events: list[dict[str, Any]] = []
-        self._next_id = 0
-        self._replies: dict[int, dict[str, Any]] = {}
+        super().__init__(cfg, _child_main, "janome servo process")
         self.address: tuple[str, int] = (cfg.host, cfg.port)
 
-    def start(self, timeout: float = 30.0) -> None:
-        self.process.start()
-        ev = self.wait_event("ready", timeout)
+    def start(self, timeout: float = 30.0) -> dict[str, Any]:
+        ev = super().start(timeout)
         self.address = (str(ev["address"][0]), int(ev["address"][1]))
-
-    def request(self, op: str, timeout: float = 2.0, **kw: Any) -> Any:
-        """Send a request to the servo process and wait for its reply; errors raise CommandRejected."""
-        self._next_id += 1
-        rid = self._next_id
-        self._conn.send({"id": rid, "op": op, **kw})
-        deadline = time.monotonic() + timeout
-        while rid not in self._replies:
-            if not self._pump(deadline - time.monotonic()):
-                raise TimeoutError(f"janome servo process did not answer '{op}' within {timeout} s")
-        reply = self._replies.pop(rid)
-        if not reply["ok"]:
-            raise CommandRejected(reply["error"])
-        return reply.get("result")
-
-    def _pump(self, timeout: float) -> bool:
-        if timeout <= 0 or not self._conn.poll(timeout):
-            return False
-        try:
-            msg = self._conn.recv()
-        except EOFError:
-            return False
-        if "event" in msg:
-            self.events.append(msg)
-        else:
-            self._replies[msg["id"]] = msg
-        return True
-
-    def last_event(self, kind: str) -> dict[str, Any] | None:
-        self.poll_events()
-        for ev in reversed(self.events):
-            if ev["event"] == kind:
-                return ev
-        return None
-
-    def poll_events(self) -> list[dict[str, Any]]:
-        while self._pump(0.0001):
-            pass
-        return self.events
-
-    def wait_event(self, kind: str, timeout: float, **match: Any) -> dict[str, Any]:
-        deadline = time.monotonic() + timeout
-        seen = 0
-        while True:
-            for ev in self.events[seen:]:
-                if ev["event"] == kind and all(ev.get(k) == v for k, v in match.items()):
-                    return ev
-                if ev["event"] == "crashed":
-                    raise RuntimeError(f"janome servo process crashed:\n{ev['traceback']}")
-            seen = len(self.events)
-            if not self.process.is_alive() and not self._conn.poll():
-                raise RuntimeError(f"janome servo process exited (code {self.process.exitcode}) before '{kind}'; "
-                                   f"events: {self.events[-5:]}")
-            if not self._pump(min(deadline - time.monotonic(), 0.5)) and time.monotonic() >= deadline:
-                raise TimeoutError(f"no '{kind}' event {match} within {timeout} s; events: {self.events[-5:]}")
-
-    def state(self) -> dict[str, Any]:
-        _, data = self.slot.read()
-        return decode_state(data)
-
-    def shutdown(self, timeout: float = 10.0) -> int | None:
-        """Signal the process (it ends a running stream cleanly) and wait for it."""
-        if self.process.is_alive():
-            assert self.process.pid is not None
-            os.kill(self.process.pid, signal.SIGTERM)
-            self.process.join(timeout)
-            if self.process.is_alive():
-                self.process.kill()
-                self.process.join(2)
-        self.poll_events()
-        self.slot.close()
-        return self.process.exitcode
+        return ev

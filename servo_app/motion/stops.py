@@ -17,6 +17,28 @@ StopMode = Literal["soft", "fast"]
 STOP_MODES: tuple[StopMode, ...] = ("soft", "fast")
 
 
+def _plan_stop(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, vmax: np.ndarray, amax: np.ndarray,
+               jmax: np.ndarray, sync: Synchronization) -> Trajectory:
+    """Ruckig's time-optimal profile from the state to rest (velocity interface)."""
+    n = len(pos)
+    inp = InputParameter(n)
+    inp.control_interface = ControlInterface.Velocity
+    inp.synchronization = sync
+    inp.current_position = [float(x) for x in pos]
+    inp.current_velocity = [float(x) for x in vel]
+    inp.current_acceleration = [float(x) for x in acc]
+    inp.target_velocity = [0.0] * n
+    inp.target_acceleration = [0.0] * n
+    inp.max_velocity = [float(x) for x in vmax]
+    inp.max_acceleration = [float(x) for x in amax]
+    inp.max_jerk = [float(x) for x in jmax]
+    traj = Trajectory(n)
+    result = Ruckig(n).calculate(inp, traj)
+    if result not in (Result.Working, Result.Finished):
+        raise ValueError(f"ruckig could not plan the stop: {result}")
+    return traj
+
+
 def time_optimal_stop_duration(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray,
                                vmax: np.ndarray, amax: np.ndarray, jmax: np.ndarray) -> float:
     """Shortest time (s) in which every axis reaches zero velocity and acceleration.
@@ -24,44 +46,13 @@ def time_optimal_stop_duration(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray
     Axes are planned independently (no synchronization): the arm is at rest when its slowest axis
     is, so the maximum of the per-axis optima is the lower bound for any stop.
     """
-    n = len(pos)
-    inp = InputParameter(n)
-    inp.control_interface = ControlInterface.Velocity
-    inp.synchronization = Synchronization.No
-    inp.current_position = [float(x) for x in pos]
-    inp.current_velocity = [float(x) for x in vel]
-    inp.current_acceleration = [float(x) for x in acc]
-    inp.target_velocity = [0.0] * n
-    inp.target_acceleration = [0.0] * n
-    inp.max_velocity = [float(x) for x in vmax]
-    inp.max_acceleration = [float(x) for x in amax]
-    inp.max_jerk = [float(x) for x in jmax]
-    traj = Trajectory(n)
-    result = Ruckig(n).calculate(inp, traj)
-    if result not in (Result.Working, Result.Finished):
-        raise ValueError(f"ruckig could not plan the stop: {result}")
-    return float(traj.duration)
+    return float(_plan_stop(pos, vel, acc, vmax, amax, jmax, Synchronization.No).duration)
 
 
 def stop_path(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, vmax: np.ndarray, amax: np.ndarray,
               jmax: np.ndarray, samples: int = 16) -> np.ndarray:
     """Positions along the phase-synchronised stop the shaper would make, ``samples`` of them ending at
     the rest position: lets a caller check a stop's path before choosing it."""
-    n = len(pos)
-    inp = InputParameter(n)
-    inp.control_interface = ControlInterface.Velocity
-    inp.synchronization = Synchronization.Phase
-    inp.current_position = [float(x) for x in pos]
-    inp.current_velocity = [float(x) for x in vel]
-    inp.current_acceleration = [float(x) for x in acc]
-    inp.target_velocity = [0.0] * n
-    inp.target_acceleration = [0.0] * n
-    inp.max_velocity = [float(x) for x in vmax]
-    inp.max_acceleration = [float(x) for x in amax]
-    inp.max_jerk = [float(x) for x in jmax]
-    traj = Trajectory(n)
-    result = Ruckig(n).calculate(inp, traj)
-    if result not in (Result.Working, Result.Finished):
-        raise ValueError(f"ruckig could not plan the stop: {result}")
+    traj = _plan_stop(pos, vel, acc, vmax, amax, jmax, Synchronization.Phase)
     times = np.linspace(traj.duration / samples, traj.duration, samples)
     return np.array([traj.at_time(float(t))[0] for t in times])
