@@ -46,7 +46,10 @@ def wait_rest(sp: StreamProcess, timeout: float = 10.0) -> dict:
 def rig(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[tuple[FanucSimulator, StreamProcess, Path]]:
     sim = FanucSimulator(port=0, interval_ms=request.param, initial_joints=HOME).start()
     host, port = sim.address
-    sp = StreamProcess(StreamConfig(host=host, port=port, interval_ms=request.param, log_dir=str(tmp_path)))
+    # lead 2: the service's default (two commands kept in the controller's buffer ride out a late
+    # wake-up on a loaded machine); test_lead_zero_streams_one_command_per_status covers lead 0.
+    sp = StreamProcess(StreamConfig(host=host, port=port, interval_ms=request.param, log_dir=str(tmp_path),
+                                    lead=2))
     sp.start()
     yield sim, sp, tmp_path
     sp.shutdown()
@@ -171,6 +174,32 @@ def test_cartesian_format_stream_moves_with_zero_alarms(tmp_path: Path) -> None:
         sp.wait_event("log_closed", 5)
         log = read_session_log(next(tmp_path.glob("*.srvlog")))
         assert np.all((log.commands["flags"] >> 1) & 1 == 0)  # data format bit: 0 = Cartesian
+    finally:
+        sp.shutdown()
+        sim.stop()
+
+
+def test_lead_zero_streams_one_command_per_status(tmp_path: Path) -> None:
+    """Lead 0: exactly one command per status packet, each answering the status just received."""
+    sim = FanucSimulator(port=0, interval_ms=8, initial_joints=HOME).start()
+    host, port = sim.address
+    sp = StreamProcess(StreamConfig(host=host, port=port, log_dir=str(tmp_path), lead=0))
+    sp.start()
+    try:
+        sp.request("start")
+        wait_for(sp, "streaming")
+        sp.request("target", joints=[10.0, 5.0, -5.0, 10.0, -80.0, 10.0])
+        time.sleep(0.1)
+        wait_rest(sp)
+        sp.request("end")
+        wait_for(sp, "ended")
+        assert sim.alarms == [], [e.message for e in sim.alarms]
+        sp.wait_event("log_closed", 5)
+        log = read_session_log(next(tmp_path.glob("*.srvlog")))
+        kinds = log.records["kind"]
+        # Between two status records there is at most one command (none once last data has gone out).
+        runs = np.split(kinds, np.flatnonzero(kinds == 0))
+        assert max(int(np.sum(r == 1)) for r in runs) == 1
     finally:
         sp.shutdown()
         sim.stop()
