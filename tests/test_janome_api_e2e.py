@@ -11,11 +11,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from test_api_harness import TOKEN, LiveServer, Rig
 
 from servo_app.api.app import create_app
 from servo_app.service import ServiceConfig, ServoService
 from servo_app.sim.janome_sim import JanomeSimulator
-from test_api_harness import TOKEN, LiveServer, Rig
 
 pytestmark = pytest.mark.e2e
 
