@@ -1,0 +1,306 @@
+// Operator console: wires the panels to the API and the telemetry socket.
+// Safety-relevant behaviour lives in jog.js (hold-to-run) and here (STOP, focus/connection loss).
+
+import { Api } from "./api.js";
+import { ArmView } from "./armview.js";
+import { $, $$ } from "./dom.js";
+import { IoPanel } from "./io.js";
+import { JOG, JogPad } from "./jog.js";
+import { installKeys } from "./keys.js";
+import { Lease } from "./lease.js";
+import { LogsPanel } from "./logs.js";
+import { Telemetry } from "./telemetry.js";
+import { JointTable, renderAlarms, renderInputs, renderPose, renderStatus, renderTiming } from "./views.js";
+
+const ROBOT_POLL_MS = 100; // arm view refresh (FK on the server)
+
+const api = new Api();
+const ui = { tel: null, limits: null, robot: null, lastMode: null };
+
+// ------------------------------------------------------------------ messages
+let messageTimer = null;
+function say(text, kind = "info") {
+  const box = $("#message");
+  box.textContent = text;
+  box.className = `banner ${kind === "error" ? "bad" : "info"}`;
+  box.hidden = false;
+  clearTimeout(messageTimer);
+  messageTimer = setTimeout(() => { box.hidden = true; }, kind === "error" ? 8000 : 4000);
+}
+const sayError = (text) => say(text, "error");
+
+// ------------------------------------------------------------------ settings
+/** Twist (Cartesian) jog is a FANUC feature; Janome robots jog their X Y Z R axes directly. */
+const cartesianJog = () => !ui.robot || ui.robot.backend !== "janome";
+
+function settings() {
+  const pick = (name) => $(`input[name="${name}"]:checked`).value;
+  return {
+    kind: cartesianJog() ? pick("jog-kind") : "joint",
+    frame: pick("frame"),
+    step: pick("jog-mode") === "step",
+    stepMm: Number($("#step-mm").value),
+    stepDeg: Number($("#step-deg").value),
+    speed: Number($("#speed").value) / 100,
+  };
+}
+
+function showSpeed() {
+  const s = settings();
+  const pct = Math.round(s.speed * 100);
+  $("#speed-out").textContent = s.kind === "joint"
+    ? `${pct} % · ${Math.round(s.speed * JOG.JOINT_FRACTION * 100)} % of each axis' speed limit`
+    : `${pct} % · ${Math.round(s.speed * JOG.MAX_LINEAR_MM_S)} mm/s · ${Math.round(s.speed * JOG.MAX_ANGULAR_DEG_S)} °/s`;
+}
+
+// ------------------------------------------------------------------ panels
+const jog = new JogPad({ api, root: $("#jog-pad"), settings, telemetry: () => ui.tel, onError: sayError });
+const io = new IoPanel({ api, root: $("#io-buttons"), onError: sayError });
+const logs = new LogsPanel({ api, root: $("#logs-card"), limits: () => ui.limits, onError: sayError });
+const arm = new ArmView($("#arm-side"), $("#arm-top"));
+const joints = new JointTable($("#joint-rows"));
+const lease = new Lease({
+  api,
+  onChange: (held, why) => {
+    if (!held) jog.end(); // jogs would be refused anyway; STOP still works without the lease
+    if (why) (held ? say : sayError)(why);
+    refreshControls();
+  },
+});
+
+/** Enable what the operator may do now: data-needs="signin" or "lease". */
+function refreshControls() {
+  const signedIn = api.signedIn;
+  $("#signin").hidden = signedIn;
+  $("#signed").hidden = !signedIn;
+  $("#signed-as").textContent = signedIn ? `signed in as ${api.operator}` : "";
+  $("#take").hidden = lease.held;
+  $("#release").hidden = !lease.held;
+  const other = ui.tel && ui.tel.lease && ui.tel.lease.held && !lease.held ? ui.tel.lease.client : null;
+  $("#take").textContent = other ? `Take over from ${other}` : "Take control";
+  for (const node of $$("[data-needs]")) {
+    const ok = node.dataset.needs === "lease" ? signedIn && lease.held : signedIn;
+    if (node.tagName === "BUTTON") node.disabled = !ok;
+    else node.classList.toggle("disabled", !ok);
+  }
+  document.body.classList.toggle("in-control", lease.held);
+}
+
+// ------------------------------------------------------------------ actions
+async function action(label, fn) {
+  try {
+    await fn();
+    return true;
+  } catch (exc) {
+    sayError(`${label}: ${exc.message}`);
+    return false;
+  }
+}
+
+/** STOP: never waits for anything else (jog requests queue separately), any signed-in client. */
+function stop(fast = false) {
+  jog.end();
+  if (!api.signedIn) {
+    sayError("STOP needs a signed-in console: the server takes motion requests only with the token");
+    return;
+  }
+  api.post("/api/session/stop", { fast }, { timeoutMs: 2000 })
+    .then(() => say(fast ? "fast stop requested" : "stop requested"))
+    .catch((exc) => (exc.status === 409 ? say(`stop: ${exc.message}`) : sayError(`STOP failed: ${exc.message}`)));
+}
+
+const actions = {
+  start: () => action("Start", async () => {
+    await api.post("/api/session/start");
+    say("session starting");
+  }),
+  resume: () => action("Resume", () => api.post("/api/session/resume")),
+  end: () => action("End", async () => {
+    jog.end();
+    await api.post("/api/session/end");
+    setTimeout(() => logs.refresh(), 1500);
+  }),
+  reset: () => action("Reset", () => api.post("/api/reset")),
+  take: () => action("Take control", async () => {
+    const other = ui.tel && ui.tel.lease && ui.tel.lease.held ? ui.tel.lease.client : null;
+    if (other && !window.confirm(`Take control from ${other}? Their jogs will be refused.`)) return;
+    await lease.take(Boolean(other));
+    say("you have control");
+  }),
+  release: () => action("Release control", () => lease.release()),
+  toggleControl: () => (lease.held ? actions.release() : actions.take()),
+};
+
+function bindButtons() {
+  // pointerdown, not click: STOP acts on the press, not on the release of a touch.
+  $("#stop").addEventListener("pointerdown", (ev) => { ev.preventDefault(); stop(false); });
+  $("#stop").addEventListener("click", (ev) => { if (ev.detail === 0) stop(false); }); // keyboard Enter
+  $("#fast-stop").addEventListener("click", () => stop(true));
+  for (const name of ["start", "resume", "end", "reset", "take", "release"]) {
+    $(`#${name}`).addEventListener("click", () => actions[name]());
+  }
+  $("#signin").addEventListener("submit", (ev) => { ev.preventDefault(); signIn(); });
+  $("#signout").addEventListener("click", async () => {
+    if (lease.held) await lease.release().catch(() => {});
+    api.signOut();
+    refreshControls();
+  });
+  for (const input of $$('input[name="jog-kind"]')) {
+    input.addEventListener("change", () => { jog.render(); jogKind(); showSpeed(); });
+  }
+  for (const input of $$('input[name="jog-mode"]')) {
+    input.addEventListener("change", () => { jog.release(); $("#step-row").hidden = !settings().step; });
+  }
+  $("#speed").addEventListener("input", showSpeed);
+}
+
+function jogKind() {
+  $("#kind-group").hidden = !cartesianJog();
+  $("#frame-group").hidden = !cartesianJog();
+  $("#frame-group").classList.toggle("disabled", settings().kind === "joint");
+}
+
+async function signIn() {
+  const token = $("#token").value.trim();
+  const operator = $("#operator").value.trim() || "operator";
+  const err = $("#signin-error");
+  err.hidden = true;
+  api.signIn(token, operator);
+  try {
+    // Renewing checks the token first (401) and changes nothing: without a lease it answers 409.
+    await api.post("/api/lease/renew");
+  } catch (exc) {
+    if (exc.status === 401 || exc.status === 403) {
+      api.signOut();
+      err.textContent = `Sign-in refused: the server does not accept this token (${exc.status}).`;
+      err.hidden = false;
+      refreshControls();
+      return;
+    }
+    if (exc.status === 0) {
+      api.signOut();
+      err.textContent = `Sign-in failed: ${exc.message}`;
+      err.hidden = false;
+      refreshControls();
+      return;
+    }
+    // 409 (no lease of ours) or any other answer: the token passed authentication.
+  }
+  $("#token").value = "";
+  say(`signed in as ${operator}`);
+  refreshControls();
+  await lease.restore();
+}
+
+// ------------------------------------------------------------------ live state
+function onState(s) {
+  ui.tel = s;
+  renderStatus(s);
+  if (lease.held) $("#lease-holder").textContent = `control: you (${api.operator})`;
+  renderPose(s, ui.robot);
+  renderTiming(s);
+  renderAlarms(s);
+  renderInputs($("#inputs-card"), s);
+  io.render(s);
+  joints.render(s, ui.robot, ui.limits, ui.limits ? ui.limits.limit_fraction : 0.9);
+  if (s.state !== ui.lastMode) {
+    if (s.state === "streaming" && api.signedIn && io.available) io.selectReadBack();
+    if (["ended", "fault"].includes(s.state) || ui.lastMode === null) logs.refresh();
+    if (s.state === "fault" && jog.holding) jog.end();
+    ui.lastMode = s.state;
+  }
+  // Someone else may hold the lease now: the take button says so.
+  const holder = s.lease && s.lease.held ? s.lease.client : null;
+  if (holder !== ui.lastHolder) {
+    ui.lastHolder = holder;
+    refreshControls();
+  }
+}
+
+function onLink(up, why) {
+  const pill = $("#conn");
+  pill.textContent = up ? "telemetry: live" : `telemetry: lost (${why})`;
+  pill.className = `pill ${up ? "ok" : "bad"}`;
+  document.body.classList.toggle("offline", !up);
+  if (!up && jog.holding) {
+    // The operator can no longer see what the arm does: stop it (the server's hold-to-run would too).
+    stop(false);
+    sayError(`Jog stopped: ${why}`);
+  }
+}
+
+/** Stop a held jog when the operator's attention is elsewhere. */
+function watchFocus() {
+  const lost = (why) => {
+    if (jog.holding) {
+      stop(false);
+      sayError(`Jog stopped: ${why}`);
+    }
+  };
+  window.addEventListener("blur", () => lost("the window lost focus"));
+  document.addEventListener("visibilitychange", () => { if (document.hidden) lost("the page was hidden"); });
+  window.addEventListener("pagehide", () => lost("the page was closed"));
+}
+
+async function pollRobot() {
+  if (!document.hidden) {
+    try {
+      ui.robot = await api.get("/api/robot", { timeoutMs: 1000 });
+      arm.draw(ui.robot);
+    } catch {
+      // the telemetry pill already shows a dead server
+    }
+  }
+  setTimeout(pollRobot, ROBOT_POLL_MS);
+}
+
+/** Static data (limits, geometry, joint names): retried until the server answers. */
+async function loadRobot() {
+  for (;;) {
+    try {
+      ui.limits = await api.get("/api/limits");
+      ui.robot = await api.get("/api/robot");
+      break;
+    } catch {
+      await new Promise((r) => setTimeout(r, 1000));
+    }
+  }
+  const names = ui.robot.joint_names;
+  joints.build(names);
+  // FANUC: the limit tables in force; Janome: the profile's axis speeds.
+  jog.build({ jointNames: names, velLimit: ui.limits.vel_deg_s || ui.robot.axes.map((a) => a.speed),
+    units: ui.robot.axes.map((a) => a.unit) });
+  const janome = ui.robot.backend === "janome";
+  $("#joint-label").textContent = janome ? "Axis" : "Joint";
+  if (janome) $('input[name="jog-kind"][value="joint"]').checked = true;
+  jogKind();
+  showSpeed();
+  jog.render();
+  $("#pose-caption").textContent = janome ? "tool X Y Z (mm), R (°): controller feedback"
+    : "flange X Y Z (mm), W P R (°): controller feedback";
+  // Outputs through the stream exist only where the service allows DO (FANUC).
+  io.available = Boolean(ui.limits.io_allow && ui.limits.io_allow.DO);
+  $("#io-card").hidden = !io.available;
+  arm.draw(ui.robot);
+  refreshControls();
+  pollRobot();
+}
+
+function main() {
+  bindButtons();
+  jogKind();
+  showSpeed();
+  watchFocus();
+  installKeys({
+    stop, settings, showSpeed,
+    start: actions.start, resume: actions.resume, end: actions.end, toggleControl: actions.toggleControl,
+    toggleKind: () => { jog.render(); jogKind(); showSpeed(); },
+  });
+  refreshControls();
+  if (api.signedIn) lease.restore();
+  new Telemetry({ hz: 20, onState, onLink }).start();
+  loadRobot();
+  logs.refresh();
+}
+
+main();
