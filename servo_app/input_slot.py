@@ -66,10 +66,20 @@ class InputSlotReader:
     def __init__(self, name: str) -> None:
         self.slot = LatestValueSlot(SIZE, name=name, create=False)
         self._version = 0
+        self.torn_reads = 0
 
     def poll(self) -> InputCommand | None:
-        """The command if it changed since the last poll, else None."""
-        version, data = self.slot.read()
+        """The command if it changed since the last poll, else None.
+
+        The writer is an ordinary thread of the API process: the scheduler may stop it halfway through
+        a write for milliseconds (seen under load: the servo process spun out its retries and died,
+        MOTN-603). A write still in progress reads as "nothing new"; the command in force keeps only
+        its own hold-to-run, and the next cycle reads the finished write."""
+        try:
+            version, data = self.slot.read(retries=100)
+        except TimeoutError:
+            self.torn_reads += 1
+            return None
         if version == self._version:
             return None
         self._version = version

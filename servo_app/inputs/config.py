@@ -26,7 +26,8 @@ from servo_app.inputs.errors import ConfigError, ConfigIssue, issues_from_valida
 from servo_app.inputs.feed.models import FeedSourceConfig
 from servo_app.inputs.registry import create_adapter, validate_adapter_config
 
-_TOP_LEVEL = {"adapters", "feeds"}
+# [[applications]] is read by servo_app.inputs.apps.config (load_service_inputs), which needs the sources first.
+_TOP_LEVEL = {"adapters", "feeds", "applications"}
 
 
 @dataclass

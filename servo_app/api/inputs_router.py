@@ -1,0 +1,95 @@
+"""Routes of the inputs bridge: the feeds, the input sources' view, enabling input control, bias zeroing.
+
+- ``POST /api/feed/{source}``, ``WS /ws/feed/{source}``: sensor and tracker streams (token only: a
+  sensor process holds no lease; the lease holder decides whether inputs move the arm);
+- ``GET /api/inputs``: sources with rate, age, staleness and errors, applications, tracking error;
+- ``POST /api/inputs/enable``: token and lease; the servo process then takes the input slot;
+- ``POST /api/inputs/{app}/zero``: token and lease; a force/torque application re-zeroes its bias.
+
+A browser cannot set headers on a WebSocket, so the feed socket also takes ``?token=``; plain HTTP
+does not (a token in a URL ends up in logs and browser history).
+"""
+
+# No `from __future__ import annotations`: FastAPI resolves the dependency annotations at runtime.
+import secrets
+from collections.abc import Callable
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, FastAPI, HTTPException, WebSocketException, status
+from pydantic import BaseModel, Field
+from starlette.requests import HTTPConnection
+
+from servo_app.api.auth import token_matches
+from servo_app.inputs.bridge import InputsBridge
+from servo_app.inputs.feed.router import feed_router
+
+
+class EnableInputs(BaseModel):
+    model_config = {"extra": "forbid"}
+    enable: bool
+
+
+class ZeroRequest(BaseModel):
+    model_config = {"extra": "forbid"}
+    samples: int | None = Field(None, ge=1, le=1000, description="samples averaged into the bias (default: configured)")
+
+
+def connection_auth(token: str, on_refused: Callable[[HTTPConnection], None]) -> Callable[[HTTPConnection], str]:
+    """Bearer header for HTTP; bearer header or ``?token=`` for WebSockets."""
+
+    def check(conn: HTTPConnection) -> str:
+        ok = token_matches(token, conn.headers.get("authorization"))
+        is_ws = conn.scope["type"] == "websocket"
+        query = conn.query_params.get("token")
+        if not ok and is_ws and query:
+            ok = secrets.compare_digest(query.encode(), token.encode())
+        if not ok:
+            on_refused(conn)
+            if is_ws:
+                raise WebSocketException(status.WS_1008_POLICY_VIOLATION, "missing or wrong token")
+            raise HTTPException(401, "missing or wrong bearer token", headers={"WWW-Authenticate": "Bearer"})
+        client = conn.client
+        return f"{client.host}:{client.port}" if client else "?"
+
+    return check
+
+
+def include_inputs(app: FastAPI, bridge: InputsBridge, *, token: str, controlling: Callable[..., Any],
+                   call: Callable[..., Any], metrics: Any, audit: Any) -> None:
+    """Mount the feeds and the inputs routes; `controlling` and `call` are the app's lease dependency
+    and its audited service-call helper."""
+
+    def refused(conn: HTTPConnection) -> None:
+        metrics.count("unauthorized")
+        client = f"{conn.client.host}:{conn.client.port}" if conn.client else "?"
+        audit.record(client, f"{conn.scope['type']} {conn.url.path}", False, "bad token")
+
+    app.include_router(feed_router(bridge.feeds, connection_auth(token, refused)))
+    router = APIRouter(tags=["inputs"])
+
+    @router.get("/api/inputs")
+    def inputs() -> dict[str, Any]:
+        return bridge.describe()
+
+    @router.post("/api/inputs/enable")
+    def enable(body: EnableInputs, client: Annotated[str, Depends(controlling)]) -> Any:
+        def run() -> dict[str, Any]:
+            try:
+                return bridge.enable(body.enable)
+            except RuntimeError as exc:
+                raise TimeoutError(str(exc)) from None
+        return call(client, "inputs.enable", run, {"enable": body.enable})
+
+    @router.post("/api/inputs/{name}/zero")
+    def zero(name: str, client: Annotated[str, Depends(controlling)], body: ZeroRequest | None = None) -> Any:
+        try:
+            bridge.application(name)
+        except KeyError as exc:
+            raise HTTPException(404, str(exc.args[0])) from None
+        try:
+            bridge.zero(name, body.samples if body else None)
+        except ValueError as exc:
+            raise HTTPException(422, str(exc)) from None
+        return call(client, "inputs.zero", lambda: {"application": name, "zeroing": True}, {"application": name})
+
+    app.include_router(router)

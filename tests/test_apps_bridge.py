@@ -1,0 +1,347 @@
+"""The inputs bridge without a robot: applications as pipelines, arbitration, what reaches the servo's
+input slot (kind, frame, hold, source index, the stale marker naming the sensor), configuration errors.
+Feeds stand in for the sensors here (an injected clock, no threads); tests/test_apps_e2e.py runs the
+same pipelines against the simulator through real ptys, sockets and HTTP."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from servo_app.input_slot import NONE, POSE, TWIST, InputCommand, InputSlotReader
+from servo_app.inputs import ConfigError
+from servo_app.inputs.apps.config import load_service_inputs
+from servo_app.inputs.bridge import InputsBridge
+
+CONFIG = """
+[feeds.jog]
+kind = "twist"
+stale_after_s = 0.1
+
+[feeds.gauge]
+kind = "measurement"
+stale_after_s = 0.2
+
+[feeds.ft]
+kind = "measurement"
+stale_after_s = 0.05
+
+[feeds.vision]
+kind = "pose"
+stale_after_s = 0.3
+
+[feeds.pilot]
+kind = "twist"
+priority = 50
+stale_after_s = 0.1
+
+[[applications]]
+name = "standoff"
+type = "standoff"
+sources = { distance = "gauge", operator = "jog" }
+target_mm = 50.0
+kp = 2.0
+max_speed_mm_s = 20.0
+priority = 10
+
+[[applications]]
+name = "guide"
+type = "admittance"
+sources = { wrench = "ft" }
+lowpass_hz = 1000.0
+bias_samples = 3
+priority = 20
+
+[[applications]]
+name = "tracking"
+type = "tracking"
+sources = { target = "vision" }
+priority = 5
+lookahead_s = 0.05
+linear_speed = 120.0
+
+[[applications]]
+name = "teleop"
+type = "teleop"
+sources = { twist = "pilot" }
+frame = "base"
+scale = 0.5
+priority = 40
+"""
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 1000.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+@pytest.fixture
+def rig(tmp_path: Path) -> Iterator[tuple[InputsBridge, InputSlotReader, Clock]]:
+    path = tmp_path / "inputs.toml"
+    path.write_text(CONFIG)
+    clock = Clock()
+    bridge = InputsBridge.from_file(path, clock=clock, hold_grace_s=0.05, stale_latch_s=0.05)
+    reader = InputSlotReader(bridge.slot_name)
+    try:
+        yield bridge, reader, clock
+    finally:
+        reader.close()
+        bridge.close()
+
+
+def wrench(fx: float = 0.0, fy: float = 0.0, fz: float = 0.0) -> dict[str, object]:
+    return {"kind": "measurement", "values": {"fx": fx, "fy": fy, "fz": fz, "tx": 0.0, "ty": 0.0, "tz": 0.0}}
+
+
+def twist(x: float, y: float = 0.0, z: float = 0.0, frame: str = "tool") -> dict[str, object]:
+    return {"kind": "twist", "linear": [x, y, z], "frame": frame}
+
+
+def test_sources_consumed_by_applications_do_not_command_directly(rig: tuple[InputsBridge, InputSlotReader, Clock]
+                                                                  ) -> None:
+    bridge, _, _ = rig
+    assert set(bridge.specs) == {"standoff", "guide", "tracking", "teleop"}
+    # Application inputs follow, so a stale stop can name the sensor itself.
+    assert bridge.source_names[:4] == ["standoff", "guide", "tracking", "teleop"]
+    assert set(bridge.source_names[4:]) == {"gauge", "jog", "ft", "vision", "pilot"}
+
+
+def test_standoff_replaces_tool_z_and_goes_stale_with_its_distance_sensor(
+        rig: tuple[InputsBridge, InputSlotReader, Clock]) -> None:
+    bridge, reader, clock = rig
+    bridge.feeds.submit("gauge", {"kind": "measurement", "values": {"distance": 60.0}})
+    bridge.feeds.submit("jog", twist(15.0, -5.0, 99.0))
+    bridge.step(clock())
+    cmd = reader.poll()
+    assert cmd is not None and cmd.kind == TWIST and cmd.frame == "tool"
+    assert cmd.values == pytest.approx((15.0, -5.0, 20.0, 0, 0, 0))  # 10 mm too far * 2 /s, capped at 20
+    assert cmd.timeout_s == pytest.approx(0.2 + 0.05)  # renewed hold: the timeout of its slowest input + grace
+    assert bridge.source_names[cmd.source] == "standoff"
+
+    # The operator's jog goes quiet: optional, so stand-off holds the distance alone.
+    for _ in range(3):
+        clock.t += 0.06
+        bridge.feeds.submit("gauge", {"kind": "measurement", "values": {"distance": 52.0}})
+        bridge.step(clock())
+    cmd = reader.poll()
+    assert cmd is not None and cmd.values == pytest.approx((0.0, 0.0, 4.0, 0, 0, 0))
+
+    # The distance sensor goes quiet while the jog keeps coming: stale, and the marker names the sensor.
+    stale: InputCommand | None = None
+    for _ in range(6):
+        clock.t += 0.05
+        bridge.feeds.submit("jog", twist(10.0))
+        bridge.step(clock())
+        stale = reader.poll() or stale
+        if stale is not None and stale.stale:
+            break
+    assert stale is not None and stale.stale and stale.kind == NONE
+    assert bridge.source_names[stale.source] == "gauge"
+    assert bridge.describe()["stale_events"] == {"gauge": 1}
+
+
+def test_stale_marker_is_kept_before_another_source_takes_over(rig: tuple[InputsBridge, InputSlotReader, Clock]
+                                                               ) -> None:
+    bridge, reader, clock = rig
+    bridge.feeds.submit("vision", {"kind": "pose", "xyzwpr": [400, 0, 300, 180, 0, 0]})
+    bridge.feeds.submit("gauge", {"kind": "measurement", "values": {"distance": 50.0}})
+    bridge.step(clock())
+    assert reader.poll().source == bridge.source_names.index("standoff")  # type: ignore[union-attr]
+    clock.t += 0.21  # the gauge (0.2 s) is stale, the camera (0.3 s) is not
+    bridge.step(clock())
+    cmd = reader.poll()
+    assert cmd is not None and cmd.stale and bridge.source_names[cmd.source] == "gauge"
+    clock.t += 0.02
+    bridge.step(clock())
+    assert reader.poll() is None  # latched: the servo process must read the marker first
+    clock.t += 0.04
+    bridge.step(clock())
+    cmd = reader.poll()
+    assert cmd is not None and cmd.kind == POSE and bridge.source_names[cmd.source] == "tracking"
+
+
+def test_admittance_zeroing_then_guiding(rig: tuple[InputsBridge, InputSlotReader, Clock]) -> None:
+    bridge, reader, clock = rig
+    bridge.zero("guide")
+    for _ in range(3):  # the sensor's offset while nobody touches the tool
+        clock.t += 0.004
+        bridge.feeds.submit("ft", wrench(5.0, 0.0, -3.0))
+        bridge.step(clock())
+    guide = bridge.application("guide")
+    assert guide.describe()["bias"][:3] == pytest.approx([5.0, 0.0, -3.0]) and not guide.describe()["zeroing"]
+    clock.t += 0.004
+    bridge.feeds.submit("ft", wrench(5.0, 0.0, -3.0))
+    bridge.step(clock())
+    cmd = reader.poll()
+    assert cmd is not None and cmd.values == pytest.approx((0.0,) * 6)
+    for _ in range(50):  # a steady push of 12 N along y (the low-pass settles)
+        clock.t += 0.004
+        bridge.feeds.submit("ft", wrench(5.0, 12.0, -3.0))
+        bridge.step(clock())
+    cmd = reader.poll()
+    assert cmd is not None and cmd.frame == "tool" and cmd.values[1] == pytest.approx((12.0 - 2.0) * 2.0, rel=1e-3)
+    with pytest.raises(ValueError, match="no sensor bias"):
+        bridge.zero("standoff")
+    with pytest.raises(KeyError):
+        bridge.zero("nope")
+
+
+def test_teleop_scales_and_overrides_the_frame_and_wins_by_priority(
+        rig: tuple[InputsBridge, InputSlotReader, Clock]) -> None:
+    bridge, reader, clock = rig
+    bridge.feeds.submit("gauge", {"kind": "measurement", "values": {"distance": 50.0}})
+    bridge.feeds.submit("pilot", twist(40.0, 0.0, -20.0, frame="tool"))
+    bridge.step(clock())
+    cmd = reader.poll()
+    assert cmd is not None and bridge.source_names[cmd.source] == "teleop"
+    assert cmd.frame == "base" and cmd.values[:3] == pytest.approx((20.0, 0.0, -10.0))
+
+
+def test_tracking_extrapolates_with_the_feed_stamps(rig: tuple[InputsBridge, InputSlotReader, Clock]) -> None:
+    bridge, reader, clock = rig
+    # A target moving +100 mm/s in x, sampled at 20 Hz.
+    for i in range(4):
+        bridge.feeds.submit("vision", {"kind": "pose", "xyzwpr": [400 + 5 * i, 0, 300, 180, 0, 0]})
+        bridge.step(clock())
+        clock.t += 0.05
+    clock.t -= 0.03  # 20 ms after the last sample
+    bridge.step(clock())
+    cmd = reader.poll()
+    assert cmd is not None and cmd.kind == POSE and cmd.linear_speed == 120.0
+    # 20 ms since the sample, plus the 50 ms lookahead, at 100 mm/s.
+    assert cmd.values[0] == pytest.approx(415.0 + 100.0 * 0.07, abs=1e-6)
+
+
+def test_a_source_publishing_a_frame_the_servo_does_not_know_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "inputs.toml"
+    path.write_text('[feeds.jog]\nkind = "twist"\n')
+    clock = Clock()
+    bridge = InputsBridge.from_file(path, clock=clock)
+    reader = InputSlotReader(bridge.slot_name)
+    try:
+        bridge.feeds.submit("jog", twist(1.0, frame="world"))
+        bridge.step(clock())
+        assert reader.poll() is None
+        assert bridge.describe()["bridge_problems"] == {"rejected": 1}
+    finally:
+        reader.close()
+        bridge.close()
+
+
+def test_the_thread_wakes_on_each_feed_sample(tmp_path: Path) -> None:
+    """Event-driven: a feed sample reaches the slot without waiting for the housekeeping tick."""
+    path = tmp_path / "inputs.toml"
+    path.write_text('[feeds.jog]\nkind = "twist"\nstale_after_s = 5.0\n')
+    bridge = InputsBridge.from_file(path)
+    reader = InputSlotReader(bridge.slot_name)
+    requests: list[dict[str, object]] = []
+    bridge.start(request=lambda op, **kw: requests.append({"op": op, **kw}))
+    try:
+        assert bridge.enable(True) == {"enabled": True, "sources": ["jog"]}
+        assert requests == [{"op": "inputs", "enable": True, "sources": ["jog"]}]
+        for x in (1.0, 2.0, 3.0):
+            bridge.feeds.submit("jog", twist(x))
+            deadline = time.monotonic() + 5.0
+            cmd = reader.poll()
+            while cmd is None and time.monotonic() < deadline:
+                time.sleep(0.0005)
+                cmd = reader.poll()
+            assert cmd is not None and cmd.values[0] == x
+        rows = {r["name"]: r for r in bridge.summary()["sources"]}
+        assert rows["jog"]["active"] and not rows["jog"]["stale"]
+    finally:
+        reader.close()
+        bridge.close()
+    assert not any(a.running for a in bridge.adapters)
+
+
+def test_configuration_errors_name_file_key_and_value(tmp_path: Path) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text("""
+[feeds.jog]
+kind = "twist"
+[feeds.vision]
+kind = "pose"
+
+[[applications]]
+name = "guide"
+type = "admittance"
+sources = { wrench = "jog" }
+
+[[applications]]
+name = "standoff"
+type = "standoff"
+sources = { operator = "nope" }
+target_mm = 40.0
+
+[[applications]]
+name = "jog"
+type = "tracking"
+sources = { target = "vision", extra = "vision" }
+
+[[applications]]
+name = "x"
+type = "teleport"
+sources = {}
+""")
+    with pytest.raises(ConfigError) as ei:
+        load_service_inputs(path)
+    got = {(i.key, str(i.value)) for i in ei.value.issues}
+    assert ("applications[0].sources.wrench", "jog") in got  # twist source for a wrench role
+    assert ("applications[1].sources.distance", "<missing>") in got
+    assert ("applications[1].sources.operator", "nope") in got
+    assert ("applications[2].name", "jog") in got  # clashes with a feed
+    assert ("applications[2].sources.extra", "vision") in got
+    assert any(k.startswith("applications[3]") for k, _ in got)
+    assert all(i.file == str(path) for i in ei.value.issues)
+
+
+def test_every_example_configuration_loads() -> None:
+    root = Path(__file__).resolve().parents[1] / "configs" / "inputs"
+    files = sorted(root.glob("*.toml"))
+    assert len(files) >= 5
+    for f in files:
+        load_service_inputs(f)
+
+
+def test_a_write_caught_half_done_reads_as_nothing_new(tmp_path: Path) -> None:
+    """The bridge is an ordinary thread: descheduled mid-write, the servo process must not wait or die."""
+    path = tmp_path / "inputs.toml"
+    path.write_text('[feeds.jog]\nkind = "twist"\n')
+    clock = Clock()
+    bridge = InputsBridge.from_file(path, clock=clock)
+    reader = InputSlotReader(bridge.slot_name)
+    try:
+        bridge.feeds.submit("jog", twist(1.0, frame="base"))
+        bridge.step(clock())
+        assert reader.poll() is not None
+        seq = bridge.writer.slot._seq
+        seq[0] += 1  # the writer stopped between "odd" and "even"
+        assert reader.poll() is None and reader.torn_reads == 1
+        seq[0] -= 1
+        clock.t += 0.01
+        bridge.feeds.submit("jog", twist(2.0, frame="base"))
+        bridge.step(clock())
+        cmd = reader.poll()
+        assert cmd is not None and cmd.values[0] == 2.0
+    finally:
+        reader.close()
+        bridge.close()
+
+
+def test_servo_app_run_refuses_a_bad_inputs_file_before_starting_anything(tmp_path: Path) -> None:
+    bad = tmp_path / "inputs.toml"
+    bad.write_text('[feeds.jog]\nkind = "twist"\n[[applications]]\nname = "s"\ntype = "standoff"\n'
+                   'sources = { distance = "jog" }\ntarget_mm = 5\n')
+    r = subprocess.run([sys.executable, "-m", "servo_app.cli", "run", "--inputs", str(bad), "--token", "t",
+                        "--var-dir", str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert f"{bad}: applications[0].sources.distance = 'jog': publishes twist samples" in r.stdout
