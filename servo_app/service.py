@@ -143,18 +143,20 @@ class ServoService:
         self._threads: list[threading.Thread] = []
         self.servo_alive = False
         self.sim_scheduling = "no embedded simulator"
-        self.inputs: Any = None  # the InputsBridge, with cfg.inputs_config (FANUC backend)
+        self.inputs: Any = None  # the InputsBridge, with cfg.inputs_config
 
     # ------------------------------------------------------------------ life
     def open(self) -> None:
         robot = parse_robot(self.cfg.robot)
-        if robot is not None and robot[0] == "janome":
-            self._open_janome(robot[1], robot[2], embedded=self.cfg.robot == "janome")
-            return
         if self.cfg.inputs_config is not None:  # first: a bad file stops here; the servo process maps its slot
             from servo_app.inputs.bridge import InputsBridge
 
             self.inputs = InputsBridge.from_file(self.cfg.inputs_config)
+        if robot is not None and robot[0] == "janome":
+            self._open_janome(robot[1], robot[2], embedded=self.cfg.robot == "janome")
+            if self.inputs is not None:
+                self.inputs.start(request=self.request, feedback=self.state_vector)
+            return
         if robot is None:
             self.sim = self._start_simulator()
             host, port = self.sim.address
@@ -175,8 +177,9 @@ class ServoService:
         """Janome: servo_app listens, the robot's point job connects (the manual's Ethernet client)."""
         from servo_app.janome.runner import JanomeConfig, JanomeProcess
 
-        self.stream = JanomeProcess(JanomeConfig(host=host, port=port, model=self.model,  # type: ignore[assignment]
-                                                 log_dir=str(self.cfg.log_dir)))
+        self.stream = JanomeProcess(JanomeConfig(  # type: ignore[assignment]
+            host=host, port=port, model=self.model, log_dir=str(self.cfg.log_dir),
+            input_slot=self.inputs.slot_name if self.inputs is not None else None))
         self.stream.start()
         self.robot_address = self.stream.address  # type: ignore[attr-defined]
         if embedded:

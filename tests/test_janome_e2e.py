@@ -136,3 +136,35 @@ def test_scara_target_keeps_its_arm_configuration(rig: tuple[JanomeProcess, Jano
     assert not sim.events("rejected")
     sp.request("end")
     wait_state(sp, "ended")
+
+
+def test_input_twist_through_the_slot_moves_the_robot_and_stale_stops_it() -> None:
+    """Input adapters drive Janome too: a twist's X Y Z and its rotation about Z become an X Y Z R jog."""
+    from servo_app.input_slot import NONE, TWIST, InputCommand, InputSlotWriter
+
+    writer = InputSlotWriter()
+    sp = JanomeProcess(JanomeConfig(port=0, model="jr3000", input_slot=writer.name))
+    sp.start()
+    sim = JanomeSimulator(sp.address, "jr3000").start()
+    try:
+        wait_state(sp, "ready")
+        sp.request("start")
+        wait_state(sp, "streaming")
+        sp.request("inputs", enable=True, sources=["spacemouse"])
+        x0 = sim.position[0]
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            writer.publish(InputCommand(kind=TWIST, frame="base", values=(40.0, 0, 0, 0, 0, 0), linear_speed=0,
+                                        angular_speed=0, stamp=time.monotonic(), timeout_s=0.3, source=0,
+                                        stale=False))
+            time.sleep(0.05)
+        assert sim.position[0] > x0 + 10.0
+        writer.publish(InputCommand(kind=NONE, frame="base", values=(0,) * 6, linear_speed=0, angular_speed=0,
+                                    stamp=time.monotonic(), timeout_s=0.3, source=0, stale=True))
+        wait_state(sp, "stopped")
+        ev = sp.last_event("safety")
+        assert ev is not None and ev["stop_reason"] == "input spacemouse stale" and ev["fault"] is None
+    finally:
+        sim.stop()
+        sp.shutdown()
+        writer.close()

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from servo_app.fanuc.session_log import SessionLogWriter
+from servo_app.input_slot import InputSlotReader
 from servo_app.ipc import LatestValueSlot
 from servo_app.janome.motion import JanomeMotion, MotionSettings
 from servo_app.janome.profile import load_janome_profile
@@ -60,6 +61,7 @@ class JanomeConfig:
     hold_s: float = 0.5  # default hold-to-run for jogs (several link steps)
     publish_interval_s: float = 0.05
     log_dir: str = "var/sessions"  # every connection's exchange, per frame (servo_app/fanuc/session_log.py)
+    input_slot: str | None = None  # shared-memory name of the inputs bridge's live command
 
 
 # --------------------------------------------------------------------------- child side
@@ -96,6 +98,7 @@ class _JanomeServoProcess:
         self._last_phase = self.sup.session.phase
         self.log: SessionLogWriter | None = None
         self._logged_seq: int | None = None
+        self.inputs = InputSlotReader(cfg.input_slot) if cfg.input_slot else None
 
     # -- main loop
     def run(self) -> None:
@@ -174,6 +177,10 @@ class _JanomeServoProcess:
             self._lost("the robot closed the connection")
             return
         t_recv = time.monotonic()
+        if self.inputs is not None:  # the newest input before this status frame's answer
+            cmd = self.inputs.poll()
+            if cmd is not None:
+                self.sup.on_input(cmd, t_recv)
         out = self.sup.on_bytes(data, t_recv)
         us = 0.0
         if out:

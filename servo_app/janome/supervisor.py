@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from servo_app.input_slot import NONE, TWIST, InputCommand
 from servo_app.janome.alarms import (
     LINK_LOST,
     LINK_TIMEOUT,
@@ -49,6 +50,7 @@ from servo_app.safety import (
     Event,
     FaultInfo,
     HoldToRun,
+    InputStale,
     JogExpired,
     LeaseLost,
     Mode,
@@ -88,6 +90,10 @@ class JanomeSupervisor:
     def __init__(self, motion: JanomeMotion, session_config: SessionConfig | None = None,
                  hold_s: float = 0.5) -> None:
         self.motion = motion
+        self.inputs_enabled = False  # input sources move the robot only after the lease holder enables them
+        self.input_sources: list[str] = []
+        self.input_error = ""
+        self._input_active = False
         self.session = JanomeSession(motion, session_config or SessionConfig(kind=motion.profile.kind))
         self.state = SafetyState()
         self.default_hold_s = hold_s
@@ -182,6 +188,10 @@ class JanomeSupervisor:
         elif op == "target":
             self._motion_gate("target")
             self.motion.set_target(np.asarray(kw["joints"], dtype=float), float(kw.get("speed_scale", 1.0)))
+        elif op == "inputs":
+            self.inputs_enabled = bool(kw.get("enable", False))
+            self.input_sources = [str(x) for x in kw.get("sources", self.input_sources)]
+            self.changed = True
         else:
             raise CommandRejected(f"op={op!r} is unknown (start, stop, resume, end, reset, jog, target)")
         return None
@@ -211,6 +221,31 @@ class JanomeSupervisor:
             raise CommandRejected(f"hold_s={hold_s} must be > 0")
         self.motion.jog(v)
         self.hold = HoldToRun(timeout_s=hold_s).renew(now)
+
+    def on_input(self, cmd: InputCommand, now: float) -> None:
+        """The inputs bridge's live command: a twist jogs X Y Z (mm/s) and R (its rotation about Z, deg/s);
+        a pose input is an absolute X Y Z R target (W and P have no axis here)."""
+        if not self.inputs_enabled:
+            return
+        name = self.input_sources[cmd.source] if 0 <= cmd.source < len(self.input_sources) else str(cmd.source)
+        try:
+            if cmd.stale or cmd.kind == NONE:
+                if self._input_active and self.state.mode == Mode.STREAMING:
+                    self._feed(InputStale(source=name), now)
+                self._input_active = False
+                return
+            hold = min(max(cmd.timeout_s, 0.05), 2.0)
+            v = cmd.values
+            if cmd.kind == TWIST:
+                self._jog(np.array([v[0], v[1], v[2], v[5]]), hold, now)
+            else:
+                self._motion_gate(f"input {name}")
+                self.motion.set_target(np.array([v[0], v[1], v[2], v[5]]), 1.0)
+                self.hold = HoldToRun(timeout_s=hold).renew(now)
+            self._input_active = True
+            self.input_error = ""
+        except (CommandRejected, ValueError) as exc:  # refused input: reported, the robot stays as it is
+            self.input_error = f"{name}: {exc}"
 
     def signal(self, sig: int, now: float) -> None:
         self._feed(Signal(sig=sig), now)
