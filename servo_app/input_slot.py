@@ -8,6 +8,7 @@ one clock for every process on the machine.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,3 +88,45 @@ class InputSlotReader:
 
     def close(self) -> None:
         self.slot.close()
+
+
+class InputControl:
+    """What a servo-process supervisor keeps about input control, the same for every backend.
+
+    Inputs move the arm only after the lease holder enables them (request op ``inputs``). A stale
+    source (or "nothing live" while one was driving) is reported once through ``on_stale``; a live
+    command goes to ``move(cmd, source_name, hold_s)``; a refused one is kept as ``error`` and
+    changes nothing.
+    """
+
+    def __init__(self, min_hold_s: float) -> None:
+        self.enabled = False
+        self.sources: list[str] = []
+        self.error = ""
+        self.min_hold_s = min_hold_s
+        self._active = False
+
+    def configure(self, enable: bool = False, sources: list[str] | None = None) -> None:
+        self.enabled = bool(enable)
+        if sources is not None:
+            self.sources = [str(x) for x in sources]
+
+    def name(self, cmd: InputCommand) -> str:
+        return self.sources[cmd.source] if 0 <= cmd.source < len(self.sources) else str(cmd.source)
+
+    def apply(self, cmd: InputCommand, on_stale: Callable[[str], None],
+              move: Callable[[InputCommand, str, float], None]) -> None:
+        if not self.enabled:
+            return
+        name = self.name(cmd)
+        try:
+            if cmd.stale or cmd.kind == NONE:
+                if self._active:
+                    on_stale(name)
+                self._active = False
+                return
+            move(cmd, name, min(max(cmd.timeout_s, self.min_hold_s), 2.0))
+            self._active = True
+            self.error = ""
+        except ValueError as exc:  # refused (CommandRejected is one): reported, the arm stays as it is
+            self.error = f"{name}: {exc}"

@@ -44,7 +44,7 @@ def test_inputs_move_the_arm_only_when_enabled_and_stale_stops_it() -> None:
     for _ in range(20):
         cell.sup.on_input(twist(100.0, cell.t), cell.t)
         cell.cycle()
-    assert flange_x(cell) == before and "refused in stopped" in cell.sup.input_error
+    assert flange_x(cell) == before and "refused in stopped" in cell.sup.inputs.error
     assert not cell.ctrl.alarms()
 
 

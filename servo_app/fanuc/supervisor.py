@@ -23,7 +23,7 @@ import numpy as np
 
 from servo_app.fanuc.packets import LimitTableResponse, Status
 from servo_app.fanuc.session import IoRequest, Phase, SessionConfig, StreamSession
-from servo_app.input_slot import NONE, TWIST, InputCommand
+from servo_app.input_slot import TWIST, InputCommand, InputControl
 from servo_app.motion.commands import PoseTarget, Twist
 from servo_app.motion.servo import CommandRejected, ServoCycle
 from servo_app.safety import (
@@ -83,10 +83,7 @@ class StreamSupervisor:
         self._now = 0.0
         self._out: list[bytes] = []
         self.changed = False  # set when the safety state changed; the runner clears it after publishing
-        self.inputs_enabled = False  # input sources move the arm only after the lease holder enables them
-        self.input_sources: list[str] = []
-        self.input_error = ""
-        self._input_active = False
+        self.inputs = InputControl(min_hold_s=0.02)
 
     # ------------------------------------------------------------------ events
     def _feed(self, event: Event, now: float) -> str | None:
@@ -177,8 +174,7 @@ class StreamSupervisor:
             self._motion_gate("target")
             self.cycle.set_joint_target(np.asarray(kw["joints"], dtype=float), float(kw.get("speed_scale", 1.0)))
         elif op == "inputs":
-            self.inputs_enabled = bool(kw.get("enable", False))
-            self.input_sources = [str(x) for x in kw.get("sources", self.input_sources)]
+            self.inputs.configure(kw.get("enable", False), kw.get("sources"))
             self.changed = True
         elif op == "io_read":
             self.session.io_read = IoRequest(int(kw["type"]), int(kw["index"]), int(kw.get("mask", 0xFFFF)))
@@ -228,30 +224,24 @@ class StreamSupervisor:
 
     def on_input(self, cmd: InputCommand, now: float) -> None:
         """The inputs bridge's live command (read from shared memory once per cycle)."""
-        if not self.inputs_enabled:
-            return
-        name = self.input_sources[cmd.source] if 0 <= cmd.source < len(self.input_sources) else str(cmd.source)
-        try:
-            if cmd.stale or cmd.kind == NONE:
-                if self._input_active and self.state.mode == Mode.STREAMING:
-                    self._feed(InputStale(source=name), now)
-                self._input_active = False
-                return
-            hold = min(max(cmd.timeout_s, 0.02), 2.0)
-            if cmd.kind == TWIST:
-                twist = Twist(source=name, stamp=cmd.stamp, frame=cmd.frame, linear=cmd.values[:3],  # type: ignore[arg-type]
-                              angular=cmd.values[3:6])
-                self._hold_to_run(hold, now, f"input {name}")
-                self.cycle.twist(twist)
-            else:
-                pose = PoseTarget(source=name, stamp=cmd.stamp, xyzwpr=cmd.values[:6],  # type: ignore[arg-type]
-                                  linear_speed=cmd.linear_speed, angular_speed=cmd.angular_speed)
-                self._hold_to_run(hold, now, f"input {name}")
-                self.cycle.pose_target(pose)
-            self._input_active = True
-            self.input_error = ""
-        except (CommandRejected, ValueError) as exc:  # refused input: reported, the arm stays as it is
-            self.input_error = f"{name}: {exc}"
+        self.inputs.apply(cmd, lambda name: self._input_stale(name, now),
+                          lambda c, name, hold: self._input_move(c, name, hold, now))
+
+    def _input_stale(self, name: str, now: float) -> None:
+        if self.state.mode == Mode.STREAMING:
+            self._feed(InputStale(source=name), now)
+
+    def _input_move(self, cmd: InputCommand, name: str, hold: float, now: float) -> None:
+        if cmd.kind == TWIST:
+            twist = Twist(source=name, stamp=cmd.stamp, frame=cmd.frame, linear=cmd.values[:3],  # type: ignore[arg-type]
+                          angular=cmd.values[3:6])
+            self._hold_to_run(hold, now, f"input {name}")
+            self.cycle.twist(twist)
+        else:
+            pose = PoseTarget(source=name, stamp=cmd.stamp, xyzwpr=cmd.values[:6],  # type: ignore[arg-type]
+                              linear_speed=cmd.linear_speed, angular_speed=cmd.angular_speed)
+            self._hold_to_run(hold, now, f"input {name}")
+            self.cycle.pose_target(pose)
 
     def signal(self, sig: int, now: float) -> list[bytes]:
         self._out = []
@@ -338,8 +328,8 @@ class StreamSupervisor:
             "link": self.session.phase.value,
             "link_error": self.session.fault_reason or self.session.stats.last_error,
             "stops": dict(self.log.stops),
-            "inputs_enabled": self.inputs_enabled,
-            "input_error": self.input_error,
+            "inputs_enabled": self.inputs.enabled,
+            "input_error": self.inputs.error,
             "warnings": self.log.warnings[-10:],
         }
 

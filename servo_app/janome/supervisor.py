@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from servo_app.input_slot import NONE, TWIST, InputCommand
+from servo_app.input_slot import TWIST, InputCommand, InputControl
 from servo_app.janome.alarms import (
     LINK_LOST,
     LINK_TIMEOUT,
@@ -90,10 +90,7 @@ class JanomeSupervisor:
     def __init__(self, motion: JanomeMotion, session_config: SessionConfig | None = None,
                  hold_s: float = 0.5) -> None:
         self.motion = motion
-        self.inputs_enabled = False  # input sources move the robot only after the lease holder enables them
-        self.input_sources: list[str] = []
-        self.input_error = ""
-        self._input_active = False
+        self.inputs = InputControl(min_hold_s=0.05)
         self.session = JanomeSession(motion, session_config or SessionConfig(kind=motion.profile.kind))
         self.state = SafetyState()
         self.default_hold_s = hold_s
@@ -189,8 +186,7 @@ class JanomeSupervisor:
             self._motion_gate("target")
             self.motion.set_target(np.asarray(kw["joints"], dtype=float), float(kw.get("speed_scale", 1.0)))
         elif op == "inputs":
-            self.inputs_enabled = bool(kw.get("enable", False))
-            self.input_sources = [str(x) for x in kw.get("sources", self.input_sources)]
+            self.inputs.configure(kw.get("enable", False), kw.get("sources"))
             self.changed = True
         else:
             raise CommandRejected(f"op={op!r} is unknown (start, stop, resume, end, reset, jog, target)")
@@ -225,27 +221,22 @@ class JanomeSupervisor:
     def on_input(self, cmd: InputCommand, now: float) -> None:
         """The inputs bridge's live command: a twist jogs X Y Z (mm/s) and R (its rotation about Z, deg/s);
         a pose input is an absolute X Y Z R target (W and P have no axis here)."""
-        if not self.inputs_enabled:
-            return
-        name = self.input_sources[cmd.source] if 0 <= cmd.source < len(self.input_sources) else str(cmd.source)
-        try:
-            if cmd.stale or cmd.kind == NONE:
-                if self._input_active and self.state.mode == Mode.STREAMING:
-                    self._feed(InputStale(source=name), now)
-                self._input_active = False
-                return
-            hold = min(max(cmd.timeout_s, 0.05), 2.0)
-            v = cmd.values
-            if cmd.kind == TWIST:
-                self._jog(np.array([v[0], v[1], v[2], v[5]]), hold, now)
-            else:
-                self._motion_gate(f"input {name}")
-                self.motion.set_target(np.array([v[0], v[1], v[2], v[5]]), 1.0)
-                self.hold = HoldToRun(timeout_s=hold).renew(now)
-            self._input_active = True
-            self.input_error = ""
-        except (CommandRejected, ValueError) as exc:  # refused input: reported, the robot stays as it is
-            self.input_error = f"{name}: {exc}"
+        self.inputs.apply(cmd, lambda name: self._input_stale(name, now),
+                          lambda c, name, hold: self._input_move(c, name, hold, now))
+
+    def _input_stale(self, name: str, now: float) -> None:
+        if self.state.mode == Mode.STREAMING:
+            self._feed(InputStale(source=name), now)
+
+    def _input_move(self, cmd: InputCommand, name: str, hold: float, now: float) -> None:
+        v = cmd.values
+        xyzr = np.array([v[0], v[1], v[2], v[5]])
+        if cmd.kind == TWIST:
+            self._jog(xyzr, hold, now)
+        else:
+            self._motion_gate(f"input {name}")
+            self.motion.set_target(xyzr, 1.0)
+            self.hold = HoldToRun(timeout_s=hold).renew(now)
 
     def signal(self, sig: int, now: float) -> None:
         self._feed(Signal(sig=sig), now)
