@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import platform
 import sys
 import time
 import warnings
@@ -28,6 +27,9 @@ import mink
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "bench"))
+from results import write_section  # noqa: E402
+
 sys.path.insert(0, str(ROOT))
 
 from servo_app.motion.commands import Twist  # noqa: E402
@@ -151,23 +153,12 @@ def table(results: dict[str, dict[str, dict[str, float]]]) -> str:
 
 
 def write_results(text: str, command: str) -> Path:
-    path = ROOT / "bench" / "RESULTS.md"
-    body = (f"{SECTION}\n\nDiff-IK QP (LR Mate 200iD, 6 variables, collisions on), "
-            f"{time.strftime('%Y-%m-%d')}, {platform.python_implementation()} {platform.python_version()} on "
-            f"{platform.machine()} (2 shared cores: p99 includes other people's load).\n\n"
-            f"Command: `{command}`\n\n{text}\n\n"
+    body = ("Diff-IK QP (LR Mate 200iD, 6 variables, collisions on).\n\n"
+            f"{text}\n\n"
             "mink's rows include building its problem (what `solve_ik` costs each cycle); ours are the solve "
             "only, our build is its own row. \"failed\": no solution accepted (infeasible states are "
-            "counted for every solver). Reference for the differences: DAQP through `mink.solve_ik`.\n")
-    old = path.read_text() if path.exists() else "# Benchmark results\n"
-    start = old.find(SECTION)
-    if start < 0:
-        new = old.rstrip("\n") + "\n\n" + body
-    else:
-        nxt = old.find("\n## ", start + len(SECTION))
-        new = old[:start] + body + (old[nxt + 1:] if nxt >= 0 else "")
-    path.write_text(new)
-    return path
+            "counted for every solver). Reference for the differences: DAQP through `mink.solve_ik`.")
+    return write_section(SECTION.removeprefix("## "), command, body)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -20,6 +20,6 @@ def write_section(name: str, command: str, text: str) -> Path:
         new = old.rstrip("\n") + "\n\n" + body
     else:
         nxt = old.find("\n## ", start + len(header))
-        new = old[:start] + body + (old[nxt + 1:] if nxt >= 0 else "")
+        new = old[:start] + body + ("\n" + old[nxt + 1:] if nxt >= 0 else "")
     RESULTS.write_text(new)
     return RESULTS
