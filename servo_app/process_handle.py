@@ -8,17 +8,31 @@ publishes its state into a shared-memory slot (layout: :mod:`servo_app.state`).
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import os
 import signal
 import time
+import traceback
 from collections.abc import Callable
 from dataclasses import asdict
+from multiprocessing.connection import Connection
 from typing import Any
 
 from servo_app.ipc import LatestValueSlot
 from servo_app.motion.servo import CommandRejected
 from servo_app.state import STATE_SIZE, decode_state
+
+
+def run_child(conn: Connection, body: Callable[[], None]) -> None:
+    """The child's top level: run ``body``; if it raises, report the traceback, then die (the parent
+    turns a "crashed" event into a fault)."""
+    try:
+        body()
+    except Exception:
+        with contextlib.suppress(OSError):
+            conn.send({"event": "crashed", "traceback": traceback.format_exc()})
+        raise
 
 
 class ServoProcessHandle:

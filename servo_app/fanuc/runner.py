@@ -18,7 +18,6 @@ import os
 import signal
 import socket
 import time
-import traceback
 from collections import deque
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
@@ -34,7 +33,7 @@ from servo_app.fanuc.supervisor import StreamSupervisor
 from servo_app.input_slot import InputSlotReader
 from servo_app.ipc import LatestValueSlot
 from servo_app.motion.servo import CommandRejected, ServoCycle, ServoSettings
-from servo_app.process_handle import ServoProcessHandle
+from servo_app.process_handle import ServoProcessHandle, run_child
 from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.profile import load_profile
 from servo_app.safety import Mode
@@ -362,12 +361,7 @@ def _io_type(value: Any) -> int:
 
 
 def _child_main(cfg_dict: dict[str, Any], conn: Connection, slot_name: str) -> None:
-    try:
-        _ServoProcess(StreamConfig(**cfg_dict), conn, slot_name).run()
-    except Exception:  # report, then die: the parent turns this into a fault
-        with contextlib.suppress(OSError):
-            conn.send({"event": "crashed", "traceback": traceback.format_exc()})
-        raise
+    run_child(conn, lambda: _ServoProcess(StreamConfig(**cfg_dict), conn, slot_name).run())
 
 
 # -------------------------------------------------------------------------- parent side

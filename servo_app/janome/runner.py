@@ -19,7 +19,6 @@ import select
 import signal
 import socket
 import time
-import traceback
 from collections import deque
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
@@ -37,7 +36,7 @@ from servo_app.janome.protocol import Cmd, FrameError, Target
 from servo_app.janome.session import Phase, SessionConfig
 from servo_app.janome.supervisor import JanomeSupervisor
 from servo_app.motion.servo import CommandRejected
-from servo_app.process_handle import ServoProcessHandle
+from servo_app.process_handle import ServoProcessHandle, run_child
 from servo_app.safety import Mode, safe_to_exit
 from servo_app.state import MODES, PHASES, STATE_SIZE, StateVector
 
@@ -339,12 +338,7 @@ def _pad(v: Any) -> np.ndarray:
 
 
 def _child_main(cfg_dict: dict[str, Any], conn: Connection, slot_name: str) -> None:
-    try:
-        _JanomeServoProcess(JanomeConfig(**cfg_dict), conn, slot_name).run()
-    except Exception:  # report, then die: the parent turns this into a fault
-        with contextlib.suppress(OSError):
-            conn.send({"event": "crashed", "traceback": traceback.format_exc()})
-        raise
+    run_child(conn, lambda: _JanomeServoProcess(JanomeConfig(**cfg_dict), conn, slot_name).run())
 
 
 # -------------------------------------------------------------------------- parent side
