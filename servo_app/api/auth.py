@@ -96,10 +96,6 @@ class LeaseManager:
             if self._lease and self._lease.lease_id == lease_id:
                 self._lease = None
 
-    def expired_since(self, last_seen: Lease | None) -> bool:
-        """True when a lease that existed has gone (released or expired)."""
-        return last_seen is not None and self.current() is None
-
 
 class RateLimiter:
     """Sliding one-second window per key."""

@@ -19,7 +19,7 @@ position, and it integrates nothing from the servo position.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Protocol
@@ -367,7 +367,3 @@ class StreamSession:
             self._last_data_sent = True
             self.phase = Phase.ENDING
         return data
-
-
-def joints_of(values: Sequence[float], n: int = 6) -> np.ndarray:
-    return np.asarray(values[:n], dtype=float)

@@ -93,21 +93,7 @@ def boundary_distances(q_model_rad: ArrayLike, kin: ArmKinematics) -> np.ndarray
     centre from the J1 axis, divided by the arm's reach), turn boundaries of J1, J4, J6 (from +-180
     deg)]. Used to keep joint-space motion a margin away from changing the configuration.
     """
-    q1, q2, q3, q4, q5, q6 = (float(v) for v in q_model_rad[:6])
-    elbow = math.hypot(kin.d4, kin.a3)
-    up = (kin.d4 * math.cos(q3) - kin.a3 * math.sin(q3)) / elbow  # = cos(q3 + atan2(a3, d4))
-    phi = q2 - q3
-    x_wrist = kin.a1 + kin.a2 * math.sin(q2) + kin.d4 * math.cos(phi) + kin.a3 * math.sin(phi)
-
-    def from_pi(a: float) -> float:
-        return math.pi - abs(wrap_pi(a))
-
-    return np.array([
-        min(abs(wrap_pi(q5)), from_pi(q5)),
-        math.asin(min(1.0, abs(up))),
-        abs(x_wrist) / (kin.a2 + elbow),
-        from_pi(q1), from_pi(q4), from_pi(q6),
-    ])
+    return _signs_and_distances(np.atleast_2d(np.asarray(q_model_rad, dtype=float)), kin)[1][0]
 
 
 def keeps_configuration(q_model_rad: np.ndarray, kin: ArmKinematics, ref: ArmConfiguration,
@@ -116,9 +102,16 @@ def keeps_configuration(q_model_rad: np.ndarray, kin: ArmKinematics, ref: ArmCon
     (as :func:`boundary_distances`) from every boundary. Vectorised: the servo cycle checks whole
     paths of joint vectors every cycle."""
     q = np.atleast_2d(np.asarray(q_model_rad, dtype=float))
+    same, dist = _signs_and_distances(q, kin, ref)
+    return same & np.all(dist >= margins, axis=1)
+
+
+def _signs_and_distances(q: np.ndarray, kin: ArmKinematics, ref: ArmConfiguration | None = None
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Per row: whether the configuration equals ``ref`` (all True without one), and the distances."""
     q1, q2, q3, q4, q5, q6 = q[:, :6].T
     elbow = math.hypot(kin.d4, kin.a3)
-    up = (kin.d4 * np.cos(q3) - kin.a3 * np.sin(q3)) / elbow
+    up = (kin.d4 * np.cos(q3) - kin.a3 * np.sin(q3)) / elbow  # = cos(q3 + atan2(a3, d4))
     phi = q2 - q3
     x_wrist = kin.a1 + kin.a2 * np.sin(q2) + kin.d4 * np.cos(phi) + kin.a3 * np.sin(phi)
 
@@ -129,12 +122,14 @@ def keeps_configuration(q_model_rad: np.ndarray, kin: ArmKinematics, ref: ArmCon
         return np.ceil((a - np.pi) / (2 * np.pi)).astype(int)  # k with a in (-pi + 2 pi k, pi + 2 pi k]
 
     w5 = wrap(q5)
-    same = ((w5 > 0) == ref.flip) & ((up > 0) == ref.up) & ((x_wrist > 0) == ref.top)
-    same &= (turns(q1) == ref.turn1) & (turns(q4) == ref.turn4) & (turns(q6) == ref.turn6)
     dist = np.stack([
         np.minimum(np.abs(w5), np.pi - np.abs(w5)),
         np.arcsin(np.minimum(1.0, np.abs(up))),
         np.abs(x_wrist) / (kin.a2 + elbow),
         np.pi - np.abs(wrap(q1)), np.pi - np.abs(wrap(q4)), np.pi - np.abs(wrap(q6)),
     ], axis=1)
-    return same & np.all(dist >= margins, axis=1)
+    if ref is None:
+        return np.ones(len(q), dtype=bool), dist
+    same = ((w5 > 0) == ref.flip) & ((up > 0) == ref.up) & ((x_wrist > 0) == ref.top)
+    same &= (turns(q1) == ref.turn1) & (turns(q4) == ref.turn4) & (turns(q6) == ref.turn6)
+    return same, dist
