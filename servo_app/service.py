@@ -418,6 +418,13 @@ class ServoService:
             return {"state": "disconnected", "link": "idle"}
         s = self.stream.state()
         safety = self._last_event.get("safety") or {}
+        # The servo process sends its safety event (stop reason, fault) before it publishes the mode,
+        # but the pipe's reader thread may not have taken it in yet: give it a moment to catch up.
+        deadline = time.monotonic() + 0.05
+        while safety and safety.get("state") != s["state"] and time.monotonic() < deadline:
+            time.sleep(0.001)
+            s = self.stream.state()
+            safety = self._last_event.get("safety") or {}
         s.update({k: v for k, v in safety.items() if k not in ("event", "state", "link")})
         s["servo_process"] = "running" if self.servo_alive else "stopped"
         if "crashed" in self._last_event:

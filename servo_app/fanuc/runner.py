@@ -237,9 +237,6 @@ class _ServoProcess:
             if rid is not None:
                 self._publish()  # a reader after the reply sees the request's effect
                 self.conn.send(reply)
-        if self.sup.changed:
-            self.sup.changed = False
-            self._event("safety", **self.sup.describe())
 
     def _open_log(self) -> None:
         if self.log is not None:
@@ -259,9 +256,6 @@ class _ServoProcess:
 
     def _watch_link(self) -> None:
         link = self.sup.session.phase
-        if self.sup.changed:
-            self.sup.changed = False
-            self._event("safety", **self.sup.describe())
         if self.sup.state.mode in (Mode.STREAMING, Mode.STOPPING, Mode.STOPPED, Mode.ENDING):
             self._log_streamed = True
         if link == self._last_link:
@@ -289,6 +283,11 @@ class _ServoProcess:
 
     # -- publishing
     def _publish(self) -> None:
+        # The safety event (stop reason, fault texts) goes out before the state vector that shows the
+        # new mode, so a reader who sees the mode can have its reason too.
+        if self.sup.changed:
+            self.sup.changed = False
+            self._event("safety", **self.sup.describe())
         sv, s, c = self.state, self.sup.session, self.cycle
         sv.set("published_unix", time.time())
         sv.set("phase", PHASES.index(s.phase.value))

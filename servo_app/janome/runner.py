@@ -273,9 +273,6 @@ class _JanomeServoProcess:
                 self.conn.send(reply)
 
     def _watch(self) -> None:
-        if self.sup.changed:
-            self.sup.changed = False
-            self._event("safety", **self.sup.describe())
         phase = self.sup.session.phase
         if phase != self._last_phase:
             self._last_phase = phase
@@ -290,6 +287,11 @@ class _JanomeServoProcess:
 
     # -- publishing
     def _publish(self) -> None:
+        # The safety event (stop reason, fault texts) goes out before the state vector that shows the
+        # new mode, so a reader who sees the mode can have its reason too.
+        if self.sup.changed:
+            self.sup.changed = False
+            self._event("safety", **self.sup.describe())
         self._last_pub = time.monotonic()
         sv, s, m = self.state, self.sup.session, self.motion
         sv.set("published_unix", time.time())
