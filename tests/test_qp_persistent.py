@@ -66,7 +66,7 @@ def test_persistent_solution_matches_mink_solve_ik(ik: DifferentialIK, backend: 
     qp: PersistentQP | None = None
     compared = binding = 0
     worst = 0.0
-    for tasks in random_states(ik, 60, seed=7):
+    for tasks in random_states(ik, 70, seed=7):
         p, c = ik.objective(tasks)
         g, h = ik.inequalities()
         if qp is None:  # ONE instance for every state: the pattern must survive rows switching on and off

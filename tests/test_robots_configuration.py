@@ -7,7 +7,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from servo_app.robots.configuration import ArmConfiguration, configuration_of, turn_number, wrap_pi
+from servo_app.robots.configuration import (
+    ArmConfiguration,
+    ConfigurationRegion,
+    boundary_distances,
+    configuration_of,
+    turn_number,
+    wrap_pi,
+)
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import load_profile
 
@@ -54,3 +61,32 @@ def test_whole_turns_change_only_turn_numbers(q, k1, k4, k6):
     assert c.same_branch(base)
     assert (c.turn1, c.turn4, c.turn6) == (base.turn1 + k1, base.turn4 + k4, base.turn6 + k6)
     assert -math.pi < wrap_pi(float(q[0])) <= math.pi
+
+
+joint_vectors = st.lists(st.floats(-2 * math.pi, 2 * math.pi), min_size=6, max_size=6).map(np.array)
+
+
+@settings(max_examples=500, deadline=None)
+@given(joint_vectors, st.lists(st.floats(-0.6, 0.6), min_size=6, max_size=6).map(np.array),
+       st.lists(st.floats(0.0, 0.1), min_size=6, max_size=6).map(np.array))
+def test_region_is_same_configuration_with_margins(q0, step, margins):
+    """The region's box and wrist-side test say exactly what the definitions say: the same
+    configuration as where it was built, and every boundary distance at least its margin."""
+    region = ConfigurationRegion.around(q0, KIN, margins)
+    assert region.reference == configuration_of(q0, KIN)
+    q = q0 + step
+    expected = configuration_of(q, KIN) == region.reference and bool(np.all(boundary_distances(q, KIN) >= margins))
+    if not expected:  # skip points within rounding of a margin: either answer is right there
+        near = np.abs(boundary_distances(q, KIN) - margins) < 1e-9
+        if np.any(near):
+            return
+    assert bool(region.contains(q)[0]) == expected
+    assert region.contains(np.stack([q0, q, q])).tolist()[1:] == [expected, expected]
+
+
+def test_region_within_joint_ranges():
+    q = np.radians([0, 10, 0, 0, -70, 0])
+    region = ConfigurationRegion.around(q, KIN, np.zeros(6)).within(np.radians([-170] * 6), np.radians([170] * 6))
+    assert region.contains(q)[0]
+    assert not region.contains(np.radians([171, 10, 0, 0, -70, 0]))[0]  # outside the range, same turn
+    assert not region.contains(np.radians([0, 10, 0, 0, 10, 0]))[0]  # J5 changed sign: flip

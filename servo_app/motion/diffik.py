@@ -214,7 +214,8 @@ class DifferentialIK:
         self.accel_limit = AccelerationLimit(self.model, self.vel, self.acc, profile.j23_factor)
         self.path_braking = PathBraking(self.c, self.acc * st.brake_fraction)
         self.braking_limit = BrakingLimit(self.model, lo, hi, brake, self.path_braking)
-        self.config_guard = ConfigurationGuard(self.model, self.kin, brake, st.margins, path=self.path_braking)
+        self.config_guard = ConfigurationGuard(self.model, self.kin, self.braking_limit, st.margins,
+                                               path=self.path_braking)
         self.limits: list[mink.Limit] = [
             mink.ConfigurationLimit(self.model, gain=0.95),
             mink.VelocityLimit(self.model, uncoupled),
@@ -235,6 +236,7 @@ class DifferentialIK:
         self._row_flags: np.ndarray | None = None  # IkFlag per QP row, built on the first problem
         self._row_counts: list[int] = []
         self._accel_rows: slice | None = None
+        self._braking_rows: slice | None = None
         self.qp: PersistentQP | None = None
         self._solver: SolverName = solver
         self._qp_settings = qp_settings
@@ -262,6 +264,7 @@ class DifferentialIK:
         q = self._checked(q_model_rad, "q_model_rad")
         self.configuration.update(self._full_q(q))
         self.config_guard.reset(q)
+        self._mark_configuration_rows()
         self.posture_task.set_target(self._full_q(q))
         self._dq_prev = np.zeros(N) if dq_prev is None else self._checked(dq_prev, "dq_prev")
         self._ref = None
@@ -317,7 +320,8 @@ class DifferentialIK:
                 xi, s_goal = self._last_xi, 0.0  # brake along the last commanded Cartesian line
             else:
                 s_goal, self._last_xi = 0.0, None
-            self.frame_task.set_target(mink.SE3.from_matrix(_advance(self._ref, xi * dt)))
+            target = mink.SE3.from_matrix(_advance(self._ref, xi * dt))
+            self.frame_task.set_target(target)
             tasks: list[mink.Task] = [self.frame_task, self.posture_task]
             asks_motion = bool(np.any(xi))
             state_mode = cartesian_mode
@@ -343,16 +347,18 @@ class DifferentialIK:
             flags |= IkFlag.ARRIVED
         self._mode = state_mode  # a Cartesian stop keeps its mode: the reference pose stays valid
 
-        p, c = self.objective(tasks)
+        p, c, task_c = self._objective_terms(tasks)
         d = np.linalg.solve(p, -c)  # the increment the command asks for (P is positive definite)
         # Part of d only pulls the TCP back onto the integrated reference (drift, linearisation);
         # it is added unscaled so that scaling the command (even below 0 while reversing) never
         # turns the correction into a push away from the line.
         d_corr = np.zeros(N)
         if xi is not None and asks_motion and self._ref is not None:
+            # Only the frame task's linear term depends on its target: swap that term alone.
             self.frame_task.set_target(mink.SE3.from_matrix(self._ref))
-            d_corr = np.linalg.solve(p, -self.objective(tasks)[1])
-            self.frame_task.set_target(mink.SE3.from_matrix(_advance(self._ref, xi * dt)))
+            c_ref = c - task_c[0] + self.frame_task.compute_qp_objective(cfg).c
+            d_corr = np.linalg.solve(p, -c_ref)
+            self.frame_task.set_target(target)
         # Keep the direction: the commanded one (s -> 1), or while braking the current line (s -> 0).
         direction = d - d_corr if asks_motion else self._dq_prev
         self.path_braking.set_direction(direction)
@@ -403,15 +409,19 @@ class DifferentialIK:
 
     def objective(self, tasks: list[mink.Task]) -> tuple[np.ndarray, np.ndarray]:
         """mink's QP objective (P, c) for ``tasks`` at the current configuration, with our damping."""
-        cfg = self.configuration
-        p = np.zeros((N, N))
-        c = np.zeros(N)
-        for task in tasks:
-            obj = task.compute_qp_objective(cfg)
+        p, c, _ = self._objective_terms(tasks)
+        return p, c
+
+    def _objective_terms(self, tasks: list[mink.Task]) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+        """(P, c) and each task's own linear term."""
+        objs = [task.compute_qp_objective(self.configuration) for task in tasks]
+        p = objs[0].H.copy()
+        c = objs[0].c.copy()
+        for obj in objs[1:]:
             p += obj.H
             c += obj.c
         p.flat[:: N + 1] += self.settings.damping
-        return p, c
+        return p, c, [obj.c for obj in objs]
 
     def inequalities(self) -> tuple[np.ndarray, np.ndarray]:
         """All limits stacked as ``G dq <= h`` (fixed row layout) at the current configuration."""
@@ -576,7 +586,10 @@ class DifferentialIK:
                 flag = IkFlag.ACCEL_LIMIT
             elif isinstance(limit, mink.VelocityLimit):
                 flag = IkFlag.VELOCITY_LIMIT
-            elif isinstance(limit, mink.ConfigurationLimit | BrakingLimit):
+            elif limit is self.braking_limit:  # joint ranges, or the configuration's joint intervals
+                self._braking_rows = slice(len(flags), len(flags) + k)
+                flag = IkFlag.JOINT_LIMIT
+            elif isinstance(limit, mink.ConfigurationLimit):
                 flag = IkFlag.JOINT_LIMIT
             elif limit is self.config_guard:
                 flag = IkFlag.CONFIGURATION
@@ -586,16 +599,21 @@ class DifferentialIK:
         if len(flags) != m:
             raise RuntimeError(f"limit rows changed size ({len(flags)} != {m}); a persistent QP needs fixed rows")
         self._row_flags = np.array(flags)
+        self._mark_configuration_rows()
         self.qp = None
+
+    def _mark_configuration_rows(self) -> None:
+        """Braking rows whose bound is a configuration interval raise CONFIGURATION, not JOINT_LIMIT."""
+        if self._row_flags is not None and self._braking_rows is not None:
+            self._row_flags[self._braking_rows] = np.where(self.braking_limit.restricted, int(IkFlag.CONFIGURATION),
+                                                           int(IkFlag.JOINT_LIMIT))
 
     def _binding_flags(self, g: np.ndarray, h: np.ndarray, dq: np.ndarray) -> IkFlag:
         assert self._row_flags is not None
         slack = h - g @ dq
         tol = self.settings.binding_tol + 1e-6 * np.abs(h)
         binding = np.isfinite(h) & (slack <= tol)
-        out = IkFlag.NONE
-        for f in np.unique(self._row_flags[binding]):
-            out |= IkFlag(int(f))
+        out = IkFlag(int(np.bitwise_or.reduce(self._row_flags[binding]))) if np.any(binding) else IkFlag.NONE
         if self._accel_rows is not None:
             vel_rows = self.accel_limit.velocity_bound & binding[self._accel_rows]
             if np.any(vel_rows):

@@ -29,11 +29,9 @@ import numpy as np
 from mink import Configuration
 from mink.limits import CollisionAvoidanceLimit, Constraint, Limit
 
-from servo_app.robots.configuration import ArmConfiguration, configuration_of, turn_number
+from servo_app.robots.configuration import ArmConfiguration, ConfigurationRegion
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.model import JOINT_NAMES
-
-TWO_PI = 2.0 * math.pi
 
 
 def fanuc_rate_matrix(j23_factor: float, n: int = 6) -> np.ndarray:
@@ -152,6 +150,9 @@ class BrakingLimit(Limit):
     it: ``dq_i <= dt * braking_speed(upper_i - q_i, brake_i, dt + lag_s)`` and the mirror image. A joint
     already beyond a bound may only move back. 12 rows: upper bounds, then lower bounds.
 
+    ``restrict`` narrows the joint ranges further (the :class:`ConfigurationGuard`'s intervals): one
+    row per bound either way, and ``restricted`` tells which rows the restriction set.
+
     The returned rows brake each joint on its own: always recursively feasible, whatever the
     direction does. With a :class:`PathBraking`, ``h_path`` also holds the stricter rows for braking
     the whole motion together along the path (for the path-keeping scale).
@@ -161,9 +162,10 @@ class BrakingLimit(Limit):
 
     def __init__(self, model: mujoco.MjModel, lower: Sequence[float], upper: Sequence[float],
                  brake_acc: Sequence[float], path: PathBraking | None = None) -> None:
-        self.lower = np.asarray(lower, dtype=float)
-        self.upper = np.asarray(upper, dtype=float)
+        self.range_lower = np.asarray(lower, dtype=float)
+        self.range_upper = np.asarray(upper, dtype=float)
         self.brake_acc = np.asarray(brake_acc, dtype=float)
+        self._acc = np.concatenate([self.brake_acc, self.brake_acc])
         self.path = path
         self.h_path = np.full(12, np.inf)  # rows with path-synchronised braking (see PathBraking)
         self._qadr = _qpos_indices(model)
@@ -173,26 +175,34 @@ class BrakingLimit(Limit):
         g[np.arange(6), cols] = 1.0
         g[6 + np.arange(6), cols] = -1.0
         self._g = g
+        self._bound = np.concatenate([self.range_upper, -self.range_lower])  # row i: g_i @ q <= bound_i
+        self.restricted = np.zeros(12, dtype=bool)
 
-    def set_bounds(self, lower: np.ndarray, upper: np.ndarray) -> None:
-        self.lower = np.asarray(lower, dtype=float)
-        self.upper = np.asarray(upper, dtype=float)
+    @property
+    def lower(self) -> np.ndarray:
+        return -self._bound[6:]
+
+    @property
+    def upper(self) -> np.ndarray:
+        return self._bound[:6].copy()
+
+    def restrict(self, lower: np.ndarray, upper: np.ndarray) -> None:
+        """Keep the joints within ``[lower, upper]`` as well as within their ranges."""
+        lo = np.maximum(self.range_lower, lower)
+        hi = np.minimum(self.range_upper, upper)
+        self.restricted = np.concatenate([hi < self.range_upper, lo > self.range_lower])
+        self._bound = np.concatenate([hi, -lo])
 
     def compute_qp_inequalities(self, configuration: Configuration, dt: float) -> Constraint:
         q = configuration.data.qpos[self._qadr]
-        h = self._rows(q, self.brake_acc, dt)
+        distance = self._bound - np.concatenate([q, -q])  # to each bound, >= 0 inside (inf: none)
+        horizon = dt + self.lag_s
+        h = dt * braking_speed(distance, self._acc, horizon)
         self.h_path = h
         if self.path is not None and self.path.u is not None:
-            self.h_path = self._rows(q, self.path.decel(self.path.u[self._cols], self.brake_acc), dt)
+            acc = self.path.decel(self.path.u[self._cols], self.brake_acc)
+            self.h_path = dt * braking_speed(distance, np.concatenate([acc, acc]), horizon)
         return Constraint(G=self._g, h=h)
-
-    def _rows(self, q: np.ndarray, acc: np.ndarray, dt: float) -> np.ndarray:
-        h = np.full(12, np.inf)
-        up = np.isfinite(self.upper)
-        lo = np.isfinite(self.lower)
-        h[:6][up] = dt * braking_speed(self.upper[up] - q[up], acc[up], dt + self.lag_s)
-        h[6:][lo] = dt * braking_speed(q[lo] - self.lower[lo], acc[lo], dt + self.lag_s)
-        return h
 
 
 @dataclass(frozen=True)
@@ -204,39 +214,9 @@ class ConfigurationMargins:
     shoulder_brake_acc: float = 2.0  # m/s^2, braking of the wrist centre toward the J1 axis
 
 
-def configuration_bounds(q_model_rad: np.ndarray, kin: ArmKinematics, margins: ConfigurationMargins
-                         ) -> tuple[ArmConfiguration, np.ndarray, np.ndarray]:
-    """The configuration of ``q`` and the joint intervals (model rad) that keep flip, up/down and the
-    J1/J4/J6 turn numbers, each shrunk by its margin. Top/bottom is not a joint interval (see
-    :class:`ConfigurationGuard`)."""
-    q = np.asarray(q_model_rad, dtype=float)
-    cfg = configuration_of(q, kin)
-    lo = np.full(6, -np.inf)
-    hi = np.full(6, np.inf)
-    turn = math.radians(margins.turn_deg)
-    for i, k in ((0, cfg.turn1), (3, cfg.turn4), (5, cfg.turn6)):
-        lo[i] = -math.pi + TWO_PI * k + turn
-        hi[i] = math.pi + TWO_PI * k - turn
-    # Flip is the sign of J5 wrapped into (-180, 180]; both 0 and +-180 change it.
-    flip = math.radians(margins.flip_deg)
-    k5 = turn_number(q[4])
-    if cfg.flip:
-        lo[4], hi[4] = TWO_PI * k5 + flip, TWO_PI * k5 + math.pi - flip
-    else:
-        lo[4], hi[4] = TWO_PI * k5 - math.pi + flip, TWO_PI * k5 - flip
-    # Up <=> cos(q3 + psi) > 0 with psi = atan2(a3, d4) (configuration.py): an interval of q3.
-    psi = math.atan2(kin.a3, kin.d4)
-    elbow = math.radians(margins.elbow_deg)
-    centre = 0.0 if cfg.up else math.pi
-    k3 = round((q[2] + psi - centre) / TWO_PI)
-    mid = centre + TWO_PI * k3 - psi
-    lo[2], hi[2] = mid - math.pi / 2 + elbow, mid + math.pi / 2 - elbow
-    return cfg, lo, hi
-
-
-def wrist_centre_offset(q: np.ndarray, kin: ArmKinematics) -> tuple[float, np.ndarray]:
-    """Signed distance (m) of the wrist centre in front of the J1 axis in the arm's plane (> 0: Top),
-    and its gradient with respect to the six model joints."""
+def wrist_centre_gradient(q: np.ndarray, kin: ArmKinematics) -> tuple[float, np.ndarray]:
+    """:func:`~servo_app.robots.configuration.wrist_centre_offset` (m, > 0: Top) and its gradient
+    with respect to the six model joints."""
     q2, q3 = float(q[1]), float(q[2])
     phi = q2 - q3
     cphi, sphi = math.cos(phi), math.sin(phi)
@@ -252,64 +232,55 @@ class ConfigurationGuard(Limit):
     """Keeps the arm configuration it was reset with (FANUC MOTN-156 in Cartesian format; we keep it
     in joint format too).
 
-    Rows 0..11: joint intervals of :func:`configuration_bounds` with braking (as :class:`BrakingLimit`);
-    row 12: the wrist centre stays on its side of the J1 axis, linearised, with braking at
-    ``margins.shoulder_brake_acc``. 13 rows; ``h_path`` as in :class:`BrakingLimit`.
+    Flip, up/down and the turn numbers are joint intervals
+    (:class:`~servo_app.robots.configuration.ConfigurationRegion`, shrunk by the margins): ``reset``
+    hands them to the ``joints`` :class:`BrakingLimit`, which brakes before them as before a joint
+    range. This limit's one row is the boundary that is not a joint interval: the wrist centre stays
+    on its side of the J1 axis, linearised, braking at ``margins.shoulder_brake_acc``.
     """
 
     lag_s: float = 0.0  # s: how long the shaper downstream takes to build up a deceleration
 
-    def __init__(self, model: mujoco.MjModel, kin: ArmKinematics, brake_acc: Sequence[float],
+    def __init__(self, model: mujoco.MjModel, kin: ArmKinematics, joints: BrakingLimit,
                  margins: ConfigurationMargins | None = None, q_ref: np.ndarray | None = None,
                  path: PathBraking | None = None) -> None:
         self.kin = kin
+        self.joints = joints
         self.margins = margins or ConfigurationMargins()
         self.path = path
-        self._joints = BrakingLimit(model, np.full(6, -np.inf), np.full(6, np.inf), brake_acc, path)
         self._qadr = _qpos_indices(model)
         self._cols = _dof_columns(model)
-        self._g = np.zeros((13, model.nv))
-        self._g[:12] = self._joints._g
-        self.h_path = np.full(13, np.inf)
+        self._g = np.zeros((1, model.nv))
+        self.h_path = np.full(1, np.inf)
         self.reference: ArmConfiguration | None = None
         if q_ref is not None:
             self.reset(q_ref)
 
-    @property
-    def lower(self) -> np.ndarray:
-        return self._joints.lower
-
-    @property
-    def upper(self) -> np.ndarray:
-        return self._joints.upper
-
     def reset(self, q_model_rad: np.ndarray) -> ArmConfiguration:
         """Latch the configuration to keep (call when streaming starts)."""
-        cfg, lo, hi = configuration_bounds(q_model_rad, self.kin, self.margins)
-        self._joints.set_bounds(lo, hi)
-        self.reference = cfg
-        return cfg
+        m = self.margins
+        flip, elbow, turn = (math.radians(v) for v in (m.flip_deg, m.elbow_deg, m.turn_deg))
+        region = ConfigurationRegion.around(q_model_rad, self.kin, [flip, elbow, 0.0, turn, turn, turn])
+        self.joints.restrict(region.lower, region.upper)
+        self.reference = region.reference
+        return region.reference
 
     def compute_qp_inequalities(self, configuration: Configuration, dt: float) -> Constraint:
         if self.reference is None:
             self.reset(configuration.data.qpos[self._qadr])
         assert self.reference is not None
-        joint_rows = self._joints.compute_qp_inequalities(configuration, dt)
-        q = configuration.data.qpos[self._qadr]
-        x, grad = wrist_centre_offset(q, self.kin)
+        x, grad = wrist_centre_gradient(configuration.data.qpos[self._qadr], self.kin)
         sign = 1.0 if self.reference.top else -1.0
         distance = sign * x - self.margins.shoulder_m
         # Moving toward the axis decreases sign * x: -sign * grad . dq <= braking allowance.
-        self._g[12, self._cols] = -sign * grad
+        self._g[0, self._cols] = -sign * grad
         acc = self.margins.shoulder_brake_acc
-        h = np.empty(13)
-        h[:12] = joint_rows.h
-        h[12] = dt * float(braking_speed(distance, acc, dt + self.lag_s))
-        self.h_path = h.copy()
-        self.h_path[:12] = self._joints.h_path
+        horizon = dt + self.lag_s
+        h = np.array([dt * float(braking_speed(distance, acc, horizon))])
+        self.h_path = h
         if self.path is not None and self.path.u is not None:
             acc = float(self.path.decel(np.array([grad @ self.path.u[self._cols]]), acc)[0])
-            self.h_path[12] = dt * float(braking_speed(distance, acc, dt + self.lag_s))
+            self.h_path = np.array([dt * float(braking_speed(distance, acc, horizon))])
         return Constraint(G=self._g, h=h)
 
 

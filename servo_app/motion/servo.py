@@ -26,12 +26,7 @@ from servo_app.motion.commands import PoseTarget, Twist
 from servo_app.motion.diffik import DifferentialIK, IkResult
 from servo_app.motion.limit_tables import LimitTables, default_tables
 from servo_app.motion.shaper import JointShaper, ShaperLimits
-from servo_app.robots.configuration import (
-    ArmConfiguration,
-    boundary_distances,
-    configuration_of,
-    keeps_configuration,
-)
+from servo_app.robots.configuration import ArmConfiguration, ConfigurationRegion, boundary_distances
 from servo_app.robots.conventions import fanuc_deg_to_model_rad, model_rad_to_fanuc_deg
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import RobotProfile
@@ -79,7 +74,7 @@ class ServoCycle:
         self.flange_speed = 0.0  # mm/s, from the last two commanded positions
         self.limit_scale = 1.0  # share of the IK's velocity the stopping-point guard let through
         self.configuration: ArmConfiguration | None = None  # held from the start of streaming
-        self._margins = np.zeros(6)
+        self._region: ConfigurationRegion | None = None  # joint ranges and that configuration, with margins
         self._q_prev: np.ndarray | None = None
         self.cap = 0.0
 
@@ -107,10 +102,13 @@ class ServoCycle:
         self._q_prev = None
         q_model = fanuc_deg_to_model_rad(np.asarray(q_start[: self.profile.dof], float), self.profile.j23_factor)
         self.ik.reset(q_model)
-        self.configuration = configuration_of(q_model, self.kin)
         # A stream may begin closer than the margin to a boundary: keep at least what it had there.
         start = boundary_distances(q_model, self.kin)
-        self._margins = np.minimum(np.radians(self.settings.config_margin_deg), start * 0.999)
+        margins = np.minimum(np.radians(self.settings.config_margin_deg), start * 0.999)
+        lo, hi = self._range_model_deg  # widened by a rounding step: clipped targets land on the bound
+        region = ConfigurationRegion.around(q_model, self.kin, margins)
+        self._region = region.within(np.radians(lo - 1e-9), np.radians(hi + 1e-9))
+        self.configuration = self._region.reference
 
     def next_command(self, status: Status) -> np.ndarray:
         shaper = self._require()
@@ -327,16 +325,8 @@ class ServoCycle:
         Near a configuration boundary (wrist or elbow stretched, wrist over the J1 axis, a joint at
         +-180 deg) a rounding step can change the configuration: hence the margins.
         """
-        q = np.atleast_2d(fanuc_deg_to_model_rad(q_fanuc_deg, self.profile.j23_factor))
-        deg = np.degrees(q[:, :6])
-        lo, hi = self._range_model_deg
-        ok = np.all((deg >= lo - 1e-9) & (deg <= hi + 1e-9), axis=1)
-        if self.configuration is not None:
-            ok &= keeps_configuration(q, self.kin, self.configuration, self._margins)
-        return ok
-
-    def _same_configuration(self, q_fanuc_deg: np.ndarray) -> bool:
-        return bool(self._safe(q_fanuc_deg)[0])
+        assert self._region is not None, "begin() sets the region"
+        return self._region.contains(fanuc_deg_to_model_rad(q_fanuc_deg, self.profile.j23_factor))
 
     def _config_keeping_reach(self, q0: np.ndarray, q1: np.ndarray, samples: int = 24) -> float:
         """Share of the joint-space line q0 -> q1 along which the arm stays in range and configuration.

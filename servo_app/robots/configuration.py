@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -33,6 +33,7 @@ from servo_app.robots.conventions import ArrayLike
 if TYPE_CHECKING:
     from servo_app.robots.kinematics import ArmKinematics
 
+TWO_PI = 2.0 * math.pi
 _PATTERN = re.compile(r"^\s*([NF])\s*([UD])\s*([TB])\s*(?:,?\s*(-?\d+)\s*,?\s*(-?\d+)\s*,?\s*(-?\d+))?\s*$",
                       re.IGNORECASE)
 
@@ -93,43 +94,76 @@ def boundary_distances(q_model_rad: ArrayLike, kin: ArmKinematics) -> np.ndarray
     centre from the J1 axis, divided by the arm's reach), turn boundaries of J1, J4, J6 (from +-180
     deg)]. Used to keep joint-space motion a margin away from changing the configuration.
     """
-    return _signs_and_distances(np.atleast_2d(np.asarray(q_model_rad, dtype=float)), kin)[1][0]
+    q1, q2, q3, q4, q5, q6 = (float(v) for v in np.asarray(q_model_rad, dtype=float)[:6])
+    w5 = abs(wrap_pi(q5))
+    up = math.cos(q3 + _elbow_angle(kin))
+    return np.array([
+        min(w5, math.pi - w5),
+        math.asin(min(1.0, abs(up))),
+        abs(wrist_centre_offset(q2, q3, kin)) / _reach(kin),
+        math.pi - abs(wrap_pi(q1)), math.pi - abs(wrap_pi(q4)), math.pi - abs(wrap_pi(q6)),
+    ])
 
 
-def keeps_configuration(q_model_rad: np.ndarray, kin: ArmKinematics, ref: ArmConfiguration,
-                        margins: np.ndarray) -> np.ndarray:
-    """For each row of ``q_model_rad`` (n, 6): same configuration as ``ref`` and at least ``margins``
-    (as :func:`boundary_distances`) from every boundary. Vectorised: the servo cycle checks whole
-    paths of joint vectors every cycle."""
-    q = np.atleast_2d(np.asarray(q_model_rad, dtype=float))
-    same, dist = _signs_and_distances(q, kin, ref)
-    return same & np.all(dist >= margins, axis=1)
+def wrist_centre_offset(q2: ArrayLike, q3: ArrayLike, kin: ArmKinematics) -> np.ndarray:
+    """Signed distance (m) of the wrist centre in front of the J1 axis in the arm's plane (> 0: Top)."""
+    phi = np.subtract(q2, q3)
+    return kin.a1 + kin.a2 * np.sin(q2) + kin.d4 * np.cos(phi) + kin.a3 * np.sin(phi)
 
 
-def _signs_and_distances(q: np.ndarray, kin: ArmKinematics, ref: ArmConfiguration | None = None
-                         ) -> tuple[np.ndarray, np.ndarray]:
-    """Per row: whether the configuration equals ``ref`` (all True without one), and the distances."""
-    q1, q2, q3, q4, q5, q6 = q[:, :6].T
-    elbow = math.hypot(kin.d4, kin.a3)
-    up = (kin.d4 * np.cos(q3) - kin.a3 * np.sin(q3)) / elbow  # = cos(q3 + atan2(a3, d4))
-    phi = q2 - q3
-    x_wrist = kin.a1 + kin.a2 * np.sin(q2) + kin.d4 * np.cos(phi) + kin.a3 * np.sin(phi)
+def _elbow_angle(kin: ArmKinematics) -> float:
+    """psi: Up <=> cos(q3 + psi) > 0 (the module docstring's ``d4 cos q3 - a3 sin q3 > 0``)."""
+    return math.atan2(kin.a3, kin.d4)
 
-    def wrap(a: np.ndarray) -> np.ndarray:
-        return np.remainder(a + np.pi, 2 * np.pi) - np.pi  # [-pi, pi)
 
-    def turns(a: np.ndarray) -> np.ndarray:
-        return np.ceil((a - np.pi) / (2 * np.pi)).astype(int)  # k with a in (-pi + 2 pi k, pi + 2 pi k]
+def _reach(kin: ArmKinematics) -> float:
+    return kin.a2 + math.hypot(kin.d4, kin.a3)
 
-    w5 = wrap(q5)
-    dist = np.stack([
-        np.minimum(np.abs(w5), np.pi - np.abs(w5)),
-        np.arcsin(np.minimum(1.0, np.abs(up))),
-        np.abs(x_wrist) / (kin.a2 + elbow),
-        np.pi - np.abs(wrap(q1)), np.pi - np.abs(wrap(q4)), np.pi - np.abs(wrap(q6)),
-    ], axis=1)
-    if ref is None:
-        return np.ones(len(q), dtype=bool), dist
-    same = ((w5 > 0) == ref.flip) & ((up > 0) == ref.up) & ((x_wrist > 0) == ref.top)
-    same &= (turns(q1) == ref.turn1) & (turns(q4) == ref.turn4) & (turns(q6) == ref.turn6)
-    return same, dist
+
+@dataclass(frozen=True)
+class ConfigurationRegion:
+    """The joint vectors (model rad) that keep ``reference``, each boundary at least a margin away.
+
+    Every boundary but Top/Bottom is an interval of one joint: flip keeps J5 between 0 and +-180 deg,
+    up/down keeps q3 within 90 deg of the elbow's centre line, a turn number keeps J1, J4 or J6
+    inside its 360-degree turn. So the region is a joint box ``[lower, upper]`` (also the joint ranges
+    after :meth:`within`) plus the wrist centre's side of the J1 axis. Checking a path is a few
+    vectorised comparisons, cheap enough to run on dozens of points every cycle.
+    """
+
+    reference: ArmConfiguration
+    lower: np.ndarray  # (6,) model rad, inclusive
+    upper: np.ndarray
+    top_margin_m: float  # the wrist centre stays at least this far on its side of the J1 axis
+    kin: ArmKinematics
+
+    @classmethod
+    def around(cls, q_model_rad: ArrayLike, kin: ArmKinematics, margins: ArrayLike) -> ConfigurationRegion:
+        """The region of ``q``'s configuration; ``margins`` in :func:`boundary_distances`' order and units."""
+        q = np.asarray(q_model_rad, dtype=float)[:6]
+        m_flip, m_up, m_top, m1, m4, m6 = (float(v) for v in np.asarray(margins, dtype=float))
+        ref = configuration_of(q, kin)
+        lo = np.full(6, -np.inf)
+        hi = np.full(6, np.inf)
+        for i, k, m in ((0, ref.turn1, m1), (3, ref.turn4, m4), (5, ref.turn6, m6)):
+            lo[i], hi[i] = -math.pi + TWO_PI * k + m, math.pi + TWO_PI * k - m
+        k5 = turn_number(float(q[4]))  # flip: the sign of J5 wrapped into (-180, 180]
+        lo[4], hi[4] = ((TWO_PI * k5 + m_flip, TWO_PI * k5 + math.pi - m_flip) if ref.flip
+                        else (TWO_PI * k5 - math.pi + m_flip, TWO_PI * k5 - m_flip))
+        psi = _elbow_angle(kin)
+        centre = 0.0 if ref.up else math.pi
+        mid = centre + TWO_PI * round((float(q[2]) + psi - centre) / TWO_PI) - psi
+        lo[2], hi[2] = mid - math.pi / 2 + m_up, mid + math.pi / 2 - m_up
+        return cls(ref, lo, hi, m_top * _reach(kin), kin)
+
+    def within(self, lower: ArrayLike, upper: ArrayLike) -> ConfigurationRegion:
+        """This region cut to the joint ranges ``[lower, upper]`` (model rad)."""
+        return replace(self, lower=np.maximum(self.lower, lower), upper=np.minimum(self.upper, upper))
+
+    def contains(self, q_model_rad: np.ndarray) -> np.ndarray:
+        """Per row of ``q`` ((n, 6) or (6,)): inside the box and on the reference's side of the J1 axis."""
+        q = np.atleast_2d(q_model_rad)[:, :6]
+        ok = np.all((q >= self.lower) & (q <= self.upper), axis=1)
+        x = wrist_centre_offset(q[:, 1], q[:, 2], self.kin)
+        side = x > 0.0 if self.reference.top else x <= 0.0
+        return ok & side & (np.abs(x) >= self.top_margin_m)
