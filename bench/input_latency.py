@@ -23,7 +23,6 @@ Prints a table and writes its section of bench/RESULTS.md with the command line.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import multiprocessing as mp
 import os
 import queue
@@ -39,6 +38,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from servo_app.realtime import make_realtime
 
 sys.path.insert(0, str(Path(__file__).parent))
 from results import write_section
@@ -122,8 +123,7 @@ def _relay(sim: tuple[str, int], port_out: Any, records: Any, stop: Any) -> None
     from servo_app.fanuc.packets import Command, decode_from_pc
 
     # As the servo process does: a relay preempted for 24 ms would starve the controller (MOTN-603).
-    with contextlib.suppress(PermissionError, OSError, AttributeError):
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(20))
+    make_realtime(20)
     down = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     down.bind(("127.0.0.1", 0))
     up = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -394,14 +394,6 @@ def run_trials(name: str, stim: Stimulus, amplitude: float, relay: Relay, slot_w
             "to_packet": np.array(to_packet) * 1e3, "missed": missed, "interruptions": interruptions}
 
 
-def realtime(pid: int | None, priority: int) -> None:
-    """SCHED_FIFO for every thread of a process, as the service gives its embedded simulator: the
-    controller must not be the one starved here (best effort)."""
-    with contextlib.suppress(OSError, AttributeError, TypeError):
-        for tid in os.listdir(f"/proc/{pid}/task"):
-            os.sched_setscheduler(int(tid), os.SCHED_FIFO, os.sched_param(priority))
-
-
 def serve(app: Any) -> tuple[Any, threading.Thread, int]:
     import uvicorn
 
@@ -435,7 +427,7 @@ def main(argv: list[str] | None = None) -> int:
 
     stims: dict[str, Stimulus] = {"spacenav": Spacenav(sock).start()}
     sim = SimulatorProcess(model="lrmate200id", port=0, initial_joints=HOME).start()
-    realtime(sim.process.pid, 10)
+    make_realtime(10, sim.process.pid)  # as the service gives its embedded simulator
     relay = Relay(sim.address)
     service = ServoService(ServiceConfig(robot=f"fanuc:127.0.0.1:{relay.port}", var_dir=tmp, inputs_config=cfg_path))
     results: list[dict[str, Any]] = []

@@ -13,7 +13,6 @@ alarm list and forwards new alarms to the servo process at once, whether or not 
 from __future__ import annotations
 
 import contextlib
-import os
 import signal
 import threading
 import time
@@ -29,6 +28,7 @@ from servo_app.janome.profile import available_janome_profiles, load_janome_prof
 from servo_app.janome.runner import DEFAULT_PORT as JANOME_PORT
 from servo_app.motion.limit_tables import default_tables
 from servo_app.motion.servo import CommandRejected
+from servo_app.realtime import make_realtime
 from servo_app.robots.profile import load_profile
 
 IO_SPAN = 16  # a command packet's read or write covers 16 points from its index (manual 61.7)
@@ -36,18 +36,6 @@ IO_SPAN = 16  # a command packet's read or write covers 16 points from its index
 # The embedded simulator's assigned I/O (points per type). SI/SO/WI/WO/WSI/WSO are not assigned
 # there, and UI/UO drive the controller itself: not offered.
 DEFAULT_IO_ALLOW: dict[str, int] = {"DI": 512, "DO": 512, "RI": 8, "RO": 8, "F": 1024, "M": 1024}
-
-
-def _make_realtime(pid: int | None, priority: int | None) -> str:
-    """SCHED_FIFO for every thread of process ``pid`` (Linux; best effort, as for the servo process)."""
-    if priority is None or pid is None:
-        return "not requested"
-    try:
-        for tid in os.listdir(f"/proc/{pid}/task"):
-            os.sched_setscheduler(int(tid), os.SCHED_FIFO, os.sched_param(priority))
-    except (OSError, AttributeError) as exc:
-        return f"unavailable ({exc}); running at normal priority"
-    return f"SCHED_FIFO {priority}"
 
 
 class InvalidRequest(ValueError):
@@ -214,7 +202,7 @@ class ServoService:
                 sim.start()
             finally:
                 signal.signal(signal.SIGINT, old)
-        self.sim_scheduling = _make_realtime(sim.process.pid, self.cfg.sim_realtime_priority)
+        self.sim_scheduling = make_realtime(self.cfg.sim_realtime_priority, sim.process.pid)
         return sim
 
     def close(self, group_signal_wait_s: float = 0.0) -> dict[str, Any]:

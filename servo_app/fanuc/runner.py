@@ -34,6 +34,7 @@ from servo_app.input_slot import InputSlotReader
 from servo_app.ipc import LatestValueSlot
 from servo_app.motion.servo import CommandRejected, ServoCycle, ServoSettings
 from servo_app.process_handle import ServoProcessHandle, run_child
+from servo_app.realtime import make_realtime
 from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.profile import load_profile
 from servo_app.safety import Mode
@@ -131,7 +132,7 @@ class _ServoProcess:
         # Warm up first: it is CPU-bound for most of a second, and at SCHED_FIFO it would starve every
         # normal process on its core (a simulator there went silent for 100 ms: MOTN-603).
         self._warm_up()
-        realtime = _make_realtime(self.cfg.realtime_priority)
+        realtime = make_realtime(self.cfg.realtime_priority)
         # Objects made at start-up never become garbage: keep them out of the collector's scans.
         gc.collect()
         gc.freeze()
@@ -337,17 +338,6 @@ class _ServoProcess:
             sv.set("acc", a[-1])
             sv.set("jerk", j[-1])
         self.slot.write(sv.data)
-
-
-def _make_realtime(priority: int | None) -> str:
-    """Ask for SCHED_FIFO: a status packet then wakes the cycle ahead of ordinary load on the machine."""
-    if priority is None:
-        return "not requested"
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except (PermissionError, OSError, AttributeError) as exc:
-        return f"unavailable ({exc}); running at normal priority"
-    return f"SCHED_FIFO {priority}"
 
 
 def _io_type(value: Any) -> int:

@@ -245,7 +245,7 @@ class DifferentialIK:
 
         self._dq_prev = np.zeros(N)
         self._started = False
-        self._ref: np.ndarray | None = None  # integrated TCP reference pose (4x4), Cartesian modes
+        self._ref: np.ndarray | None = None  # integrated TCP reference pose (wxyz_xyz), Cartesian modes
         self._last_xi: np.ndarray | None = None  # last commanded twist: the line to brake along
         self._mode = ""
 
@@ -293,7 +293,7 @@ class DifferentialIK:
         s_sing = 1.0
         xi: np.ndarray | None = None  # base-frame twist the frame task follows (Cartesian modes)
         arrived = False
-        moving = bool(np.any(self._dq_prev))
+        moving = bool(self._dq_prev.any())
         cartesian_stop = command is None and self._last_xi is not None and moving
 
         if isinstance(command, Twist | PoseTarget) or cartesian_stop:
@@ -309,7 +309,7 @@ class DifferentialIK:
             cartesian_mode = mode if mode != "stop" else self._mode
             if self._mode != cartesian_mode or self._ref is None or not self._near(self._ref, tcp):
                 self._ref = tcp
-            if np.any(xi):
+            if xi.any():
                 s_sing = self._singularity_factor(q, xi, kappa)
                 if s_sing < 1.0:
                     flags |= IkFlag.SINGULARITY_SLOWDOWN
@@ -320,10 +320,10 @@ class DifferentialIK:
                 xi, s_goal = self._last_xi, 0.0  # brake along the last commanded Cartesian line
             else:
                 s_goal, self._last_xi = 0.0, None
-            target = mink.SE3.from_matrix(_advance(self._ref, xi * dt))
+            target = mink.SE3(_advance(self._ref, xi * dt))
             self.frame_task.set_target(target)
             tasks: list[mink.Task] = [self.frame_task, self.posture_task]
-            asks_motion = bool(np.any(xi))
+            asks_motion = bool(xi.any())
             state_mode = cartesian_mode
         else:
             self._ref = None
@@ -340,25 +340,26 @@ class DifferentialIK:
                 raise TypeError(f"command={command!r} is not a motion command")
             self.joint_task.set_target(self._full_q(q + d_des))
             tasks = [self.joint_task]
-            asks_motion = bool(np.any(d_des))
+            asks_motion = bool(d_des.any())
             s_goal = 1.0 if asks_motion else 0.0
             state_mode = mode
         if arrived:
             flags |= IkFlag.ARRIVED
         self._mode = state_mode  # a Cartesian stop keeps its mode: the reference pose stays valid
 
+        # d: the increment the command asks for (P is positive definite). Part of d only pulls the TCP
+        # back onto the integrated reference (drift, linearisation): d_corr, the optimum for the
+        # reference itself. It is added unscaled so that scaling the command (even below 0 while
+        # reversing) never turns the correction into a push away from the line.
         p, c, task_c = self._objective_terms(tasks)
-        d = np.linalg.solve(p, -c)  # the increment the command asks for (P is positive definite)
-        # Part of d only pulls the TCP back onto the integrated reference (drift, linearisation);
-        # it is added unscaled so that scaling the command (even below 0 while reversing) never
-        # turns the correction into a push away from the line.
-        d_corr = np.zeros(N)
         if xi is not None and asks_motion and self._ref is not None:
             # Only the frame task's linear term depends on its target: swap that term alone.
-            self.frame_task.set_target(mink.SE3.from_matrix(self._ref))
+            self.frame_task.set_target(mink.SE3(self._ref))
             c_ref = c - task_c[0] + self.frame_task.compute_qp_objective(cfg).c
-            d_corr = np.linalg.solve(p, -c_ref)
             self.frame_task.set_target(target)
+            d, d_corr = np.linalg.solve(p, -np.column_stack([c, c_ref])).T
+        else:
+            d, d_corr = np.linalg.solve(p, -c), np.zeros(N)
         # Keep the direction: the commanded one (s -> 1), or while braking the current line (s -> 0).
         direction = d - d_corr if asks_motion else self._dq_prev
         self.path_braking.set_direction(direction)
@@ -368,7 +369,7 @@ class DifferentialIK:
         solver_status = ""
         dq: np.ndarray | None = None
         s = _path_scale(direction, s_goal, g, h_path - g @ d_corr)
-        if s is None and np.any(d_corr):
+        if s is None and d_corr.any():
             d_corr = np.zeros(N)  # the correction does not fit this cycle: the line alone
             s = _path_scale(direction, s_goal, g, h_path)
         if s is not None:  # 1. on the line
@@ -400,7 +401,7 @@ class DifferentialIK:
         dd = float(d @ d)
         scale = min(max(float(dq @ d) / dd, 0.0), 1.0) * s_sing if s_goal == 1.0 and dd > 0.0 else 0.0
         flags |= self._binding_flags(g, h, dq)
-        if not np.all(np.isfinite(dq)):  # defensive: every branch above is finite by construction
+        if not np.isfinite(dq).all():  # defensive: every branch above is finite by construction
             dq = np.zeros(N)
             flags |= IkFlag.SOLVER_FAILED
         self._dq_prev = dq.copy()
@@ -440,7 +441,7 @@ class DifferentialIK:
         assert self._accel_rows is not None
         h_vel = h.copy()
         h_vel[self._accel_rows] = self.accel_limit.h_velocity
-        sigma = _path_scale(d, 1.0, g, h_vel) if np.any(d) else None
+        sigma = _path_scale(d, 1.0, g, h_vel) if d.any() else None
         target = d * min(max(sigma, 0.0), 1.0) if sigma is not None else np.zeros(N)
         base = self._dq_prev
         interval = _scale_interval(target - base, g, h - g @ base)
@@ -478,19 +479,20 @@ class DifferentialIK:
     def _twist_base(self, cmd: Twist, tcp: np.ndarray) -> np.ndarray:
         v = np.array(cmd.linear) / 1000.0
         w = np.radians(cmd.angular)
+        xi = np.concatenate([v, w])
         if cmd.frame == "tool":
-            r = tcp[:3, :3]
-            v, w = r @ v, r @ w
-        return np.concatenate([v, w])
+            for part in (xi[:3], xi[3:]):
+                mujoco.mju_rotVecQuat(part, part.copy(), tcp[:4])
+        return xi
 
     def _pose_twist(self, cmd: PoseTarget, tcp: np.ndarray) -> tuple[np.ndarray, bool]:
         """Straight-line P-control: one rate for translation and rotation (they arrive together),
         capped by the speed caps and by the speed from which the target can still be reached
         braking at the target accelerations."""
         st, dt = self.settings, self.dt
-        goal = xyzwpr_to_matrix(cmd.xyzwpr)
-        dp = goal[:3, 3] - tcp[:3, 3]
-        dth = _log_so3(goal[:3, :3] @ tcp[:3, :3].T)
+        goal = _pose_of_matrix(xyzwpr_to_matrix(cmd.xyzwpr))
+        dp = goal[4:] - tcp[4:]
+        dth = _rotation_between(goal, tcp)
         lin, ang = float(np.linalg.norm(dp)), float(np.linalg.norm(dth))
         if lin * 1000.0 < st.arrive_mm and math.degrees(ang) < st.arrive_deg:
             return np.zeros(6), True
@@ -537,7 +539,7 @@ class DifferentialIK:
         """1 away from singularities or when the command leaves them; slows an approach smoothly
         to 0 between the two thresholds."""
         st = self.settings
-        if kappa <= st.singularity_slow or not np.any(xi):
+        if kappa <= st.singularity_slow or not xi.any():
             return 1.0
         # Joint direction of the command: damped least squares on the TCP Jacobian (world frame).
         jac = np.empty((6, N))
@@ -613,26 +615,27 @@ class DifferentialIK:
         slack = h - g @ dq
         tol = self.settings.binding_tol + 1e-6 * np.abs(h)
         binding = np.isfinite(h) & (slack <= tol)
-        out = IkFlag(int(np.bitwise_or.reduce(self._row_flags[binding]))) if np.any(binding) else IkFlag.NONE
+        out = IkFlag(int(np.bitwise_or.reduce(self._row_flags[binding]))) if binding.any() else IkFlag.NONE
         if self._accel_rows is not None:
             vel_rows = self.accel_limit.velocity_bound & binding[self._accel_rows]
-            if np.any(vel_rows):
+            if vel_rows.any():
                 out |= IkFlag.VELOCITY_LIMIT
-            if not np.any(binding[self._accel_rows] & ~self.accel_limit.velocity_bound):
+            if not (binding[self._accel_rows] & ~self.accel_limit.velocity_bound).any():
                 out &= ~IkFlag.ACCEL_LIMIT
         return out
 
     def _site_pose(self, data: mujoco.MjData, site_id: int) -> np.ndarray:
-        t = np.eye(4)
-        t[:3, :3] = data.site_xmat[site_id].reshape(3, 3)
-        t[:3, 3] = data.site_xpos[site_id]
-        return t
+        """The site's pose as mink stores an SE3: quaternion (w x y z), then position."""
+        pose = np.empty(7)
+        mujoco.mju_mat2Quat(pose[:4], data.site_xmat[site_id])
+        pose[4:] = data.site_xpos[site_id]
+        return pose
 
     def _near(self, a: np.ndarray, b: np.ndarray) -> bool:
         tol = self.settings.reference_tolerance_m
-        if float(np.linalg.norm(a[:3, 3] - b[:3, 3])) > tol:
+        if float(np.linalg.norm(a[4:] - b[4:])) > tol:
             return False
-        return float(np.linalg.norm(_log_so3(a[:3, :3] @ b[:3, :3].T))) * self._reach <= tol
+        return float(np.linalg.norm(_rotation_between(a, b))) * self._reach <= tol
 
     def _full_q(self, q: np.ndarray) -> np.ndarray:
         full = self.configuration.data.qpos.copy()
@@ -644,7 +647,7 @@ class DifferentialIK:
         a = np.asarray(v, dtype=float)
         if a.shape != (N,):
             raise ValueError(f"{name} has shape {a.shape}, expected ({N},)")
-        if not np.all(np.isfinite(a)):
+        if not np.isfinite(a).all():
             i = int(np.flatnonzero(~np.isfinite(a))[0])
             raise ValueError(f"{name}[{i}]={a[i]} is not a finite number")
         return a.copy()
@@ -656,10 +659,10 @@ def _scale_interval(direction: np.ndarray, g: np.ndarray, h: np.ndarray) -> tupl
     a = g @ direction
     tiny = 1e-15
     pos, neg, zero = a > tiny, a < -tiny, np.abs(a) <= tiny
-    if np.any(h[zero] < -1e-12):
+    if (h[zero] < -1e-12).any():
         return None
-    s_hi = float(np.min(h[pos] / a[pos])) if np.any(pos) else math.inf
-    s_lo = float(np.max(h[neg] / a[neg])) if np.any(neg) else -math.inf
+    s_hi = float(np.min(h[pos] / a[pos])) if pos.any() else math.inf
+    s_lo = float(np.max(h[neg] / a[neg])) if neg.any() else -math.inf
     return (s_lo, s_hi) if s_lo <= s_hi else None
 
 
@@ -672,29 +675,30 @@ def _path_scale(direction: np.ndarray, s_goal: float, g: np.ndarray, h: np.ndarr
     return s if math.isfinite(s) else None
 
 
+# Poses are 7-vectors as mink's SE3 stores them: unit quaternion (w x y z), then position (m).
+def _pose_of_matrix(t: np.ndarray) -> np.ndarray:
+    pose = np.empty(7)
+    mujoco.mju_mat2Quat(pose[:4], np.ascontiguousarray(t[:3, :3]).reshape(9))
+    pose[4:] = t[:3, 3]
+    return pose
+
+
 def _advance(pose: np.ndarray, xi_dt: np.ndarray) -> np.ndarray:
     """Pose moved by a base-frame displacement (translation of the TCP, rotation about the TCP)."""
-    out = pose.copy()
-    out[:3, 3] = pose[:3, 3] + xi_dt[:3]
-    out[:3, :3] = _exp_so3(xi_dt[3:]) @ pose[:3, :3]
+    turn = np.array([1.0, 0.0, 0.0, 0.0])
+    mujoco.mju_quatIntegrate(turn, xi_dt[3:], 1.0)  # exp of the rotation vector
+    out = np.empty(7)
+    mujoco.mju_mulQuat(out[:4], turn, pose[:4])  # base frame: applied on the left
+    out[4:] = pose[4:] + xi_dt[:3]
     return out
 
 
-def _exp_so3(w: np.ndarray) -> np.ndarray:
-    th = float(np.linalg.norm(w))
-    k = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    if th < 1e-9:
-        return np.eye(3) + k + 0.5 * k @ k
-    return np.eye(3) + (math.sin(th) / th) * k + ((1.0 - math.cos(th)) / (th * th)) * k @ k
-
-
-def _log_so3(r: np.ndarray) -> np.ndarray:
-    """Rotation vector of a rotation matrix (robust near 0 and pi)."""
-    quat = np.empty(4)
-    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(r).reshape(9))
-    if quat[0] < 0.0:
-        quat = -quat
-    s = float(np.linalg.norm(quat[1:]))
-    if s < 1e-12:
-        return 2.0 * quat[1:]
-    return quat[1:] * (2.0 * math.atan2(s, quat[0]) / s)
+def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Base-frame rotation vector taking pose ``b``'s orientation to ``a``'s (the shorter way)."""
+    b_inv = np.empty(4)
+    mujoco.mju_negQuat(b_inv, b[:4])
+    diff = np.empty(4)
+    mujoco.mju_mulQuat(diff, a[:4], b_inv)
+    w = np.empty(3)
+    mujoco.mju_quat2Vel(w, diff, 1.0)
+    return w

@@ -90,7 +90,7 @@ class PathBraking:
             return
         uf = np.abs(self.c @ u)
         moving = uf > 1e-12 * max(float(np.max(uf)), 1e-300)
-        if not np.any(moving):
+        if not moving.any():
             self.u, self.rate = None, math.inf
             return
         self.u = np.asarray(u, dtype=float).copy()

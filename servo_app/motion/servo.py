@@ -248,7 +248,7 @@ class ServoCycle:
         self.last_ik = res
         v = self.ik.velocity_fanuc_deg_s(res.velocity)
         v = v * self._stoppable_scale(q_f, v, shaper)
-        if self._cart is None and not np.any(res.dq) and not np.any(v_f):
+        if self._cart is None and not res.dq.any() and not v_f.any():
             self._cart_active = False  # braked to rest along the path
             shaper.stop("soft")
             return

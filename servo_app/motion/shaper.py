@@ -93,12 +93,12 @@ class ShaperLimits:
         if not (vel.shape == acc.shape == jerk.shape) or vel.ndim != 1:
             raise ValueError(f"vel/acc/jerk shapes differ: {vel.shape} {acc.shape} {jerk.shape}")
         for name, a in (("vel", vel), ("acc", acc), ("jerk", jerk)):
-            if not np.all(np.isfinite(a)) or np.any(a <= 0):
+            if not np.isfinite(a).all() or (a <= 0).any():
                 raise ValueError(f"{name} limits must be finite and positive, got {a}")
         if not 0.0 < self.fraction <= self.fast_fraction <= 1.0:
             raise ValueError(f"need 0 < fraction <= fast_fraction <= 1, got {self.fraction}, {self.fast_fraction}")
         pmax = _arr(self.pos_abs_max, len(vel))
-        if pmax.shape != vel.shape or np.any(pmax <= 0):
+        if pmax.shape != vel.shape or (pmax <= 0).any():
             raise ValueError(f"pos_abs_max must be positive, one per axis or scalar, got {self.pos_abs_max}")
         object.__setattr__(self, "vel", vel)
         object.__setattr__(self, "acc", acc)
@@ -148,7 +148,7 @@ class Envelope:
         plan_acc = (acc - na) * (1.0 - _PLAN_TOL)
         # A rounded state's braking peak exceeds the exact one by at most nv + na * (a / J) <= ...
         plan_vel = (brake_vel - nv - na * (acc / np.maximum(brake_jerk, 1e-300) + dt)) * (1.0 - _PLAN_TOL)
-        if np.any(plan_vel <= 0) or np.any(plan_acc <= 0) or np.any(plan_jerk <= 0):
+        if (plan_vel <= 0).any() or (plan_acc <= 0).any() or (plan_jerk <= 0).any():
             raise ValueError("float32 rounding at this position range and dt leaves no room within the "
                              f"limits (vel {vel}, acc {acc}, jerk {jerk}, dt {dt}, |q| <= {pos_abs_max})")
         rows = tuple(zip(*(x.tolist() for x in (vel, acc, jerk, brake_vel, brake_jerk * dt)), strict=True))
@@ -225,8 +225,8 @@ class DiscreteGuard:
     def state_feasible(self, env: Envelope) -> bool:
         """Is the current (v, a) within ``env`` with a feasible braking future? (for switching limits)"""
         up, down = _brake_peaks(self.v1, self.a1, env.brake_jerk, self.dt)
-        return bool(np.all((np.abs(self.v1) <= env.vel) & (np.abs(self.a1) <= env.acc)
-                           & (up <= env.brake_vel) & (down >= -env.brake_vel)))
+        return bool(((np.abs(self.v1) <= env.vel) & (np.abs(self.a1) <= env.acc)
+                     & (up <= env.brake_vel) & (down >= -env.brake_vel)).all())
 
     def brake_candidate(self, env: Envelope) -> np.ndarray:
         """Next position of a jerk-limited deceleration to rest per axis, from the emitted state: steer
@@ -437,7 +437,7 @@ class JointShaper:
         profile is not the time-optimal one.
         """
         q = _arr(q)
-        if q.shape != (self.n,) or not np.all(np.isfinite(q)):
+        if q.shape != (self.n,) or not np.isfinite(q).all():
             raise ValueError(f"expected {self.n} finite joint values, got {q}")
         if not 0.0 < max_vel_scale <= 1.0:
             raise ValueError(f"max_vel_scale must be in (0, 1], got {max_vel_scale}")
@@ -453,7 +453,7 @@ class JointShaper:
         """Reach joint velocity ``v`` (deg/s) jerk-limited; above the limit all axes are scaled by one
         factor, which keeps the direction."""
         v = _arr(v)
-        if v.shape != (self.n,) or not np.all(np.isfinite(v)):
+        if v.shape != (self.n,) or not np.isfinite(v).all():
             raise ValueError(f"expected {self.n} finite joint velocities, got {v}")
         self._select_plan("soft", 1.0)
         over = np.max(np.abs(v) / self._env["soft"].plan_vel)
@@ -511,9 +511,9 @@ class JointShaper:
         """Not moving, as the controller sees it (the last three positions equal) and internally, and
         no command pending."""
         p, v, a = self.state
-        return bool(self._finished and np.all(self.guard.v1 == 0.0) and np.all(self.guard.a1 == 0.0)
+        return bool(self._finished and (self.guard.v1 == 0.0).all() and (self.guard.a1 == 0.0).all()
                     and np.array_equal(self.guard.s1, to_f32(p))
-                    and np.all(np.abs(v) <= _REST_TOL) and np.all(np.abs(a) <= _REST_TOL))
+                    and (np.abs(v) <= _REST_TOL).all() and (np.abs(a) <= _REST_TOL).all())
 
     @property
     def mode(self) -> str:
