@@ -2,12 +2,13 @@
 
 The service runs as `servo-app run --inputs` would (inputs bridge and adapters in this process, the
 servo process and the FANUC simulator in their own), with a UDP relay process between the servo
-process and the simulator that time-stamps every command packet it forwards. Each trial waits until
+process and the simulator that time-stamps every command packet it forwards. The sensors run in a
+process of their own, as real devices are outside the service. Each trial waits until
 the commanded joints have been still for a while, then writes one sensor frame that asks for
 motion, with `time.monotonic()` (one clock for every process) taken just before the write:
 
 - serial: a force/torque frame into a pty (binary frames, CRC) -> admittance application;
-- CAN: the force frame on python-can's virtual bus (DBC decoded) -> admittance application;
+- CAN: the force frame through an slcan USB-CAN adapter (a pty; DBC decoded) -> admittance application;
 - HTTP: a twist POSTed to /api/feed/jog on the real uvicorn server;
 - spacenavd: a motion event on the daemon's UNIX socket -> teleop application.
 
@@ -23,6 +24,9 @@ Prints a table and writes its section of bench/RESULTS.md with the command line.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import gc
+import json
 import multiprocessing as mp
 import os
 import queue
@@ -51,8 +55,7 @@ TOKEN = "bench-token-0123456789"
 ADAPTERS = ("serial", "can", "http", "spacenav")
 
 CONFIG = """
-# Timeouts with room for a loaded machine: the sensors are threads of this process (latency does
-# not depend on them).
+# Timeouts with room for a loaded machine (latency does not depend on them).
 [adapters.spacenav]
 type = "spacenav"
 socket = "{sock}"
@@ -79,8 +82,10 @@ tz = {{ scale = 0.001 }}
 
 [adapters.ft_can]
 type = "can"
-interface = "virtual"
-channel = "{channel}"
+interface = "slcan"
+channel = "{can_pty}"
+bitrate = 500000
+bus_options = {{ sleep_after_open = 0 }}
 dbc = "{dbc}"
 messages = ["FT_Force", "FT_Torque"]
 stale_after_s = 0.15
@@ -221,9 +226,6 @@ class Stimulus:
             self.send(value)
             return t
 
-    def release(self) -> None:
-        self.step(0.0)
-
     def send(self, value: float) -> None:
         raise NotImplementedError
 
@@ -233,50 +235,88 @@ class Stimulus:
 
 
 class SerialFt(Stimulus):
+    """A force/torque sensor on a serial line (here the master side of a pty)."""
+
     period = 0.002  # 500 Hz, as such sensors stream
-    def __init__(self, master: int) -> None:
+
+    def __init__(self) -> None:
         from servo_app.inputs.serial_sensor.binary import FrameLayout
 
         super().__init__()
-        self.master = master
+        self.master, self._slave = os.openpty()  # our slave fd stays open: no hang-up between opens
+        self.path = os.ttyname(self._slave)
         self.layout = FrameLayout(b"\xaa\x55", "<6hB", ("fx", "fy", "fz", "tx", "ty", "tz", "status"), "crc16_modbus")
 
     def send(self, value: float) -> None:
         os.write(self.master, self.layout.encode([round(value * 100), 0, 0, 0, 0, 0, 0]))
 
 
-class CanFt(Stimulus):
-    period = 0.002
-    def __init__(self, channel: str) -> None:
-        import can
+class SlcanFt(Stimulus):
+    """A force/torque sensor on a CAN bus behind a USB-CAN adapter speaking slcan (the adapter's
+    side of a pty): answers the host's commands with CR, sends the force and torque frames."""
 
+    period = 0.002
+
+    def __init__(self) -> None:
         super().__init__()
-        self.can = can
-        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.master, self._slave = os.openpty()
+        self.path = os.ttyname(self._slave)
+        self._answering = threading.Thread(target=self._answer, daemon=True)
+        self._answering.start()
+
+    def _answer(self) -> None:
+        import select
+
+        while not self._stop.is_set():
+            if select.select([self.master], [], [], 0.1)[0]:
+                try:
+                    data = os.read(self.master, 1024)
+                except OSError:
+                    return
+                with self._lock:
+                    os.write(self.master, b"\r" * data.count(b"\r"))  # OK to every command
 
     def send(self, value: float) -> None:
         force = round(value * 100).to_bytes(2, "little", signed=True) + bytes(4)
-        self.bus.send(self.can.Message(arbitration_id=0x1A0, data=force, is_extended_id=False))
-        self.bus.send(self.can.Message(arbitration_id=0x1A1, data=bytes(6), is_extended_id=False))
-
-    def stop(self) -> None:
-        super().stop()
-        self.bus.shutdown()
+        os.write(self.master, f"t1A06{force.hex().upper()}\rt1A16{bytes(6).hex()}\r".encode())
 
 
 class HttpJog(Stimulus):
+    """A program posting twists to the HTTP feed over one kept-alive connection. The request is
+    written as bytes on the socket, so the time stamp taken before the write is the moment the
+    request leaves, not the start of an HTTP library's own work."""
+
     period = 0.02
 
     def __init__(self, base_url: str) -> None:
-        import httpx
-
         super().__init__()
-        self.http = httpx.Client(base_url=base_url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=5.0)
+        host, port = base_url.removeprefix("http://").split(":")
+        self.sock = socket.create_connection((host, int(port)))
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._reply = b""
 
     def send(self, value: float) -> None:
-        r = self.http.post("/api/feed/jog", json={"kind": "twist", "linear": [value, 0.0, 0.0], "frame": "base",
-                                                  "stamp": time.time()})
-        r.raise_for_status()
+        body = json.dumps({"kind": "twist", "linear": [value, 0.0, 0.0], "frame": "base", "stamp": time.time()})
+        self.sock.sendall((f"POST /api/feed/jog HTTP/1.1\r\nHost: bench\r\nAuthorization: Bearer {TOKEN}\r\n"
+                           f"Content-Type: application/json\r\nContent-Length: {len(body)}\r\n\r\n{body}").encode())
+        self._read_reply()
+
+    def _read_reply(self) -> None:
+        while b"\r\n\r\n" not in self._reply:
+            self._reply += self.sock.recv(4096)
+        head, rest = self._reply.split(b"\r\n\r\n", 1)
+        status = head.split(b" ", 2)[1]
+        length = next(int(line.split(b":")[1]) for line in head.split(b"\r\n")
+                      if line.lower().startswith(b"content-length"))
+        while len(rest) < length:
+            rest += self.sock.recv(4096)
+        self._reply = rest[length:]
+        if status != b"200":
+            raise RuntimeError(f"feed answered {status.decode()}: {rest[:length].decode()}")
+
+    def stop(self) -> None:
+        super().stop()
+        self.sock.close()
 
 
 class Spacenav(Stimulus):
@@ -303,6 +343,56 @@ class Spacenav(Stimulus):
         if self.conn is not None:
             self.conn.close()
         self.srv.close()
+
+
+def _sensors_main(conn: Any, spacenav_socket: str) -> None:
+    """The sensors, in a process of their own as real ones are (their streaming threads must not
+    share the service's GIL). Commands over `conn`: ("http", url), ("step", name, value) -> the
+    monotonic time just before the frame was written, ("stop",)."""
+    stims: dict[str, Stimulus] = {"spacenav": Spacenav(spacenav_socket).start(), "serial": SerialFt().start(),
+                                  "can": SlcanFt().start()}
+    conn.send({"serial": stims["serial"].path, "can": stims["can"].path})  # type: ignore[attr-defined]
+    try:
+        while True:
+            msg = conn.recv()
+            if msg[0] == "http":
+                stims["http"] = HttpJog(msg[1]).start()
+                conn.send(None)
+            elif msg[0] == "step":
+                conn.send(stims[msg[1]].step(msg[2]))
+            else:
+                break
+    finally:
+        for stim in stims.values():
+            stim.stop()
+
+
+class Sensors:
+    """The parent's handle on the sensors' process."""
+
+    def __init__(self, spacenav_socket: str) -> None:
+        ctx = mp.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self.process = ctx.Process(target=_sensors_main, args=(child, spacenav_socket), daemon=True)
+        self.process.start()
+        if not self._conn.poll(30):
+            raise TimeoutError("the sensors' process did not start")
+        self.paths: dict[str, str] = self._conn.recv()
+
+    def start_http(self, base_url: str) -> None:
+        self._conn.send(("http", base_url))
+        self._conn.recv()
+
+    def step(self, name: str, value: float) -> float:
+        self._conn.send(("step", name, value))
+        return float(self._conn.recv())
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self._conn.send(("stop",))
+        self.process.join(5)
+        if self.process.is_alive():
+            self.process.kill()
 
 
 # -------------------------------------------------------------------------------------- the trials
@@ -359,7 +449,7 @@ def streaming(service: Any, sim: Any) -> str | None:
     return what
 
 
-def run_trials(name: str, stim: Stimulus, amplitude: float, relay: Relay, slot_writes: list[tuple[float, Any]],
+def run_trials(name: str, sensors: Sensors, amplitude: float, relay: Relay, slot_writes: list[tuple[float, Any]],
                trials: int, recover: Callable[[], str | None]) -> dict[str, Any]:
     total, to_slot, to_packet = [], [], []
     missed = 0
@@ -379,9 +469,9 @@ def run_trials(name: str, stim: Stimulus, amplitude: float, relay: Relay, slot_w
         time.sleep(random.uniform(0.0, 0.008))  # any phase of the control cycle
         sign = 1.0 if k % 2 == 0 else -1.0  # back and forth around the start
         index = relay.count()
-        t_w = stim.step(sign * amplitude)
+        t_w = sensors.step(name, sign * amplitude)
         t_cmd = first_change(relay, index, t_w, rest)
-        stim.release()
+        sensors.step(name, 0.0)
         if t_cmd is None:
             missed += 1
             continue
@@ -419,13 +509,10 @@ def main(argv: list[str] | None = None) -> int:
 
     tmp = Path(tempfile.mkdtemp(prefix="input-latency-"))
     sock = f"/tmp/spnav-bench-{os.getpid()}.sock"
-    master, slave = os.openpty()
-    pty = os.ttyname(slave)
-    channel = f"bench-{os.getpid()}"
+    sensors = Sensors(sock)
     cfg_path = tmp / "inputs.toml"
-    cfg_path.write_text(CONFIG.format(sock=sock, pty=pty, channel=channel, dbc=DBC))
+    cfg_path.write_text(CONFIG.format(sock=sock, pty=sensors.paths["serial"], can_pty=sensors.paths["can"], dbc=DBC))
 
-    stims: dict[str, Stimulus] = {"spacenav": Spacenav(sock).start()}
     sim = SimulatorProcess(model="lrmate200id", port=0, initial_joints=HOME).start()
     make_realtime(10, sim.process.pid)  # as the service gives its embedded simulator
     relay = Relay(sim.address)
@@ -445,15 +532,16 @@ def main(argv: list[str] | None = None) -> int:
 
         bridge.writer.publish = recorded
         server, _, port = serve(create_app(service, TOKEN))
-        stims.update(serial=SerialFt(master).start(), can=CanFt(channel).start(),
-                     http=HttpJog(f"http://127.0.0.1:{port}").start())
+        sensors.start_http(f"http://127.0.0.1:{port}")
         service.request("start")
         service.wait_state("streaming", 15.0)
+        gc.collect()  # as `servo-app run` does before serving
+        gc.freeze()
         bridge.enable(True)
         time.sleep(0.5)
         amplitude = {"serial": 13.0, "can": 13.0, "http": 20.0, "spacenav": 150.0}  # 20 mm/s-ish each
         for name in chosen:
-            results.append(run_trials(name, stims[name], amplitude[name], relay, slot_writes, args.trials,
+            results.append(run_trials(name, sensors, amplitude[name], relay, slot_writes, args.trials,
                                       lambda: streaming(service, sim)))
             r = results[-1]
             print(f"{name}: {r['total'].size} responses, {r['missed']} missed, {r['to_slot'].size} split at the slot, "
@@ -461,15 +549,12 @@ def main(argv: list[str] | None = None) -> int:
         st = service.state_vector()
         alarms = [e["code"] for e in sim.events()]
     finally:
-        for s in stims.values():
-            s.stop()
+        sensors.close()
         if server is not None:
             server.should_exit = True
         service.close()
         relay.close()
         sim.stop()
-        os.close(master)
-        os.close(slave)
         Path(sock).unlink(missing_ok=True)
 
     interval_ms = 8.0
@@ -498,11 +583,13 @@ def main(argv: list[str] | None = None) -> int:
             f"run: p50 {solve_p50:.2f} ms, p99 {solve_p99:.2f} ms, so {budget:.2f} ms at p99. slot -> packet is the "
             f"wait for the next status packet (uniform over the interval) plus the solve: the floor, since J519 "
             f"takes exactly one command per status packet. frame -> slot is the adapter thread's wake-up and "
-            f"parsing, then (in that thread) the application and the arbitration; this process also runs uvicorn "
-            f"and the stimulus threads (sensors streaming at 500 Hz), so GIL hand-overs are in the tail (the bridge "
-            f"sets a 1 ms switch interval: at the default 5 ms the frame -> slot p99 was 3-4 ms). HTTP adds "
-            f"FastAPI's request handling in front. The simulator and the relay run at SCHED_FIFO, as the service "
-            f"runs its embedded simulator. Simulator alarms: {alarms or 'none'}"
+            f"parsing, then (in that thread) the application and the arbitration; the API process also runs "
+            f"uvicorn, so GIL hand-overs are in the tail (the bridge sets a 1 ms switch interval). HTTP adds "
+            f"FastAPI's request handling in front. The sensors (serial F/T at 500 Hz on a pty, CAN F/T at 500 Hz "
+            f"through an slcan adapter on a pty, spacenavd's socket, an HTTP client) run in a process of their own, "
+            f"as real devices do. The simulator and the relay run at SCHED_FIFO, as the service runs its embedded "
+            f"simulator; each adapter's reader thread runs at SCHED_FIFO 5 (its default), and start-up objects are "
+            f"frozen out of the garbage collector, as `servo-app run` does. Simulator alarms: {alarms or 'none'}"
             + (f" (the stream was interrupted {n_int} times, each reset and restarted: the simulator is an ordinary "
                f"process on a loaded shared machine)." if (n_int := sum(len(r["interruptions"]) for r in results))
                else "."))

@@ -21,6 +21,7 @@ from typing import Any
 
 from servo_app.ipc import LatestValueSlot
 from servo_app.motion.servo import CommandRejected
+from servo_app.realtime import single_threaded_blas
 from servo_app.state import STATE_SIZE, decode_state
 
 
@@ -50,7 +51,8 @@ class ServoProcessHandle:
 
     def start(self, timeout: float = 30.0) -> dict[str, Any]:
         """Start the process; returns its ``ready`` event."""
-        self.process.start()
+        with single_threaded_blas():
+            self.process.start()
         return self.wait_event("ready", timeout)
 
     def request(self, op: str, timeout: float = 2.0, **kw: Any) -> Any:

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
+from collections.abc import Iterator
 
 
 def make_realtime(priority: int | None, pid: int | None = None) -> str:
@@ -20,3 +23,56 @@ def make_realtime(priority: int | None, pid: int | None = None) -> str:
     except (OSError, AttributeError) as exc:  # PermissionError is an OSError
         return f"unavailable ({exc}); running at normal priority"
     return f"SCHED_FIFO {priority}"
+
+
+class WakeLatencyHold:
+    """Keeps the CPUs out of idle states slower to leave than ``max_us`` for as long as it is open
+    (Linux PM QoS, ``/dev/cpu_dma_latency``; 0: only polling idle), as real-time control loops do.
+
+    The servo cycle sleeps in ``recv`` for most of each interval. Woken from a deep idle state (on a
+    virtual machine: a halted vCPU the host has descheduled), its first microseconds run slowly
+    with cold caches: measured here, a cycle's compute after 7.5 ms asleep took about twice as long
+    without the hold as with it. Best effort: without the privilege, ``status`` says so.
+    """
+
+    PATH = "/dev/cpu_dma_latency"
+
+    def __init__(self, max_us: int | None) -> None:
+        self._fd: int | None = None
+        if max_us is None:
+            self.status = "not requested"
+            return
+        try:
+            self._fd = os.open(self.PATH, os.O_WRONLY)
+            os.write(self._fd, int(max_us).to_bytes(4, sys.byteorder, signed=True))
+        except OSError as exc:
+            self.close()
+            self.status = f"unavailable ({exc})"
+        else:
+            self.status = f"cpu wake-up latency held at {max_us} us"
+
+    def close(self) -> None:
+        """Release the hold (closing the file is what ends it)."""
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+
+BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def single_threaded_blas() -> Iterator[None]:
+    """Around starting a (spawned) real-time process: its numpy then does linear algebra in the
+    calling thread. OpenBLAS otherwise starts worker threads at normal priority, and a cycle at
+    SCHED_FIFO that hands a 6x6 SVD to one waits for it to be scheduled."""
+    saved = {k: os.environ.get(k) for k in BLAS_THREAD_VARS}
+    os.environ.update({k: "1" for k in BLAS_THREAD_VARS})
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import gc
 import signal
 from pathlib import Path
 from typing import Any
@@ -62,6 +63,11 @@ def run(args: argparse.Namespace) -> int:
     received: list[int] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda signum, frame: received.append(signum))
+    # Start-up objects (FastAPI, pydantic, numpy, mujoco: ~100,000) never become garbage: keep them
+    # out of the collector's scans. A full collection over them held the GIL for ~60 ms here,
+    # stalling every input adapter's thread.
+    gc.collect()
+    gc.freeze()
     try:
         server.run()  # returns on SIGINT/SIGTERM
     finally:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ast
 import math
+import os
 import threading
 from pathlib import Path
 from typing import Any, Literal
@@ -264,6 +265,30 @@ def test_adapter_thread_survives_bugs_and_reconnects() -> None:
         st2 = a.status()
         assert st2.connects >= 2 and st2.problems["disconnected"] >= 1
     assert not a.running and not a.connected
+
+
+def test_adapter_thread_runs_at_its_configured_scheduling() -> None:
+    """The reader thread asks for SCHED_FIFO (a frame is read as it arrives, ahead of ordinary work);
+    0 leaves it at normal priority. Without the privilege it says so and keeps running."""
+    for priority, expected in ((7, ("SCHED_FIFO 7", "unavailable")), (0, ("normal priority",))):
+        a = create_adapter({"type": "counting", "name": f"c{priority}", "realtime_priority": priority})
+        policy: list[int] = []
+        original = a._open
+
+        def open_and_note(original=original, policy=policy) -> None:
+            policy.append(os.sched_getscheduler(0))  # the adapter's own thread
+            original()
+
+        a._open = open_and_note  # type: ignore[method-assign]
+        with a:
+            assert a.output.wait_newer(1, timeout=20.0) is not None
+        assert a.scheduling.startswith(expected)
+        if a.scheduling.startswith("SCHED_FIFO"):
+            assert policy[0] == os.SCHED_FIFO
+        if priority == 0:
+            assert policy[0] == os.SCHED_OTHER
+    with pytest.raises(ConfigError, match=r"realtime_priority = 100"):
+        create_adapter({"type": "counting", "name": "c", "realtime_priority": 100})
 
 
 def test_example_configs_load() -> None:

@@ -12,7 +12,7 @@ does not (a token in a URL ends up in logs and browser history).
 
 # No `from __future__ import annotations`: FastAPI resolves the dependency annotations at runtime.
 import secrets
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, FastAPI, HTTPException, WebSocketException, status
@@ -34,10 +34,14 @@ class ZeroRequest(BaseModel):
     samples: int | None = Field(None, ge=1, le=1000, description="samples averaged into the bias (default: configured)")
 
 
-def connection_auth(token: str, on_refused: Callable[[HTTPConnection], None]) -> Callable[[HTTPConnection], str]:
-    """Bearer header for HTTP; bearer header or ``?token=`` for WebSockets."""
+def connection_auth(token: str, on_refused: Callable[[HTTPConnection], None]
+                    ) -> Callable[[HTTPConnection], Awaitable[str]]:
+    """Bearer header for HTTP; bearer header or ``?token=`` for WebSockets.
 
-    def check(conn: HTTPConnection) -> str:
+    A coroutine on purpose: FastAPI runs a plain-function dependency in its thread pool, and that
+    hop (and the GIL hand-overs around it) sat in front of every feed sample's latency."""
+
+    async def check(conn: HTTPConnection) -> str:
         ok = token_matches(token, conn.headers.get("authorization"))
         is_ws = conn.scope["type"] == "websocket"
         query = conn.query_params.get("token")

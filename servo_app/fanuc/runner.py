@@ -34,7 +34,7 @@ from servo_app.input_slot import InputSlotReader
 from servo_app.ipc import LatestValueSlot
 from servo_app.motion.servo import CommandRejected, ServoCycle, ServoSettings
 from servo_app.process_handle import ServoProcessHandle, run_child
-from servo_app.realtime import make_realtime
+from servo_app.realtime import WakeLatencyHold, make_realtime
 from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.profile import load_profile
 from servo_app.safety import Mode
@@ -58,6 +58,7 @@ class StreamConfig:
     status_timeout_s: float = 0.1
     late_threshold_ms: float | None = None  # None: half an interval
     realtime_priority: int | None = 20  # SCHED_FIFO priority for the servo process; None: leave as is
+    wake_latency_us: int | None = 0  # CPU idle-state exit latency held while streaming; None: leave as is
     input_slot: str | None = None  # shared-memory name of the inputs bridge's live command
     data_format: str = "joint"  # "joint", or "cartesian": the flange pose of the shaped joints (format 0)
     extra: dict[str, Any] = field(default_factory=dict)
@@ -133,14 +134,16 @@ class _ServoProcess:
         # normal process on its core (a simulator there went silent for 100 ms: MOTN-603).
         self._warm_up()
         realtime = make_realtime(self.cfg.realtime_priority)
+        wake = WakeLatencyHold(self.cfg.wake_latency_us)
         # Objects made at start-up never become garbage: keep them out of the collector's scans.
         gc.collect()
         gc.freeze()
-        self._event("ready", pid=os.getpid(), realtime=realtime)
+        self._event("ready", pid=os.getpid(), realtime=f"{realtime}; {wake.status}")
         try:
             while not self.quit:
                 self._step()
         finally:
+            wake.close()
             self._finish_log()
             self.sock.close()
             self.slot.close()

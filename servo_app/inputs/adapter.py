@@ -24,6 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
 from servo_app.inputs.problems import Problem, ProblemLog
 from servo_app.inputs.samples import ButtonEvent
 from servo_app.inputs.slots import EventQueue, LatestValue
+from servo_app.realtime import make_realtime
 
 Clock = Callable[[], float]
 
@@ -45,6 +46,9 @@ class AdapterConfig(BaseModel):
     poll_timeout_s: PositiveFloat = 0.05
     reconnect_min_s: PositiveFloat = 0.2
     reconnect_max_s: PositiveFloat = 5.0
+    # SCHED_FIFO priority of the adapter's thread (0: normal scheduling). Above ordinary work, so a
+    # frame is read as it arrives; below the servo process (20) and the embedded simulator (10).
+    realtime_priority: int = Field(5, ge=0, le=99)
 
 
 @dataclass(frozen=True)
@@ -89,6 +93,7 @@ class InputAdapter(ABC):
         self._thread: threading.Thread | None = None
         self._connected = False
         self._connects = 0
+        self.scheduling = "not started"  # what the thread got: SCHED_FIFO or normal priority
 
     # -- identity -------------------------------------------------------------------------------
     @property
@@ -150,6 +155,8 @@ class InputAdapter(ABC):
         self.stop()
 
     def _run(self) -> None:
+        priority = self.config.realtime_priority
+        self.scheduling = make_realtime(priority) if priority else "normal priority"
         backoff = self.config.reconnect_min_s
         while not self._stop.is_set():
             try:

@@ -59,7 +59,7 @@ def source_rows(bridge: InputsBridge, now: float, rates: RateMeter) -> list[dict
     for a in bridge.adapters:
         st = a.status(now)
         row(a.name, "adapter", a.config.type, bridge.kinds.get(a.name, "unknown"), a.output, a.stale_after_s,
-            connected=st.connected, connects=st.connects, errors=dict(st.problems),
+            connected=st.connected, connects=st.connects, scheduling=a.scheduling, errors=dict(st.problems),
             last_error=st.last_problem.message if st.last_problem else None)
     for s in bridge.feeds.all_stats():
         cfg = bridge.feeds.config(s.source)

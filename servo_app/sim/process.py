@@ -13,6 +13,8 @@ import time
 from multiprocessing.connection import Connection
 from typing import Any
 
+from servo_app.realtime import single_threaded_blas
+
 _CALLS = {"reset", "start_program", "abort_program", "set_mode", "set_override", "set_joints", "jog_to"}
 
 
@@ -61,7 +63,8 @@ class SimulatorProcess:
         self.address: tuple[str, int] = ("", 0)
 
     def start(self, timeout: float = 30.0) -> SimulatorProcess:
-        self.process.start()
+        with single_threaded_blas():
+            self.process.start()
         if not self._conn.poll(timeout):
             raise TimeoutError("simulator process did not start")
         self.address = tuple(self._conn.recv()["address"])  # type: ignore[assignment]
