@@ -10,6 +10,7 @@ motion, with `time.monotonic()` (one clock for every process) taken just before 
 - serial: a force/torque frame into a pty (binary frames, CRC) -> admittance application;
 - CAN: the force frame through an slcan USB-CAN adapter (a pty; DBC decoded) -> admittance application;
 - HTTP: a twist POSTed to /api/feed/jog on the real uvicorn server;
+- WebSocket: a twist frame on /ws/feed/stream (a tracker streaming at 100 Hz);
 - spacenavd: a motion event on the daemon's UNIX socket -> teleop application.
 
 The response is the first command packet whose joint values differ from the resting ones. Every
@@ -27,9 +28,9 @@ import argparse
 import contextlib
 import gc
 import json
+import math
 import multiprocessing as mp
 import os
-import queue
 import random
 import shlex
 import socket
@@ -43,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from servo_app.motion.servo import CommandRejected
 from servo_app.realtime import make_realtime
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -52,7 +54,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DBC = ROOT / "configs" / "inputs" / "sensors.dbc"
 HOME = [0.0, 0.0, 0.0, 0.0, -90.0, 0.0]
 TOKEN = "bench-token-0123456789"
-ADAPTERS = ("serial", "can", "http", "spacenav")
+ADAPTERS = ("serial", "can", "http", "websocket", "spacenav")
 
 CONFIG = """
 # Timeouts with room for a loaded machine (latency does not depend on them).
@@ -96,6 +98,11 @@ kind = "twist"
 stale_after_s = 0.25
 yield_when_idle = true
 
+[feeds.stream]
+kind = "twist"
+stale_after_s = 0.25
+yield_when_idle = true
+
 [[applications]]
 name = "teleop"
 type = "teleop"
@@ -121,8 +128,41 @@ lowpass_hz = 0
 # ------------------------------------------------------------------------------------- the relay
 
 
-def _relay(sim: tuple[str, int], port_out: Any, records: Any, stop: Any) -> None:
-    """Forward UDP both ways; time-stamp each command packet (servo -> simulator) on arrival."""
+class _StillQuery:
+    """The resting command once the commanded joints have not changed for `still_s`."""
+
+    def __init__(self, commands: list[tuple[float, tuple[float, ...]]], still_s: float) -> None:
+        self.still_s = still_s
+        self.index = max(0, len(commands) - 1)
+        self.since: tuple[float, tuple[float, ...]] | None = None
+
+    def check(self, commands: list[tuple[float, tuple[float, ...]]]) -> Any:
+        for t, v in commands[self.index:]:
+            if self.since is None or v != self.since[1]:
+                self.since = (t, v)
+            elif t - self.since[0] >= self.still_s:
+                return v
+        self.index = len(commands)
+        return None
+
+
+class _ChangeQuery:
+    """The time of the first command from `index` on, sent after `after`, that differs from `rest`."""
+
+    def __init__(self, index: int, after: float, rest: tuple[float, ...]) -> None:
+        self.index, self.after, self.rest = index, after, np.array(rest)
+
+    def check(self, commands: list[tuple[float, tuple[float, ...]]]) -> Any:
+        for t, v in commands[self.index:]:
+            if t > self.after and np.max(np.abs(np.array(v) - self.rest)) > 1e-5:
+                return t
+        self.index = len(commands)
+        return None
+
+
+def _relay(sim: tuple[str, int], conn: Any) -> None:
+    """Forward UDP both ways; time-stamp each command packet (servo -> simulator) on arrival. The
+    trial's waits are answered here, so the service's process carries no measuring threads."""
     import select
 
     from servo_app.fanuc.packets import Command, decode_from_pc
@@ -133,10 +173,13 @@ def _relay(sim: tuple[str, int], port_out: Any, records: Any, stop: Any) -> None
     down.bind(("127.0.0.1", 0))
     up = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     up.connect(sim)
-    port_out.put(down.getsockname()[1])
+    conn.send(down.getsockname()[1])
     client = None
-    while not stop.is_set():
-        ready, _, _ = select.select([down, up], [], [], 0.1)
+    commands: list[tuple[float, tuple[float, ...]]] = []
+    query: Any = None
+    deadline = math.inf
+    while True:
+        ready, _, _ = select.select([down, up, conn], [], [], max(0.0, min(0.1, deadline - time.monotonic())))
         if down in ready:
             data, client = down.recvfrom(2048)
             t = time.monotonic()
@@ -146,50 +189,56 @@ def _relay(sim: tuple[str, int], port_out: Any, records: Any, stop: Any) -> None
             except ValueError:
                 pkt = None
             if isinstance(pkt, Command):
-                records.put((t, pkt.seq, pkt.values[:6]))
+                commands.append((t, tuple(np.float32(pkt.values[:6]).tolist())))
         if up in ready:
             data = up.recv(2048)
             if client is not None:
                 down.sendto(data, client)
+        if conn in ready:
+            msg = conn.recv()
+            if msg[0] == "stop":
+                return
+            if msg[0] == "count":
+                conn.send(len(commands))
+            else:
+                query = _StillQuery(commands, msg[1]) if msg[0] == "still" else _ChangeQuery(*msg[1:4])
+                deadline = time.monotonic() + msg[-1]
+        if query is not None:
+            result = query.check(commands)
+            if result is not None or time.monotonic() >= deadline:
+                conn.send(result)
+                query, deadline = None, math.inf
 
 
 class Relay:
     def __init__(self, sim: tuple[str, int]) -> None:
         ctx = mp.get_context("spawn")
-        port_q = ctx.Queue()
-        self.records = ctx.Queue()
-        self.stop_event = ctx.Event()
-        self.process = ctx.Process(target=_relay, args=(sim, port_q, self.records, self.stop_event), daemon=True)
+        self._conn, child = ctx.Pipe()
+        self.process = ctx.Process(target=_relay, args=(sim, child), daemon=True)
         self.process.start()
-        self.port = int(port_q.get(timeout=30))
-        self.commands: list[tuple[float, np.ndarray]] = []
-        self._cond = threading.Condition()
-        self._thread = threading.Thread(target=self._collect, daemon=True)
-        self._thread.start()
-
-    def _collect(self) -> None:
-        while not self.stop_event.is_set():
-            try:
-                t, _, values = self.records.get(timeout=0.1)
-            except queue.Empty:
-                continue
-            with self._cond:
-                self.commands.append((t, np.array(values, dtype=np.float32)))
-                self._cond.notify_all()
-
-    def wait_from(self, index: int, timeout: float) -> list[tuple[float, np.ndarray]]:
-        """Commands from `index` on, waiting (without spinning: the bench shares the GIL with the
-        adapters it measures) until there is at least one or the timeout passes."""
-        with self._cond:
-            self._cond.wait_for(lambda: len(self.commands) > index, timeout)
-            return self.commands[index:]
+        if not self._conn.poll(30):
+            raise TimeoutError("the relay did not start")
+        self.port = int(self._conn.recv())
 
     def count(self) -> int:
-        return len(self.commands)
+        self._conn.send(("count",))
+        return int(self._conn.recv())
+
+    def wait_still(self, still_s: float, timeout: float = 5.0) -> np.ndarray:
+        """The resting command once the commanded joints have not changed for `still_s`."""
+        self._conn.send(("still", still_s, timeout))
+        rest = self._conn.recv()
+        if rest is None:
+            raise TimeoutError("the arm did not come to rest")  # or the stream is gone
+        return np.array(rest)
+
+    def first_change(self, index: int, after: float, rest: np.ndarray, timeout: float = 1.0) -> float | None:
+        self._conn.send(("change", index, after, tuple(rest), timeout))
+        return self._conn.recv()  # type: ignore[no-any-return]
 
     def close(self) -> None:
-        self.stop_event.set()
-        self._thread.join(2)
+        with contextlib.suppress(OSError):
+            self._conn.send(("stop",))
         self.process.join(2)
         if self.process.is_alive():
             self.process.kill()
@@ -207,6 +256,8 @@ class Stimulus:
         self.value = 0.0
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self.streaming = threading.Event()  # clear: silent between trials (another sensor is measured)
+        self.streaming.set()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
     def start(self) -> Stimulus:
@@ -215,8 +266,9 @@ class Stimulus:
 
     def _run(self) -> None:
         while not self._stop.wait(self.period):
-            with self._lock:
-                self.send(self.value)
+            if self.streaming.is_set():
+                with self._lock:
+                    self.send(self.value)
 
     def step(self, value: float) -> float:
         """Deflect; returns the monotonic time just before the frame was written."""
@@ -284,32 +336,51 @@ class SlcanFt(Stimulus):
 class HttpJog(Stimulus):
     """A program posting twists to the HTTP feed over one kept-alive connection. The request is
     written as bytes on the socket, so the time stamp taken before the write is the moment the
-    request leaves, not the start of an HTTP library's own work."""
+    request leaves, not the start of an HTTP library's own work. After a silence longer than the
+    server's keep-alive the connection is gone: it reconnects and posts again."""
 
     period = 0.02
 
     def __init__(self, base_url: str) -> None:
         super().__init__()
         host, port = base_url.removeprefix("http://").split(":")
-        self.sock = socket.create_connection((host, int(port)))
-        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.address = (host, int(port))
+        self.sock = self._connect()
         self._reply = b""
+
+    def _connect(self) -> socket.socket:
+        sock = socket.create_connection(self.address)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        return sock
 
     def send(self, value: float) -> None:
         body = json.dumps({"kind": "twist", "linear": [value, 0.0, 0.0], "frame": "base", "stamp": time.time()})
-        self.sock.sendall((f"POST /api/feed/jog HTTP/1.1\r\nHost: bench\r\nAuthorization: Bearer {TOKEN}\r\n"
-                           f"Content-Type: application/json\r\nContent-Length: {len(body)}\r\n\r\n{body}").encode())
-        self._read_reply()
+        request = (f"POST /api/feed/jog HTTP/1.1\r\nHost: bench\r\nAuthorization: Bearer {TOKEN}\r\n"
+                   f"Content-Type: application/json\r\nContent-Length: {len(body)}\r\n\r\n{body}").encode()
+        try:
+            self.sock.sendall(request)
+            self._read_reply()
+        except ConnectionError:
+            self.sock.close()
+            self.sock, self._reply = self._connect(), b""
+            self.sock.sendall(request)
+            self._read_reply()
+
+    def _recv(self) -> bytes:
+        data = self.sock.recv(4096)
+        if not data:
+            raise ConnectionResetError("the server closed the connection")
+        return data
 
     def _read_reply(self) -> None:
         while b"\r\n\r\n" not in self._reply:
-            self._reply += self.sock.recv(4096)
+            self._reply += self._recv()
         head, rest = self._reply.split(b"\r\n\r\n", 1)
         status = head.split(b" ", 2)[1]
         length = next(int(line.split(b":")[1]) for line in head.split(b"\r\n")
                       if line.lower().startswith(b"content-length"))
         while len(rest) < length:
-            rest += self.sock.recv(4096)
+            rest += self._recv()
         self._reply = rest[length:]
         if status != b"200":
             raise RuntimeError(f"feed answered {status.decode()}: {rest[:length].decode()}")
@@ -317,6 +388,26 @@ class HttpJog(Stimulus):
     def stop(self) -> None:
         super().stop()
         self.sock.close()
+
+
+class WebSocketJog(Stimulus):
+    """A tracker streaming twists into the WebSocket feed (one JSON text frame per sample)."""
+
+    period = 0.01
+
+    def __init__(self, base_url: str) -> None:
+        from websockets.sync.client import connect
+
+        super().__init__()
+        self.ws = connect(base_url.replace("http://", "ws://") + f"/ws/feed/stream?token={TOKEN}")
+        self.ws.socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+    def send(self, value: float) -> None:
+        self.ws.send(json.dumps({"kind": "twist", "linear": [value, 0.0, 0.0], "frame": "base", "stamp": time.time()}))
+
+    def stop(self) -> None:
+        super().stop()
+        self.ws.close()
 
 
 class Spacenav(Stimulus):
@@ -357,6 +448,11 @@ def _sensors_main(conn: Any, spacenav_socket: str) -> None:
             msg = conn.recv()
             if msg[0] == "http":
                 stims["http"] = HttpJog(msg[1]).start()
+                stims["websocket"] = WebSocketJog(msg[1]).start()
+                conn.send(None)
+            elif msg[0] == "background":
+                for name, stim in stims.items():
+                    (stim.streaming.set if name in msg[1] else stim.streaming.clear)()
                 conn.send(None)
             elif msg[0] == "step":
                 conn.send(stims[msg[1]].step(msg[2]))
@@ -383,6 +479,11 @@ class Sensors:
         self._conn.send(("http", base_url))
         self._conn.recv()
 
+    def background(self, names: set[str]) -> None:
+        """Which sensors stream their resting value between steps (the others fall silent)."""
+        self._conn.send(("background", names))
+        self._conn.recv()
+
     def step(self, name: str, value: float) -> float:
         self._conn.send(("step", name, value))
         return float(self._conn.recv())
@@ -396,35 +497,6 @@ class Sensors:
 
 
 # -------------------------------------------------------------------------------------- the trials
-
-
-def wait_still(relay: Relay, still_s: float, timeout: float = 5.0) -> np.ndarray:
-    """The resting command once the commanded joints have not changed for `still_s`."""
-    deadline = time.monotonic() + timeout
-    index = max(0, relay.count() - 1)
-    since: tuple[float, np.ndarray] | None = None
-    while time.monotonic() < deadline:
-        new = relay.wait_from(index, 0.1)
-        index += len(new)
-        for t, v in new:
-            if since is None or not np.array_equal(v, since[1]):
-                since = (t, v)
-            elif t - since[0] >= still_s:
-                return v
-    cmds = relay.wait_from(max(0, relay.count() - 20), 0.1)
-    diffs = [float(np.max(np.abs(cmds[i + 1][1] - cmds[i][1]))) for i in range(len(cmds) - 1)]
-    raise TimeoutError(f"the arm did not come to rest: last steps {diffs}")  # or the stream is gone
-
-
-def first_change(relay: Relay, index: int, after: float, rest: np.ndarray, timeout: float = 1.0) -> float | None:
-    deadline = time.monotonic() + timeout
-    while (left := deadline - time.monotonic()) > 0:
-        new = relay.wait_from(index, left)
-        index += len(new)
-        for t, v in new:
-            if t > after and np.max(np.abs(v - rest)) > 1e-5:
-                return t
-    return None
 
 
 def streaming(service: Any, sim: Any) -> str | None:
@@ -441,7 +513,11 @@ def streaming(service: Any, sim: Any) -> str | None:
     s = service.state()
     if s["state"] in ("stopped", "stopping"):
         service.wait_state("stopped", 5.0)
-        service.request("resume")
+        try:
+            service.request("resume")
+        except CommandRejected:
+            if service.state()["state"] != "streaming":  # else it was resumed meanwhile: all is well
+                raise
     else:
         service.request("start")
     service.wait_state("streaming", 15.0)
@@ -459,18 +535,18 @@ def run_trials(name: str, sensors: Sensors, amplitude: float, relay: Relay, slot
         if what is not None:
             interruptions.append(what)
         try:
-            rest = wait_still(relay, 0.1)
+            rest = relay.wait_still(0.1)
         except TimeoutError:
             what = recover()
             if what is None:
                 raise
             interruptions.append(what)
-            rest = wait_still(relay, 0.1)
+            rest = relay.wait_still(0.1)
         time.sleep(random.uniform(0.0, 0.008))  # any phase of the control cycle
         sign = 1.0 if k % 2 == 0 else -1.0  # back and forth around the start
         index = relay.count()
         t_w = sensors.step(name, sign * amplitude)
-        t_cmd = first_change(relay, index, t_w, rest)
+        t_cmd = relay.first_change(index, t_w, rest)
         sensors.step(name, 0.0)
         if t_cmd is None:
             missed += 1
@@ -488,7 +564,11 @@ def serve(app: Any) -> tuple[Any, threading.Thread, int]:
     import uvicorn
 
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=0, log_level="warning", lifespan="on"))
-    thread = threading.Thread(target=server.run, daemon=True)
+    def run() -> None:
+        make_realtime(5)  # the event loop's scheduling in `servo-app run` (--api-priority)
+        server.run()
+
+    thread = threading.Thread(target=run, daemon=True)
     thread.start()
     while not server.started:
         time.sleep(0.01)
@@ -539,13 +619,22 @@ def main(argv: list[str] | None = None) -> int:
         gc.freeze()
         bridge.enable(True)
         time.sleep(0.5)
-        amplitude = {"serial": 13.0, "can": 13.0, "http": 20.0, "spacenav": 150.0}  # 20 mm/s-ish each
-        for name in chosen:
-            results.append(run_trials(name, sensors, amplitude[name], relay, slot_writes, args.trials,
-                                      lambda: streaming(service, sim)))
-            r = results[-1]
-            print(f"{name}: {r['total'].size} responses, {r['missed']} missed, {r['to_slot'].size} split at the slot, "
-                  f"interrupted by {r['interruptions'] or 'nothing'}", flush=True)
+        # About 20 mm/s each.
+        amplitude = {"serial": 13.0, "can": 13.0, "http": 20.0, "websocket": 20.0, "spacenav": 150.0}
+        for background in ("own", "all"):
+            for name in chosen:
+                # Input control off meanwhile: a silenced sensor that was in control goes stale unnoticed.
+                bridge.enable(False)
+                sensors.background({name} if background == "own" else set(ADAPTERS))
+                time.sleep(0.4)
+                streaming(service, sim)  # the last input's hold-to-run ran out meanwhile: a stop
+                bridge.enable(True)
+                r = run_trials(name, sensors, amplitude[name], relay, slot_writes, args.trials,
+                               lambda: streaming(service, sim))
+                results.append({**r, "background": background})
+                print(f"{name} ({background}): {r['total'].size} responses, {r['missed']} missed, "
+                      f"{r['to_slot'].size} split at the slot, interrupted by {r['interruptions'] or 'nothing'}",
+                      flush=True)
         st = service.state_vector()
         alarms = [e["code"] for e in sim.events()]
     finally:
@@ -560,19 +649,21 @@ def main(argv: list[str] | None = None) -> int:
     interval_ms = 8.0
     solve_p50, solve_p99 = st["latency_p50_us"] / 1e3, st["latency_p99_us"] / 1e3
     budget = interval_ms + solve_p99
-    head = ("| adapter | trials | p50 ms | p99 ms | max ms | frame -> slot p50 / p99 ms | slot -> packet p50 / p99 ms "
-            f"| p99 within {budget:.1f} ms | missed |\n|---|---|---|---|---|---|---|---|---|")
+    head = ("| adapter | sensors streaming | trials | p50 ms | p99 ms | max ms | frame -> slot p50 / p99 ms "
+            f"| slot -> packet p50 / p99 ms | p99 within {budget:.1f} ms | missed |\n"
+            "|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     def pct(x: np.ndarray, q: float) -> str:
         return f"{np.percentile(x, q):.2f}" if x.size else "-"
 
     for r in results:
         tot, a, b = r["total"], r["to_slot"], r["to_packet"]
+        background = "its own" if r["background"] == "own" else "all five"
         if not tot.size:
-            rows.append(f"| {r['name']} | 0 | - | - | - | - | - | no response | {r['missed']} |")
+            rows.append(f"| {r['name']} | {background} | 0 | - | - | - | - | - | no response | {r['missed']} |")
             continue
         p99 = np.percentile(tot, 99)
-        rows.append(f"| {r['name']} | {tot.size} | {np.percentile(tot, 50):.2f} | {p99:.2f} | "
+        rows.append(f"| {r['name']} | {background} | {tot.size} | {np.percentile(tot, 50):.2f} | {p99:.2f} | "
                     f"{tot.max():.2f} | {pct(a, 50)} / {pct(a, 99)} | {pct(b, 50)} / {pct(b, 99)} | "
                     f"{'yes' if p99 <= budget else f'no (+{p99 - budget:.2f})'} | {r['missed']} |")
     text = (f"LR Mate 200iD, {interval_ms:g} ms interval, lead 2 (the service default); each frame at a random "
@@ -588,8 +679,9 @@ def main(argv: list[str] | None = None) -> int:
             f"FastAPI's request handling in front. The sensors (serial F/T at 500 Hz on a pty, CAN F/T at 500 Hz "
             f"through an slcan adapter on a pty, spacenavd's socket, an HTTP client) run in a process of their own, "
             f"as real devices do. The simulator and the relay run at SCHED_FIFO, as the service runs its embedded "
-            f"simulator; each adapter's reader thread runs at SCHED_FIFO 5 (its default), and start-up objects are "
-            f"frozen out of the garbage collector, as `servo-app run` does. Simulator alarms: {alarms or 'none'}"
+            f"simulator; each adapter's reader thread and the API's event loop run at SCHED_FIFO 5 and start-up "
+            f"objects are frozen out of the garbage collector, as in `servo-app run`. "
+            f"Simulator alarms: {alarms or 'none'}"
             + (f" (the stream was interrupted {n_int} times, each reset and restarted: the simulator is an ordinary "
                f"process on a loaded shared machine)." if (n_int := sum(len(r["interruptions"]) for r in results))
                else "."))

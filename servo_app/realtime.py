@@ -11,15 +11,20 @@ from collections.abc import Iterator
 def make_realtime(priority: int | None, pid: int | None = None) -> str:
     """SCHED_FIFO at ``priority`` for every thread of process ``pid`` (None: the calling thread).
 
+    Threads and processes started later by such a thread begin at normal priority
+    (``SCHED_RESET_ON_FORK``): a worker pool or a restarted servo process must ask for itself (the
+    servo process warms up at normal priority first, so as not to starve its core).
+
     Returns what was achieved, for the logs and the state: without the privilege (or off Linux) the
     process stays at normal priority and says so.
     """
     if priority is None:
         return "not requested"
     try:
+        policy = os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)
         tids = [0] if pid is None else [int(t) for t in os.listdir(f"/proc/{pid}/task")]
         for tid in tids:
-            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+            os.sched_setscheduler(tid, policy, os.sched_param(priority))
     except (OSError, AttributeError) as exc:  # PermissionError is an OSError
         return f"unavailable ({exc}); running at normal priority"
     return f"SCHED_FIFO {priority}"

@@ -10,6 +10,7 @@ from typing import Any
 
 from servo_app.api.auth import resolve_token
 from servo_app.inputs.errors import ConfigError
+from servo_app.realtime import make_realtime
 from servo_app.service import ServiceConfig, ServoService
 
 
@@ -31,6 +32,9 @@ def add_run_parser(sub: Any) -> None:
     p.add_argument("--cors-origin", action="append", default=[], help="allow this origin (CORS closed by default)")
     p.add_argument("--inputs", type=Path, default=None, metavar="FILE",
                    help="inputs TOML: adapters, feeds and [[applications]] (examples in configs/inputs/)")
+    p.add_argument("--api-priority", type=int, default=5,
+                   help="SCHED_FIFO priority of the HTTP/WebSocket event loop, below the servo process (20) and the "
+                        "embedded simulator (10), so feed samples are handled as they arrive; 0: normal priority")
     p.set_defaults(handler=run)
 
 
@@ -68,6 +72,9 @@ def run(args: argparse.Namespace) -> int:
     # stalling every input adapter's thread.
     gc.collect()
     gc.freeze()
+    # This thread runs the event loop; threads it starts later (a worker pool) begin at normal priority.
+    print(f"servo_app: API event loop {make_realtime(args.api_priority) if args.api_priority else 'normal priority'}",
+          flush=True)
     try:
         server.run()  # returns on SIGINT/SIGTERM
     finally:

@@ -92,9 +92,10 @@ def test_run_against_an_external_simulator_process(sim: tuple[subprocess.Popen[s
                 time.sleep(0.02)
             assert c.get("/api/state").json()["state"] == "ended"
     finally:
-        code, _, run_err = stop(run)
+        code, run_out, run_err = stop(run)
         _, _, sim_err = stop(sim_proc)
     assert code == 0, run_err
+    assert re.search(r"API event loop (SCHED_FIFO 5|unavailable)", run_out), run_out  # feed samples handled first
     alarms = [line for line in sim_err.splitlines() if re.match(r"(MOTN|PRIO)-\d+", line)]
     assert alarms == [], alarms
 
