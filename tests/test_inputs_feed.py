@@ -148,10 +148,17 @@ def test_post_feed(client: tuple[TestClient, FeedRegistry]) -> None:
     assert r.status_code == 422 and r.json()["detail"][0]["message"].startswith("field 'xyzwpr.2' value nan")
     r = c.post("/api/feed/jog", json={"kind": "twist", "linear": [900, 0, 0]}, headers=h)
     assert r.status_code == 422 and "field 'linear' value [900.0, 0.0, 0.0]" in r.json()["detail"]
+    r = c.post("/api/feed/jog", content=b'{"kind": "twist", "linear": [1, 0', headers={**h, "Content-Type": "x"})
+    assert r.status_code == 422 and r.json()["detail"][0]["type"] == "json_invalid"
+    assert reg.stats("jog").rejected == 2 and "JSON" in reg.stats("jog").last_error
+    # The route checks its body itself, and still documents it: the three kinds, written in place.
+    body = c.get("/openapi.json").json()["paths"]["/api/feed/{source}"]["post"]["requestBody"]
+    kinds = body["content"]["application/json"]["schema"]["oneOf"]
+    assert [k["title"] for k in kinds] == ["PoseFeed", "TwistFeed", "MeasurementFeed"] and "$ref" not in str(body)
     r = c.post("/api/feed/gauge", json={"kind": "measurement", "values": {"distance": 12.5}}, headers=h)
     assert r.status_code == 200 and isinstance(reg.slot("gauge").read().value, Measurement)
     stats = {s["source"]: s for s in c.get("/api/feed", headers=h).json()}
-    assert stats["jog"]["accepted"] == 1 and stats["jog"]["rejected"] == 1 and stats["vision"]["rejected"] == 1
+    assert stats["jog"]["accepted"] == 1 and stats["jog"]["rejected"] == 2 and stats["vision"]["rejected"] == 1
     assert "/api/feed/{source}" in c.get("/openapi.json").json()["paths"]
 
 

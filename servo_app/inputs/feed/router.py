@@ -10,6 +10,7 @@ offending input, and a NaN in it makes the JSON encoder fail with a 500 instead 
 
 from __future__ import annotations
 
+import inspect
 import json
 import math
 from collections.abc import Callable, Coroutine
@@ -20,9 +21,10 @@ from fastapi import APIRouter, Depends, HTTPException, Request, Response, WebSoc
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.routing import APIRoute
+from pydantic import ValidationError
 
-from servo_app.inputs.feed.models import FeedAck, FeedMessage
-from servo_app.inputs.feed.registry import FeedRegistry, FeedRejected, UnknownSource, field_path
+from servo_app.inputs.feed.models import FeedAck
+from servo_app.inputs.feed.registry import _MESSAGE, FeedRegistry, FeedRejected, UnknownSource, field_path
 
 
 def _json_safe(v: Any) -> Any:
@@ -46,6 +48,28 @@ def _validation_detail(errors: Any) -> list[dict[str, Any]]:
             "message": f"field {field_path(e.get('loc', ()))!r} value {e.get('input')!r}: {e.get('msg')}",
         })
     return out
+
+
+def _inlined(schema: dict[str, Any]) -> dict[str, Any]:
+    """A JSON schema with its local ``$defs`` written in place: the route declares its body itself, so
+    the definitions are not among the document's components."""
+    defs = schema.get("$defs", {})
+
+    def walk(node: Any) -> Any:
+        if isinstance(node, dict):
+            ref = node.get("$ref", "")
+            if ref.startswith("#/$defs/"):
+                return walk(defs[ref.removeprefix("#/$defs/")])
+            return {k: walk(v) for k, v in node.items() if k not in ("$defs", "discriminator")}
+        if isinstance(node, list):
+            return [walk(v) for v in node]
+        return node
+
+    return walk(schema)  # type: ignore[no-any-return]
+
+
+_FEED_BODY: dict[str, Any] = {"requestBody": {"required": True, "content": {"application/json": {
+    "schema": _inlined(_MESSAGE.json_schema())}}}}
 
 
 def _route_class(registry: FeedRegistry) -> type[APIRoute]:
@@ -72,15 +96,29 @@ def feed_router(registry: FeedRegistry, auth_dependency: Callable[..., Any] | No
     deps = [Depends(auth_dependency)] if auth_dependency is not None else []
     router = APIRouter(tags=["feeds"], route_class=_route_class(registry))
 
-    @router.post("/api/feed/{source}", response_model=FeedAck, dependencies=deps,
-                 responses={404: {"description": "unknown source"}, 422: {"description": "rejected sample"}})
-    async def post_feed(source: str, body: FeedMessage) -> FeedAck:
+    @router.post("/api/feed/{source}", response_model=FeedAck, openapi_extra=_FEED_BODY,
+                 responses={401: {"description": "missing or wrong token"}, 404: {"description": "unknown source"},
+                            422: {"description": "rejected sample"}})
+    async def post_feed(source: str, request: Request) -> Response:
+        """One sample (pose, twist or measurement; its kind must be the source's)."""
+        # The token and the body are checked here (the body in pydantic's JSON parser), not through
+        # FastAPI's dependency and body machinery: that took half of a sample's way to the servo
+        # (bench/input_latency.py).
+        if auth_dependency is not None and inspect.isawaitable(checked := auth_dependency(request)):
+            await checked
         try:
-            return registry.submit(source, body)
+            message = _MESSAGE.validate_json(await request.body())
+        except ValidationError as exc:
+            detail = _validation_detail([{**e, "loc": ("body", *e["loc"])} for e in exc.errors()])
+            registry.note_rejected(source, "; ".join(d["message"] for d in detail))
+            return JSONResponse({"detail": detail}, status_code=422)
+        try:
+            ack = registry.submit(source, message)
         except UnknownSource as exc:
             raise HTTPException(404, str(exc.args[0])) from None
         except FeedRejected as exc:
             raise HTTPException(422, str(exc)) from None
+        return Response(ack.model_dump_json(), media_type="application/json")
 
     @router.get("/api/feed", dependencies=deps)
     async def feed_stats() -> list[dict[str, Any]]:
