@@ -69,6 +69,10 @@ def test_joint_move_out_and_back_with_zero_alarms(rig: tuple[FanucSimulator, Str
     sim, sp, logs = rig
     sp.request("start")
     wait_for(sp, "streaming")
+    # One thread: numpy's linear algebra runs in the cycle itself (no BLAS workers to wait for).
+    assert len(os.listdir(f"/proc/{sp.process.pid}/task")) == 1
+    scheduling = sp.wait_event("ready", 1)["realtime"]
+    assert "cpu wake-up latency held at 0 us" in scheduling or "unavailable" in scheduling, scheduling
     out = [25.0, 15.0, -20.0, 40.0, -60.0, 90.0]
     sp.request("target", joints=out)
     s = wait_rest(sp)
