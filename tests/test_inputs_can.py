@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import select
 import struct
+import threading
 import time
 import uuid
 from collections.abc import Callable
@@ -18,6 +19,7 @@ import pytest
 from servo_app.inputs import ConfigError, LatestValue, Measurement, create_adapter, load_inputs_config
 from servo_app.inputs.can_sensor.adapter import CanSensorAdapter
 from servo_app.inputs.can_sensor.decoders import CanMessageLayout, DbcDecoder, FrameProblem, LayoutDecoder
+from servo_app.inputs.can_sensor.slcan import SlcanBus
 from servo_app.inputs.validate import ValueRejected
 
 DBC = Path(__file__).resolve().parents[1] / "configs" / "inputs" / "sensors.dbc"
@@ -225,4 +227,36 @@ def test_distance_sensor_over_slcan_pty() -> None:
             wait_for(a.output, lambda m: m["Counter"] == 3)
             assert a.status().problems["rejected"] == 1
     finally:
+        dev.close()
+
+
+def test_slcan_reads_what_has_arrived_at_once_and_waits_without_polling() -> None:
+    """python-can's own slcan reader takes one byte per call and wakes every millisecond when idle;
+    ours waits on the port and takes everything waiting (a 1 kHz sensor must not eat the GIL)."""
+    dev = SlcanDevice()
+    opener = threading.Thread(target=dev.serve_until_open)
+    opener.start()
+    bus = SlcanBus(channel=dev.path, bitrate=500000, sleep_after_open=0)
+    opener.join()
+    port = bus.serialPortOrig
+    reads: list[int] = []
+    read = port.read
+
+    def counted(size: int = 1) -> bytes:
+        reads.append(size)
+        return read(size)
+
+    port.read = counted  # type: ignore[method-assign]
+    try:
+        assert bus.recv(0.1) is None and len(reads) <= 1  # the replies to the set-up commands, in one read
+        reads.clear()
+        assert bus.recv(0.2) is None and reads == []  # idle: asleep in select, not polling the port
+        for i in range(50):
+            dev.send_frame(0x100 + i, bytes([i, 0xAB]))
+        got = [bus.recv(1.0) for _ in range(50)]
+        assert [m.arbitration_id for m in got if m is not None] == list(range(0x100, 0x132))
+        assert all(m is not None and bytes(m.data) == bytes([i, 0xAB]) for i, m in enumerate(got))
+        assert len(reads) <= 10 and sum(reads) >= 50 * 10  # ~650 bytes in a few calls, not one per byte
+    finally:
+        bus.shutdown()
         dev.close()

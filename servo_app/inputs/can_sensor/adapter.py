@@ -18,6 +18,7 @@ from pydantic import Field, PrivateAttr, ValidationInfo, field_validator, model_
 
 from servo_app.inputs.adapter import AdapterConfig, Clock, InputAdapter
 from servo_app.inputs.can_sensor.decoders import CanMessageLayout, DbcDecoder, FrameDecoder, FrameProblem, LayoutDecoder
+from servo_app.inputs.can_sensor.slcan import SlcanBus
 from servo_app.inputs.errors import KeyedError
 from servo_app.inputs.fields import FieldConfig
 from servo_app.inputs.samples import Measurement
@@ -86,8 +87,11 @@ class CanSensorAdapter(InputAdapter):
         kwargs: dict[str, Any] = dict(c.bus_options)
         if c.bitrate is not None:
             kwargs["bitrate"] = c.bitrate
-        self._bus = can.Bus(interface=c.interface, channel=c.channel, can_filters=self.decoder.can_filters(),
-                            **kwargs)
+        if c.interface == "slcan":  # python-can's protocol, with a reader that takes what has arrived at once
+            self._bus = SlcanBus(channel=str(c.channel), can_filters=self.decoder.can_filters(), **kwargs)
+        else:
+            self._bus = can.Bus(interface=c.interface, channel=c.channel, can_filters=self.decoder.can_filters(),
+                                **kwargs)
         self._latest.clear()  # values from before a reconnect must not merge with new ones
 
     def _close(self) -> None:
