@@ -222,10 +222,18 @@ def hold(pg: Any, selector: str, seconds: float) -> None:
 
 
 def at_rest_without_alarm(svc: Service) -> dict[str, Any]:
+    """Commands at rest, then the (simulated) servo settled on them: it follows with a lag."""
     s = svc.wait(lambda s: s["at_rest"] and s["state"] in ("streaming", "stopped"), "at rest")
     assert s["fault"] is None and s["alarms"] == [], (s["fault"], s["alarms"])
     assert not any(s["vel"]), s["vel"]
-    return s
+    deadline = time.monotonic() + 3.0
+    while True:
+        time.sleep(0.05)
+        now = svc.state()
+        if np.abs(np.subtract(now["cart_servo"], s["cart_servo"])).max() < 1e-3:
+            return now
+        assert time.monotonic() < deadline, "the servo position did not settle"
+        s = now
 
 
 # -------------------------------------------------------------------------------- tests

@@ -17,6 +17,7 @@ acceleration and jerk tables were evaluated (Appendix B: above it the controller
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,7 +28,7 @@ from servo_app.motion.diffik import DifferentialIK, IkResult
 from servo_app.motion.limit_tables import LimitTables, default_tables
 from servo_app.motion.shaper import JointShaper, ShaperLimits
 from servo_app.robots.configuration import ArmConfiguration, ConfigurationRegion, boundary_distances
-from servo_app.robots.conventions import fanuc_deg_to_model_rad, model_rad_to_fanuc_deg
+from servo_app.robots.conventions import fanuc_deg_to_model_rad, model_rad_to_fanuc_deg, xyzwpr_to_matrix
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import RobotProfile
 
@@ -47,6 +48,10 @@ class ServoSettings:
     tool_xyzwpr: tuple[float, ...] | None = None  # TCP offset from the flange, mm / deg
     collision: bool = True  # self-collision and floor checks in the IK
     config_margin_deg: float = 1.0  # joint motion keeps this far from any configuration boundary
+    # A pose target held still finishes its last millimetres as a joint move (see _finish_pose).
+    finish_mm: float = 2.0
+    finish_deg: float = 1.0
+    finish_after_s: float = 0.1  # the target must have stayed the same this long
 
 class ServoCycle:
     def __init__(self, profile: RobotProfile, dt: float, settings: ServoSettings | None = None) -> None:
@@ -69,6 +74,8 @@ class ServoCycle:
         self._pending = False  # a joint motion waits for rest after a change of direction
         self._cart: Twist | PoseTarget | None = None
         self._cart_active = False  # the IK drives the shaper (also while braking along the path)
+        self._pose_held_s = 0.0  # how long the current pose target has stayed the same
+        self._finishing: PoseTarget | None = None  # the pose target whose last millimetres run as a joint move
         self.last_ik: IkResult | None = None
         self._speed_scale = 1.0  # flange-speed guard's current reduction of joint motion
         self.flange_speed = 0.0  # mm/s, from the last two commanded positions
@@ -95,6 +102,7 @@ class ServoCycle:
         self._horizon = float(np.max(2.0 * (vel / acc + acc / jerk))) + 0.1
         self.stopped = False
         self._target = None
+        self._finishing = None
         self._jog = None
         self._cart, self._cart_active = None, False
         self._pending = False
@@ -143,6 +151,7 @@ class ServoCycle:
                 f"joints={[round(float(v), 3) for v in q]} leave the arm configuration {self.configuration} held "
                 f"since the stream started (manual 61.5, MOTN-156): only {reach:.0%} of the way keeps it")
         self._target, self._jog = (q, speed_scale), None
+        self._finishing = None
         self._cart, self._cart_active = None, False
         self.stopped = False
         if self._redirects(shaper, q - shaper.state[0]):
@@ -166,6 +175,7 @@ class ServoCycle:
         renewal = self._jog is not None and np.array_equal(v, self._jog)  # the same button, still held
         redirect = not renewal and not self._pending and self._redirects(shaper, v)
         self._jog, self._target = v, None
+        self._finishing = None
         self._cart, self._cart_active = None, False
         self.stopped = False
         if redirect:
@@ -180,15 +190,26 @@ class ServoCycle:
             raise CommandRejected(f"linear speed {speed:.1f} mm/s is above the flange-speed cap "
                                   f"{self.cap * self.settings.flange_speed_margin:.0f} mm/s")
         self._cart, self._cart_active = cmd, True
-        self._jog, self._target = None, None
+        self._jog, self._target, self._finishing = None, None, None
         self.stopped = False
 
     def pose_target(self, cmd: PoseTarget) -> None:
-        """Reach a TCP pose in a straight line at the command's speed caps (same configuration)."""
+        """Reach a TCP pose in a straight line at the command's speed caps (same configuration); the
+        last millimetres of a target held still run as a joint move (:meth:`_finish_pose`)."""
         self._require()
         if cmd.linear_speed > self.cap * self.settings.flange_speed_margin:
             raise CommandRejected(f"linear_speed={cmd.linear_speed} mm/s is above the flange-speed cap "
                                   f"{self.cap * self.settings.flange_speed_margin:.0f} mm/s")
+
+        def same(other: Twist | PoseTarget | None) -> bool:
+            return (isinstance(other, PoseTarget) and other.xyzwpr == cmd.xyzwpr
+                    and other.linear_speed == cmd.linear_speed and other.angular_speed == cmd.angular_speed)
+
+        if same(self._finishing) and not self.stopped:
+            return  # a stream repeating the target it is finishing (a tracker whose part stopped)
+        if not (same(self._cart) and self._cart_active):
+            self._pose_held_s = 0.0
+        self._finishing = None
         self._cart, self._cart_active = cmd, True
         self._jog, self._target = None, None
         self.stopped = False
@@ -240,6 +261,8 @@ class ServoCycle:
         return nd < 1e-9 or float(np.dot(v, direction)) < 0.999 * nv * nd
 
     def _steer_ik(self, shaper: JointShaper) -> None:
+        if isinstance(self._cart, PoseTarget) and self._finish_pose(shaper, self._cart):
+            return
         j23 = self.profile.j23_factor
         q_f, v_f, _ = shaper.state
         q_m = fanuc_deg_to_model_rad(q_f, j23)
@@ -253,6 +276,43 @@ class ServoCycle:
             shaper.stop("soft")
             return
         shaper.set_velocity(v)
+
+    def _finish_pose(self, shaper: JointShaper, cmd: PoseTarget) -> bool:
+        """Within ``finish_mm`` / ``finish_deg`` of a pose target that has stayed the same for
+        ``finish_after_s``: hand the rest to the shaper as a joint target (the analytical IK's solution
+        in the held configuration), reached time-optimally without overshoot.
+
+        The IK's velocity loop closes around the shaper, which follows a new velocity only after
+        about acc/jerk (0.125 s here): near a fixed goal that loop hunted by +-2 mm for seconds. Over
+        the last 2 mm the joint-space line and the Cartesian one differ by micrometres; a target that
+        keeps moving (a tracker's stream) stays with the IK."""
+        st = self.settings
+        self._pose_held_s += self.dt
+        if self._pose_held_s < st.finish_after_s:
+            return False
+        q_f = shaper.state[0]
+        q_m = fanuc_deg_to_model_rad(q_f, self.profile.j23_factor)
+        kin = self.ik.kin  # with the tool: pose targets are TCP poses
+        goal = xyzwpr_to_matrix(cmd.xyzwpr)
+        tcp = kin.fk_tcp(q_m)
+        lin_mm = float(np.linalg.norm(goal[:3, 3] - tcp[:3, 3])) * 1000.0
+        cos = (float(np.trace(goal[:3, :3] @ tcp[:3, :3].T)) - 1.0) / 2.0
+        if lin_mm > st.finish_mm or math.degrees(math.acos(min(1.0, max(-1.0, cos)))) > st.finish_deg:
+            return False
+        solutions = [x.q_model_rad for x in kin.ik_tcp(goal, with_turns=True, within_limits=True, seed=q_m)
+                     if x.config == self.configuration]
+        if not solutions:
+            return False
+        q_goal = model_rad_to_fanuc_deg(min(solutions, key=lambda q: float(np.sum((q - q_m) ** 2))),
+                                        self.profile.j23_factor)
+        if not self._safe(q_goal)[0] or self._config_keeping_reach(q_f, q_goal) < 1.0:
+            return False
+        # Joint speeds scaled so the flange stays near the target's linear speed cap.
+        scale = min(1.0, cmd.linear_speed / self.cap) if self.cap > 0.0 else 1.0
+        self._cart, self._cart_active = None, False
+        self._target, self._finishing = (q_goal, scale), cmd
+        shaper.set_target(q_goal, scale * self._speed_scale)
+        return True
 
     def _stoppable_scale(self, q: np.ndarray, v: np.ndarray, shaper: JointShaper) -> float:
         """Largest share of ``v`` (whole vector, so the path keeps its direction) from which the arm can
