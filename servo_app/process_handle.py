@@ -36,6 +36,30 @@ def run_child(conn: Connection, body: Callable[[], None]) -> None:
         raise
 
 
+class ChildLink:
+    """The child's side of the link, the same for every backend: events to the parent, signals
+    noted for the main loop (which decelerates and ends the stream before exiting), and the safety
+    event sent before the state vector that shows its mode."""
+
+    conn: Connection
+    sup: Any  # the backend's supervisor: ``changed`` and ``describe()``
+    pending_signal: int | None = None
+
+    def _on_signal(self, signum: int, frame: object) -> None:
+        self.pending_signal = signum
+
+    def _event(self, kind: str, **kw: Any) -> None:
+        with contextlib.suppress(BrokenPipeError, OSError):
+            self.conn.send({"event": kind, **kw})
+
+    def _publish_safety(self) -> None:
+        # Before the state vector that shows the new mode, so a reader who sees the mode can have
+        # its reason (stop reason, fault texts) too.
+        if self.sup.changed:
+            self.sup.changed = False
+            self._event("safety", **self.sup.describe())
+
+
 class ServoProcessHandle:
     def __init__(self, cfg: Any, target: Callable[..., None], name: str) -> None:
         self.cfg = cfg

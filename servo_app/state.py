@@ -6,6 +6,7 @@ process reads it and turns it into a dict. Adding a field means adding a line he
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -100,3 +101,15 @@ def decode_state(data: np.ndarray) -> dict[str, Any]:
         out[k] = int(out[k])
     out["latency_hist"] = [int(v) for v in out["latency_hist"]]
     return out
+
+
+def command_derivatives(history: Sequence[np.ndarray], dt: float) -> dict[str, np.ndarray]:
+    """The newest commanded position and its velocity, acceleration and jerk as the controller
+    computes them: finite differences over the last four commands at the fixed interval ``dt``
+    (at the start, the first command stands in for the ones not sent yet)."""
+    h = list(history)[-4:]
+    q = np.array([h[0]] * (4 - len(h)) + h)
+    v = np.diff(q, axis=0) / dt
+    a = np.diff(v, axis=0) / dt
+    j = np.diff(a, axis=0) / dt
+    return {"q_cmd": q[-1], "vel": v[-1], "acc": a[-1], "jerk": j[-1]}

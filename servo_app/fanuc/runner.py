@@ -12,7 +12,6 @@ SIGINT/SIGTERM end the stream cleanly: decelerate, last data, then status output
 from __future__ import annotations
 
 import bisect
-import contextlib
 import gc
 import os
 import signal
@@ -33,12 +32,12 @@ from servo_app.fanuc.supervisor import StreamSupervisor
 from servo_app.input_slot import InputSlotReader
 from servo_app.ipc import LatestValueSlot
 from servo_app.motion.servo import CommandRejected, ServoCycle, ServoSettings
-from servo_app.process_handle import ServoProcessHandle, run_child
+from servo_app.process_handle import ChildLink, ServoProcessHandle, run_child
 from servo_app.realtime import WakeLatencyHold, make_realtime
 from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.profile import load_profile
 from servo_app.safety import Mode
-from servo_app.state import LATENCY_BUCKETS_US, MODES, PHASES, STATE_SIZE, StateVector
+from servo_app.state import LATENCY_BUCKETS_US, MODES, PHASES, STATE_SIZE, StateVector, command_derivatives
 
 assert all(p.value in PHASES for p in Phase)
 assert all(m.value in MODES for m in Mode)
@@ -89,7 +88,7 @@ class _Latency:
         return float(p50), float(p99)
 
 
-class _ServoProcess:
+class _ServoProcess(ChildLink):
     def __init__(self, cfg: StreamConfig, conn: Connection, slot_name: str) -> None:
         self.cfg = cfg
         self.conn = conn
@@ -278,20 +277,9 @@ class _ServoProcess:
             self._event("log_closed", path=str(self.log.path), records=self.log.records)
             self.log = None
 
-    def _on_signal(self, signum: int, frame: object) -> None:
-        self.pending_signal = signum
-
-    def _event(self, kind: str, **kw: Any) -> None:
-        with contextlib.suppress(BrokenPipeError, OSError):
-            self.conn.send({"event": kind, **kw})
-
     # -- publishing
     def _publish(self) -> None:
-        # The safety event (stop reason, fault texts) goes out before the state vector that shows the
-        # new mode, so a reader who sees the mode can have its reason too.
-        if self.sup.changed:
-            self.sup.changed = False
-            self._event("safety", **self.sup.describe())
+        self._publish_safety()
         sv, s, c = self.state, self.sup.session, self.cycle
         sv.set("published_unix", time.time())
         sv.set("phase", PHASES.index(s.phase.value))
@@ -329,17 +317,8 @@ class _ServoProcess:
             sv.set("acc_limit", acc_l)
             sv.set("jerk_limit", jerk_l)
         if self.hist:
-            h = list(self.hist)
-            while len(h) < 4:
-                h.insert(0, h[0])
-            q = np.array(h)
-            v = np.diff(q, axis=0) / self.dt
-            a = np.diff(v, axis=0) / self.dt
-            j = np.diff(a, axis=0) / self.dt
-            sv.set("q_cmd", q[-1])
-            sv.set("vel", v[-1])
-            sv.set("acc", a[-1])
-            sv.set("jerk", j[-1])
+            for key, value in command_derivatives(self.hist, self.dt).items():
+                sv.set(key, value)
         self.slot.write(sv.data)
 
 

@@ -36,9 +36,9 @@ from servo_app.janome.protocol import Cmd, FrameError, Target
 from servo_app.janome.session import Phase, SessionConfig
 from servo_app.janome.supervisor import JanomeSupervisor
 from servo_app.motion.servo import CommandRejected
-from servo_app.process_handle import ServoProcessHandle, run_child
+from servo_app.process_handle import ChildLink, ServoProcessHandle, run_child
 from servo_app.safety import Mode, safe_to_exit
-from servo_app.state import MODES, PHASES, STATE_SIZE, StateVector
+from servo_app.state import MODES, PHASES, STATE_SIZE, StateVector, command_derivatives
 
 assert all(p.value in PHASES for p in Phase)
 assert all(m.value in MODES for m in Mode)
@@ -66,7 +66,7 @@ class JanomeConfig:
 # --------------------------------------------------------------------------- child side
 
 
-class _JanomeServoProcess:
+class _JanomeServoProcess(ChildLink):
     def __init__(self, cfg: JanomeConfig, conn: Connection, slot_name: str) -> None:
         self.cfg = cfg
         self.conn = conn
@@ -278,20 +278,9 @@ class _JanomeServoProcess:
             self._last_phase = phase
             self._event("phase", phase=phase.value, reason=self.sup.session.fault_reason)
 
-    def _on_signal(self, signum: int, frame: object) -> None:
-        self.pending_signal = signum
-
-    def _event(self, kind: str, **kw: Any) -> None:
-        with contextlib.suppress(BrokenPipeError, OSError):
-            self.conn.send({"event": kind, **kw})
-
     # -- publishing
     def _publish(self) -> None:
-        # The safety event (stop reason, fault texts) goes out before the state vector that shows the
-        # new mode, so a reader who sees the mode can have its reason too.
-        if self.sup.changed:
-            self.sup.changed = False
-            self._event("safety", **self.sup.describe())
+        self._publish_safety()
         self._last_pub = time.monotonic()
         sv, s, m = self.state, self.sup.session, self.motion
         sv.set("published_unix", time.time())
@@ -318,17 +307,8 @@ class _JanomeServoProcess:
         sv.set("acc_limit", _pad(m.acc))
         sv.set("jerk_limit", _pad(m.jerk))
         if self.hist:
-            h = list(self.hist)
-            while len(h) < 4:
-                h.insert(0, h[0])
-            q = np.array(h)
-            v = np.diff(q, axis=0) / m.step_s
-            a2 = np.diff(v, axis=0) / m.step_s
-            j = np.diff(a2, axis=0) / m.step_s
-            sv.set("q_cmd", _pad(q[-1]))
-            sv.set("vel", _pad(v[-1]))
-            sv.set("acc", _pad(a2[-1]))
-            sv.set("jerk", _pad(j[-1]))
+            for key, value in command_derivatives(self.hist, m.step_s).items():
+                sv.set(key, _pad(value))
         self.slot.write(sv.data)
 
 
