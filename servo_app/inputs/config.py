@@ -37,16 +37,20 @@ class InputsConfig:
     feeds: dict[str, FeedSourceConfig] = field(default_factory=dict)
 
 
-def load_inputs_config(path: str | Path) -> InputsConfig:
-    path = Path(path)
+def read_toml(path: Path) -> dict[str, Any]:
+    """A configuration file's tables; an unreadable or malformed file is a ConfigError naming it."""
     file = str(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        return tomllib.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise ConfigError([ConfigIssue(file, "", None, f"cannot read: {exc.strerror or exc}")]) from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError([ConfigIssue(file, "", None, f"not valid TOML: {exc}")]) from None
-    return parse_inputs_config(data, file=file, base_dir=path.parent, path=path)
+
+
+def load_inputs_config(path: str | Path) -> InputsConfig:
+    path = Path(path)
+    return parse_inputs_config(read_toml(path), file=str(path), base_dir=path.parent, path=path)
 
 
 def parse_inputs_config(data: Mapping[str, Any], *, file: str = "<config>", base_dir: Path | None = None,

@@ -13,7 +13,6 @@ role takes (twist, pose or measurement). Errors say file, key and value, all at 
 from __future__ import annotations
 
 import time
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -35,7 +34,7 @@ from servo_app.inputs.apps.base import Application, InputRef
 from servo_app.inputs.apps.pipelines import APPLICATION_TYPES, AdmittanceApp, StandoffApp, TeleopApp, TrackingApp
 from servo_app.inputs.apps.standoff import StandoffParams
 from servo_app.inputs.apps.tracking import PoseExtrapolator
-from servo_app.inputs.config import InputsConfig, parse_inputs_config
+from servo_app.inputs.config import InputsConfig, parse_inputs_config, read_toml
 from servo_app.inputs.errors import ConfigError, ConfigIssue, KeyedError, issues_from_validation
 
 # What each adapter type publishes; feeds say it themselves (`kind`).
@@ -160,12 +159,7 @@ def load_service_inputs(path: str | Path) -> tuple[InputsConfig, list[AppConfig]
     """Adapters, feeds and applications from one TOML file; raises ConfigError listing every problem."""
     path = Path(path)
     file = str(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError([ConfigIssue(file, "", None, f"cannot read: {exc.strerror or exc}")]) from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError([ConfigIssue(file, "", None, f"not valid TOML: {exc}")]) from None
+    data = read_toml(path)
     raw_apps = data.pop("applications", [])
     issues: list[ConfigIssue] = []
     try:
