@@ -32,6 +32,13 @@ class InputCommand:
     source: int  # index into the bridge's source list (names travel once, through the pipe)
     stale: bool  # the active source went stale: the servo process stops with reason "input stale"
 
+    def same_motion(self, other: InputCommand | None) -> bool:
+        """Asks for the same motion as ``other`` (a renewal: only the stamp differs)."""
+        return other is not None and (self.kind, self.frame, self.values, self.linear_speed, self.angular_speed,
+                                       self.source, self.stale) == (
+            other.kind, other.frame, other.values, other.linear_speed, other.angular_speed, other.source,
+            other.stale)
+
     def encode(self) -> np.ndarray:
         out = np.zeros(SIZE)
         out[0] = self.kind
@@ -67,6 +74,7 @@ class InputSlotReader:
     def __init__(self, name: str) -> None:
         self.slot = LatestValueSlot(SIZE, name=name, create=False)
         self._version = 0
+        self._peeked = 0
         self.torn_reads = 0
 
     def poll(self) -> InputCommand | None:
@@ -76,6 +84,13 @@ class InputSlotReader:
         a write for milliseconds (seen under load: the servo process spun out its retries and died,
         MOTN-603). A write still in progress reads as "nothing new"; the command in force keeps only
         its own hold-to-run, and the next cycle reads the finished write."""
+        cmd = self.peek()
+        if cmd is not None:
+            self.consume()
+        return cmd
+
+    def peek(self) -> InputCommand | None:
+        """Like :meth:`poll`, but the command stays new until :meth:`consume` takes it."""
         try:
             version, data = self.slot.read(retries=100)
         except TimeoutError:
@@ -83,8 +98,12 @@ class InputSlotReader:
             return None
         if version == self._version:
             return None
-        self._version = version
+        self._peeked = version
         return InputCommand.decode(data)
+
+    def consume(self) -> None:
+        """The command the last :meth:`peek` returned is taken (a newer write stays new)."""
+        self._version = self._peeked
 
     def close(self) -> None:
         self.slot.close()

@@ -33,6 +33,7 @@ _FIELDS: list[tuple[str, int]] = [
     ("status_duplicated", 1),
     ("malformed", 1),
     ("late_commands", 1),
+    ("late_inputs", 1),  # cycles solved once more for an input that reached the slot during the solve
     ("latency_last_us", 1),
     ("latency_p50_us", 1),
     ("latency_p99_us", 1),
@@ -97,7 +98,8 @@ def decode_state(data: np.ndarray) -> dict[str, Any]:
     for k in ("at_rest", "stopped", "tables_from_controller"):
         out[k] = bool(out[k])
     for k in ("status_seq", "status_bits", "commands_sent", "status_received", "status_lost", "status_duplicated",
-              "malformed", "late_commands", "io_read_value", "io_read_type", "io_read_index", "io_read_mask"):
+              "malformed", "late_commands", "late_inputs", "io_read_value", "io_read_type", "io_read_index",
+              "io_read_mask"):
         out[k] = int(out[k])
     out["latency_hist"] = [int(v) for v in out["latency_hist"]]
     return out

@@ -502,8 +502,9 @@ def test_standoff_holds_the_distance_while_the_operator_jogs_and_rejects_nan(cel
               f"NaN readings rejected {src['errors']['rejected'] - rejected0}")
         assert moved[0] > 30.0 and moved[2] > 0.5 * slope * moved[0]  # along x, and up with the surface
         # The surface rises 3 mm/s under the tool. The laser here is a test thread that reads the pose over
-        # HTTP: on a loaded machine a reading can come late, hence the looser bound on the worst error.
-        assert np.mean(errs) < 1.0 and np.max(errs) < 4.0
+        # HTTP: on a loaded machine a reading can come late (ten runs here: mean 0.25-1.06 mm, worst
+        # 0.5-3.2 mm), hence the loose bounds; without stand-off control the error grows to 30 mm.
+        assert np.mean(errs) < 1.5 and np.max(errs) < 4.0
         assert src["errors"]["rejected"] - rejected0 >= 10 and src["last_error"] and "nan" in src["last_error"]
         assert rig.state()["state"] == "streaming"
         app = next(a for a in cell.inputs()["applications"] if a["name"] == "standoff")

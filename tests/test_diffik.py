@@ -320,6 +320,58 @@ def test_random_command_stream_respects_limits_and_configuration() -> None:
     check()
 
 
+def test_step_again_is_the_step_the_other_command_would_have_been() -> None:
+    """``step_again`` (an input that arrived while the servo process solved) must leave the IK exactly
+    where a step with that command in the first place would have: same result, same next cycles."""
+    speeds = st.floats(-400.0, 400.0, allow_nan=False)
+    vec3 = st.tuples(speeds, speeds, speeds)
+    command = st.one_of(
+        st.tuples(st.just("twist"), vec3, st.tuples(*[st.floats(-60.0, 60.0)] * 3), st.sampled_from(["base", "tool"])),
+        st.tuples(st.just("pose"), vec3, st.tuples(*[st.floats(-30.0, 30.0)] * 3)),
+        st.tuples(st.just("none")),
+    )
+
+    def make(c: tuple, q: np.ndarray) -> Command | None:
+        if c[0] == "twist":
+            return twist(c[1], c[2], c[3])
+        if c[0] == "pose":
+            x = matrix_to_xyzwpr(KIN.fk(q))
+            x[:3] += np.array(c[1]) * 0.1
+            x[3:] += np.array(c[2]) * 0.1
+            return PoseTarget(xyzwpr=tuple(x), linear_speed=300.0, angular_speed=60.0, source="h", stamp=0)
+        return None
+
+    @settings(max_examples=40, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+    @given(before=st.lists(command, min_size=0, max_size=4), first=command, late=command,
+           after=st.lists(command, min_size=1, max_size=3), cycles=st.integers(1, 12))
+    def check(before: list, first: tuple, late: tuple, after: list, cycles: int) -> None:
+        told, direct = new_ik(), new_ik()
+        q = HOME.copy()
+        told.reset(q)
+        direct.reset(q)
+        for c in before:  # the same history for both
+            cmd = make(c, q)
+            for _ in range(cycles):
+                r = told.step(q, cmd)
+                assert np.array_equal(direct.step(q, cmd).dq, r.dq)
+                q = r.q_next
+        late_cmd = make(late, q)
+        told.step(q, make(first, q))
+        a, b = told.step_again(q, late_cmd), direct.step(q, late_cmd)
+        assert np.array_equal(a.dq, b.dq) and a.flags == b.flags and a.mode == b.mode
+        q = a.q_next
+        for c in after:
+            cmd = make(c, q)
+            for _ in range(cycles):
+                a, b = told.step(q, cmd), direct.step(q, cmd)
+                np.testing.assert_allclose(a.dq, b.dq, rtol=0, atol=1e-12)
+                q = a.q_next
+
+    check()
+    with pytest.raises(RuntimeError, match="step_again"):
+        new_ik().step_again(HOME, None)
+
+
 # ------------------------------------------------------------------------------------ fallbacks
 def test_qp_fallback_and_solver_failure_never_give_nan(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(diffik_module, "_path_scale", lambda *a: None)  # force the QP path

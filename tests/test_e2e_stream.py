@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import time
@@ -207,3 +208,39 @@ def test_lead_zero_streams_one_command_per_status(tmp_path: Path) -> None:
     finally:
         sp.shutdown()
         sim.stop()
+
+
+def test_inputs_arriving_during_the_solve_are_taken_into_that_packet(tmp_path: Path) -> None:
+    """A tracker changing its twist every 0.7 ms: writes that land while the IK solves a packet are
+    solved into it (``late_inputs`` counts them), within every limit of the controller."""
+    from servo_app.input_slot import TWIST, InputCommand, InputSlotWriter
+
+    writer = InputSlotWriter()
+    sim = FanucSimulator(port=0, interval_ms=8, initial_joints=HOME).start()
+    host, port = sim.address
+    sp = StreamProcess(StreamConfig(host=host, port=port, log_dir=str(tmp_path), lead=2, input_slot=writer.name))
+    sp.start()
+    try:
+        sp.request("start")
+        wait_for(sp, "streaming")
+        sp.request("inputs", enable=True, sources=["tracker"])
+        x0 = sp.state()["cart_servo"][0]
+        end = time.monotonic() + 1.5
+        k = 0
+        while time.monotonic() < end:
+            k += 1
+            vx = 30.0 + 10.0 * math.sin(k / 50)  # a new speed each write: each is a new motion
+            writer.publish(InputCommand(kind=TWIST, frame="base", values=(vx, 0, 0, 0, 0, 0), linear_speed=0,
+                                        angular_speed=0, stamp=time.monotonic(), timeout_s=0.1, source=0,
+                                        stale=False))
+            time.sleep(0.0007)
+        s = sp.state()
+        assert s["late_inputs"] > 0, s
+        assert s["state"] == "streaming" and s["cart_servo"][0] > x0 + 20.0
+        sp.request("stop")
+        wait_for(sp, "stopped")
+        assert sim.alarms == [], [e.message for e in sim.alarms]
+    finally:
+        sp.shutdown()
+        sim.stop()
+        writer.close()

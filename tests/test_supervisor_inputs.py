@@ -74,3 +74,68 @@ def test_slot_round_trip_between_writer_and_reader() -> None:
     finally:
         r.close()
         w.close()
+
+
+def test_an_input_taken_during_the_solve_makes_the_same_packet_as_one_read_before_it() -> None:
+    """ServoCycle.late_command: a twist that arrives while the IK solves replaces the one the cycle
+    began with, and the packet (and every one after) is what the new twist read in time would give."""
+    late, timely = Cell(), Cell()
+    for c in (late, timely):
+        c.start()
+        c.request("inputs", enable=True, sources=["ft"])
+    x0 = flange_x(late)
+    pending: list[InputCommand] = []
+    taken: list[bool] = []
+
+    def arrives_during_the_solve() -> None:
+        if pending:
+            taken.append(late.sup.on_late_input(pending.pop(), late.t))
+
+    late.sup.cycle.late_command = arrives_during_the_solve
+    for k in range(60):
+        first, newer = twist(40.0 + k, late.t), twist(80.0 - k, late.t)
+        late.sup.on_input(first, late.t)
+        pending.append(newer)
+        timely.sup.on_input(newer, timely.t)
+        late.cycle()
+        timely.cycle()
+        assert np.array_equal(late.sent[-1], timely.sent[-1]), k
+    assert all(taken) and len(taken) == 60 and late.sup.cycle.late_inputs == 60
+    assert flange_x(late) > x0 + 5  # it moved
+    assert not late.ctrl.alarms()
+
+
+def test_late_inputs_that_change_the_safety_state_wait_for_the_next_packet() -> None:
+    cell = Cell()
+    cell.start()
+    assert not cell.sup.on_late_input(twist(50.0, cell.t), cell.t)  # input control not enabled
+    cell.request("inputs", enable=True, sources=["ft"])
+    assert not cell.sup.on_late_input(twist(0.0, cell.t, stale=True, kind=NONE), cell.t)
+    assert not cell.sup.on_late_input(twist(0.0, cell.t, kind=NONE), cell.t)
+    assert cell.sup.state.mode.value == "streaming"
+    assert cell.sup.on_late_input(twist(50.0, cell.t), cell.t)
+    cell.request("stop")
+    assert not cell.sup.on_late_input(twist(50.0, cell.t), cell.t)  # stopping: only a resume moves it
+
+
+def test_peek_leaves_the_command_new_until_consumed() -> None:
+    w = InputSlotWriter()
+    r = InputSlotReader(w.name)
+    try:
+        first, second = twist(1.0, 1.0), twist(2.0, 2.0)
+        w.publish(first)
+        assert r.peek() == first and r.peek() == first  # not taken yet
+        w.publish(second)
+        assert r.peek() == second
+        r.consume()
+        assert r.peek() is None and r.poll() is None
+        w.publish(first)
+        assert r.peek() == first
+        w.publish(second)  # written after the peek: consuming the peeked one keeps this one new
+        r.consume()
+        assert r.poll() == second
+        assert second.same_motion(twist(2.0, 5.0)) and not second.same_motion(first)
+        assert not second.same_motion(None)
+    finally:
+        r.close()
+        w.close()

@@ -22,6 +22,8 @@ _COUNTERS = (
     ("servo_status_duplicated", "status_duplicated", "duplicated or reordered status packets"),
     ("servo_malformed_packets", "malformed", "datagrams from the controller that did not decode"),
     ("servo_late_commands", "late_commands", "commands sent over half an interval after their status (this session)"),
+    ("servo_late_inputs", "late_inputs",
+     "cycles solved once more for an input that reached the servo process during the solve"),
 )
 
 

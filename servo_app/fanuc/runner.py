@@ -29,7 +29,7 @@ from servo_app.fanuc.packets import ROBOT_PORT, IoType, Status
 from servo_app.fanuc.session import Phase, SessionConfig
 from servo_app.fanuc.session_log import SessionLogWriter
 from servo_app.fanuc.supervisor import StreamSupervisor
-from servo_app.input_slot import InputSlotReader
+from servo_app.input_slot import InputCommand, InputSlotReader
 from servo_app.ipc import LatestValueSlot
 from servo_app.motion.servo import CommandRejected, ServoCycle, ServoSettings
 from servo_app.process_handle import ChildLink, ServoProcessHandle, run_child
@@ -56,6 +56,9 @@ class StreamConfig:
     payload_kg: float | None = None
     status_timeout_s: float = 0.1
     late_threshold_ms: float | None = None  # None: half an interval
+    # An input that reaches the slot while the IK solves a status packet's command is solved into that
+    # packet if the IK finished within this time of the packet's arrival (None: a quarter interval; 0: never).
+    late_input_ms: float | None = None
     realtime_priority: int | None = 20  # SCHED_FIFO priority for the servo process; None: leave as is
     wake_latency_us: int | None = 0  # CPU idle-state exit latency held while streaming; None: leave as is
     input_slot: str | None = None  # shared-memory name of the inputs bridge's live command
@@ -104,6 +107,12 @@ class _ServoProcess(ChildLink):
         self.sup = StreamSupervisor(self.cycle, SessionConfig(
             lead=cfg.lead, status_timeout_s=cfg.status_timeout_s, max_payload_kg=self.profile.max_payload_kg))
         self.inputs = InputSlotReader(cfg.input_slot) if cfg.input_slot else None
+        self._applied: InputCommand | None = None  # the last input command handed to the supervisor
+        self._t_recv = 0.0  # when the status packet being answered arrived
+        late_ms = self.dt * 1000 / 4 if cfg.late_input_ms is None else cfg.late_input_ms
+        self.late_input_s = late_ms / 1000
+        if self.inputs is not None and self.late_input_s > 0:
+            self.cycle.late_command = self._late_input
         if cfg.data_format == "cartesian":
             kin = self.cycle.kin
             self.sup.session.to_cartesian = lambda q: matrix_to_xyzwpr(kin.fk_fanuc_deg(q))
@@ -178,10 +187,12 @@ class _ServoProcess(ChildLink):
             data = b""
         now = time.monotonic()
         if data:
+            self._t_recv = now
             if self.inputs is not None:  # the newest input before this status packet's command
                 cmd = self.inputs.poll()
                 if cmd is not None:
                     self.sup.on_input(cmd, now)
+                    self._applied = cmd
             self._send(self.sup.on_datagram(data, now))
             t_sent = time.monotonic()
             self._after_datagram(now, t_sent)
@@ -195,6 +206,25 @@ class _ServoProcess(ChildLink):
         self._publish()
         if self.sup.finished:
             self.quit = True
+
+    def _late_input(self) -> None:
+        """``ServoCycle.late_command``: the slot read once more after the IK's solve.
+
+        The solve takes most of the time between a status packet and its answer (about 1 ms here,
+        with caches cold after the wait for the packet); a sensor frame that reached the slot meanwhile
+        would otherwise wait a whole interval for the next packet. Taken only while the answer is still
+        early (``late_input_ms``), and only when the motion asked for changed: a renewal of the same
+        command is not worth a second solve and waits for the next packet."""
+        assert self.inputs is not None
+        now = time.monotonic()
+        if now - self._t_recv > self.late_input_s:
+            return
+        cmd = self.inputs.peek()
+        if cmd is None or cmd.same_motion(self._applied):
+            return
+        if self.sup.on_late_input(cmd, now):
+            self.inputs.consume()
+            self._applied = cmd
 
     def _after_datagram(self, t_recv: float, t_sent: float) -> None:
         s = self.sup.session
@@ -308,6 +338,7 @@ class _ServoProcess(ChildLink):
                 sv.set("latency_p99_us", p99)
             sv.set("latency_max_us", lat.max_us)
             sv.set("late_commands", lat.late)
+        sv.set("late_inputs", c.late_inputs)
         if c.limits is not None:
             sv.set("at_rest", float(c.at_rest()))
             sv.set("stopped", float(c.stopped))

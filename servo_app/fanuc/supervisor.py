@@ -23,7 +23,7 @@ import numpy as np
 
 from servo_app.fanuc.packets import LimitTableResponse, Status
 from servo_app.fanuc.session import IoRequest, Phase, SessionConfig, StreamSession
-from servo_app.input_slot import TWIST, InputCommand, InputControl
+from servo_app.input_slot import POSE, TWIST, InputCommand, InputControl
 from servo_app.motion.commands import PoseTarget, Twist
 from servo_app.motion.servo import CommandRejected, ServoCycle
 from servo_app.safety import (
@@ -226,6 +226,18 @@ class StreamSupervisor:
         """The inputs bridge's live command (read from shared memory once per cycle)."""
         self.inputs.apply(cmd, lambda name: self._input_stale(name, now),
                           lambda c, name, hold: self._input_move(c, name, hold, now))
+
+    def on_late_input(self, cmd: InputCommand, now: float) -> bool:
+        """A command that reached the slot while this cycle's IK was solving (``ServoCycle.late_command``).
+
+        Only a new twist or pose target for an arm streaming under input control is taken now (True);
+        anything that changes the safety state (stale, nothing live) or needs a gate (enable, resume)
+        waits for the next status packet's regular read, where it is handled in order."""
+        if not (self.inputs.enabled and self.state.mode == Mode.STREAMING and not cmd.stale
+                and cmd.kind in (TWIST, POSE)):
+            return False
+        self.on_input(cmd, now)
+        return True
 
     def _input_stale(self, name: str, now: float) -> None:
         if self.state.mode == Mode.STREAMING:

@@ -248,6 +248,8 @@ class DifferentialIK:
         self._ref: np.ndarray | None = None  # integrated TCP reference pose (wxyz_xyz), Cartesian modes
         self._last_xi: np.ndarray | None = None  # last commanded twist: the line to brake along
         self._mode = ""
+        # What the last step() started from, for step_again().
+        self._before: tuple[np.ndarray, np.ndarray | None, np.ndarray | None, str] | None = None
 
     # ---------------------------------------------------------------------------------- public
     @property
@@ -271,6 +273,7 @@ class DifferentialIK:
         self._last_xi = None
         self._mode = ""
         self._started = True
+        self._before = None
         if self.qp is not None:
             self.qp.reset()
 
@@ -282,6 +285,8 @@ class DifferentialIK:
         q = self._checked(q_model_rad, "q_model_rad")
         if not self._started:
             self.reset(q)
+        # Everything step() changes (the rows and targets it sets are rebuilt by every step).
+        self._before = (self._dq_prev, self._ref, self._last_xi, self._mode)
         if dq_prev is not None:
             self._dq_prev = self._checked(dq_prev, "dq_prev")
         st, dt = self.settings, self.dt
@@ -407,6 +412,16 @@ class DifferentialIK:
         self._dq_prev = dq.copy()
         return IkResult(dq=dq, q_next=q + dq, velocity=dq / dt, scale=float(scale), flags=flags,
                         condition=kappa, mode=mode, solver_status=solver_status)
+
+    def step_again(self, q_model_rad: ArrayLike, command: Command | None, *, dq_prev: ArrayLike | None = None
+                   ) -> IkResult:
+        """The last cycle once more, from the state it started from, with another command: what
+        :meth:`step` would have returned had ``command`` been given in the first place (the servo
+        process uses it for an input that arrived while the cycle was being solved)."""
+        if self._before is None:
+            raise RuntimeError("step_again() needs a step() since the last reset()")
+        self._dq_prev, self._ref, self._last_xi, self._mode = self._before
+        return self.step(q_model_rad, command, dq_prev=dq_prev)
 
     def objective(self, tasks: list[mink.Task]) -> tuple[np.ndarray, np.ndarray]:
         """mink's QP objective (P, c) for ``tasks`` at the current configuration, with our damping."""
