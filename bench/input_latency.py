@@ -271,17 +271,23 @@ class Stimulus:
         while not self._stop.wait(self.period):
             if self.streaming.is_set():
                 with self._lock:
-                    self.send(self.value)
+                    self.write(self.encode(self.value))
 
     def step(self, value: float) -> float:
-        """Deflect; returns the monotonic time just before the frame was written."""
+        """Deflect; returns the monotonic time just before the frame's bytes were written (the frame is
+        built first: a device sends a finished frame, and a client library's own work is not the
+        service's latency)."""
         with self._lock:
             self.value = value
+            data = self.encode(value)
             t = time.monotonic()
-            self.send(value)
+            self.write(data)
             return t
 
-    def send(self, value: float) -> None:
+    def encode(self, value: float) -> bytes:
+        raise NotImplementedError
+
+    def write(self, data: bytes) -> None:
         raise NotImplementedError
 
     def stop(self) -> None:
@@ -302,8 +308,11 @@ class SerialFt(Stimulus):
         self.path = os.ttyname(self._slave)
         self.layout = FrameLayout(b"\xaa\x55", "<6hB", ("fx", "fy", "fz", "tx", "ty", "tz", "status"), "crc16_modbus")
 
-    def send(self, value: float) -> None:
-        os.write(self.master, self.layout.encode([round(value * 100), 0, 0, 0, 0, 0, 0]))
+    def encode(self, value: float) -> bytes:
+        return self.layout.encode([round(value * 100), 0, 0, 0, 0, 0, 0])
+
+    def write(self, data: bytes) -> None:
+        os.write(self.master, data)
 
 
 class SlcanFt(Stimulus):
@@ -331,9 +340,12 @@ class SlcanFt(Stimulus):
                 with self._lock:
                     os.write(self.master, b"\r" * data.count(b"\r"))  # OK to every command
 
-    def send(self, value: float) -> None:
+    def encode(self, value: float) -> bytes:
         force = round(value * 100).to_bytes(2, "little", signed=True) + bytes(4)
-        os.write(self.master, f"t1A06{force.hex().upper()}\rt1A16{bytes(6).hex()}\r".encode())
+        return f"t1A06{force.hex().upper()}\rt1A16{bytes(6).hex()}\r".encode()
+
+    def write(self, data: bytes) -> None:
+        os.write(self.master, data)
 
 
 class HttpJog(Stimulus):
@@ -356,10 +368,12 @@ class HttpJog(Stimulus):
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         return sock
 
-    def send(self, value: float) -> None:
+    def encode(self, value: float) -> bytes:
         body = json.dumps({"kind": "twist", "linear": [value, 0.0, 0.0], "frame": "base", "stamp": time.time()})
-        request = (f"POST /api/feed/jog HTTP/1.1\r\nHost: bench\r\nAuthorization: Bearer {TOKEN}\r\n"
-                   f"Content-Type: application/json\r\nContent-Length: {len(body)}\r\n\r\n{body}").encode()
+        return (f"POST /api/feed/jog HTTP/1.1\r\nHost: bench\r\nAuthorization: Bearer {TOKEN}\r\n"
+                f"Content-Type: application/json\r\nContent-Length: {len(body)}\r\n\r\n{body}").encode()
+
+    def write(self, request: bytes) -> None:
         try:
             self.sock.sendall(request)
             self._read_reply()
@@ -394,7 +408,9 @@ class HttpJog(Stimulus):
 
 
 class WebSocketJog(Stimulus):
-    """A tracker streaming twists into the WebSocket feed (one JSON text frame per sample)."""
+    """A tracker streaming twists into the WebSocket feed (one JSON text frame per sample). The
+    library makes the connection; each frame is built (masked, as a client must) and then written as
+    bytes, like HttpJog's requests. No keep-alive pings, so nothing else writes on the socket."""
 
     period = 0.01
 
@@ -402,11 +418,17 @@ class WebSocketJog(Stimulus):
         from websockets.sync.client import connect
 
         super().__init__()
-        self.ws = connect(base_url.replace("http://", "ws://") + f"/ws/feed/stream?token={TOKEN}")
+        self.ws = connect(base_url.replace("http://", "ws://") + f"/ws/feed/stream?token={TOKEN}", ping_interval=None)
         self.ws.socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
-    def send(self, value: float) -> None:
-        self.ws.send(json.dumps({"kind": "twist", "linear": [value, 0.0, 0.0], "frame": "base", "stamp": time.time()}))
+    def encode(self, value: float) -> bytes:
+        from websockets.frames import Frame, Opcode
+
+        text = json.dumps({"kind": "twist", "linear": [value, 0.0, 0.0], "frame": "base", "stamp": time.time()})
+        return Frame(Opcode.TEXT, text.encode()).serialize(mask=True)
+
+    def write(self, data: bytes) -> None:
+        self.ws.socket.sendall(data)
 
     def stop(self) -> None:
         super().stop()
@@ -427,11 +449,14 @@ class Spacenav(Stimulus):
         self.srv.settimeout(30)
         self.conn, _ = self.srv.accept()
 
-    def send(self, value: float) -> None:
+    def encode(self, value: float) -> bytes:
         from servo_app.inputs.spacemouse.spacenav import encode_motion
 
+        return encode_motion((int(value), 0, 0), (0, 0, 0))
+
+    def write(self, data: bytes) -> None:
         assert self.conn is not None, "the adapter never connected"
-        self.conn.sendall(encode_motion((int(value), 0, 0), (0, 0, 0)))
+        self.conn.sendall(data)
 
     def stop(self) -> None:
         if self.conn is not None:

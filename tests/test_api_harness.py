@@ -168,12 +168,14 @@ def assert_came_to_rest(log: SessionLog, interval_s: float, tail: int = 2) -> No
 
 
 @contextlib.contextmanager
-def running_rig(tmp: Path, jog_rate_per_s: int = 100, **cfg: Any) -> Iterator[Rig]:
+def running_rig(tmp: Path, jog_rate_per_s: int = 100, cors_origins: list[str] | None = None,
+                **cfg: Any) -> Iterator[Rig]:
     service = ServoService(ServiceConfig(var_dir=tmp, **cfg))
     service.open()
     server = None
     try:
-        server = LiveServer(create_app(service, TOKEN, jog_rate_per_s=jog_rate_per_s)).start()
+        server = LiveServer(create_app(service, TOKEN, jog_rate_per_s=jog_rate_per_s,
+                                       cors_origins=cors_origins)).start()
         rig = Rig(service, server, tmp)
         try:
             yield rig

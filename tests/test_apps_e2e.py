@@ -224,6 +224,9 @@ class Cell:
         return next(s for s in self.inputs()["sources"] if s["name"] == name)
 
 
+CONSOLE_ORIGIN = "http://console.example"  # allowed by CORS: a browser page there may post to the feeds
+
+
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cell]:
     tmp = tmp_path_factory.mktemp("apps")
@@ -232,7 +235,7 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cell]:
     path = tmp / "inputs.toml"
     path.write_text(INPUTS.format(sock=sock, ft=tmp / "ft", dist=tmp / "dist"))
     try:
-        with running_rig(tmp, inputs_config=path) as rig:
+        with running_rig(tmp, inputs_config=path, cors_origins=[CONSOLE_ORIGIN]) as rig:
             spnav.accept()
             c = Cell(rig, spnav, ft, dist)
             bridge = rig.service.inputs
@@ -311,8 +314,16 @@ def test_inputs_api_auth_lease_and_state_summary(cell: Cell) -> None:
     r = rig.http.post("/api/inputs/enable", json={"enable": True}, headers=AUTH)
     assert r.status_code == 409  # the token alone is not control
     twist = {"kind": "twist", "linear": [0, 0, 0], "frame": "tool"}
-    assert rig.http.post(f"/api/feed/jog?token={TOKEN}", json=twist).status_code == 401  # no tokens in HTTP URLs
-    assert rig.http.post("/api/feed/jog", json=twist, headers=AUTH).status_code == 200
+    def unauthorized() -> float:
+        line = next(x for x in rig.http.get("/metrics").text.splitlines()
+                    if x.startswith('servo_api_refused_total{why="unauthorized"}'))
+        return float(line.split()[-1])
+
+    before = unauthorized()  # the feed's fast path answers and counts as the rest of the API does
+    r = rig.http.post(f"/api/feed/jog?token={TOKEN}", json=twist)  # no tokens in HTTP URLs
+    assert r.status_code == 401 and r.headers["www-authenticate"] == "Bearer" and unauthorized() == before + 1
+    r = rig.http.post("/api/feed/jog", json=twist, headers={**AUTH, "Origin": CONSOLE_ORIGIN})
+    assert r.status_code == 200 and r.headers["access-control-allow-origin"] == CONSOLE_ORIGIN
     rejected = next(s for s in cell.inputs()["sources"] if s["name"] == "jog")["errors"].get("rejected", 0)
     r = rig.http.post("/api/feed/jog", content=b'{"kind": "twist", "linear": [NaN, 0, 0]}',
                       headers={**AUTH, "Content-Type": "application/json"})

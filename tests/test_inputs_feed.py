@@ -20,7 +20,7 @@ from starlette.requests import HTTPConnection
 
 from servo_app.inputs import Arbiter, Measurement, PoseSample, TwistSample
 from servo_app.inputs.feed import FeedRegistry, FeedRejected, FeedSourceConfig, UnknownSource
-from servo_app.inputs.feed.router import feed_router
+from servo_app.inputs.feed.router import FeedPostFastPath, feed_post_handler, feed_router
 
 TOKEN = "s3cret"
 
@@ -126,13 +126,37 @@ def test_feed_sources_plug_into_the_arbiter() -> None:
 
 # -- router ----------------------------------------------------------------------------------------
 
-@pytest.fixture
-def client() -> Iterator[tuple[TestClient, FeedRegistry]]:
+@pytest.fixture(params=["route", "fast path"])
+def client(request: pytest.FixtureRequest) -> Iterator[tuple[TestClient, FeedRegistry]]:
+    """The feed router alone, and with the POST fast path in front (as the service has it): the same
+    answers either way."""
     reg = make_registry()
     app = FastAPI()
     app.include_router(feed_router(reg, auth))
+    if request.param == "fast path":
+        app.add_middleware(FeedPostFastPath, handler=feed_post_handler(reg, auth))
     with TestClient(app) as c:
         yield c, reg
+
+
+def test_fast_path_serves_feed_posts_and_passes_everything_else_on() -> None:
+    reg = make_registry()
+    app = FastAPI()  # no feed route: whatever answers a feed POST is the fast path
+
+    @app.post("/api/feed/jog/extra")
+    def elsewhere() -> str:
+        return "app"
+
+    app.add_middleware(FeedPostFastPath, handler=feed_post_handler(reg, auth))
+    h = {"Authorization": f"Bearer {TOKEN}"}
+    with TestClient(app) as c:
+        r = c.post("/api/feed/jog", json={"kind": "twist", "linear": [10, 0, 0]}, headers=h)
+        assert r.status_code == 200 and r.json()["accepted"] and reg.slot("jog").seq == 1
+        r = c.post("/api/feed/jog", json={"kind": "twist", "linear": [10, 0, 0]})
+        assert r.status_code == 401 and r.json() == {"detail": "missing or wrong bearer token"}
+        assert c.post("/api/feed/jog/extra", headers=h).json() == "app"
+        assert c.get("/api/feed/jog", headers=h).status_code == 404  # only POSTs are the feed's
+        assert c.post("/api/feed/", headers=h).status_code == 404
 
 
 def test_post_feed(client: tuple[TestClient, FeedRegistry]) -> None:

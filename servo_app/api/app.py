@@ -183,11 +183,6 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
     async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
         return JSONResponse(status_code=422, content={"detail": jsonable_encoder(_json_safe(list(exc.errors())))})
 
-    if cors_origins:
-        from fastapi.middleware.cors import CORSMiddleware
-
-        app.add_middleware(CORSMiddleware, allow_origins=cors_origins, allow_methods=["*"], allow_headers=["*"])
-
     def client_of(request: Request) -> str:
         host = request.client.host if request.client else "?"
         return f"{host}:{request.client.port if request.client else 0}"
@@ -397,4 +392,8 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
         def index() -> RedirectResponse:
             return RedirectResponse("/web/")
 
+    if cors_origins:  # added last: the outermost middleware, in front of the feed's fast path too
+        from fastapi.middleware.cors import CORSMiddleware
+
+        app.add_middleware(CORSMiddleware, allow_origins=cors_origins, allow_methods=["*"], allow_headers=["*"])
     return app

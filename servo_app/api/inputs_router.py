@@ -21,7 +21,7 @@ from starlette.requests import HTTPConnection
 
 from servo_app.api.auth import token_matches
 from servo_app.inputs.bridge import InputsBridge
-from servo_app.inputs.feed.router import feed_router
+from servo_app.inputs.feed.router import FeedPostFastPath, feed_post_handler, feed_router
 
 
 class EnableInputs(BaseModel):
@@ -68,7 +68,9 @@ def include_inputs(app: FastAPI, bridge: InputsBridge, *, token: str, controllin
         client = f"{conn.client.host}:{conn.client.port}" if conn.client else "?"
         audit.record(client, f"{conn.scope['type']} {conn.url.path}", False, "bad token")
 
-    app.include_router(feed_router(bridge.feeds, connection_auth(token, refused)))
+    auth = connection_auth(token, refused)
+    app.include_router(feed_router(bridge.feeds, auth))
+    app.add_middleware(FeedPostFastPath, handler=feed_post_handler(bridge.feeds, auth))
     router = APIRouter(tags=["inputs"])
 
     @router.get("/api/inputs")
