@@ -33,7 +33,7 @@ _FIELDS: list[tuple[str, int]] = [
     ("status_duplicated", 1),
     ("malformed", 1),
     ("late_commands", 1),
-    ("late_inputs", 1),  # cycles solved once more for an input that reached the slot during the solve
+    ("late_inputs", 1),  # solves again for an input that reached the slot during the solve
     ("latency_last_us", 1),
     ("latency_p50_us", 1),
     ("latency_p99_us", 1),

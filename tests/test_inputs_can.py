@@ -174,6 +174,26 @@ def test_ft_sensor_on_virtual_bus() -> None:
         sender.shutdown()
 
 
+def test_frames_queued_together_make_one_sample_of_the_newest_values() -> None:
+    """A sensor's force and torque frames arrive together: one poll drains the queue and publishes
+    once, so the bridge steps once per sensor sample, with the newest values."""
+    channel = f"ft-{uuid.uuid4().hex}"
+    a = ft_adapter(channel, require_all=True)
+    sender = can.Bus(interface="virtual", channel=channel)
+    try:
+        a._open()
+        for fx in (1, 2):
+            sender.send(can.Message(arbitration_id=FORCE_ID, data=force_frame(fx, 0, 0), is_extended_id=False))
+        sender.send(can.Message(arbitration_id=TORQUE_ID, data=torque_frame(0, 0.5, 0), is_extended_id=False))
+        a._poll()
+        assert a.output.seq == 1
+        m = a.output.read().value
+        assert m["Fx"] == 2 and m["Ty"] == 0.5
+    finally:
+        a._close()
+        sender.shutdown()
+
+
 # -- slcan over a pseudo-terminal ------------------------------------------------------------------
 
 class SlcanDevice:

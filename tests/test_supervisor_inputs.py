@@ -87,20 +87,21 @@ def test_an_input_taken_during_the_solve_makes_the_same_packet_as_one_read_befor
     pending: list[InputCommand] = []
     taken: list[bool] = []
 
-    def arrives_during_the_solve() -> None:
+    def arrives_during_the_solve() -> None:  # one new command per solve, while there are any
         if pending:
-            taken.append(late.sup.on_late_input(pending.pop(), late.t))
+            taken.append(late.sup.on_late_input(pending.pop(0), late.t))
 
     late.sup.cycle.late_command = arrives_during_the_solve
     for k in range(60):
         first, newer = twist(40.0 + k, late.t), twist(80.0 - k, late.t)
         late.sup.on_input(first, late.t)
-        pending.append(newer)
+        # Every third cycle a second one arrives during the solve again: the newest makes the packet.
+        pending += [twist(60.0, late.t), newer] if k % 3 == 0 else [newer]
         timely.sup.on_input(newer, timely.t)
         late.cycle()
         timely.cycle()
         assert np.array_equal(late.sent[-1], timely.sent[-1]), k
-    assert all(taken) and len(taken) == 60 and late.sup.cycle.late_inputs == 60
+    assert all(taken) and len(taken) == 80 and late.sup.cycle.late_inputs == 80
     assert flange_x(late) > x0 + 5  # it moved
     assert not late.ctrl.alarms()
 

@@ -23,7 +23,7 @@ _COUNTERS = (
     ("servo_malformed_packets", "malformed", "datagrams from the controller that did not decode"),
     ("servo_late_commands", "late_commands", "commands sent over half an interval after their status (this session)"),
     ("servo_late_inputs", "late_inputs",
-     "cycles solved once more for an input that reached the servo process during the solve"),
+     "IK solves repeated for an input that reached the servo process during the solve"),
 )
 
 

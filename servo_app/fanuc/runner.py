@@ -208,13 +208,13 @@ class _ServoProcess(ChildLink):
             self.quit = True
 
     def _late_input(self) -> None:
-        """``ServoCycle.late_command``: the slot read once more after the IK's solve.
+        """``ServoCycle.late_command``: the slot read again after each of the IK's solves.
 
         The solve takes most of the time between a status packet and its answer (about 1 ms here,
         with caches cold after the wait for the packet); a sensor frame that reached the slot meanwhile
         would otherwise wait a whole interval for the next packet. Taken only while the answer is still
-        early (``late_input_ms``), and only when the motion asked for changed: a renewal of the same
-        command is not worth a second solve and waits for the next packet."""
+        early (``late_input_ms`` after the packet arrived), and only when the motion asked for changed:
+        a renewal of the same command is not worth another solve and waits for the next packet."""
         assert self.inputs is not None
         now = time.monotonic()
         if now - self._t_recv > self.late_input_s:

@@ -85,10 +85,10 @@ class ServoCycle:
         self._region: ConfigurationRegion | None = None  # joint ranges and that configuration, with margins
         self._q_prev: np.ndarray | None = None
         self.cap = 0.0
-        # Called once per IK cycle, after the solve: it may apply a newer command (twist or pose target),
-        # which this cycle then solves again from the same start (see _steer_ik). None: never.
+        # Called after each IK solve: it may apply a newer command (twist or pose target), which this
+        # cycle then solves again from the same start (see _steer_ik); it must stop doing so in time.
         self.late_command: Callable[[], None] | None = None
-        self.late_inputs = 0  # cycles solved again for a command that arrived during the solve
+        self.late_inputs = 0  # solves again for a command that arrived during the solve
 
     # ------------------------------------------------------------ MotionSource
     def begin(self, q_start: np.ndarray, tables: LimitTables | None) -> None:
@@ -273,14 +273,16 @@ class ServoCycle:
         q_m = fanuc_deg_to_model_rad(q_f, j23)
         dq_prev = self.ik.c_inv @ np.radians(v_f) * self.dt  # what the shaper delivers, model rad/cycle
         res = self.ik.step(q_m, self._cart, dq_prev=dq_prev)
-        if self.late_command is not None:
+        while self.late_command is not None:
             # A command that arrived while the IK solved still makes this cycle's packet: the input
-            # is read as late as the cycle allows, not only when the status packet arrived.
+            # is read as late as the cycle allows, not only when the status packet arrived. The hook
+            # stops offering commands once the answer would be late.
             cart = self._cart
             self.late_command()
-            if self._cart is not cart and self._cart_active:
-                res = self.ik.step_again(q_m, self._cart, dq_prev=dq_prev)
-                self.late_inputs += 1
+            if self._cart is cart or not self._cart_active:
+                break
+            res = self.ik.step_again(q_m, self._cart, dq_prev=dq_prev)
+            self.late_inputs += 1
         self.last_ik = res
         v = self.ik.velocity_fanuc_deg_s(res.velocity)
         v = v * self._stoppable_scale(q_f, v, shaper)

@@ -103,32 +103,45 @@ class CanSensorAdapter(InputAdapter):
         assert self._bus is not None
         msg = self._bus.recv(self.config.poll_timeout_s)
         n = 0
-        # Take everything already queued, so the published value is the newest, not the oldest.
+        fresh = False
+        # Take everything already queued, then publish once: the newest values (a sensor's force and
+        # torque frames arrive together; one sample for both halves the work downstream).
         while msg is not None and n < self.config.max_frames_per_poll:
-            self.process(msg, self.clock())
+            fresh |= self._take(msg, self.clock())
             n += 1
             msg = self._bus.recv(0.0)
         if msg is not None:
-            self.process(msg, self.clock())
+            fresh |= self._take(msg, self.clock())
+        if fresh:
+            self._publish_latest()
 
     def process(self, msg: can.Message, now: float) -> None:
+        """One frame: decoded, and the sample published if it completes one."""
+        if self._take(msg, now):
+            self._publish_latest()
+
+    def _take(self, msg: can.Message, now: float) -> bool:
+        """Decode one frame into the newest values per message; True if it was one of ours."""
         if msg.is_error_frame:
             self.problems.record("bus_error", f"error frame id 0x{msg.arbitration_id:X}", bytes(msg.data))
-            return
+            return False
         if msg.is_remote_frame:
-            return
+            return False
         try:
             decoded = self.decoder.decode(msg.arbitration_id, msg.is_extended_id, bytes(msg.data))
         except FrameProblem as exc:
             self.problems.record("malformed", str(exc), exc.data)
-            return
+            return False
         except ValueRejected as exc:
             self.problems.record("rejected", f"0x{msg.arbitration_id:X}: {exc}", bytes(msg.data))
-            return
+            return False
         if decoded is None:
-            return  # not ours (filters are only a hint on some interfaces)
+            return False  # not ours (filters are only a hint on some interfaces)
         name, values = decoded
         self._latest[name] = (now, {k: self._condition(k, v) for k, v in values.items()})
+        return True
+
+    def _publish_latest(self) -> None:
         if self.config.require_all and not self._expected <= self._latest.keys():
             return
         merged: dict[str, float] = {}
