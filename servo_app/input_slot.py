@@ -1,9 +1,10 @@
 """The live input command, from the inputs bridge (API process) to the servo process.
 
 One latest-value slot in shared memory (see :mod:`servo_app.ipc`): the bridge writes the arbiter's
-winning command whenever it changes or is renewed; the servo process reads it once per cycle, before
-it computes the command for the status packet it just received. Time stamps are ``time.monotonic()``,
-one clock for every process on the machine.
+winning command whenever it changes or is renewed; the servo process reads it when a status packet
+arrives, before it computes that packet's command, and again after each IK solve (a new motion that
+arrived meanwhile is solved into the same packet while the answer is still early). Time stamps are
+``time.monotonic()``, one clock for every process on the machine.
 """
 
 from __future__ import annotations

@@ -223,7 +223,7 @@ class StreamSupervisor:
         self.hold = HoldToRun(timeout_s=hold_s).renew(now)
 
     def on_input(self, cmd: InputCommand, now: float) -> None:
-        """The inputs bridge's live command (read from shared memory once per cycle)."""
+        """The inputs bridge's live command (read from shared memory when a status packet arrives)."""
         self.inputs.apply(cmd, lambda name: self._input_stale(name, now),
                           lambda c, name, hold: self._input_move(c, name, hold, now))
 

@@ -3,7 +3,7 @@
 Every sample is handled at once in the thread that publishes it (an adapter's thread, or the request
 that carried a feed message): the applications whose inputs changed run, the arbiter picks who
 commands, and that source's newest sample goes into the shared-memory slot the servo process reads
-once per cycle. The bridge's own thread keeps the clocks: it sleeps until the source in control
+each cycle. The bridge's own thread keeps the clocks: it sleeps until the source in control
 would go stale or an application's period comes round (tracking re-extrapolates between camera
 frames). Each sample renews the servo's hold-to-run for the source's timeout plus `hold_grace_s`, so
 the bridge's explicit "stale" always reaches the servo before its hold would run out by itself, and
