@@ -24,6 +24,7 @@ from typing import Any
 from servo_app.fanuc.alarms import ALARMS
 from servo_app.fanuc.packets import ROBOT_PORT, IoType
 from servo_app.fanuc.runner import StreamConfig, StreamProcess
+from servo_app.inputs.actions import OutputToggle
 from servo_app.janome.profile import available_janome_profiles, load_janome_profile
 from servo_app.janome.runner import DEFAULT_PORT as JANOME_PORT
 from servo_app.motion.limit_tables import default_tables
@@ -143,7 +144,7 @@ class ServoService:
         if robot is not None and robot[0] == "janome":
             self._open_janome(robot[1], robot[2], embedded=self.cfg.robot == "janome")
             if self.inputs is not None:
-                self.inputs.start(request=self.request, feedback=self.state_vector)
+                self.inputs.start(request=self.request, feedback=self.state_vector, act=self._output_action)
             return
         if robot is None:
             self.sim = self._start_simulator()
@@ -159,7 +160,7 @@ class ServoService:
         self.stream.start()
         self._start_threads()
         if self.inputs is not None:
-            self.inputs.start(request=self.request, feedback=self.state_vector)
+            self.inputs.start(request=self.request, feedback=self.state_vector, act=self._output_action)
 
     def _open_janome(self, host: str, port: int, embedded: bool) -> None:
         """Janome: servo_app listens, the robot's point job connects (the manual's Ethernet client)."""
@@ -393,6 +394,22 @@ class ServoService:
                 return int(s["io_read_value"])
             time.sleep(0.002)
         raise TimeoutError(f"no status packet echoed the read of {name}[{index}] within {timeout} s")
+
+    def toggle_output(self, io_type: str, point: int) -> int:
+        """Flip one output point (a device button's gripper): read it through the status packets, then
+        write it inverted; returns the new value. An access covers 16 points from its index, so the
+        index is the point itself where the allowed range permits, else the last index that reaches it."""
+        n = self.cfg.io_allow.get(io_type, 0)
+        index = max(1, min(point, n - IO_SPAN + 1))
+        if not 0 <= point - index < IO_SPAN or point > n:
+            raise InvalidRequest(f"{io_type}[{point}] is outside the allowed {io_type} 1..{n}")
+        bit = 1 << (point - index)
+        new = (self.io_read(io_type, index, bit) & bit) ^ bit
+        self.io_write(io_type, index, bit, new)
+        return int(bool(new))
+
+    def _output_action(self, action: OutputToggle) -> int:
+        return self.toggle_output(action.io_type, action.point)
 
     # ----------------------------------------------------------------- views
     def state_vector(self) -> dict[str, Any]:

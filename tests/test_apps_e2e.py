@@ -48,6 +48,7 @@ frames = ["tool", "base"]
 max_linear_mm_s = 100.0
 [adapters.spacenav.buttons]
 0 = "toggle_frame"
+1 = "toggle_output:DO[3]"
 
 [adapters.ft]
 type = "serial_binary"
@@ -375,6 +376,37 @@ def test_spacemouse_teleop_moves_in_the_tool_then_base_frame_and_stops_when_rele
     print(f"teleop base +y: moved {d.round(2)} mm")
     assert np.linalg.norm(d) > 10 and cosine(d, np.array([0.0, 1.0, 0.0])) > 0.99
     cell.spnav.press(0)  # back to the tool frame
+    done(cell, h)
+
+
+def test_spacemouse_button_toggles_the_gripper_output_only_under_input_control(cell: Cell) -> None:
+    """Button 1 is "toggle_output:DO[3]": each press flips DO[3] on the controller (read back through
+    the status packets); with input control off a press changes nothing and says why."""
+    service = cell.rig.service
+
+    def actions() -> list[dict[str, Any]]:
+        return cell.inputs()["button_actions"]  # type: ignore[no-any-return]
+
+    def press_and_wait() -> dict[str, Any]:
+        n = len(actions())
+        cell.spnav.press(1)
+        deadline = time.monotonic() + 5.0
+        while len(rows := actions()) == n:
+            assert time.monotonic() < deadline, "the press was not acted on"
+            time.sleep(0.02)
+        return rows[-1]
+
+    h = ready(cell)
+    before = service.io_read("DO", 1, 0xFFFF)
+    row = press_and_wait()
+    assert row["ok"] and row["action"] == "toggle_output:DO[3]" and row["result"] == int(not before & 0b100)
+    assert service.io_read("DO", 1, 0xFFFF) == before ^ 0b100  # DO[3] flipped, its neighbours untouched
+    assert press_and_wait()["ok"]
+    assert service.io_read("DO", 1, 0xFFFF) == before
+    cell.rig.post("/api/inputs/enable", h, {"enable": False})
+    row = press_and_wait()
+    assert not row["ok"] and "input control is not enabled" in row["error"]
+    assert service.io_read("DO", 1, 0xFFFF) == before
     done(cell, h)
 
 

@@ -3,6 +3,7 @@ a real UNIX socket speaking the spacenavd protocol to the client."""
 
 from __future__ import annotations
 
+import re
 import socket
 import struct
 import subprocess
@@ -18,6 +19,8 @@ from typing import Any
 import pytest
 
 from servo_app.inputs import ButtonEvent, LatestValue, TwistSample, create_adapter
+from servo_app.inputs.actions import OutputToggle, parse_action
+from servo_app.inputs.bridge import InputsBridge
 from servo_app.inputs.spacemouse.hid_adapter import (
     SpaceMouseHidAdapter,
     SpaceMouseHidConfig,
@@ -353,3 +356,46 @@ def test_spacenav_hold_then_stale() -> None:
     assert a.output.read().stamp == 1.04
     a.process([], now=1.2)  # no news for longer than hold: not refreshed, goes stale
     assert a.output.read().stamp == 1.04
+
+
+def test_button_actions_are_checked_when_the_configuration_loads() -> None:
+    assert parse_action("toggle_frame") == "toggle_frame"
+    assert parse_action("toggle_output:DO[12]") == OutputToggle("DO", 12)
+    assert str(OutputToggle("RO", 2)) == "toggle_output:RO[2]"
+    for bad, why in (("open_gripper", "not a button action"), ("toggle_output:DI[1]", "DI is not an output type"),
+                     ("toggle_output:DO[0]", "numbered from 1"), ("toggle_output:DO1", "not a button action")):
+        with pytest.raises(ValueError, match=why):
+            parse_action(bad)
+        with pytest.raises(ValueError, match=f"button 3: '{re.escape(bad)}'"):
+            create_adapter({"type": "spacenav", "name": "nav", "buttons": {3: bad}})
+
+
+def test_output_presses_reach_the_bridge_and_are_refused_without_input_control(tmp_path: Path) -> None:
+    """The bridge hears every press (through the adapter's event queue) and carries out only output
+    actions, only with input control enabled; every outcome is listed."""
+    path = tmp_path / "inputs.toml"
+    path.write_text('[adapters.nav]\ntype = "spacenav"\nsocket = "/nonexistent"\n'
+                    '[adapters.nav.buttons]\n0 = "toggle_frame"\n1 = "toggle_output:DO[5]"\n')
+    done: list[OutputToggle] = []
+    bridge = InputsBridge.from_file(path)
+    try:
+        bridge.start(act=lambda a: done.append(a) or 1)
+        core = bridge.adapters[0].core  # type: ignore[attr-defined]
+        core.button(0, True, time.monotonic())  # local: not the bridge's
+        core.button(1, False, time.monotonic())  # a release does nothing
+        core.button(1, True, time.monotonic())
+        deadline = time.monotonic() + 5.0
+        while not bridge.actions:
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        row = bridge.describe()["button_actions"][-1]
+        assert not row["ok"] and "input control is not enabled" in row["error"] and not done
+        bridge.enabled = True  # as enable(True) leaves it (that also tells a servo process)
+        core.button(1, True, time.monotonic())
+        while len(bridge.actions) < 2:
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        assert bridge.actions[-1]["ok"] and bridge.actions[-1]["result"] == 1 and done == [OutputToggle("DO", 5)]
+        assert bridge.problems.snapshot()[0]["action_failed"] == 1
+    finally:
+        bridge.close()

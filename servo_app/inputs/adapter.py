@@ -199,6 +199,9 @@ class InputAdapter(ABC):
     def _publish(self, sample: Any) -> None:
         self.output.publish(sample)
 
+    def _emit(self, event: ButtonEvent) -> None:
+        self.events.put(event)  # looked up each time: the bridge replaces the queue before start
+
     def _condition(self, field: str, value: float) -> float:
         """Apply the common deadband (hard zero, for measurements) and scale."""
         scale = self.config.scale

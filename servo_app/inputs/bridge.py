@@ -13,8 +13,13 @@ When the source in control goes stale the bridge publishes the stale marker and 
 `stale_latch_s` even if another source is live, so the servo process surely reads it (the slot holds
 only the newest value): losing the controlling sensor stops the arm until the operator resumes.
 
-Nothing here imports the robot side: the service passes `request` (an op to the servo process) and
-`feedback` (its published state) in `start`.
+Button presses mapped to an output action (``toggle_output:DO[1]``, :mod:`servo_app.inputs.actions`)
+are carried out by the bridge's action thread through `act` (the service's I/O), never in the
+adapter's thread: an output is read and written through the stream's packets, which takes cycles.
+They act only while input control is enabled; each outcome is in `describe()`.
+
+Nothing here imports the robot side: the service passes `request` (an op to the servo process),
+`feedback` (its published state) and `act` (an output action) in `start`.
 """
 
 from __future__ import annotations
@@ -25,12 +30,13 @@ import math
 import sys
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from servo_app.input_slot import FRAMES, NONE, POSE, TWIST, InputCommand, InputSlotWriter
+from servo_app.inputs.actions import OutputToggle, parse_action
 from servo_app.inputs.adapter import Clock, InputAdapter, SourceSpec
 from servo_app.inputs.apps.base import Application
 from servo_app.inputs.apps.config import AppConfig, build_application, load_service_inputs, source_kinds
@@ -40,12 +46,13 @@ from servo_app.inputs.config import InputsConfig, build_adapters
 from servo_app.inputs.feed import FeedRegistry
 from servo_app.inputs.feed.models import FeedSourceConfig
 from servo_app.inputs.problems import ProblemLog
-from servo_app.inputs.samples import PoseSample, TwistSample
-from servo_app.inputs.slots import LatestValue
+from servo_app.inputs.samples import ButtonEvent, PoseSample, TwistSample
+from servo_app.inputs.slots import EventQueue, LatestValue
 from servo_app.inputs.validate import ValueRejected
 
 Request = Callable[..., Any]
 Feedback = Callable[[], Mapping[str, Any]]
+Act = Callable[[OutputToggle], Any]
 HOUSEKEEPING_S = 0.1  # the loop wakes at least this often (rates, summaries)
 
 
@@ -60,6 +67,18 @@ class _NotifyingSlot(LatestValue[Any]):
         seq = super().publish(value, stamp)
         self._notify()
         return seq
+
+
+class _ActingEvents(EventQueue[ButtonEvent]):
+    """An adapter's button events, each also handed to the bridge (which picks the output actions)."""
+
+    def __init__(self, on_event: Callable[[ButtonEvent], None]) -> None:
+        super().__init__()
+        self._on_event = on_event
+
+    def put(self, item: ButtonEvent) -> None:
+        super().put(item)
+        self._on_event(item)
 
 
 class _NotifyingFeeds(FeedRegistry):
@@ -89,6 +108,7 @@ class InputsBridge:
         self.adapters: list[InputAdapter] = build_adapters(cfg, clock=clock)
         for a in self.adapters:
             a.output = _NotifyingSlot(a.name, self._on_sample)  # before start: the adapter's thread publishes here
+            a.events = _ActingEvents(self._on_button)
         self.feeds: FeedRegistry = _NotifyingFeeds(cfg.feeds, self._on_sample, clock)
         self.kinds = source_kinds(cfg)
         slots: dict[str, tuple[LatestValue[Any], float]] = {a.name: (a.output, a.stale_after_s) for a in self.adapters}
@@ -120,6 +140,10 @@ class InputsBridge:
         self._thread: threading.Thread | None = None
         self._request: Request | None = None
         self._feedback: Feedback | None = None
+        self._act: Act | None = None
+        self._presses: EventQueue[tuple[ButtonEvent, OutputToggle]] = EventQueue(maxlen=16)
+        self._acting: threading.Thread | None = None
+        self.actions: deque[dict[str, Any]] = deque(maxlen=20)  # the latest output actions and how they went
 
     @classmethod
     def from_file(cls, path: str | Path, **kw: Any) -> InputsBridge:
@@ -131,8 +155,8 @@ class InputsBridge:
         return self.writer.name
 
     # ------------------------------------------------------------------ life
-    def start(self, request: Request | None = None, feedback: Feedback | None = None) -> None:
-        self._request, self._feedback = request, feedback
+    def start(self, request: Request | None = None, feedback: Feedback | None = None, act: Act | None = None) -> None:
+        self._request, self._feedback, self._act = request, feedback, act
         # A thread woken by a sample waits for the GIL up to the switch interval (5 ms by default) while
         # uvicorn or another adapter runs; at 1 ms the sensor -> slot p99 fell from 3-4 ms to about 2 ms
         # (bench/input_latency.py). Process-wide, so only ever lowered; the servo cycle has its own process.
@@ -143,14 +167,17 @@ class InputsBridge:
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="inputs-bridge", daemon=True)
         self._thread.start()
+        self._acting = threading.Thread(target=self._run_actions, name="inputs-actions", daemon=True)
+        self._acting.start()
 
     def stop(self) -> None:
         """Stop the loop, then every adapter (each closes its device)."""
         self._stop.set()
         self._wake.set()
-        if self._thread is not None:
-            self._thread.join(5.0)
-            self._thread = None
+        for t in (self._thread, self._acting):
+            if t is not None:
+                t.join(5.0)
+        self._thread = self._acting = None
         for a in self.adapters:
             a.stop()
 
@@ -190,6 +217,36 @@ class InputsBridge:
             raise ValueError(f"application {name!r} ({app.type_name}) has no sensor bias to zero")
         with self._lock:
             zero(samples)
+
+    # --------------------------------------------------------------- buttons
+    def _on_button(self, ev: ButtonEvent) -> None:
+        """An adapter's thread: queue a press mapped to an output action (configuration checked it)."""
+        if ev.pressed and ev.action is not None:
+            action = parse_action(ev.action)
+            if isinstance(action, OutputToggle):
+                self._presses.put((ev, action))
+
+    def _run_actions(self) -> None:
+        while not self._stop.is_set():
+            item = self._presses.get(timeout=0.1)
+            if item is not None:
+                self.act_on(*item)
+
+    def act_on(self, ev: ButtonEvent, action: OutputToggle) -> None:
+        """Carry out one output action (the action thread calls this; tests may too)."""
+        row: dict[str, Any] = {"source": ev.source, "button": ev.button, "action": str(action), "ok": False}
+        try:
+            if self._act is None:
+                raise RuntimeError("no robot I/O connected")
+            if not self.enabled:
+                raise RuntimeError("input control is not enabled")
+            row["result"] = self._act(action)
+            row["ok"] = True
+        except Exception as exc:  # refused (not streaming, I/O not allowed) or failed: reported, nothing else
+            row["error"] = f"{type(exc).__name__}: {exc}"
+            self.problems.record("action_failed", f"{ev.source} button {ev.button} {action}: {row['error']}")
+        row["took_s"] = round(self.clock() - ev.stamp, 4)  # press to done
+        self.actions.append(row)
 
     # ------------------------------------------------------------------ loop
     def _on_sample(self) -> None:
@@ -331,7 +388,7 @@ class InputsBridge:
         return {
             "enabled": self.enabled, "active": self.arbiter.active, "slot": self.slot_name,
             "servo_sources": self.source_names, "sources": rows, "applications": apps,
-            "published": self.published, "stale_events": dict(self.stale_events),
+            "published": self.published, "stale_events": dict(self.stale_events), "button_actions": list(self.actions),
             "bridge_problems": dict(self.problems.snapshot()[0]),
             "last_command": None if last is None else {
                 "kind": ("none", "twist", "pose")[last.kind], "source": self.source_names[last.source]

@@ -1,9 +1,9 @@
 """What the HID and the spacenavd SpaceMouse adapters share: configuration, axis state, modes, buttons.
 
-Buttons map to action names. A few act on the SpaceMouse itself (`toggle_frame`,
-`toggle_translation`, `toggle_rotation`, `toggle_dominant`); every press and release, those
-included, is also published as a ButtonEvent so the service can act on the others
-(e.g. "toggle_output:DO[1]").
+Buttons map to action names (:mod:`servo_app.inputs.actions`). A few act on the SpaceMouse itself
+(`toggle_frame`, `toggle_translation`, `toggle_rotation`, `toggle_dominant`); every press and
+release, those included, is also published as a ButtonEvent, and the inputs bridge carries out the
+output actions (e.g. "toggle_output:DO[1]") through the service.
 """
 
 from __future__ import annotations
@@ -13,11 +13,10 @@ from dataclasses import replace
 
 from pydantic import Field, PositiveFloat, field_validator
 
+from servo_app.inputs.actions import LOCAL_ACTIONS, parse_action
 from servo_app.inputs.adapter import AdapterConfig
 from servo_app.inputs.samples import ButtonEvent, TwistSample
 from servo_app.inputs.spacemouse.shaping import DEFAULT_AXIS_SIGNS, Shaping, shape
-
-LOCAL_ACTIONS = ("toggle_frame", "toggle_translation", "toggle_rotation", "toggle_dominant")
 
 
 class SpaceMouseConfig(AdapterConfig):
@@ -34,6 +33,16 @@ class SpaceMouseConfig(AdapterConfig):
     axis_signs: list[int] = Field(default_factory=lambda: list(DEFAULT_AXIS_SIGNS), min_length=6, max_length=6)
     frames: list[str] = Field(default_factory=lambda: ["base", "tool"], min_length=1)
     buttons: dict[int, str] = Field(default_factory=dict)
+
+    @field_validator("buttons")
+    @classmethod
+    def _actions(cls, v: dict[int, str]) -> dict[int, str]:
+        for button, action in v.items():
+            try:
+                parse_action(action)
+            except ValueError as exc:
+                raise ValueError(f"button {button}: {exc}") from None
+        return v
 
     @field_validator("axis_map")
     @classmethod

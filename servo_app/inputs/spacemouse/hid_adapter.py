@@ -79,7 +79,7 @@ class SpaceMouseHidAdapter(InputAdapter):
         super().__init__(config, clock=clock)
         self._open_device = open_device
         self._dev: HidDevice | None = None
-        self.core = SpaceMouseCore(config, self._publish, self.events.put)
+        self.core = SpaceMouseCore(config, self._publish, self._emit)
 
     def _open(self) -> None:
         self._dev = self._open_device(self.config)

@@ -40,7 +40,7 @@ class SpaceNavAdapter(InputAdapter):
     def __init__(self, config: SpaceNavConfig, *, clock: Clock = time.monotonic) -> None:
         super().__init__(config, clock=clock)
         self.client = SpnavClient(config.socket)
-        self.core = SpaceMouseCore(config, self._publish, self.events.put)
+        self.core = SpaceMouseCore(config, self._publish, self._emit)
         self._last_motion = -float("inf")
 
     def _open(self) -> None:
