@@ -379,6 +379,35 @@ def test_spacemouse_teleop_moves_in_the_tool_then_base_frame_and_stops_when_rele
     done(cell, h)
 
 
+def test_one_source_can_be_given_exclusive_control(cell: Cell) -> None:
+    """The lease holder makes hand guiding the only source: the SpaceMouse (higher priority) no longer
+    moves the arm until control is given back to all sources."""
+    rig = cell.rig
+    sensor = Every(0.005, cell.ft_frame)  # the F/T sensor streams (nobody touches the tool)
+    try:
+        cell.wrench[:] = [0.0] * 6
+        h = ready(cell, enable=False)
+        zero_guide(cell, h, [0.0] * 6)
+        rig.post("/api/inputs/enable", h, {"enable": True})
+        assert rig.http.post("/api/inputs/owner", json={"source": "guide"}, headers=AUTH).status_code == 409
+        r = rig.http.post("/api/inputs/owner", json={"source": "nope"}, headers=h)
+        assert r.status_code == 404 and "teleop" in r.text
+        assert rig.post("/api/inputs/owner", h, {"source": "guide"}).json()["detail"]["owner"] == "guide"
+        assert cell.inputs()["owner"] == "guide" and rig.state()["inputs"]["owner"] == "guide"
+        p0 = cell.pose()
+        cell.spnav.hold((200, 0, 0), 0.5)
+        time.sleep(0.2)
+        assert np.allclose(cell.pose()[:3], p0[:3], atol=0.05)
+        assert cell.inputs()["active"] == "guide" and rig.state()["state"] == "streaming"
+        rig.post("/api/inputs/owner", h, {"source": None})
+        cell.spnav.hold((200, 0, 0), 0.5)
+        at_rest(cell)
+        assert np.linalg.norm(cell.pose()[:3] - p0[:3]) > 10 and rig.state()["state"] == "streaming"
+        done(cell, h)
+    finally:
+        sensor.stop()
+
+
 def test_spacemouse_button_toggles_the_gripper_output_only_under_input_control(cell: Cell) -> None:
     """Button 1 is "toggle_output:DO[3]": each press flips DO[3] on the controller (read back through
     the status packets); with input control off a press changes nothing and says why."""
@@ -463,6 +492,7 @@ def test_sensor_unplugged_mid_motion_stops_the_arm_naming_it(cell: Cell) -> None
         cell.wrench[0] = -20.0  # pushing along tool -x
         cell.rig.wait(lambda s: max(map(abs, s["vel"])) > 1.0, 3.0, "moving")
         time.sleep(0.3)
+        stale_before = cell.inputs()["stale_events"].get("ft", 0)  # other tests' sensors went quiet too
     finally:
         sensor.stop()
     cell.ft.unplug()  # mid-motion
@@ -471,7 +501,7 @@ def test_sensor_unplugged_mid_motion_stops_the_arm_naming_it(cell: Cell) -> None
         assert s["stop_reason"] == "input ft stale" and s["at_rest"] and not s["stop_fast"]
         info = cell.inputs()
         ft = next(x for x in info["sources"] if x["name"] == "ft")
-        assert ft["stale"] and info["stale_events"].get("ft") == 1
+        assert ft["stale"] and info["stale_events"].get("ft") == stale_before + 1
         assert cell.rig.sim_alarms() == []
     finally:
         cell.ft.plug()  # back under the same path: the adapter reconnects by itself

@@ -4,6 +4,7 @@
   sensor process holds no lease; the lease holder decides whether inputs move the arm);
 - ``GET /api/inputs``: sources with rate, age, staleness and errors, applications, tracking error;
 - ``POST /api/inputs/enable``: token and lease; the servo process then takes the input slot;
+- ``POST /api/inputs/owner``: token and lease; one source gets exclusive control (null: all, by priority);
 - ``POST /api/inputs/{app}/zero``: token and lease; a force/torque application re-zeroes its bias.
 
 A browser cannot set headers on a WebSocket, so the feed socket also takes ``?token=``; plain HTTP
@@ -27,6 +28,12 @@ from servo_app.inputs.feed.router import FeedPostFastPath, feed_post_handler, fe
 class EnableInputs(BaseModel):
     model_config = {"extra": "forbid"}
     enable: bool
+
+
+class InputsOwner(BaseModel):
+    model_config = {"extra": "forbid"}
+    source: str | None = Field(description="the one source that may command (an application or a direct "
+                                           "source); null: every source, by priority")
 
 
 class ZeroRequest(BaseModel):
@@ -85,6 +92,12 @@ def include_inputs(app: FastAPI, bridge: InputsBridge, *, token: str, controllin
             except RuntimeError as exc:
                 raise TimeoutError(str(exc)) from None
         return call(client, "inputs.enable", run, {"enable": body.enable})
+
+    @router.post("/api/inputs/owner")
+    def owner(body: InputsOwner, client: Annotated[str, Depends(controlling)]) -> Any:
+        if body.source is not None and body.source not in bridge.specs:
+            raise HTTPException(404, f"no input source {body.source!r}; sources: {sorted(bridge.specs)}")
+        return call(client, "inputs.owner", lambda: bridge.set_owner(body.source), {"source": body.source})
 
     @router.post("/api/inputs/{name}/zero")
     def zero(name: str, client: Annotated[str, Depends(controlling)], body: ZeroRequest | None = None) -> Any:

@@ -74,6 +74,10 @@ class Arbiter:
     def active(self) -> str | None:
         return self._active
 
+    @property
+    def owner(self) -> str | None:
+        return self._owner
+
     def _require(self, name: str) -> None:
         if name not in self._sources:
             raise KeyError(f"unknown source {name!r}; known: {sorted(self._sources)}")

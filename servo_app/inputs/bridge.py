@@ -203,6 +203,14 @@ class InputsBridge:
         self._wake.set()
         return {"enabled": self.enabled, "sources": self.source_names}
 
+    def set_owner(self, name: str | None) -> dict[str, Any]:
+        """Give one source exclusive control (the others stay connected and reported, but cannot
+        command); None gives it back to priority among all. KeyError names an unknown source."""
+        with self._lock:
+            self.arbiter.set_owner(name)
+        self._wake.set()  # the bridge's thread publishes the new decision (or the stop) at once
+        return {"owner": name, "sources": list(self.specs)}
+
     def application(self, name: str) -> Application:
         for app in self.apps:
             if app.name == name:
@@ -374,7 +382,7 @@ class InputsBridge:
         now = self.clock()
         with self._lock:
             rows = source_rows(self, now, self._rates)
-        return {"enabled": self.enabled, "active": self.arbiter.active,
+        return {"enabled": self.enabled, "active": self.arbiter.active, "owner": self.arbiter.owner,
                 "sources": [{k: r[k] for k in ("name", "kind", "rate_hz", "age_s", "stale", "active")} for r in rows]}
 
     def describe(self) -> dict[str, Any]:
@@ -386,7 +394,8 @@ class InputsBridge:
                      "sources": {r: i.source for r, i in a.inputs.items()}, **a.describe()} for a in self.apps]
             last = self.last_command
         return {
-            "enabled": self.enabled, "active": self.arbiter.active, "slot": self.slot_name,
+            "enabled": self.enabled, "active": self.arbiter.active, "owner": self.arbiter.owner,
+            "slot": self.slot_name,
             "servo_sources": self.source_names, "sources": rows, "applications": apps,
             "published": self.published, "stale_events": dict(self.stale_events), "button_actions": list(self.actions),
             "bridge_problems": dict(self.problems.snapshot()[0]),
