@@ -85,7 +85,9 @@ def test_status_loss_with_no_lead_faults_with_the_controllers_code(tmp_path: Pat
     must end in fault carrying that code with the manual's cause and remedy, not hang or hide it."""
     with running_rig(tmp_path, lead=0, sim_options={"faults": FaultConfig(drop_prob=0.05, seed=3)}) as rig:
         h = rig.lease()
-        rig.start_streaming(h)
+        rig.post("/api/session/start", h)
+        # A packet lost in the first cycles faults the stream before it is seen streaming: either will do.
+        rig.wait(lambda s: s["state"] in ("streaming", "fault"), 10.0, "streaming (or already the fault)")
         deadline = time.monotonic() + 10
         while rig.state()["state"] != "fault" and time.monotonic() < deadline:
             rig.jog_for(h, [20.0, 0, 0, 0, 0, 0], 0.2)
