@@ -147,7 +147,7 @@ export function renderInputs(section, s) {
   section.hidden = !summary;
   if (!summary) return;
   setText($("#inputs-status", section), `${summary.enabled ? "enabled" : "disabled"} · in control: `
-    + `${summary.active || "none"}`);
+    + `${summary.active || "none"}${summary.owner ? ` · only ${summary.owner} may command` : ""}`);
   const rows = sources.map((src) => el("tr", { class: src.stale ? "warn-row" : "", dataset: { source: src.name } },
     el("td", {}, src.name), el("td", {}, src.kind || ""), el("td", {}, src.stale ? "stale" : "live"),
     el("td", { class: "num" }, Number.isFinite(src.rate_hz) ? `${fmt(src.rate_hz, 0)} Hz` : "—"),
