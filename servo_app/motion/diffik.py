@@ -115,6 +115,10 @@ class IkSettings:
     # The jerk-limited shaper builds a deceleration at its jerk limit: braking distances allow for the
     # time that takes (None: the largest acc/jerk ratio of the profile's axes).
     follow_lag_s: float | None = None
+    # Time constant of the pull-back onto the commanded line (None: all of it in one cycle). The shaper
+    # follows the IK a little late: pulled back in one cycle, a Cartesian jog swung 2-5 mm off its
+    # line; at 30 ms it stays within 0.3 mm (LR Mate, 100-230 mm/s, 4 and 8 ms).
+    correction_s: float | None = 0.03
 
     def __post_init__(self) -> None:
         for name in ("vel_fraction", "acc_fraction", "brake_fraction"):
@@ -228,6 +232,7 @@ class DifferentialIK:
             pairs = collision_pairs if collision_pairs is not None else default_collision_pairs(self.model)
             self.collision_limit = CollisionLimit(self.model, pairs, path=self.path_braking)
             self.limits.append(self.collision_limit)
+        self._correction_gain = 1.0 if st.correction_s is None else min(1.0, self.dt / st.correction_s)
         self.follow_lag = (st.follow_lag_s if st.follow_lag_s is not None
                            else float(np.max(np.asarray(profile.acc_limit) / np.asarray(profile.jerk_limit))))
         for limit in (self.braking_limit, self.config_guard, self.collision_limit):
@@ -314,6 +319,8 @@ class DifferentialIK:
             cartesian_mode = mode if mode != "stop" else self._mode
             if self._mode != cartesian_mode or self._ref is None or not self._near(self._ref, tcp):
                 self._ref = tcp
+            elif cartesian_mode == "twist" and self._last_xi is not None:
+                self._ref = self._along_track(self._ref, tcp, self._last_xi)
             if xi.any():
                 s_sing = self._singularity_factor(q, xi, kappa)
                 if s_sing < 1.0:
@@ -363,6 +370,8 @@ class DifferentialIK:
             c_ref = c - task_c[0] + self.frame_task.compute_qp_objective(cfg).c
             self.frame_task.set_target(target)
             d, d_corr = np.linalg.solve(p, -np.column_stack([c, c_ref])).T
+            d = d - d_corr * (1.0 - self._correction_gain)  # the line, plus this cycle's share of the pull-back
+            d_corr = d_corr * self._correction_gain
         else:
             d, d_corr = np.linalg.solve(p, -c), np.zeros(N)
         # Keep the direction: the commanded one (s -> 1), or while braking the current line (s -> 0).
@@ -645,6 +654,20 @@ class DifferentialIK:
         mujoco.mju_mat2Quat(pose[:4], data.site_xmat[site_id])
         pose[4:] = data.site_xpos[site_id]
         return pose
+
+    def _along_track(self, ref: np.ndarray, tcp: np.ndarray, xi: np.ndarray) -> np.ndarray:
+        """The reference moved along the line ``xi`` to where the TCP actually is along it.
+
+        The reference advances by what each cycle asked for; the jerk-limited shaper delivers it a
+        little later. Pulling the TCP forward to the reference then overshot the commanded speed
+        (+20 %) and swung back: only the error across the line is the IK's to correct."""
+        st = self.settings
+        w = np.array([st.position_cost] * 3 + [st.orientation_cost] * 3) ** 2
+        err = np.concatenate([tcp[4:] - ref[4:], _rotation_between(tcp, ref)])
+        norm = float(xi @ (w * xi))
+        if norm <= 0.0:
+            return ref
+        return _advance(ref, (float(err @ (w * xi)) / norm) * xi)
 
     def _near(self, a: np.ndarray, b: np.ndarray) -> bool:
         tol = self.settings.reference_tolerance_m
