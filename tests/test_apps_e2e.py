@@ -602,6 +602,7 @@ def track(cell: Cell, feed: str, stamped: bool) -> tuple[list[float], float, flo
     """A target moving at 40 mm/s along y, seen by a 30 Hz camera 50 ms late, streamed over the feed
     WebSocket; `stamped`: its messages carry the time the frame was taken."""
     rig = cell.rig
+    ready(cell, enable=False)  # streaming, so the pose is the arm's (also when this test runs alone)
     start = cell.pose() + np.array([0.0, 20.0, -10.0, 0, 0, 0])
     t_move, speed, duration, lag = 1.0, 40.0, 2.0, 0.05
     t0 = time.monotonic()
