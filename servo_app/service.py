@@ -27,6 +27,7 @@ from servo_app.fanuc.runner import StreamConfig, StreamProcess
 from servo_app.inputs.actions import OutputToggle
 from servo_app.janome.profile import available_janome_profiles, load_janome_profile
 from servo_app.janome.runner import DEFAULT_PORT as JANOME_PORT
+from servo_app.motion.diffik import holding_back
 from servo_app.motion.limit_tables import default_tables
 from servo_app.motion.servo import CommandRejected
 from servo_app.realtime import make_realtime
@@ -435,6 +436,9 @@ class ServoService:
         if "crashed" in self._last_event:
             s["servo_process"] = "crashed"
         s["model"] = self.profile.name
+        # Why a Cartesian motion goes slower than asked, or stops short (None: no Cartesian motion).
+        s["cartesian"] = {"scale": s["ik_scale"], "condition": s["ik_condition"],
+                          "held_back_by": holding_back(s["ik_flags"])} if s.get("ik_active") else None
         s["robot"] = f"{self.robot_address[0]}:{self.robot_address[1]}" if self.robot_address else None
         s["simulated"] = self.sim is not None
         s["alarms"] = self.alarms()

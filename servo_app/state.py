@@ -34,6 +34,10 @@ _FIELDS: list[tuple[str, int]] = [
     ("malformed", 1),
     ("late_commands", 1),
     ("late_inputs", 1),  # solves again for an input that reached the slot during the solve
+    ("ik_active", 1),  # the last cycle was a Cartesian one (twist, pose target, braking on its path)
+    ("ik_flags", 1),  # its IkFlag bits
+    ("ik_scale", 1),  # the share of the commanded motion it delivered
+    ("ik_condition", 1),  # condition number of the normalised flange Jacobian
     ("latency_last_us", 1),
     ("latency_p50_us", 1),
     ("latency_p99_us", 1),
@@ -95,11 +99,11 @@ def decode_state(data: np.ndarray) -> dict[str, Any]:
             out[name] = float(data[sl.start])
     out["link"] = PHASES[int(out.pop("phase"))]
     out["state"] = MODES[int(out.pop("mode"))]
-    for k in ("at_rest", "stopped", "tables_from_controller"):
+    for k in ("at_rest", "stopped", "tables_from_controller", "ik_active"):
         out[k] = bool(out[k])
     for k in ("status_seq", "status_bits", "commands_sent", "status_received", "status_lost", "status_duplicated",
               "malformed", "late_commands", "late_inputs", "io_read_value", "io_read_type", "io_read_index",
-              "io_read_mask"):
+              "io_read_mask", "ik_flags"):
         out[k] = int(out[k])
     out["latency_hist"] = [int(v) for v in out["latency_hist"]]
     return out

@@ -155,6 +155,24 @@ def test_start_jog_hold_to_run_target_stop_resume_end(rig: Rig) -> None:
     assert rig.sim_alarms() == []
 
 
+def test_a_pose_target_out_of_reach_stops_short_and_the_state_says_why(rig: Rig) -> None:
+    """The arm goes as far as its held configuration allows, then rests there; the state names what
+    holds the Cartesian motion back. A reachable target afterwards arrives and the reason clears."""
+    h = streaming(rig)
+    start = np.array(rig.state()["cart_servo"])
+    far = start + np.array([600.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # beyond the stretched arm
+    rig.post("/api/target", h, {"xyzwpr": list(far), "linear_speed": 150.0})
+    s = rig.wait(lambda s: s["cart_servo"][0] > start[0] + 5.0, 5.0, "moving out")
+    s = rig.wait(lambda s: max(map(abs, s["vel"])) < 1e-3 and (s["cartesian"] or {}).get("held_back_by"), 8.0,
+                 "still, short of the target, held back")
+    assert s["state"] == "streaming" and s["cartesian"]["scale"] < 0.05, s["cartesian"]
+    assert set(s["cartesian"]["held_back_by"]) & {"configuration boundary", "singularity", "joint limit"}
+    assert s["cart_servo"][0] < far[0] - 100.0 and rig.sim_alarms() == []
+    rig.post("/api/target", h, {"xyzwpr": list(start), "linear_speed": 150.0})
+    s = rig.wait(lambda s: s["at_rest"] and np.allclose(s["cart_servo"][:3], start[:3], atol=0.1), 15.0, "back")
+    assert not (s["cartesian"] or {}).get("held_back_by"), s["cartesian"]
+
+
 def test_state_fields(rig: Rig) -> None:
     s = rig.state()
     for key in ("state", "link", "q_cmd", "q_servo", "cart_servo", "vel", "acc", "jerk", "at_rest", "stop_reason",

@@ -409,3 +409,10 @@ def test_invalid_inputs_are_rejected() -> None:
         DifferentialIK(PROFILE, 0.0)
     with pytest.raises(ValueError, match="solver"):
         DifferentialIK(PROFILE, DT, solver="cvxopt")  # type: ignore[arg-type]
+
+
+def test_what_holds_a_motion_back_in_words() -> None:
+    assert diffik_module.holding_back(0) == []
+    flags = IkFlag.ACCEL_LIMIT | IkFlag.SINGULARITY_SLOWDOWN | IkFlag.CONFIGURATION | IkFlag.NO_COMMAND
+    assert diffik_module.holding_back(int(flags)) == ["singularity", "configuration boundary"]  # ramps are normal
+    assert diffik_module.holding_back(int(IkFlag.JOINT_LIMIT | IkFlag.COLLISION)) == ["joint limit", "collision guard"]

@@ -380,6 +380,25 @@ def test_digital_output_toggle_reads_back(page: Any, fanuc: Service) -> None:
     assert (fanuc.state()["io_read_value"] >> 2) & 1 == (want == "true")
 
 
+def test_jogging_into_the_stretched_arm_says_what_holds_it_back(page: Any, fanuc: Service) -> None:
+    """Full speed +X until the arm is stretched: the jog card says the motion is held back and why,
+    and the note goes once the jog is released."""
+    sign_in(page, fanuc)
+    take_control_and_stream(page, fanuc)
+    page.eval_on_selector("#speed", "e => { e.value = 100; e.dispatchEvent(new Event('input')); }")
+    hold(page, "[data-jog='+X']", 0.0)
+    page.wait_for_selector("#held-back:not([hidden])", timeout=10000)
+    text = page.text_content("#held-back") or ""
+    shot(page, "console-held-back")
+    page.mouse.up()
+    assert "held back" in text and ("singularity" in text or "configuration boundary" in text), text
+    at_rest_without_alarm(fanuc)
+    page.wait_for_selector("#held-back", state="hidden", timeout=5000)
+    hold(page, "[data-jog='-X']", 1.0)  # back towards the middle for the tests after this one
+    page.mouse.up()
+    at_rest_without_alarm(fanuc)
+
+
 def test_session_log_plot_and_layout(page: Any, fanuc: Service) -> None:
     sign_in(page, fanuc)
     take_control_and_stream(page, fanuc)

@@ -10,7 +10,9 @@ import { installKeys } from "./keys.js";
 import { Lease } from "./lease.js";
 import { LogsPanel } from "./logs.js";
 import { Telemetry } from "./telemetry.js";
-import { JointTable, renderAlarms, renderInputs, renderPose, renderStatus, renderTiming } from "./views.js";
+import {
+  JointTable, renderAlarms, renderHeldBack, renderInputs, renderPose, renderStatus, renderTiming,
+} from "./views.js";
 
 const ROBOT_POLL_MS = 100; // arm view refresh (FK on the server)
 
@@ -198,6 +200,7 @@ function onState(s) {
   renderStatus(s);
   if (lease.held) $("#lease-holder").textContent = `control: you (${api.operator})`;
   renderPose(s, ui.robot);
+  renderHeldBack(s);
   renderTiming(s);
   renderAlarms(s);
   renderInputs($("#inputs-card"), s);

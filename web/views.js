@@ -20,6 +20,17 @@ export function renderStatus(s) {
   setText($("#lease-holder"), s.lease && s.lease.held ? `control: ${s.lease.client}` : "control: free");
 }
 
+/** Why a Cartesian motion goes slower than asked or stops short (singularity, joint limit, ...). */
+export function renderHeldBack(s) {
+  const c = s.cartesian;
+  const reasons = c && Array.isArray(c.held_back_by) ? c.held_back_by : [];
+  const box = $("#held-back");
+  box.hidden = reasons.length === 0;
+  if (reasons.length) {
+    setText(box, `Cartesian motion held back: ${reasons.join(", ")} (${fmt(c.scale * 100, 0)} % of the speed asked)`);
+  }
+}
+
 /** Flange (FANUC: X Y Z W P R) or tool (Janome: X Y Z R) pose from the controller's feedback. */
 export function renderPose(s, robot) {
   const janome = robot && robot.backend === "janome";

@@ -339,6 +339,11 @@ class _ServoProcess(ChildLink):
             sv.set("latency_max_us", lat.max_us)
             sv.set("late_commands", lat.late)
         sv.set("late_inputs", c.late_inputs)
+        ik = c.last_ik if c.ik_active else None
+        sv.set("ik_active", float(ik is not None))
+        sv.set("ik_flags", float(ik.flags) if ik else 0.0)
+        sv.set("ik_scale", ik.scale if ik else 1.0)
+        sv.set("ik_condition", ik.condition if ik else 0.0)
         if c.limits is not None:
             sv.set("at_rest", float(c.at_rest()))
             sv.set("stopped", float(c.stopped))

@@ -87,6 +87,16 @@ class IkFlag(enum.IntFlag):
 
 LIMIT_FLAGS = IkFlag.JOINT_LIMIT | IkFlag.VELOCITY_LIMIT | IkFlag.ACCEL_LIMIT
 
+# What holds a Cartesian motion back, in an operator's words (the flags that explain a slow-down).
+HOLDING_BACK = {IkFlag.JOINT_LIMIT: "joint limit", IkFlag.VELOCITY_LIMIT: "joint speed limit",
+                IkFlag.SINGULARITY_SLOWDOWN: "singularity", IkFlag.COLLISION: "collision guard",
+                IkFlag.CONFIGURATION: "configuration boundary"}
+
+
+def holding_back(flags: int) -> list[str]:
+    """The reasons in ``flags`` that hold a Cartesian motion back, most specific first."""
+    return [word for flag, word in HOLDING_BACK.items() if flags & flag]
+
 
 @dataclass(frozen=True)
 class IkSettings:

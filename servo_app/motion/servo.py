@@ -137,6 +137,11 @@ class ServoCycle:
         self._guard_flange_speed(shaper, q)
         return q
 
+    @property
+    def ik_active(self) -> bool:
+        """The differential IK drives the shaper (a twist or pose target, or braking along its path)."""
+        return self._cart_active
+
     def request_rest(self) -> None:
         if self.shaper is not None and not self.shaper.at_rest:
             self.stop(fast=False)
