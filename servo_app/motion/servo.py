@@ -33,6 +33,8 @@ from servo_app.robots.conventions import fanuc_deg_to_model_rad, model_rad_to_fa
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import RobotProfile
 
+CREEP_DEG_S = 1e-3  # joint speed below which a Cartesian motion is held still (~10 um/s at the flange)
+
 
 class CommandRejected(ValueError):
     """A motion command that cannot be executed; the message names the field and the value."""
@@ -291,6 +293,10 @@ class ServoCycle:
         self.last_ik = res
         v = self.ik.velocity_fanuc_deg_s(res.velocity)
         v = v * self._stoppable_scale(q_f, v, shaper)
+        if (np.abs(v) < CREEP_DEG_S).all() and (np.abs(v_f) < CREEP_DEG_S).all():
+            # Braking rows let the IK approach a boundary (a target out of reach) ever more slowly:
+            # below this it only creeps, and the arm is held still and at rest instead.
+            v = np.zeros_like(v)
         if self._cart is None and not res.dq.any() and not v_f.any():
             self._cart_active = False  # braked to rest along the path
             shaper.stop("soft")
