@@ -57,7 +57,8 @@ class StreamConfig:
     status_timeout_s: float = 0.1
     late_threshold_ms: float | None = None  # None: half an interval
     # An input that reaches the slot while the IK solves a status packet's command is solved into that
-    # packet if the IK finished within this time of the packet's arrival (None: a quarter interval; 0: never).
+    # packet if the IK finished within this time of the packet's arrival (None: a quarter interval, so
+    # that one more solve as long as the first still answers within half an interval; 0: never).
     late_input_ms: float | None = None
     realtime_priority: int | None = 20  # SCHED_FIFO priority for the servo process; None: leave as is
     wake_latency_us: int | None = 0  # CPU idle-state exit latency held while streaming; None: leave as is
