@@ -656,6 +656,9 @@ def test_target_tracking_compensates_the_feed_latency_and_reports_the_error(cell
     assert np.mean(errors) < 1.5 and err_end < 1.0
     assert report is not None and report["samples"] > 100 and report["position_mm_last"] < 1.0
     assert 0.05 < report["target_age_s_mean"] < 0.2  # the camera's 50 ms plus up to a frame: compensated
+    # The feed's own latency (arrival - the frame's stamp) is in the state, with its rate.
+    row = next(r for r in cell.rig.state()["inputs"]["sources"] if r["name"] == "target")
+    assert 45.0 < row["latency_ms"]["mean"] < 150.0 and row["latency_ms"]["max"] >= row["latency_ms"]["mean"]
 
 
 def test_no_stream_keeps_moving_without_input(cell: Cell) -> None:

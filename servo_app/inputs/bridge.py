@@ -383,7 +383,8 @@ class InputsBridge:
         with self._lock:
             rows = source_rows(self, now, self._rates)
         return {"enabled": self.enabled, "active": self.arbiter.active, "owner": self.arbiter.owner,
-                "sources": [{k: r[k] for k in ("name", "kind", "rate_hz", "age_s", "stale", "active")} for r in rows]}
+                "sources": [{k: r[k] for k in ("name", "kind", "rate_hz", "age_s", "stale", "active", "latency_ms")
+                             if k in r} for r in rows]}
 
     def describe(self) -> dict[str, Any]:
         """Everything, for GET /api/inputs: sources with errors, applications, the last command."""
