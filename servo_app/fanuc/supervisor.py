@@ -16,14 +16,13 @@ returns the datagrams to send. Every decision about motion goes through
 from __future__ import annotations
 
 import signal as _signal
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from servo_app.fanuc.packets import LimitTableResponse, Status
 from servo_app.fanuc.session import IoRequest, Phase, SessionConfig, StreamSession
-from servo_app.input_slot import POSE, TWIST, InputCommand, InputControl
+from servo_app.input_slot import POSE, TWIST, InputCommand
 from servo_app.motion.commands import PoseTarget, Twist
 from servo_app.motion.servo import CommandRejected, ServoCycle
 from servo_app.safety import (
@@ -35,7 +34,6 @@ from servo_app.safety import (
     EndRequested,
     Event,
     HoldToRun,
-    InputStale,
     JogExpired,
     LeaseLost,
     Mode,
@@ -44,7 +42,6 @@ from servo_app.safety import (
     ResetRequested,
     ResumeMotion,
     ResumeRequested,
-    SafetyState,
     SendFirstCommand,
     SendLastData,
     ShaperAtRest,
@@ -55,35 +52,22 @@ from servo_app.safety import (
     StatusReceived,
     StopRequested,
     StopStatusOutput,
-    motion_allowed,
     safe_to_exit,
     transition,
 )
+from servo_app.supervision import SupervisorBase
 
 JOG_EXPIRED = "hold-to-run expired"  # the state machine's stop reason for JogExpired
 
 
-@dataclass
-class SupervisorLog:
-    """What happened, for the parent process and the API (fault texts, warnings, stops)."""
-
-    transitions: list[tuple[float, str, str, str]] = field(default_factory=list)  # (t, from, to, event)
-    warnings: list[dict[str, Any]] = field(default_factory=list)
-    stops: dict[str, int] = field(default_factory=dict)
-
-
-class StreamSupervisor:
+class StreamSupervisor(SupervisorBase):
     def __init__(self, cycle: ServoCycle, session_config: SessionConfig | None = None) -> None:
+        super().__init__(min_input_hold_s=0.02)
         self.cycle = cycle
         self.session = StreamSession(cycle, session_config or SessionConfig())
-        self.state = SafetyState()
         self.hold = HoldToRun(timeout_s=0.2)
-        self.log = SupervisorLog()
-        self._start_pending = False
         self._now = 0.0
         self._out: list[bytes] = []
-        self.changed = False  # set when the safety state changed; the runner clears it after publishing
-        self.inputs = InputControl(min_hold_s=0.02)
 
     # ------------------------------------------------------------------ events
     def _feed(self, event: Event, now: float) -> str | None:
@@ -95,11 +79,6 @@ class StreamSupervisor:
         for action in t.actions:
             self._do(action, now)
         return t.error
-
-    def _request(self, event: Event, now: float) -> None:
-        err = self._feed(event, now)
-        if err:
-            raise CommandRejected(err)
 
     def _do(self, action: Action, now: float) -> None:
         s, c = self.session, self.cycle
@@ -202,11 +181,6 @@ class StreamSupervisor:
         self._feed(ConnectRequested(), now)
         self._start_pending = True
 
-    def _motion_gate(self, what: str) -> None:
-        if not motion_allowed(self.state):
-            raise CommandRejected(f"{what} refused in {self.state.mode.value}"
-                                  + (f" (stopped: {self.state.stop_reason})" if self.state.stop_reason else ""))
-
     def _jog(self, v: np.ndarray, hold_s: float, now: float) -> None:
         self._hold_to_run(hold_s, now, "jog")
         self.cycle.jog_joints(v)
@@ -222,11 +196,6 @@ class StreamSupervisor:
         self._motion_gate(what)
         self.hold = HoldToRun(timeout_s=hold_s).renew(now)
 
-    def on_input(self, cmd: InputCommand, now: float) -> None:
-        """The inputs bridge's live command (read from shared memory when a status packet arrives)."""
-        self.inputs.apply(cmd, lambda name: self._input_stale(name, now),
-                          lambda c, name, hold: self._input_move(c, name, hold, now))
-
     def on_late_input(self, cmd: InputCommand, now: float) -> bool:
         """A command that reached the slot while this cycle's IK was solving (``ServoCycle.late_command``).
 
@@ -238,10 +207,6 @@ class StreamSupervisor:
             return False
         self.on_input(cmd, now)
         return True
-
-    def _input_stale(self, name: str, now: float) -> None:
-        if self.state.mode == Mode.STREAMING:
-            self._feed(InputStale(source=name), now)
 
     def _input_move(self, cmd: InputCommand, name: str, hold: float, now: float) -> None:
         if cmd.kind == TWIST:
@@ -326,23 +291,12 @@ class StreamSupervisor:
 
     # ------------------------------------------------------------------ views
     def describe(self) -> dict[str, Any]:
-        st = self.state
-        fault = st.fault
         return {
-            "state": st.mode.value,
-            "stop_reason": st.stop_reason,
-            "stop_fast": st.stop_fast,
-            "resumable": st.resumable,
-            "shutdown": st.shutdown,
-            "fault": None if fault is None else {"message": fault.message, "code": fault.code,
-                                                 "cause": fault.cause, "remedy": fault.remedy,
-                                                 "during": fault.during.value if fault.during else None},
+            **self._safety_view(),
             "link": self.session.phase.value,
             "link_error": self.session.fault_reason or self.session.stats.last_error,
-            "stops": dict(self.log.stops),
             "inputs_enabled": self.inputs.enabled,
             "input_error": self.inputs.error,
-            "warnings": self.log.warnings[-10:],
         }
 
 

@@ -20,12 +20,12 @@ The state machine words its own faults for FANUC; faults caused here get Janome'
 from __future__ import annotations
 
 import signal as _signal
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
-from servo_app.input_slot import TWIST, InputCommand, InputControl
+from servo_app.input_slot import TWIST, InputCommand
 from servo_app.janome.alarms import (
     LINK_LOST,
     LINK_TIMEOUT,
@@ -50,7 +50,6 @@ from servo_app.safety import (
     Event,
     FaultInfo,
     HoldToRun,
-    InputStale,
     JogExpired,
     LeaseLost,
     Mode,
@@ -59,7 +58,6 @@ from servo_app.safety import (
     ResetRequested,
     ResumeMotion,
     ResumeRequested,
-    SafetyState,
     SendFirstCommand,
     SendLastData,
     ShaperAtRest,
@@ -70,34 +68,23 @@ from servo_app.safety import (
     StatusReceived,
     StopRequested,
     StopStatusOutput,
-    motion_allowed,
     safe_to_exit,
     stream_alive,
     transition,
 )
+from servo_app.supervision import SupervisorBase
 
 JOG_EXPIRED = "hold-to-run expired"  # the state machine's stop reason for JogExpired
 
 
-@dataclass
-class SupervisorLog:
-    transitions: list[tuple[float, str, str, str]] = field(default_factory=list)  # (t, from, to, event)
-    warnings: list[dict[str, Any]] = field(default_factory=list)
-    stops: dict[str, int] = field(default_factory=dict)
-
-
-class JanomeSupervisor:
+class JanomeSupervisor(SupervisorBase):
     def __init__(self, motion: JanomeMotion, session_config: SessionConfig | None = None,
                  hold_s: float = 0.5) -> None:
+        super().__init__(min_input_hold_s=0.05)
         self.motion = motion
-        self.inputs = InputControl(min_hold_s=0.05)
         self.session = JanomeSession(motion, session_config or SessionConfig(kind=motion.profile.kind))
-        self.state = SafetyState()
         self.default_hold_s = hold_s
         self.hold = HoldToRun(timeout_s=hold_s)
-        self.log = SupervisorLog()
-        self._start_pending = False
-        self.changed = False  # set when the safety state changed; the runner clears it after publishing
 
     # ------------------------------------------------------------------ events
     def _feed(self, event: Event, now: float, alarm: JanomeAlarm | None = None,
@@ -125,11 +112,6 @@ class JanomeSupervisor:
         if alarm is None:
             return fault
         return replace(fault, message=message or fault.message, cause=alarm.cause, remedy=alarm.remedy)
-
-    def _request(self, event: Event, now: float) -> None:
-        err = self._feed(event, now)
-        if err:
-            raise CommandRejected(err)
 
     def _do(self, action: Action, now: float) -> None:
         s, m = self.session, self.motion
@@ -203,11 +185,6 @@ class JanomeSupervisor:
         else:
             self._request(StartRequested(), now)  # refused, with the state machine's reason
 
-    def _motion_gate(self, what: str) -> None:
-        if not motion_allowed(self.state):
-            raise CommandRejected(f"{what} refused in {self.state.mode.value}"
-                                  + (f" (stopped: {self.state.stop_reason})" if self.state.stop_reason else ""))
-
     def _jog(self, v: np.ndarray, hold_s: float, now: float) -> None:
         reason = self.state.stop_reason or ""
         if self.state.mode in (Mode.STOPPED, Mode.STOPPING) and reason.startswith(JOG_EXPIRED):
@@ -218,17 +195,9 @@ class JanomeSupervisor:
         self.motion.jog(v)
         self.hold = HoldToRun(timeout_s=hold_s).renew(now)
 
-    def on_input(self, cmd: InputCommand, now: float) -> None:
-        """The inputs bridge's live command: a twist jogs X Y Z (mm/s) and R (its rotation about Z, deg/s);
-        a pose input is an absolute X Y Z R target (W and P have no axis here)."""
-        self.inputs.apply(cmd, lambda name: self._input_stale(name, now),
-                          lambda c, name, hold: self._input_move(c, name, hold, now))
-
-    def _input_stale(self, name: str, now: float) -> None:
-        if self.state.mode == Mode.STREAMING:
-            self._feed(InputStale(source=name), now)
-
     def _input_move(self, cmd: InputCommand, name: str, hold: float, now: float) -> None:
+        """A twist jogs X Y Z (mm/s) and R (its rotation about Z, deg/s); a pose input is an absolute
+        X Y Z R target (W and P have no axis here)."""
         v = cmd.values
         xyzr = np.array([v[0], v[1], v[2], v[5]])
         if cmd.kind == TWIST:
@@ -313,23 +282,12 @@ class JanomeSupervisor:
 
     # ------------------------------------------------------------------ views
     def describe(self) -> dict[str, Any]:
-        st = self.state
-        fault = st.fault
         s = self.session
         return {
-            "state": st.mode.value,
-            "stop_reason": st.stop_reason,
-            "stop_fast": st.stop_fast,
-            "resumable": st.resumable,
-            "shutdown": st.shutdown,
-            "fault": None if fault is None else {"message": fault.message, "code": fault.code,
-                                                 "cause": fault.cause, "remedy": fault.remedy,
-                                                 "during": fault.during.value if fault.during else None},
+            **self._safety_view(),
             "link": s.phase.value,
             "link_error": s.fault_reason or s.stats.last_error,
             "robot_connected": s.connected,
-            "stops": dict(self.log.stops),
-            "warnings": self.log.warnings[-10:],
         }
 
 
