@@ -9,14 +9,14 @@ import struct
 import threading
 import time
 import uuid
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import can
 import pytest
+from waiting import wait_for, wait_until
 
-from servo_app.inputs import ConfigError, LatestValue, Measurement, create_adapter, load_inputs_config
+from servo_app.inputs import ConfigError, Measurement, create_adapter, load_inputs_config
 from servo_app.inputs.can_sensor.adapter import CanSensorAdapter
 from servo_app.inputs.can_sensor.decoders import CanMessageLayout, DbcDecoder, FrameProblem, LayoutDecoder
 from servo_app.inputs.can_sensor.slcan import SlcanBus
@@ -32,26 +32,6 @@ def force_frame(fx: float, fy: float, fz: float) -> bytes:
 
 def torque_frame(tx: float, ty: float, tz: float) -> bytes:
     return struct.pack("<3h", round(tx * 1000), round(ty * 1000), round(tz * 1000))
-
-
-def wait_for(slot: LatestValue[Any], pred: Callable[[Any], bool], timeout: float = 15.0) -> Any:
-    deadline = time.monotonic() + timeout
-    seq = 0
-    while time.monotonic() < deadline:
-        cur = slot.wait_newer(seq, timeout=0.1)
-        if cur is not None:
-            seq = cur.seq
-            if pred(cur.value):
-                return cur.value
-    raise AssertionError("condition not reached")
-
-
-def wait_until(pred: Callable[[], bool], timeout: float = 15.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError("condition not reached")
-        time.sleep(0.01)
 
 
 def ft_adapter(channel: str, **kw: Any) -> CanSensorAdapter:

@@ -4,16 +4,14 @@
 from __future__ import annotations
 
 import os
-import time
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from waiting import wait_for, wait_until
 
-from servo_app.inputs import ConfigError, LatestValue, Measurement, create_adapter
+from servo_app.inputs import ConfigError, Measurement, create_adapter
 from servo_app.inputs.serial_sensor.adapter import SerialBinaryAdapter, SerialLineAdapter
 from servo_app.inputs.serial_sensor.binary import BinaryFrameParser, FrameLayout
 from servo_app.inputs.serial_sensor.checksums import crc16_modbus, sum8, xor8
@@ -21,26 +19,6 @@ from servo_app.inputs.serial_sensor.line import LineParser
 from servo_app.inputs.serial_sensor.parsing import Bad, Decoded
 
 LAYOUT = FrameLayout(b"\xaa\x55", "<3hB", ("fx", "fy", "fz", "status"), "crc16_modbus")
-
-
-def wait_for(slot: LatestValue[Any], pred: Callable[[Any], bool], timeout: float = 15.0) -> Any:
-    deadline = time.monotonic() + timeout
-    seq = 0
-    while time.monotonic() < deadline:
-        cur = slot.wait_newer(seq, timeout=0.1)
-        if cur is not None:
-            seq = cur.seq
-            if pred(cur.value):
-                return cur.value
-    raise AssertionError("condition not reached")
-
-
-def wait_until(pred: Callable[[], bool], timeout: float = 15.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError("condition not reached")
-        time.sleep(0.01)
 
 
 class PtyDevice:

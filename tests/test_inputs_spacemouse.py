@@ -12,13 +12,13 @@ import threading
 import time
 import types
 from collections import deque
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
+from waiting import wait_for
 
-from servo_app.inputs import ButtonEvent, LatestValue, TwistSample, create_adapter
+from servo_app.inputs import ButtonEvent, TwistSample, create_adapter
 from servo_app.inputs.actions import OutputToggle, parse_action
 from servo_app.inputs.bridge import InputsBridge
 from servo_app.inputs.spacemouse.hid_adapter import (
@@ -97,18 +97,6 @@ class FakeHid:
 
     def close(self) -> None:
         self.closed = True
-
-
-def wait_for(slot: LatestValue[Any], pred: Callable[[Any], bool], timeout: float = 15.0) -> Any:
-    deadline = time.monotonic() + timeout
-    seq = 0
-    while time.monotonic() < deadline:
-        cur = slot.wait_newer(seq, timeout=0.1)
-        if cur is not None:
-            seq = cur.seq
-            if pred(cur.value):
-                return cur.value
-    raise AssertionError("condition not reached")
 
 
 def hid_config(**kw: Any) -> SpaceMouseHidConfig:
