@@ -9,7 +9,8 @@ from collections.abc import Iterator
 
 
 def make_realtime(priority: int | None, pid: int | None = None) -> str:
-    """SCHED_FIFO at ``priority`` for every thread of process ``pid`` (None: the calling thread).
+    """SCHED_FIFO at ``priority`` for every thread of process ``pid`` (None: the calling thread);
+    ``priority`` None leaves the scheduling as it is, 0 keeps normal priority (as the options say).
 
     Threads and processes started later by such a thread begin at normal priority
     (``SCHED_RESET_ON_FORK``): a worker pool or a restarted servo process must ask for itself (the
@@ -20,6 +21,8 @@ def make_realtime(priority: int | None, pid: int | None = None) -> str:
     """
     if priority is None:
         return "not requested"
+    if priority == 0:
+        return "normal priority"
     try:
         policy = os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)
         tids = [0] if pid is None else [int(t) for t in os.listdir(f"/proc/{pid}/task")]

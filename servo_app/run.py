@@ -73,8 +73,7 @@ def run(args: argparse.Namespace) -> int:
     gc.collect()
     gc.freeze()
     # This thread runs the event loop; threads it starts later (a worker pool) begin at normal priority.
-    print(f"servo_app: API event loop {make_realtime(args.api_priority) if args.api_priority else 'normal priority'}",
-          flush=True)
+    print(f"servo_app: API event loop {make_realtime(args.api_priority)}", flush=True)
     try:
         server.run()  # returns on SIGINT/SIGTERM
     finally:

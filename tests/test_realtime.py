@@ -33,6 +33,7 @@ def test_a_realtime_thread_starts_its_own_threads_at_normal_priority() -> None:
         assert str(seen["status"]).startswith("unavailable")
     assert seen["child"] == os.SCHED_OTHER  # a worker it starts competes like any other thread
     assert make_realtime(None) == "not requested"
+    assert make_realtime(0) == "normal priority" and os.sched_getscheduler(0) == os.SCHED_OTHER
 
 
 def test_wake_latency_hold_says_what_it_got_and_releases_on_close() -> None:

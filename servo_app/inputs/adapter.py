@@ -155,8 +155,7 @@ class InputAdapter(ABC):
         self.stop()
 
     def _run(self) -> None:
-        priority = self.config.realtime_priority
-        self.scheduling = make_realtime(priority) if priority else "normal priority"
+        self.scheduling = make_realtime(self.config.realtime_priority)
         backoff = self.config.reconnect_min_s
         while not self._stop.is_set():
             try:
