@@ -10,7 +10,7 @@ arrived meanwhile is solved into the same packet while the answer is still early
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -34,11 +34,8 @@ class InputCommand:
     stale: bool  # the active source went stale: the servo process stops with reason "input stale"
 
     def same_motion(self, other: InputCommand | None) -> bool:
-        """Asks for the same motion as ``other`` (a renewal: only the stamp differs)."""
-        return other is not None and (self.kind, self.frame, self.values, self.linear_speed, self.angular_speed,
-                                       self.source, self.stale) == (
-            other.kind, other.frame, other.values, other.linear_speed, other.angular_speed, other.source,
-            other.stale)
+        """Asks for the same motion as ``other`` (a renewal: only the stamp and timeout differ)."""
+        return other is not None and replace(other, stamp=self.stamp, timeout_s=self.timeout_s) == self
 
     def encode(self) -> np.ndarray:
         out = np.zeros(SIZE)
@@ -75,7 +72,8 @@ class InputSlotReader:
     def __init__(self, name: str) -> None:
         self.slot = LatestValueSlot(SIZE, name=name, create=False)
         self._version = 0
-        self._peeked = 0
+        self._peeked: tuple[int, InputCommand] | None = None
+        self.current: InputCommand | None = None  # the command last taken (poll, or peek and consume)
         self.torn_reads = 0
 
     def poll(self) -> InputCommand | None:
@@ -99,12 +97,14 @@ class InputSlotReader:
             return None
         if version == self._version:
             return None
-        self._peeked = version
-        return InputCommand.decode(data)
+        cmd = InputCommand.decode(data)
+        self._peeked = (version, cmd)
+        return cmd
 
     def consume(self) -> None:
         """The command the last :meth:`peek` returned is taken (a newer write stays new)."""
-        self._version = self._peeked
+        assert self._peeked is not None, "consume() follows a peek() that returned a command"
+        self._version, self.current = self._peeked
 
     def close(self) -> None:
         self.slot.close()

@@ -127,15 +127,17 @@ def test_peek_leaves_the_command_new_until_consumed() -> None:
         w.publish(first)
         assert r.peek() == first and r.peek() == first  # not taken yet
         w.publish(second)
-        assert r.peek() == second
+        assert r.peek() == second and r.current is None  # peeked, not taken
         r.consume()
+        assert r.current == second
         assert r.peek() is None and r.poll() is None
         w.publish(first)
         assert r.peek() == first
         w.publish(second)  # written after the peek: consuming the peeked one keeps this one new
         r.consume()
-        assert r.poll() == second
+        assert r.current == first and r.poll() == second and r.current == second
         assert second.same_motion(twist(2.0, 5.0)) and not second.same_motion(first)
+        assert not second.same_motion(twist(2.0, 2.0, stale=True))
         assert not second.same_motion(None)
     finally:
         r.close()

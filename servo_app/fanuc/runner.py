@@ -29,7 +29,7 @@ from servo_app.fanuc.packets import ROBOT_PORT, IoType, Status
 from servo_app.fanuc.session import Phase, SessionConfig
 from servo_app.fanuc.session_log import SessionLogWriter
 from servo_app.fanuc.supervisor import StreamSupervisor
-from servo_app.input_slot import InputCommand, InputSlotReader
+from servo_app.input_slot import InputSlotReader
 from servo_app.ipc import LatestValueSlot
 from servo_app.motion.servo import CommandRejected, ServoCycle, ServoSettings
 from servo_app.process_handle import ChildLink, ServoProcessHandle, run_child
@@ -108,7 +108,6 @@ class _ServoProcess(ChildLink):
         self.sup = StreamSupervisor(self.cycle, SessionConfig(
             lead=cfg.lead, status_timeout_s=cfg.status_timeout_s, max_payload_kg=self.profile.max_payload_kg))
         self.inputs = InputSlotReader(cfg.input_slot) if cfg.input_slot else None
-        self._applied: InputCommand | None = None  # the last input command handed to the supervisor
         self._t_recv = 0.0  # when the status packet being answered arrived
         late_ms = self.dt * 1000 / 4 if cfg.late_input_ms is None else cfg.late_input_ms
         self.late_input_s = late_ms / 1000
@@ -193,7 +192,6 @@ class _ServoProcess(ChildLink):
                 cmd = self.inputs.poll()
                 if cmd is not None:
                     self.sup.on_input(cmd, now)
-                    self._applied = cmd
             self._send(self.sup.on_datagram(data, now))
             t_sent = time.monotonic()
             self._after_datagram(now, t_sent)
@@ -221,11 +219,10 @@ class _ServoProcess(ChildLink):
         if now - self._t_recv > self.late_input_s:
             return
         cmd = self.inputs.peek()
-        if cmd is None or cmd.same_motion(self._applied):
+        if cmd is None or cmd.same_motion(self.inputs.current):
             return
         if self.sup.on_late_input(cmd, now):
             self.inputs.consume()
-            self._applied = cmd
 
     def _after_datagram(self, t_recv: float, t_sent: float) -> None:
         s = self.sup.session
