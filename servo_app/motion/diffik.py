@@ -243,6 +243,7 @@ class DifferentialIK:
             self.collision_limit = CollisionLimit(self.model, pairs, path=self.path_braking)
             self.limits.append(self.collision_limit)
         self._correction_gain = 1.0 if st.correction_s is None else min(1.0, self.dt / st.correction_s)
+        self._track_weights = np.array([st.position_cost] * 3 + [st.orientation_cost] * 3) ** 2  # frame task's
         self.follow_lag = (st.follow_lag_s if st.follow_lag_s is not None
                            else float(np.max(np.asarray(profile.acc_limit) / np.asarray(profile.jerk_limit))))
         for limit in (self.braking_limit, self.config_guard, self.collision_limit):
@@ -671,8 +672,7 @@ class DifferentialIK:
         The reference advances by what each cycle asked for; the jerk-limited shaper delivers it a
         little later. Pulling the TCP forward to the reference then overshot the commanded speed
         (+20 %) and swung back: only the error across the line is the IK's to correct."""
-        st = self.settings
-        w = np.array([st.position_cost] * 3 + [st.orientation_cost] * 3) ** 2
+        w = self._track_weights
         err = np.concatenate([tcp[4:] - ref[4:], _rotation_between(tcp, ref)])
         norm = float(xi @ (w * xi))
         if norm <= 0.0:
