@@ -401,9 +401,9 @@ class ServoService:
         write it inverted; returns the new value. An access covers 16 points from its index, so the
         index is the point itself where the allowed range permits, else the last index that reaches it."""
         n = self.cfg.io_allow.get(io_type, 0)
-        index = max(1, min(point, n - IO_SPAN + 1))
-        if not 0 <= point - index < IO_SPAN or point > n:
+        if io_type in self.cfg.io_allow and point > n:  # an unknown type is io_read's to refuse, by name
             raise InvalidRequest(f"{io_type}[{point}] is outside the allowed {io_type} 1..{n}")
+        index = max(1, min(point, n - IO_SPAN + 1))
         bit = 1 << (point - index)
         new = (self.io_read(io_type, index, bit) & bit) ^ bit
         self.io_write(io_type, index, bit, new)
