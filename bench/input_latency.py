@@ -212,15 +212,30 @@ def _relay(sim: tuple[str, int], conn: Any) -> None:
                 query, deadline = None, math.inf
 
 
-class Relay:
-    def __init__(self, sim: tuple[str, int]) -> None:
+class _Child:
+    """A helper process on a pipe: it sends one hello when ready and ends on ("stop",)."""
+
+    def __init__(self, what: str, target: Callable[..., None], *args: Any) -> None:
         ctx = mp.get_context("spawn")
         self._conn, child = ctx.Pipe()
-        self.process = ctx.Process(target=_relay, args=(sim, child), daemon=True)
+        self.process = ctx.Process(target=target, args=(*args, child), daemon=True)
         self.process.start()
         if not self._conn.poll(30):
-            raise TimeoutError("the relay did not start")
-        self.port = int(self._conn.recv())
+            raise TimeoutError(f"the {what} did not start")
+        self.hello: Any = self._conn.recv()
+
+    def close(self, timeout: float = 5.0) -> None:
+        with contextlib.suppress(OSError):
+            self._conn.send(("stop",))
+        self.process.join(timeout)
+        if self.process.is_alive():
+            self.process.kill()
+
+
+class Relay(_Child):
+    def __init__(self, sim: tuple[str, int]) -> None:
+        super().__init__("relay", _relay, sim)
+        self.port = int(self.hello)
 
     def count(self) -> int:
         self._conn.send(("count",))
@@ -238,13 +253,6 @@ class Relay:
                      timeout: float = 1.0) -> tuple[float, int] | None:
         self._conn.send(("change", index, after, tuple(rest), timeout))
         return self._conn.recv()  # type: ignore[no-any-return]
-
-    def close(self) -> None:
-        with contextlib.suppress(OSError):
-            self._conn.send(("stop",))
-        self.process.join(2)
-        if self.process.is_alive():
-            self.process.kill()
 
 
 # ------------------------------------------------------------------------------------ the sensors
@@ -464,7 +472,7 @@ class Spacenav(Stimulus):
         self.srv.close()
 
 
-def _sensors_main(conn: Any, spacenav_socket: str) -> None:
+def _sensors_main(spacenav_socket: str, conn: Any) -> None:
     """The sensors, in a process of their own as real ones are (their streaming threads must not
     share the service's GIL). Commands over `conn`: ("http", url), ("step", name, value) -> the
     monotonic time just before the frame was written, ("stop",)."""
@@ -491,17 +499,12 @@ def _sensors_main(conn: Any, spacenav_socket: str) -> None:
             stim.stop()
 
 
-class Sensors:
+class Sensors(_Child):
     """The parent's handle on the sensors' process."""
 
     def __init__(self, spacenav_socket: str) -> None:
-        ctx = mp.get_context("spawn")
-        self._conn, child = ctx.Pipe()
-        self.process = ctx.Process(target=_sensors_main, args=(child, spacenav_socket), daemon=True)
-        self.process.start()
-        if not self._conn.poll(30):
-            raise TimeoutError("the sensors' process did not start")
-        self.paths: dict[str, str] = self._conn.recv()
+        super().__init__("sensors' process", _sensors_main, spacenav_socket)
+        self.paths: dict[str, str] = self.hello
 
     def start_http(self, base_url: str) -> None:
         self._conn.send(("http", base_url))
@@ -515,13 +518,6 @@ class Sensors:
     def step(self, name: str, value: float) -> float:
         self._conn.send(("step", name, value))
         return float(self._conn.recv())
-
-    def close(self) -> None:
-        with contextlib.suppress(OSError):
-            self._conn.send(("stop",))
-        self.process.join(5)
-        if self.process.is_alive():
-            self.process.kill()
 
 
 # -------------------------------------------------------------------------------------- the trials
