@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from servo_app.motion.servo import CommandRejected
+from servo_app.errors import CommandRejected
 from servo_app.realtime import make_realtime
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -588,7 +588,7 @@ def run_trials(name: str, sensors: Sensors, amplitude: float, relay: Relay, slot
 
 def response_solves(sessions: Path) -> dict[int, float]:
     """Command sequence number -> its solve (status receipt -> send, ms), from the session log(s)."""
-    from servo_app.fanuc.session_log import read_session_log
+    from servo_app.session_log import read_session_log
 
     out: dict[int, float] = {}
     for path in sorted(sessions.glob("*.srvlog")):

@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from servo_app.fanuc.session_log import SessionLog, read_session_log
 from servo_app.service import ServiceConfig, ServoService
+from servo_app.session_log import SessionLog, read_session_log
 
 sys.path.insert(0, str(Path(__file__).parent))
 from results import write_section

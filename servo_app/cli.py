@@ -38,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_run_parser(sub)
 
-    from servo_app.motion.check_cli import add_check_parser
+    from servo_app.check_cli import add_check_parser
 
     add_check_parser(sub)
 

@@ -19,8 +19,8 @@ from dataclasses import asdict
 from multiprocessing.connection import Connection
 from typing import Any
 
+from servo_app.errors import CommandRejected
 from servo_app.ipc import LatestValueSlot
-from servo_app.motion.servo import CommandRejected
 from servo_app.realtime import single_threaded_blas
 from servo_app.state import STATE_SIZE, decode_state
 

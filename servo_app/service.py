@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from servo_app.errors import CommandRejected
 from servo_app.fanuc.alarms import ALARMS
 from servo_app.fanuc.packets import ROBOT_PORT, IoType
 from servo_app.fanuc.runner import StreamConfig, StreamProcess
@@ -29,7 +30,6 @@ from servo_app.janome.profile import available_janome_profiles, load_janome_prof
 from servo_app.janome.runner import DEFAULT_PORT as JANOME_PORT
 from servo_app.motion.diffik import holding_back
 from servo_app.motion.limit_tables import default_tables
-from servo_app.motion.servo import CommandRejected
 from servo_app.realtime import make_realtime
 from servo_app.robots.profile import load_profile
 

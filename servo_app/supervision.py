@@ -14,8 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from servo_app.errors import CommandRejected
 from servo_app.input_slot import InputCommand, InputControl
-from servo_app.motion.servo import CommandRejected
 from servo_app.safety import Event, InputStale, Mode, SafetyState, motion_allowed
 
 

@@ -20,8 +20,8 @@ import pytest
 import uvicorn
 
 from servo_app.api.app import create_app
-from servo_app.fanuc.session_log import SessionLog, read_session_log
 from servo_app.service import ServiceConfig, ServoService
+from servo_app.session_log import SessionLog, read_session_log
 
 TOKEN = "test-token-0123456789"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

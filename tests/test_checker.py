@@ -18,6 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from servo_app.fanuc.alarms import format_violation
 from servo_app.motion.checker import ControllerLimitChecker, Violation, check_trajectory
 from servo_app.motion.limit_tables import ACC, JERK, VEL, AxisTable, LimitTables
 from servo_app.robots.profile import load_profile
@@ -158,7 +159,7 @@ def test_velocity_alarm_609_and_edge_triggered_612_warning() -> None:
     (alarm,) = alarms(found)
     assert (alarm.code, alarm.axis, alarm.seq) == ("MOTN-609", 2, 8)
     assert alarm.value == pytest.approx(110.0) and alarm.excess == pytest.approx(1.1)
-    assert alarm.message == "MOTN-609 ST:Exceeded Jnt Velocity Limit.(A:2,Sq.8)"
+    assert format_violation(alarm) == "MOTN-609 ST:Exceeded Jnt Velocity Limit.(A:2,Sq.8)"
 
 
 def test_note3_only_the_largest_excess_is_reported() -> None:
@@ -299,7 +300,7 @@ def test_617_first_command_far_from_the_command_position() -> None:
     c.reset(start_q_deg=np.zeros(6))
     (alarm,) = c.step([0, 0, 0, 0, 1.01 * 100 * DT, 0], 7)  # more than one cycle at 100 deg/s
     assert (alarm.code, alarm.axis, alarm.seq) == ("MOTN-617", 5, 7)
-    assert alarm.message == "MOTN-617 ST:Discontinous command.(Sq.7)"
+    assert format_violation(alarm) == "MOTN-617 ST:Discontinous command.(Sq.7)"
     c.reset(start_q_deg=np.zeros(6))
     assert c.step([0, 0, 0, 0, 0.99 * 100 * DT, 0], 7) == []
 
@@ -321,7 +322,7 @@ def test_joint_range_in_model_convention_after_j2_j3_conversion() -> None:
     assert c.step([0, 100, 100, 0, 0, 0], 1) == []  # model J3 = 200
     (alarm,) = alarms(c.step([0, 100, 106, 0, 0, 0], 2))  # model J3 = 206 > 205, FANUC J3 only 106
     assert (alarm.code, alarm.axis, alarm.value, alarm.limit) == ("MOTN-017", 3, 206.0, 205.0)
-    assert alarm.message.startswith("MOTN-017 Limit error")
+    assert format_violation(alarm).startswith("MOTN-017 Limit error")
 
 
 def test_flange_speed_above_max_spd_is_an_offline_violation() -> None:
@@ -330,7 +331,7 @@ def test_flange_speed_above_max_spd_is_an_offline_violation() -> None:
                 rows)
     spd = [f for f in found if f.code == "CHK-001"]
     assert len(spd) == 1 and spd[0].value > 2000.0 and spd[0].limit == 2000.0
-    assert "above $MAX_SPD 2000" in spd[0].message
+    assert "above $MAX_SPD 2000" in format_violation(spd[0])
     quiet = run(checker(flange=flange_j1(100.0), check_max_spd=False, tables=make_tables(acc1=1e9, jrk1=1e12)),
                 rows)
     assert not [f for f in quiet if f.code == "CHK-001"]

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from test_sim_model import PROFILE, STAGE1, smooth_move
 
-from servo_app.motion.check_cli import TrajectoryError, add_check_parser, load_trajectory
+from servo_app.check_cli import TrajectoryError, add_check_parser, load_trajectory
 from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.kinematics import ArmKinematics
 
@@ -140,7 +140,7 @@ def test_load_trajectory_is_the_dispatch_hook(tmp_path: Path) -> None:
 
 
 def write_log(path: Path, streams: list[tuple[int, np.ndarray]]) -> Path:
-    from servo_app.fanuc.session_log import SessionLogWriter
+    from servo_app.session_log import SessionLogWriter
 
     w = SessionLogWriter(path, {"model": "lrmate200id", "interval_ms": 8.0})
     t = 0.0

@@ -153,7 +153,7 @@ def test_run_janome_with_its_embedded_simulator_through_rest(tmp_path: Path) -> 
         code, out, err = stop(run)
     assert code == 0, (out, err)
     # The exchange was logged frame by frame, readable like any session log.
-    from servo_app.fanuc.session_log import read_session_log
+    from servo_app.session_log import read_session_log
 
     logs = [read_session_log(p) for p in (tmp_path / "sessions").glob("janome-*.srvlog")]
     assert logs

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from servo_app.fanuc.runner import StreamConfig, StreamProcess
-from servo_app.fanuc.session_log import read_session_log
 from servo_app.motion.checker import ControllerLimitChecker  # noqa: F401 - the simulator's own checker
+from servo_app.session_log import read_session_log
 from servo_app.sim.fanuc_server import FanucSimulator
 
 pytestmark = pytest.mark.e2e

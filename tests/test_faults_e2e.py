@@ -28,7 +28,7 @@ from test_api_harness import (
     running_rig,
 )
 
-from servo_app.fanuc.session_log import SessionLog, read_session_log
+from servo_app.session_log import SessionLog, read_session_log
 from servo_app.sim.fanuc_server import FaultConfig
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(120)]

@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 import pytest
 
+from servo_app.errors import CommandRejected
 from servo_app.janome.runner import JanomeConfig, JanomeProcess
-from servo_app.motion.servo import CommandRejected
 from servo_app.sim.janome_sim import JanomeSimulator
 
 pytestmark = pytest.mark.e2e

@@ -7,12 +7,12 @@ import signal
 import numpy as np
 import pytest
 
+from servo_app.errors import CommandRejected
 from servo_app.janome.motion import JanomeMotion
 from servo_app.janome.profile import load_janome_profile
 from servo_app.janome.protocol import Cmd, ErrorCode, RobotState, Status, Target
 from servo_app.janome.session import Phase
 from servo_app.janome.supervisor import JanomeSupervisor
-from servo_app.motion.servo import CommandRejected
 from servo_app.safety import Mode
 from servo_app.sim.janome_pointjob import Decision, PointJob
 from servo_app.sim.janome_robot import JanomeRobot

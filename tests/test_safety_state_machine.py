@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 import servo_app.safety.state_machine as sm
 from servo_app.fanuc.alarms import ALARMS
+from servo_app.fanuc.packets import StatusBit
 from servo_app.safety import (
     ABANDON_STREAM,
     HOLD_POSITION,
@@ -67,6 +68,14 @@ SIGINT = Signal(int(signal.SIGINT))
 WARNING_CODE = next(code for code, spec in ALARMS.items() if spec.warning)
 
 
+def alarm(code: str, message: str = "") -> ControllerAlarm:
+    """The event as the FANUC supervisor builds it: classified from the FANUC alarm catalogue."""
+    spec = ALARMS.get(code)
+    if spec is None:
+        return ControllerAlarm(code, message)
+    return ControllerAlarm(code, message, warning=spec.warning, cause=spec.cause, remedy=spec.remedy)
+
+
 def drive(*events: object, state: SafetyState | None = None) -> SafetyState:
     s = state or SafetyState()
     for e in events:
@@ -98,12 +107,12 @@ STATES: dict[str, SafetyState] = {
     "ended_waiting": drive(EndRequested(), ShaperAtRest(), IDLE, WAITING, state=STREAMING),
     "ended_no_status": drive(EndRequested(), ShaperAtRest(), IDLE, StatusLost(), state=STREAMING),
     "ended_shutdown": drive(SIGTERM, ShaperAtRest(), LastDataProcessed(), state=STREAMING),
-    "fault_alarm": drive(ControllerAlarm("MOTN-611", "MOTN-611 ST:Exceeded Jnt Jerk Limit."),
+    "fault_alarm": drive(alarm("MOTN-611", "MOTN-611 ST:Exceeded Jnt Jerk Limit."),
                          state=STREAMING),
     "fault_status_lost": drive(StatusLost(), state=STREAMING),
     "fault_bit0": drive(IDLE, state=STREAMING),
-    "fault_idle_waiting": drive(ControllerAlarm("MOTN-606"), WAITING, state=drive(IDLE)),
-    "fault_shutdown": drive(SIGTERM, ControllerAlarm("MOTN-603"), state=STREAMING),
+    "fault_idle_waiting": drive(alarm("MOTN-606"), WAITING, state=drive(IDLE)),
+    "fault_shutdown": drive(SIGTERM, alarm("MOTN-603"), state=STREAMING),
 }
 
 EVENTS: dict[str, object] = {
@@ -113,9 +122,9 @@ EVENTS: dict[str, object] = {
     "status_servo_off": SERVO_OFF,
     "status_lost": StatusLost("3 intervals"),
     "disconnected": Disconnected("ECONNREFUSED"),
-    "alarm_known": ControllerAlarm("MOTN-603", "MOTN-603 ST:Receiving interval over"),
-    "alarm_unknown": ControllerAlarm("SRVO-001", "SRVO-001 Operator panel E-stop"),
-    "alarm_warning": ControllerAlarm(WARNING_CODE),
+    "alarm_known": alarm("MOTN-603", "MOTN-603 ST:Receiving interval over"),
+    "alarm_unknown": alarm("SRVO-001", "SRVO-001 Operator panel E-stop"),
+    "alarm_warning": alarm(WARNING_CODE),
     "connect": ConnectRequested(),
     "disconnect": DisconnectRequested(),
     "start": StartRequested(),
@@ -378,7 +387,7 @@ def test_a_signal_always_reaches_a_safe_exit(before, sig, after):
 
 
 def test_a_fault_during_shutdown_stops_status_output_too():
-    s, ts = steps(STREAMING, SIGTERM, ControllerAlarm("MOTN-603"))
+    s, ts = steps(STREAMING, SIGTERM, alarm("MOTN-603"))
     assert s.fault is not None
     assert ts[1].actions == (ABANDON_STREAM, RecordFault(s.fault), STOP_STATUS_OUTPUT)
     assert s.mode is Mode.FAULT and safe_to_exit(s)
@@ -514,7 +523,7 @@ def test_end_after_a_fast_stop_needs_no_acknowledgement():
 
 
 def test_controller_alarm_faults_with_the_manuals_cause_and_remedy():
-    t = transition(STREAMING, ControllerAlarm("MOTN-611", "MOTN-611 ST:Exceeded Jnt Jerk Limit.(A:3,Sq.12)"))
+    t = transition(STREAMING, alarm("MOTN-611", "MOTN-611 ST:Exceeded Jnt Jerk Limit.(A:3,Sq.12)"))
     assert t.state.mode is Mode.FAULT
     f = t.state.fault
     assert f is not None and f.code == "MOTN-611" and f.during is Mode.STREAMING
@@ -525,20 +534,20 @@ def test_controller_alarm_faults_with_the_manuals_cause_and_remedy():
 
 
 def test_alarm_when_not_streaming_records_without_abandoning():
-    t = transition(STATES["ready"], ControllerAlarm("MOTN-606"))
+    t = transition(STATES["ready"], alarm("MOTN-606"))
     assert t.state.mode is Mode.FAULT and t.actions == (RecordFault(t.state.fault),)  # type: ignore[arg-type]
 
 
 def test_unknown_alarm_code_still_faults():
-    t = transition(STREAMING, ControllerAlarm("SRVO-001", "SRVO-001 Operator panel E-stop"))
+    t = transition(STREAMING, alarm("SRVO-001", "SRVO-001 Operator panel E-stop"))
     assert t.state.fault is not None and t.state.fault.code == "SRVO-001"
-    assert "not in the Stream Motion alarm list" in t.state.fault.cause
+    assert "not in the controller's alarm catalogue" in t.state.fault.cause
 
 
 def test_warning_is_reported_and_changes_nothing():
     spec = ALARMS[WARNING_CODE]
     for s in STATES.values():
-        t = transition(s, ControllerAlarm(WARNING_CODE, "w"))
+        t = transition(s, alarm(WARNING_CODE, "w"))
         assert t.state == s and t.error is None
         assert t.actions == (ReportWarning(WARNING_CODE, "w", spec.cause, spec.remedy),)
 
@@ -549,11 +558,11 @@ def test_bit0_falling_while_streaming_faults_and_a_later_alarm_explains_it(state
     assert s.mode is Mode.FAULT and s.fault is not None and s.fault.code is None
     assert "bit 0 fell" in s.fault.message and s.fault.during is STATES[state_name].mode
     assert ts[0].actions[0] == ABANDON_STREAM
-    s, ts = steps(s, ControllerAlarm("MOTN-603", "MOTN-603 ST:Receiving interval over"))
+    s, ts = steps(s, alarm("MOTN-603", "MOTN-603 ST:Receiving interval over"))
     assert s.fault is not None and s.fault.code == "MOTN-603" and s.fault.cause == ALARMS["MOTN-603"].cause
     assert "bit 0 fell" in s.fault.message and s.fault.during is STATES[state_name].mode
     # a further alarm is a consequence: logged, the root cause stays
-    s2, ts = steps(s, ControllerAlarm("MOTN-618"))
+    s2, ts = steps(s, alarm("MOTN-618"))
     assert s2 == s and isinstance(ts[0].actions[0], RecordFault) and ts[0].actions[0].fault.code == "MOTN-618"
 
 
@@ -634,6 +643,10 @@ def test_stop_is_never_refused():
 
 def test_status_from_byte_and_ready_needs_a_fresh_ibgn_run_with_servo_on():
     assert StatusReceived.from_byte(0b1101) == StatusReceived(True, False, True, True)
+    fields = ("bit0", "bit1", "sysrdy", "moving")  # the safety machine's own layout is J519's
+    for bit, field in zip((StatusBit.WAITING_FOR_COMMAND, StatusBit.COMMAND_RECEIVED, StatusBit.SYSRDY,
+                           StatusBit.MOVING), fields, strict=True):
+        assert StatusReceived.from_byte(int(bit)) == StatusReceived(**{f: f == field for f in fields})
     assert transition(SafetyState(), StatusReceived.from_byte(0b0101)).state.mode is Mode.READY
     assert transition(SafetyState(), StatusReceived.from_byte(0b0111)).state.mode is Mode.CONNECTED
     assert transition(SafetyState(), StatusReceived.from_byte(0b0001)).state.mode is Mode.CONNECTED
@@ -649,7 +662,7 @@ def test_never_raises_on_unknown_events_or_malformed_states():
     # a stop of unknown kind is treated as an unacknowledged fast stop
     assert transition(broken, ResumeRequested()).error is not None
     assert transition(STREAMING, Signal("TERM")).state == STREAMING  # type: ignore[arg-type]
-    assert transition(SafetyState(mode=Mode.FAULT), ControllerAlarm("MOTN-603")).state.fault is not None
+    assert transition(SafetyState(mode=Mode.FAULT), alarm("MOTN-603")).state.fault is not None
 
 
 def test_an_internal_error_while_moving_takes_the_fast_ramp(monkeypatch):

@@ -14,11 +14,12 @@ import os
 import numpy as np
 import pytest
 
+from servo_app.errors import CommandRejected
 from servo_app.fanuc.packets import StatusStart
 from servo_app.fanuc.session import SessionConfig
 from servo_app.fanuc.supervisor import StreamSupervisor
 from servo_app.motion.diffik import IkSettings
-from servo_app.motion.servo import CommandRejected, ServoCycle
+from servo_app.motion.servo import ServoCycle
 from servo_app.robots.configuration import configuration_of
 from servo_app.robots.conventions import fanuc_deg_to_model_rad, matrix_to_xyzwpr
 from servo_app.robots.kinematics import ArmKinematics

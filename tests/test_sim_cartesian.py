@@ -16,9 +16,9 @@ import pytest
 from test_sim_model import PROFILE, Rig
 from test_sim_udp import Client, stream_with_retry
 
+from servo_app.check_cli import Trajectory, cartesian_to_joints
 from servo_app.fanuc.alarms import ALARMS
 from servo_app.fanuc.packets import Command, StatusStart
-from servo_app.motion.check_cli import Trajectory, cartesian_to_joints
 from servo_app.robots.conventions import fanuc_deg_to_model_rad, matrix_to_xyzwpr, xyzwpr_to_matrix
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.sim.fanuc_model import ControllerConfig

@@ -28,7 +28,7 @@ from pydantic import BaseModel, Discriminator, Field, Tag, field_validator
 from servo_app.api.auth import AuditLog, LeaseManager, RateLimiter, token_matches
 from servo_app.api.metrics import Metrics
 from servo_app.api.robot_view import robot_view
-from servo_app.motion.servo import CommandRejected
+from servo_app.errors import CommandRejected
 from servo_app.service import InvalidRequest, ServoService
 
 WEB_DIR = Path(__file__).resolve().parents[2] / "web"

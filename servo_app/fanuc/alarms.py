@@ -3,12 +3,17 @@
 
 The simulator raises them; the service shows them (code, cause, remedy) when a controller reports
 a stop. ``format_alarm`` renders the one-line form the controller shows, e.g.
-``MOTN-611 ST:Exceeded Jnt Jerk Limit.(A:3,Sq.1234)``.
+``MOTN-611 ST:Exceeded Jnt Jerk Limit.(A:3,Sq.1234)``; ``format_violation`` that of a limit
+checker's record (servo_app.motion.checker, which carries codes and numbers only).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from servo_app.motion.checker import Violation
 
 
 @dataclass(frozen=True)
@@ -225,3 +230,11 @@ def format_alarm(code: str, axis: int | None = None, seq: int | None = None, pc:
     """The controller's one-line rendering of an alarm, starting with its code."""
     spec = ALARMS[code]
     return f"{code} " + spec.text.format(axis=axis, seq=seq, pc=pc, rob=rob)
+
+
+def format_violation(v: Violation) -> str:
+    """The controller's one-line rendering of a limit checker's record (CHK-001 names the flange speed
+    and $MAX_SPD, every other code its axis and sequence number)."""
+    if v.code == "CHK-001":
+        return format_alarm(v.code, seq=v.seq, pc=round(v.value), rob=round(v.limit))
+    return format_alarm(v.code, axis=v.axis, seq=v.seq)

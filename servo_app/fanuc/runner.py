@@ -25,18 +25,19 @@ from typing import Any
 
 import numpy as np
 
+from servo_app.errors import CommandRejected
 from servo_app.fanuc.packets import ROBOT_PORT, IoType, Status
 from servo_app.fanuc.session import Phase, SessionConfig
-from servo_app.fanuc.session_log import SessionLogWriter
 from servo_app.fanuc.supervisor import StreamSupervisor
 from servo_app.input_slot import InputSlotReader
 from servo_app.ipc import LatestValueSlot
-from servo_app.motion.servo import CommandRejected, ServoCycle, ServoSettings
+from servo_app.motion.servo import ServoCycle, ServoSettings
 from servo_app.process_handle import ChildLink, ServoProcessHandle, run_child
 from servo_app.realtime import WakeLatencyHold, make_realtime
 from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.profile import load_profile
 from servo_app.safety import Mode
+from servo_app.session_log import SessionLogWriter
 from servo_app.state import LATENCY_BUCKETS_US, MODES, PHASES, STATE_SIZE, StateVector, command_derivatives
 
 assert all(p.value in PHASES for p in Phase)

@@ -20,11 +20,13 @@ from typing import Any
 
 import numpy as np
 
+from servo_app.errors import CommandRejected
+from servo_app.fanuc.alarms import ALARMS
 from servo_app.fanuc.packets import LimitTableResponse, Status
 from servo_app.fanuc.session import IoRequest, Phase, SessionConfig, StreamSession
 from servo_app.input_slot import POSE, TWIST, InputCommand
 from servo_app.motion.commands import PoseTarget, Twist
-from servo_app.motion.servo import CommandRejected, ServoCycle
+from servo_app.motion.servo import ServoCycle
 from servo_app.safety import (
     AbandonStream,
     Action,
@@ -61,6 +63,13 @@ JOG_EXPIRED = "hold-to-run expired"  # the state machine's stop reason for JogEx
 
 
 class StreamSupervisor(SupervisorBase):
+    def alarm_event(self, code: str, message: str) -> ControllerAlarm:
+        spec = ALARMS.get(code)  # an unknown code still stops: the state machine words it generically
+        if spec is None:
+            return ControllerAlarm(code=code, message=message)
+        return ControllerAlarm(code=code, message=message, warning=spec.warning, cause=spec.cause,
+                               remedy=spec.remedy)
+
     def __init__(self, cycle: ServoCycle, session_config: SessionConfig | None = None) -> None:
         super().__init__(min_input_hold_s=0.02)
         self.cycle = cycle
@@ -128,7 +137,7 @@ class StreamSupervisor(SupervisorBase):
         elif op == "lease_lost":
             self._feed(LeaseLost(holder=str(kw.get("holder", ""))), now)
         elif op == "controller_alarm":
-            self._feed(ControllerAlarm(code=str(kw["code"]), message=str(kw.get("message", ""))), now)
+            self._feed(self.alarm_event(str(kw["code"]), str(kw.get("message", ""))), now)
         elif op == "jog":
             self._jog(np.asarray(kw["joints"], dtype=float), float(kw.get("hold_s", 0.2)), now)
         elif op == "twist":

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from servo_app.errors import CommandRejected
 from servo_app.janome.kinematics import AXES, UNITS, Workspace
 from servo_app.janome.profile import JanomeProfile
 from servo_app.janome.protocol import SCALE, Arm, Cmd, RobotKind
-from servo_app.motion.servo import CommandRejected
 from servo_app.motion.shaper import JointShaper, ShaperLimits
 
 _MOVE_EPS = 0.5 / SCALE  # below half a wire unit a step does not exist on the wire

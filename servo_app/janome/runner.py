@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from servo_app.fanuc.session_log import SessionLogWriter
+from servo_app.errors import CommandRejected
 from servo_app.input_slot import InputSlotReader
 from servo_app.ipc import LatestValueSlot
 from servo_app.janome.motion import JanomeMotion, MotionSettings
@@ -35,9 +35,9 @@ from servo_app.janome.profile import load_janome_profile
 from servo_app.janome.protocol import Cmd, FrameError, Target
 from servo_app.janome.session import Phase, SessionConfig
 from servo_app.janome.supervisor import JanomeSupervisor
-from servo_app.motion.servo import CommandRejected
 from servo_app.process_handle import ChildLink, ServoProcessHandle, run_child
 from servo_app.safety import Mode, safe_to_exit
+from servo_app.session_log import SessionLogWriter
 from servo_app.state import MODES, PHASES, STATE_SIZE, StateVector, command_derivatives
 
 assert all(p.value in PHASES for p in Phase)
@@ -59,7 +59,7 @@ class JanomeConfig:
     handshake_timeout_s: float = 2.0
     hold_s: float = 0.5  # default hold-to-run for jogs (several link steps)
     publish_interval_s: float = 0.05
-    log_dir: str = "var/sessions"  # every connection's exchange, per frame (servo_app/fanuc/session_log.py)
+    log_dir: str = "var/sessions"  # every connection's exchange, per frame (servo_app/session_log.py)
     input_slot: str | None = None  # shared-memory name of the inputs bridge's live command
 
 

@@ -28,6 +28,7 @@ from typing import Protocol
 
 import numpy as np
 
+from servo_app.errors import CommandRejected
 from servo_app.janome.alarms import FRAME_ERRORS
 from servo_app.janome.motion import Step
 from servo_app.janome.protocol import (
@@ -43,7 +44,6 @@ from servo_app.janome.protocol import (
     Target,
 )
 from servo_app.janome.trapezoid import move_time
-from servo_app.motion.servo import CommandRejected
 
 
 class Phase(StrEnum):

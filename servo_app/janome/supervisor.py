@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from servo_app.errors import CommandRejected
 from servo_app.input_slot import TWIST, InputCommand
 from servo_app.janome.alarms import (
     LINK_LOST,
@@ -38,7 +39,6 @@ from servo_app.janome.alarms import (
 from servo_app.janome.motion import JanomeMotion
 from servo_app.janome.protocol import FrameError, RobotState, Status
 from servo_app.janome.session import JanomeSession, Phase, SessionConfig
-from servo_app.motion.servo import CommandRejected
 from servo_app.safety import (
     AbandonStream,
     Action,
@@ -78,6 +78,12 @@ JOG_EXPIRED = "hold-to-run expired"  # the state machine's stop reason for JogEx
 
 
 class JanomeSupervisor(SupervisorBase):
+    def alarm_event(self, code: str, message: str) -> ControllerAlarm:
+        spec = alarm_for_code(code)  # JNM-nnn; any other code stops with the generic texts
+        if spec is None:
+            return ControllerAlarm(code=code, message=message)
+        return ControllerAlarm(code=code, message=message, cause=spec.cause, remedy=spec.remedy)
+
     def __init__(self, motion: JanomeMotion, session_config: SessionConfig | None = None,
                  hold_s: float = 0.5) -> None:
         super().__init__(min_input_hold_s=0.05)
@@ -161,7 +167,7 @@ class JanomeSupervisor(SupervisorBase):
         elif op == "lease_lost":
             self._feed(LeaseLost(holder=str(kw.get("holder", ""))), now)
         elif op == "controller_alarm":
-            self._feed(ControllerAlarm(code=str(kw["code"]), message=str(kw.get("message", ""))), now)
+            self._feed(self.alarm_event(str(kw["code"]), str(kw.get("message", ""))), now)
         elif op == "jog":
             self._jog(np.asarray(kw["joints"], dtype=float), float(kw.get("hold_s", self.default_hold_s)), now)
         elif op == "target":
@@ -267,7 +273,7 @@ class JanomeSupervisor(SupervisorBase):
         s.warnings.clear()
         if s.pending_alarm is not None:
             a, s.pending_alarm = s.pending_alarm, None
-            self._feed(ControllerAlarm(code=alarm_code(a.error), message=a.message), now)
+            self._feed(self.alarm_event(alarm_code(a.error), a.message), now)
         if s.phase == Phase.FAULT and stream_alive(self.state):
             self._feed(StatusLost(detail=s.fault_reason), now, PROTOCOL if "malformed" in s.fault_reason
                        or "acknowledges" in s.fault_reason or "HELLO" in s.fault_reason else LINK_TIMEOUT,

@@ -32,7 +32,7 @@ never checked, manual 61.5):
 - joint position limits: the model-convention range of the profile after the J2/J3 conversion
   (``q3_model = J3 + j23_factor * J2``). The manual only says "the robot will stop with an alarm";
   we report FANUC's general joint-limit alarm MOTN-017 "Limit error" (not in chapter 61.9; its text
-  is in servo_app.fanuc.alarms with the other codes);
+  is in the FANUC alarm catalogue with the other codes);
 - offline only (``check_max_spd=True``): flange speed above $MAX_SPD as violation CHK-001. The
   controller has no such alarm (its limits just extrapolate down above Vmax), a planner should
   never go there.
@@ -40,6 +40,9 @@ never checked, manual 61.5):
 Warnings are edge-triggered per axis and type (re-armed when the value falls back below the
 threshold, or once per window), so they never flood. Alarms are edge-triggered the same way, which
 only matters offline: on a controller the first alarm stops the robot.
+
+A :class:`Violation` carries the code and the numbers, no text: the controller's one-line rendering
+is the alarm catalogue's (``format_violation`` beside ``format_alarm`` in the FANUC backend).
 """
 
 from __future__ import annotations
@@ -50,7 +53,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from servo_app.fanuc.alarms import format_alarm
 from servo_app.motion.limit_tables import ACC, JERK, VEL, LimitTables, evaluate_stages
 from servo_app.robots.profile import RobotProfile
 
@@ -90,12 +92,6 @@ class Violation:
     @property
     def excess(self) -> float:
         return abs(self.value) / self.limit if self.limit > 0 else math.inf
-
-    @property
-    def message(self) -> str:
-        if self.code == MAX_SPD_CODE:
-            return format_alarm(self.code, seq=self.seq, pc=round(self.value), rob=round(self.limit))
-        return format_alarm(self.code, axis=self.axis, seq=self.seq)
 
 
 @dataclass

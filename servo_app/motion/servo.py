@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from servo_app.fanuc.packets import Status
+from servo_app.errors import CommandRejected
 from servo_app.motion.commands import PoseTarget, Twist
 from servo_app.motion.diffik import DifferentialIK, IkResult
 from servo_app.motion.limit_tables import LimitTables, default_tables
@@ -34,10 +34,6 @@ from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import RobotProfile
 
 CREEP_DEG_S = 1e-3  # joint speed below which a Cartesian motion is held still (~10 um/s at the flange)
-
-
-class CommandRejected(ValueError):
-    """A motion command that cannot be executed; the message names the field and the value."""
 
 
 @dataclass
@@ -125,7 +121,9 @@ class ServoCycle:
         self._region = region.within(np.radians(lo - 1e-9), np.radians(hi + 1e-9))
         self.configuration = self._region.reference
 
-    def next_command(self, status: Status) -> np.ndarray:
+    def next_command(self, status: object) -> np.ndarray:
+        """The next commanded joint position; ``status`` (the controller's latest status) is not read:
+        the cycle advances by the fixed interval."""
         shaper = self._require()
         if self._pending and shaper.at_rest:  # at rest after a change of direction: start it now
             self._pending = False

@@ -4,9 +4,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from servo_app.fanuc.packets import StatusBit
-
 # --- from the controller / link ---------------------------------------------------------------
+
+# The status byte as the safety machine reads it (J519's layout; other backends map their link state
+# onto the same booleans): bit 0 waiting for commands, bit 1 command received, bit 2 SYSRDY, bit 3 moving.
+STATUS_WAITING_FOR_COMMAND = 0x01
+STATUS_COMMAND_RECEIVED = 0x02
+STATUS_SYSRDY = 0x04
+STATUS_MOVING = 0x08
 
 
 @dataclass(frozen=True)
@@ -19,10 +24,10 @@ class StatusReceived:
     @classmethod
     def from_byte(cls, status: int) -> StatusReceived:
         return cls(
-            bit0=bool(status & StatusBit.WAITING_FOR_COMMAND),
-            bit1=bool(status & StatusBit.COMMAND_RECEIVED),
-            sysrdy=bool(status & StatusBit.SYSRDY),
-            moving=bool(status & StatusBit.MOVING),
+            bit0=bool(status & STATUS_WAITING_FOR_COMMAND),
+            bit1=bool(status & STATUS_COMMAND_RECEIVED),
+            sysrdy=bool(status & STATUS_SYSRDY),
+            moving=bool(status & STATUS_MOVING),
         )
 
 
@@ -42,8 +47,14 @@ class Disconnected:
 
 @dataclass(frozen=True)
 class ControllerAlarm:
-    code: str  # e.g. "MOTN-603"
+    """An alarm the controller posted, classified by whoever creates the event from its backend's
+    catalogue; an empty ``cause`` means the code is not in it (it still stops, with generic texts)."""
+
+    code: str  # e.g. "MOTN-603", "JNM-007"
     message: str = ""  # the controller's one-line text
+    warning: bool = False  # posted but does not stop the robot
+    cause: str = ""
+    remedy: str = ""
 
 
 # --- operator / API requests ------------------------------------------------------------------

@@ -65,7 +65,7 @@ class Stop:
 
 @dataclass(frozen=True)
 class FaultInfo:
-    """Why the stream died; for alarms the manual's cause and remedy (61.9)."""
+    """Why the stream died; for alarms the cause and remedy from the backend's alarm catalogue."""
 
     message: str
     cause: str

@@ -19,8 +19,9 @@ then stops status output; a second signal while still decelerating escalates to 
 
 Faults (controller alarm; status bit 0 falling or SYSRDY going off while the stream is alive; status
 lost or the link dropped while the stream is alive) abandon the stream and record the alarm code
-with the manual's cause and remedy. Only ResetRequested leaves fault: to ready if the last status
-shows the controller waiting for a first command, to connected if status flows otherwise, else to
+with its cause and remedy; an alarm event brings those (and whether it is a mere warning) from its
+backend's catalogue. Only ResetRequested leaves fault: to ready if the last status shows the
+controller waiting for a first command, to connected if status flows otherwise, else to
 disconnected. ended is left only by StartRequested (a fresh IBGN run) or a controller alarm.
 
 Transition table (tests/test_safety_state_machine.py parses it and checks the code against it).
@@ -105,7 +106,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-from servo_app.fanuc.alarms import ALARMS
 from servo_app.safety.actions import (
     ABANDON_STREAM,
     HOLD_POSITION,
@@ -302,15 +302,13 @@ def _on_link_lost(s: SafetyState, e: StatusLost | Disconnected) -> Transition:
 
 
 def _on_alarm(s: SafetyState, e: ControllerAlarm) -> Transition:
-    spec = ALARMS.get(e.code)
     message = e.message or e.code
-    if spec is not None and spec.warning:
-        return Transition(s, (ReportWarning(e.code, message, spec.cause, spec.remedy),))
-    if spec is not None:
-        cause, remedy = spec.cause, spec.remedy
-    else:  # unknown codes still stop: the controller has stopped, whatever the code says
-        cause = f"{e.code} is not in the Stream Motion alarm list (manual 61.9)."
-        remedy = "See the controller's alarm history and its manual for this code."
+    if e.warning:
+        return Transition(s, (ReportWarning(e.code, message, e.cause, e.remedy),))
+    cause, remedy = e.cause, e.remedy
+    if not cause:  # unknown codes still stop: the controller has stopped, whatever the code says
+        cause = f"{e.code} is not in the controller's alarm catalogue."
+        remedy = remedy or "See the controller's alarm history and its manual for this code."
     info = FaultInfo(message=message, cause=cause, remedy=remedy, code=e.code, during=s.mode)
     if s.mode is Mode.FAULT:
         if s.fault is None or s.fault.code is None:  # the alarm explains our own detection

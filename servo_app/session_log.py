@@ -1,10 +1,19 @@
-"""Per-cycle session log: every status packet received and every command sent, to disk.
+"""Per-cycle session log: every status received and every command sent, to disk.
+
+The format is shared by both backends (the header's ``protocol`` names which one wrote the file);
+``servo-app check`` reads the command records of either. What ``flags``, ``io`` and ``values`` mean
+per backend:
+
+- FANUC (J519): status = the status packet's bits, the read I/O value and the servo joints J1..J9;
+  command = ``last_data | data_format << 1``, the write I/O value and the commanded values;
+- Janome (point job, ``servo_app/janome/runner.py`` ``_log_exchange``): status = the robot state,
+  its error code and X Y Z R; command (a target frame) = ``stop | cmd << 1``, 0 and X Y Z R.
 
 Format (version 1), little-endian:
 
 - ``b"SERVOLOG"`` magic, u32 header length, header as UTF-8 JSON (model, interval, j23 factor,
   start time, protocol, format version);
-- then fixed 56-byte records, one per datagram:
+- then fixed 56-byte records, one per datagram or frame:
 
   ====== ===== ==============================================================================
   offset type  field
@@ -12,10 +21,11 @@ Format (version 1), little-endian:
   0      u8    kind: 0 status received, 1 command sent
   1      f64   t: seconds since the session opened (monotonic clock)
   9      u32   seq: status or command sequence number
-  13     u8    flags: status bits (status) / last_data | data_format << 1 (command)
-  14     u16   io: read I/O value (status) / write I/O value (command)
+  13     u8    flags: FANUC status bits / Janome robot state (status);
+                FANUC last_data | data_format << 1 / Janome stop | cmd << 1 (command)
+  14     u16   io: read I/O value / Janome error code (status); write I/O value / 0 (command)
   16     f32   latency_us: status receipt to this command's send (command), 0 for status
-  20     9xf32 values: servo joints J1..J9 (status) / commanded values (command)
+  20     9xf32 values: servo joints J1..J9 / X Y Z R (status); commanded values (command)
   ====== ===== ==============================================================================
 
 The writer flushes at least once per second of records, so a crash loses at most the last second.

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from servo_app.fanuc.alarms import format_violation
 from servo_app.motion.checker import ControllerLimitChecker, Usage, Violation, check_trajectory
 
 FORMATS = ("auto", "joints", "xyzwpr")
@@ -78,7 +79,7 @@ def load_trajectory(path: str | Path, fmt: str = "auto") -> Trajectory:
 
 def _is_session_log(p: Path) -> bool:
     try:
-        from servo_app.fanuc.session_log import is_session_log
+        from servo_app.session_log import is_session_log
     except ImportError:
         return False
     try:
@@ -88,7 +89,7 @@ def _is_session_log(p: Path) -> bool:
 
 
 def _load_session_log(p: Path, fmt: str) -> Trajectory:
-    from servo_app.fanuc.session_log import SessionLogError, read_session_log
+    from servo_app.session_log import SessionLogError, read_session_log
 
     try:
         log = read_session_log(p)
@@ -280,7 +281,7 @@ def describe(v: Violation, traj: Trajectory) -> str:
     where = _row_text(v, traj)
     axis = f"axis J{v.axis}, " if v.axis is not None else ""
     unit = _UNITS.get(v.kind, "")
-    text = f"{v.message}\n  {axis}{where}"
+    text = f"{format_violation(v)}\n  {axis}{where}"
     if math.isfinite(v.value) and math.isfinite(v.limit) and v.kind not in ("non_finite", "cartesian"):
         text += f": {v.kind} {v.value:.6g} {unit}, limit {v.limit:.6g} {unit}"
         if v.kind in ("velocity", "acceleration", "jerk"):
