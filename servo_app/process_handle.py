@@ -1,9 +1,21 @@
-"""The parent side of a servo process (FANUC or Janome): start it, send requests, read its state.
+"""A servo process, both sides: the generic child host and the parent's handle, for any backend.
 
-The child runs ``target(cfg_dict, conn, slot_name)`` in a process of its own (spawned: nothing of
-the parent's threads or locks comes along); it answers requests ``{"id", "op", ...}`` with
-``{"id", "ok", "result" | "error"}``, sends events ``{"event": kind, ...}`` (first ``ready``), and
-publishes its state into a shared-memory slot (layout: :mod:`servo_app.state`).
+The child (spawned: nothing of the parent's threads or locks comes along) runs a backend's
+:class:`ServoProcessHost` subclass: it owns the robot link and the supervisor, answers typed requests
+(:mod:`servo_app.messages`) from the pipe, sends events, and publishes its state into a shared-memory
+latest-value slot (layout: :mod:`servo_app.state`). What every backend's process does is here:
+
+- SIGTERM/SIGINT are noted and handed to the supervisor at the next step (it decelerates, ends the
+  stream, then the process exits); so is the parent's death (end of file on the pipe, or a new
+  parent pid), once;
+- requests are dispatched by type; a start that must wait for the controller is answered when the
+  stream runs or when it is given up, never with an early "ok";
+- the safety event goes out before the state vector that shows its mode;
+- the session log is closed, and the link shut, on every way out.
+
+The parent's :class:`ServoProcessHandle` starts the process, sends requests (thread-safe, one reader
+thread owns the pipe), and watches the process: its death wakes every waiter and is reported with
+its cause ("ended by signal 9"), so the service can name the fault and start a new process.
 """
 
 from __future__ import annotations
@@ -12,6 +24,7 @@ import contextlib
 import multiprocessing as mp
 import os
 import signal
+import threading
 import time
 import traceback
 from collections.abc import Callable
@@ -19,49 +32,222 @@ from dataclasses import asdict
 from multiprocessing.connection import Connection
 from typing import Any
 
+from servo_app import messages as msg
 from servo_app.errors import CommandRejected
 from servo_app.ipc import LatestValueSlot
 from servo_app.realtime import single_threaded_blas
-from servo_app.state import STATE_SIZE, decode_state
+from servo_app.safety import Mode
+from servo_app.state import MODES, PHASES, STATE_SIZE, StateVector, decode_state
+
+# ------------------------------------------------------------------------------------- child side
 
 
 def run_child(conn: Connection, body: Callable[[], None]) -> None:
     """The child's top level: run ``body``; if it raises, report the traceback, then die (the parent
-    turns a "crashed" event into a fault)."""
+    turns it into a fault)."""
     try:
         body()
     except Exception:
         with contextlib.suppress(OSError):
-            conn.send({"event": "crashed", "traceback": traceback.format_exc()})
+            conn.send(msg.Crashed(traceback=traceback.format_exc()))
         raise
 
 
-class ChildLink:
-    """The child's side of the link, the same for every backend: events to the parent, signals
-    noted for the main loop (which decelerates and ends the stream before exiting), and the safety
-    event sent before the state vector that shows its mode."""
+class ServoProcessHost:
+    """The generic servo process. A backend implements ``_io_step`` (wait for and handle its link's
+    traffic, at most ~20 ms), ``_deliver_signal``, ``_publish_backend`` and, optionally, the hooks
+    around requests; everything else is shared."""
 
     conn: Connection
-    sup: Any  # the backend's supervisor: ``changed`` and ``describe()``
-    pending_signal: int | None = None
+    sup: Any  # the backend's SupervisorBase
+    slot: LatestValueSlot
+    state: StateVector
+    start_waits_for_stream = True  # answer a start once streaming (or given up), not at once
+
+    def _init_host(self, conn: Connection, slot_name: str) -> None:
+        self.conn = conn
+        self.slot = LatestValueSlot(STATE_SIZE, name=slot_name, create=False)
+        self.state = StateVector()
+        self.pending_signal: int | None = None
+        self.quit = False
+        self.parent_pid = os.getppid()
+        self.parent_gone = False
+        self.t0 = time.monotonic()
+        self._start_waiters: list[int] = []
+        self._last_phase: str | None = None
+
+    # -- what each backend implements
+    def _io_step(self) -> None:
+        raise NotImplementedError
+
+    def _deliver_signal(self, sig: int, now: float) -> None:
+        raise NotImplementedError
+
+    def _publish_backend(self, sv: StateVector) -> None:
+        raise NotImplementedError
+
+    def _before_request(self, req: msg.Request) -> None:
+        """Called before the supervisor handles ``req`` (e.g. open the session log on a start)."""
+
+    def _after_request(self) -> None:
+        """Called after each request (e.g. send what the request produced)."""
+
+    def _on_link_phase(self, phase: str) -> None:
+        """The link changed phase (already reported to the parent)."""
+
+    def _shutdown(self) -> None:
+        """Close the link and the session log (every way out)."""
+
+    # -- the loop
+    def serve(self, ready: msg.Ready) -> None:
+        # The safety view first: whoever sees Ready already has the state's reasons (fault: none).
+        self.sup.changed = True
+        self._publish()
+        self._event(ready)
+        try:
+            while not self.quit:
+                self._io_step()
+                self._housekeeping()
+        finally:
+            self._shutdown()
+            self.slot.close()
 
     def _on_signal(self, signum: int, frame: object) -> None:
         self.pending_signal = signum
 
-    def _event(self, kind: str, **kw: Any) -> None:
-        with contextlib.suppress(BrokenPipeError, OSError):
-            self.conn.send({"event": kind, **kw})
+    def _install_signals(self) -> None:
+        signal.signal(signal.SIGTERM, self._on_signal)
+        signal.signal(signal.SIGINT, self._on_signal)
 
-    def _publish_safety(self) -> None:
-        # Before the state vector that shows the new mode, so a reader who sees the mode can have
-        # its reason (stop reason, fault texts) too.
+    def _housekeeping(self) -> None:
+        self._watch_parent()
+        if self.pending_signal is not None:  # handled here, not inside the signal handler
+            sig, self.pending_signal = self.pending_signal, None
+            self._deliver_signal(sig, time.monotonic())
+        self._poll_requests()
+        self.sup.watch_start(time.monotonic())
+        self._answer_start()
+        self._watch_link()
+        self._publish()
+        if self.sup.finished:
+            self.quit = True
+
+    def _watch_parent(self) -> None:
+        """The parent's death ends the stream as SIGTERM would (soft stop, last data, status off): an
+        orphan must not keep an arm under its control. Checked by pid, since a pipe's end of file
+        only shows once somebody reads it."""
+        if not self.parent_gone and os.getppid() != self.parent_pid:
+            self._parent_died()
+
+    def _parent_died(self) -> None:
+        if not self.parent_gone:
+            self.parent_gone = True
+            self.pending_signal = int(signal.SIGTERM)
+
+    def _poll_requests(self) -> None:
+        if self.parent_gone:
+            return
+        while True:
+            try:
+                if not self.conn.poll():
+                    return
+                env = self.conn.recv()
+            except (EOFError, OSError):  # the parent is gone
+                self._parent_died()
+                return
+            self._handle(env)
+
+    def _handle(self, env: msg.Envelope) -> None:
+        req = env.request
+        try:
+            if not isinstance(req, msg.Request):
+                raise CommandRejected(f"{type(req).__name__} is not a request")
+            self._before_request(req)
+            result = self.sup.request(req, time.monotonic())
+            self._after_request()
+        except (CommandRejected, ValueError, TypeError, RuntimeError) as exc:
+            self._reply(env.id, False, error=str(exc))
+            return
+        if isinstance(req, msg.Start) and self.sup.start_pending and self.start_waits_for_stream:
+            if env.id is not None:
+                self._start_waiters.append(env.id)
+            return
+        self._reply(env.id, True, result=result)
+
+    def _reply(self, rid: int | None, ok: bool, result: Any = None, error: str = "") -> None:
+        if rid is None:
+            return
+        self._publish()  # a reader after the reply sees the request's effect
+        with contextlib.suppress(BrokenPipeError, OSError):
+            self.conn.send(msg.Reply(rid, ok, result, error))
+
+    def _answer_start(self) -> None:
+        if not self._start_waiters or self.sup.start_pending:
+            return
+        waiters, self._start_waiters = self._start_waiters, []
+        mode = self.sup.state.mode
+        ok = mode in (Mode.STREAMING, Mode.STOPPING, Mode.STOPPED)
+        fault = self.sup.state.fault
+        error = ""
+        if not ok:
+            why = self.sup.start_error or (fault.message if fault else f"the stream did not start ({mode.value})")
+            error = f"start failed: {why}"
+        for rid in waiters:
+            self._reply(rid, ok, error=error)
+
+    def _event(self, event: msg.Event) -> None:
+        with contextlib.suppress(BrokenPipeError, OSError):
+            self.conn.send(event)
+
+    def _link_phase(self) -> tuple[str, str]:
+        s = self.sup.session
+        return s.phase.value, s.fault_reason
+
+    def _watch_link(self) -> None:
+        phase, reason = self._link_phase()
+        if phase != self._last_phase:
+            self._last_phase = phase
+            self._event(msg.LinkPhase(phase=phase, reason=reason))
+            self._on_link_phase(phase)
+
+    def _publish(self) -> None:
+        # The safety event first, so a reader who sees the new mode can have its reason too.
         if self.sup.changed:
             self.sup.changed = False
-            self._event("safety", **self.sup.describe())
+            self._event(msg.SafetyChanged(view=self.sup.describe()))
+        sv = self.state
+        sv.set("published_unix", time.time())
+        sv.set("phase", PHASES.index(self._link_phase()[0]))
+        sv.set("mode", MODES.index(self.sup.state.mode.value))
+        sv.set("session_time", time.monotonic() - self.t0)
+        self._publish_backend(sv)
+        self.slot.write(sv.data)
+
+
+# ------------------------------------------------------------------------------------ parent side
+
+
+def describe_exit(code: int | None) -> str:
+    """A process's exit code in words: "ended by signal 9 (SIGKILL)", "exited with code 1"."""
+    if code is None:
+        return "still running"
+    if code < 0:
+        with contextlib.suppress(ValueError):
+            return f"ended by signal {-code} ({signal.Signals(-code).name})"
+        return f"ended by signal {-code}"
+    return f"exited with code {code}"
 
 
 class ServoProcessHandle:
-    def __init__(self, cfg: Any, target: Callable[..., None], name: str) -> None:
+    """The parent's side: start, request (from any thread), watch, shut down.
+
+    One reader thread owns the pipe: replies wake their waiters, events are kept (``events``) and
+    passed to ``on_event``. When the process dies, ``alive`` turns False, every waiter wakes with a
+    TimeoutError naming the cause, and ``on_exit(cause)`` is called once."""
+
+    def __init__(self, cfg: Any, target: Callable[..., None], name: str,
+                 on_event: Callable[[msg.Event], None] | None = None,
+                 on_exit: Callable[[str], None] | None = None) -> None:
         self.cfg = cfg
         self.name = name
         self.slot = LatestValueSlot(STATE_SIZE)
@@ -69,70 +255,123 @@ class ServoProcessHandle:
         self._conn, child_conn = ctx.Pipe()
         self.process = ctx.Process(target=target, args=(asdict(cfg), child_conn, self.slot.name), name=name,
                                    daemon=True)
-        self.events: list[dict[str, Any]] = []
+        self._child_conn = child_conn
+        self.events: list[msg.Event] = []
+        self.on_event = on_event
+        self.on_exit = on_exit
+        self.exit_cause = ""
+        self._cv = threading.Condition()
+        self._replies: dict[int, msg.Reply] = {}
         self._next_id = 0
-        self._replies: dict[int, dict[str, Any]] = {}
+        self._send_lock = threading.Lock()
+        self._reader: threading.Thread | None = None
+        self._closing = False
 
-    def start(self, timeout: float = 30.0) -> dict[str, Any]:
-        """Start the process; returns its ``ready`` event."""
+    @property
+    def alive(self) -> bool:
+        return not self.exit_cause
+
+    @property
+    def pid(self) -> int | None:
+        return self.process.pid
+
+    def start(self, timeout: float = 30.0) -> msg.Ready:
+        """Start the process and its reader; returns its ``Ready`` event."""
         with single_threaded_blas():
             self.process.start()
-        return self.wait_event("ready", timeout)
+        self._child_conn.close()  # ours is the only copy left: the child's death shows as end of file
+        self._reader = threading.Thread(target=self._read_loop, name=f"{self.name} pipe", daemon=True)
+        self._reader.start()
+        ev = self.wait_event(msg.Ready, timeout)
+        assert isinstance(ev, msg.Ready)
+        return ev
 
-    def request(self, op: str, timeout: float = 2.0, **kw: Any) -> Any:
-        """Send a request and wait for its reply; a refusal raises CommandRejected with its message."""
-        self._next_id += 1
-        rid = self._next_id
-        self._conn.send({"id": rid, "op": op, **kw})
+    def _read_loop(self) -> None:
+        while True:
+            try:
+                item = self._conn.recv()
+            except (EOFError, OSError):
+                break
+            if isinstance(item, msg.Reply):
+                with self._cv:
+                    self._replies[item.id] = item
+                    self._cv.notify_all()
+                continue
+            with self._cv:
+                self.events.append(item)
+                self._cv.notify_all()
+            if self.on_event is not None:
+                self.on_event(item)
+        self.process.join(2.0)
+        cause = describe_exit(self.process.exitcode)
+        crashed = next((e for e in reversed(self.events) if isinstance(e, msg.Crashed)), None)
+        if crashed is not None:
+            cause += ": " + crashed.traceback.strip().splitlines()[-1]
+        with self._cv:
+            self.exit_cause = cause
+            self._cv.notify_all()
+        if self.on_exit is not None and not self._closing:
+            self.on_exit(cause)
+
+    def send(self, req: msg.Request) -> None:
+        """Fire-and-forget: no reply is asked for (the servo process validates and drops bad ones)."""
+        if not self.alive:
+            raise TimeoutError(f"the {self.name} is not running ({self.exit_cause})")
+        with self._send_lock:
+            self._conn.send(msg.Envelope(None, req))
+
+    def request(self, req: msg.Request, timeout: float = 2.0) -> Any:
+        """Send a request and wait for its reply; a refusal raises CommandRejected with its message, a
+        dead or silent process TimeoutError."""
+        if not self.alive:
+            raise TimeoutError(f"the {self.name} is not running ({self.exit_cause})")
+        with self._send_lock:
+            self._next_id += 1
+            rid = self._next_id
+            try:
+                self._conn.send(msg.Envelope(rid, req))
+            except OSError as exc:
+                raise TimeoutError(f"the {self.name} is not reachable: {exc}") from None
         deadline = time.monotonic() + timeout
-        while rid not in self._replies:
-            if not self._pump(deadline - time.monotonic()):
-                raise TimeoutError(f"{self.name} did not answer '{op}' within {timeout} s")
-        reply = self._replies.pop(rid)
-        if not reply["ok"]:
-            raise CommandRejected(reply["error"])
-        return reply.get("result")
+        with self._cv:
+            while rid not in self._replies:
+                left = deadline - time.monotonic()
+                if not self.alive:
+                    raise TimeoutError(f"the {self.name} {self.exit_cause} before answering {type(req).__name__}")
+                if left <= 0:
+                    raise TimeoutError(f"the {self.name} did not answer {type(req).__name__} within {timeout} s")
+                self._cv.wait(left)
+            reply = self._replies.pop(rid)
+        if not reply.ok:
+            raise CommandRejected(reply.error)
+        return reply.result
 
-    def _pump(self, timeout: float) -> bool:
-        if timeout <= 0 or not self._conn.poll(timeout):
-            return False
-        try:
-            msg = self._conn.recv()
-        except EOFError:
-            return False
-        if "event" in msg:
-            self.events.append(msg)
-        else:
-            self._replies[msg["id"]] = msg
-        return True
-
-    def last_event(self, kind: str) -> dict[str, Any] | None:
-        self.poll_events()
-        for ev in reversed(self.events):
-            if ev["event"] == kind:
-                return ev
+    def last_event(self, kind: type[msg.Event]) -> msg.Event | None:
+        with self._cv:
+            for ev in reversed(self.events):
+                if isinstance(ev, kind):
+                    return ev
         return None
 
-    def poll_events(self) -> list[dict[str, Any]]:
-        while self._pump(0.0001):
-            pass
-        return self.events
-
-    def wait_event(self, kind: str, timeout: float, **match: Any) -> dict[str, Any]:
+    def wait_event(self, kind: type[msg.Event], timeout: float, **match: Any) -> msg.Event:
         deadline = time.monotonic() + timeout
         seen = 0
-        while True:
-            for ev in self.events[seen:]:
-                if ev["event"] == kind and all(ev.get(k) == v for k, v in match.items()):
-                    return ev
-                if ev["event"] == "crashed":
-                    raise RuntimeError(f"{self.name} crashed:\n{ev['traceback']}")
-            seen = len(self.events)
-            if not self.process.is_alive() and not self._conn.poll():
-                raise RuntimeError(f"{self.name} exited (code {self.process.exitcode}) before '{kind}'; "
-                                   f"events: {self.events[-5:]}")
-            if not self._pump(min(deadline - time.monotonic(), 0.5)) and time.monotonic() >= deadline:
-                raise TimeoutError(f"no '{kind}' event {match} within {timeout} s; events: {self.events[-5:]}")
+        with self._cv:
+            while True:
+                for ev in self.events[seen:]:
+                    if isinstance(ev, kind) and all(getattr(ev, k) == v for k, v in match.items()):
+                        return ev
+                    if isinstance(ev, msg.Crashed):
+                        raise RuntimeError(f"{self.name} crashed:\n{ev.traceback}")
+                seen = len(self.events)
+                if not self.alive:
+                    raise RuntimeError(f"{self.name} {self.exit_cause} before {kind.__name__}; "
+                                       f"events: {self.events[-5:]}")
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError(f"no {kind.__name__} event {match} within {timeout} s; "
+                                       f"events: {self.events[-5:]}")
+                self._cv.wait(left)
 
     def state(self) -> dict[str, Any]:
         _, data = self.slot.read()
@@ -140,13 +379,18 @@ class ServoProcessHandle:
 
     def shutdown(self, timeout: float = 10.0) -> int | None:
         """Signal the process (it ends a running stream cleanly) and wait for it; its exit code."""
+        self._closing = True
         if self.process.is_alive():
             assert self.process.pid is not None
-            os.kill(self.process.pid, signal.SIGTERM)
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.process.pid, signal.SIGTERM)
             self.process.join(timeout)
             if self.process.is_alive():
                 self.process.kill()
                 self.process.join(2)
-        self.poll_events()
+        if self._reader is not None:
+            self._reader.join(3.0)
+        with contextlib.suppress(OSError):
+            self._conn.close()
         self.slot.close()
         return self.process.exitcode

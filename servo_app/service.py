@@ -4,10 +4,11 @@ It lives in the API process and stays thin: every motion decision is taken in th
 (the cycle owns stops, hold-to-run and watchdogs, so a frozen API cannot leave the arm moving). This
 object forwards requests, reads the published state and keeps the lists the API shows.
 
-Threads: the API calls in from many worker threads at once (requests, telemetry, metrics). One
-reader thread owns the servo process's pipe (replies and events) and callers wait on their own
-reply, so a stop never queues behind other requests; a monitor thread polls the embedded simulator's
-alarm list and forwards new alarms to the servo process at once, whether or not anyone reads state.
+Threads: the API calls in from many worker threads at once (requests, telemetry, metrics). The
+servo process's handle owns its pipe (one reader thread: replies wake their own waiter, so a stop
+never queues behind other requests; events and the process's death are passed here); a monitor
+thread polls the embedded simulator's alarm list and forwards new alarms to the servo process at
+once, whether or not anyone reads state.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from servo_app import messages as msg
 from servo_app.errors import CommandRejected
 from servo_app.fanuc.alarms import ALARMS
 from servo_app.fanuc.packets import ROBOT_PORT, IoType
@@ -30,6 +32,7 @@ from servo_app.janome.profile import available_janome_profiles, load_janome_prof
 from servo_app.janome.runner import DEFAULT_PORT as JANOME_PORT
 from servo_app.motion.diffik import holding_back
 from servo_app.motion.limit_tables import default_tables
+from servo_app.process_handle import ServoProcessHandle
 from servo_app.realtime import make_realtime
 from servo_app.robots.profile import load_profile
 
@@ -95,6 +98,9 @@ class ServiceConfig:
     # MOTN-603. Below the servo process's priority (20), so that one still comes first. None: leave.
     sim_realtime_priority: int | None = 10
     request_timeout_s: float = 2.0
+    # A start waits for the stream to run (status output, limit tables, the controller's waiting bit):
+    # given up after this, with the reason (the request then answers 409).
+    start_timeout_s: float = 5.0
     inputs_config: Path | None = None  # inputs TOML (servo-app run --inputs): adapters, feeds, applications
 
     @property
@@ -103,6 +109,12 @@ class ServiceConfig:
 
 
 class ServoService:
+    """The servo process (one, replaced after it dies), the embedded simulator, the views.
+
+    The servo process is watched: if it dies, the state shows a fault naming the cause within the
+    pipe's end of file (milliseconds), requests are refused with that cause instead of timing out,
+    and ``reset`` or ``start`` bring up a new process. Nothing here waits by sleeping."""
+
     def __init__(self, cfg: ServiceConfig) -> None:
         self.cfg = cfg
         robot = parse_robot(cfg.robot)
@@ -115,23 +127,21 @@ class ServoService:
             self.model = cfg.model
             self.profile = load_profile(cfg.model)
         self.sim: Any = None
-        self.stream: StreamProcess | None = None
+        self.stream: ServoProcessHandle | None = None
         self.stops_by_reason: Counter[str] = Counter()
         self.faults: list[dict[str, Any]] = []
         self.robot_address: tuple[str, int] | None = None
-        self.events: deque[dict[str, Any]] = deque(maxlen=2000)
-        self._last_event: dict[str, dict[str, Any]] = {}
-        self._send_lock = threading.Lock()
+        self.events: deque[msg.Event] = deque(maxlen=2000)
+        self._safety: dict[str, Any] = {}  # the servo process's last SafetyChanged view
+        self._safety_cv = threading.Condition()
+        self._lifecycle = threading.Lock()  # one open / replace / close at a time
         self._sim_lock = threading.Lock()
-        self._cv = threading.Condition()
-        self._replies: dict[int, dict[str, Any]] = {}
-        self._waiting: set[int] = set()
-        self._next_id = 0
         self._alarms_seen = 0
         self._sim_events: list[dict[str, Any]] = []
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
-        self.servo_alive = False
+        self.servo_fault: dict[str, Any] | None = None  # the servo process died: why, and what to do
+        self.servo_starts = 0
         self.sim_scheduling = "no embedded simulator"
         self.inputs: Any = None  # the InputsBridge, with cfg.inputs_config
 
@@ -142,52 +152,77 @@ class ServoService:
             from servo_app.inputs.bridge import InputsBridge
 
             self.inputs = InputsBridge.from_file(self.cfg.inputs_config)
-        if robot is not None and robot[0] == "janome":
-            self._open_janome(robot[1], robot[2], embedded=self.cfg.robot == "janome")
-            if self.inputs is not None:
-                self.inputs.start(request=self.request, feedback=self.state_vector, act=self._output_action)
-            return
         if robot is None:
             self.sim = self._start_simulator()
-            host, port = self.sim.address
-        else:
-            _, host, port = robot
-        self.robot_address = (host, port)
-        self.stream = StreamProcess(StreamConfig(
-            host=host, port=port, model=self.cfg.model, interval_ms=self.cfg.interval_ms, lead=self.cfg.lead,
-            log_dir=str(self.cfg.log_dir), limit_fraction=self.cfg.limit_fraction,
-            flange_speed_cap=self.cfg.flange_speed_cap, payload_kg=self.cfg.payload_kg,
-            input_slot=self.inputs.slot_name if self.inputs is not None else None))
-        self.stream.start()
-        self._start_threads()
+            self.robot_address = self.sim.address
+        elif robot[0] == "fanuc":
+            self.robot_address = (robot[1], robot[2])
+        with self._lifecycle:
+            self._spawn()
+        if robot is not None and robot[0] == "janome" and self.cfg.robot == "janome":
+            from servo_app.sim.process import JanomeSimulatorProcess
+
+            assert self.robot_address is not None
+            self.sim = JanomeSimulatorProcess(server=self.robot_address, model=self.model).start()
+        self._stop.clear()
+        self._threads = [threading.Thread(target=self._monitor_loop, name="sim-alarms", daemon=True)]
+        for t in self._threads:
+            t.start()
         if self.inputs is not None:
             self.inputs.start(request=self.request, feedback=self.state_vector, act=self._output_action)
 
-    def _open_janome(self, host: str, port: int, embedded: bool) -> None:
-        """Janome: servo_app listens, the robot's point job connects (the manual's Ethernet client)."""
-        from servo_app.janome.runner import JanomeConfig, JanomeProcess
+    def _make_handle(self) -> ServoProcessHandle:
+        watch = {"on_event": self._on_event, "on_exit": self._on_servo_exit}
+        slot = self.inputs.slot_name if self.inputs is not None else None
+        if self.backend == "janome":
+            from servo_app.janome.runner import JanomeConfig, JanomeProcess
 
-        self.stream = JanomeProcess(JanomeConfig(  # type: ignore[assignment]
-            host=host, port=port, model=self.model, log_dir=str(self.cfg.log_dir),
-            input_slot=self.inputs.slot_name if self.inputs is not None else None))
-        self.stream.start()
-        self.robot_address = self.stream.address  # type: ignore[attr-defined]
-        if embedded:
-            from servo_app.sim.process import JanomeSimulatorProcess
+            robot = parse_robot(self.cfg.robot)
+            assert robot is not None
+            # A replacement process listens where the first one did: the robot is configured for it.
+            host, port = self.robot_address or (robot[1], robot[2])
+            return JanomeProcess(JanomeConfig(host=host, port=port, model=self.model, log_dir=str(self.cfg.log_dir),
+                                              input_slot=slot), **watch)
+        assert self.robot_address is not None
+        host, port = self.robot_address
+        return StreamProcess(StreamConfig(
+            host=host, port=port, model=self.cfg.model, interval_ms=self.cfg.interval_ms, lead=self.cfg.lead,
+            log_dir=str(self.cfg.log_dir), limit_fraction=self.cfg.limit_fraction,
+            flange_speed_cap=self.cfg.flange_speed_cap, payload_kg=self.cfg.payload_kg, input_slot=slot,
+            start_timeout_s=self.cfg.start_timeout_s), **watch)
 
-            self.sim = JanomeSimulatorProcess(server=self.robot_address, model=self.model).start()
-        self._start_threads()
+    def _spawn(self) -> None:
+        """Start a servo process (the first, or one replacing a dead one). Holds ``_lifecycle``."""
+        if self.stream is not None:
+            self.stream.shutdown(timeout=2.0)
+        with self._safety_cv:
+            self._safety = {}
+        handle = self._make_handle()
+        handle.start()
+        if self.sim is not None:  # alarms posted before this process existed are not its faults
+            with contextlib.suppress(TimeoutError, RuntimeError, OSError, EOFError):
+                self._alarms_seen = len(self.sim_call("events"))
+        if self.backend == "janome":
+            self.robot_address = handle.address  # type: ignore[attr-defined]
+        self.stream = handle
+        self.servo_fault = None
+        self.servo_starts += 1
 
-    def _start_threads(self) -> None:
-        assert self.stream is not None
-        for ev in self.stream.events:  # "ready", read by start() before our reader owns the pipe
-            self._on_event(ev)
-        self.servo_alive = True
-        self._stop.clear()
-        self._threads = [threading.Thread(target=self._read_loop, name="servo-pipe", daemon=True),
-                         threading.Thread(target=self._monitor_loop, name="sim-alarms", daemon=True)]
-        for t in self._threads:
-            t.start()
+    def _on_servo_exit(self, cause: str) -> None:
+        """The servo process died (the pipe's end of file): a fault the operator can leave with reset."""
+        fault = {
+            "message": f"servo process {cause}",
+            "code": None,
+            "cause": "The process that streams to the robot ended unexpectedly; the controller got no "
+                     "further commands and stopped the arm itself (a FANUC posts MOTN-603).",
+            "remedy": "Reset (POST /api/reset) to start a new servo process, then start a new stream. "
+                      "The session log is complete up to the process's last record.",
+            "during": (self._safety or {}).get("state"),
+        }
+        self.servo_fault = fault
+        self.faults.append({"code": "SERVO", "message": fault["message"], "time_unix": time.time()})
+        with self._safety_cv:
+            self._safety_cv.notify_all()
 
     def _start_simulator(self) -> Any:
         from servo_app.sim.process import SimulatorProcess
@@ -215,28 +250,28 @@ class ServoService:
         this long to see it shutting down by itself, since a second signal would escalate its soft
         stop to the fast ramp."""
         summary: dict[str, Any] = {}
-        deadline = time.monotonic() + group_signal_wait_s
-        while self.stream is not None and time.monotonic() < deadline:
-            if (self._last_event.get("safety") or {}).get("shutdown"):
+        if self.stream is not None and group_signal_wait_s > 0:
+            with self._safety_cv:
+                self._safety_cv.wait_for(lambda: bool(self._safety.get("shutdown")) or not self.stream.alive,
+                                         group_signal_wait_s)
+            if self._safety.get("shutdown"):
                 self.stream.process.join(10.0)  # then shutdown() finds it gone and sends no signal
-                break
-            time.sleep(0.01)
         if self.inputs is not None:  # adapters close their devices; the slot lives until the servo process exits
             self.inputs.stop()
         self._stop.set()
         for t in self._threads:
             t.join(timeout=2.0)
         self._threads = []
-        if self.stream is not None:
-            n = len(self.stream.events)
-            summary["servo_exit_code"] = self.stream.shutdown()
-            for ev in self.stream.events[n:]:
-                self._on_event(ev)
-            self.servo_alive = False
-            safety = self._last_event.get("safety") or {}
-            summary.update(state=safety.get("state"), link=safety.get("link"),
-                           stop_reason=safety.get("stop_reason"), fault=safety.get("fault"))
-            self.stream = None
+        with self._lifecycle:
+            if self.stream is not None:
+                died = self.servo_fault is not None
+                summary["servo_exit_code"] = self.stream.shutdown()
+                safety = self._safety
+                summary.update(state=safety.get("state"), link=safety.get("link"),
+                               stop_reason=safety.get("stop_reason"), fault=safety.get("fault"))
+                if died:
+                    summary.update(state="fault", fault=self.servo_fault)
+                self.stream = None
         if self.sim is not None:
             with contextlib.suppress(TimeoutError, RuntimeError, OSError, EOFError):
                 summary["alarms"] = [e["code"] for e in self.sim_call("events")]
@@ -248,80 +283,78 @@ class ServoService:
         return summary
 
     # ------------------------------------------------------------ the pipe
-    def _read_loop(self) -> None:
-        assert self.stream is not None
-        conn = self.stream._conn  # this thread is its only reader while open
-        while not self._stop.is_set():
-            try:
-                if not conn.poll(0.05):
-                    continue
-                msg = conn.recv()
-            except (EOFError, OSError):  # the servo process is gone: wake every waiter
-                self.servo_alive = False
-                with self._cv:
-                    self._cv.notify_all()
-                return
-            if "event" in msg:
-                self._on_event(msg)
-            else:
-                with self._cv:
-                    if msg.get("id") in self._waiting:
-                        self._replies[msg["id"]] = msg
-                        self._cv.notify_all()
-
-    def _on_event(self, ev: dict[str, Any]) -> None:
+    def _on_event(self, ev: msg.Event) -> None:
+        """Called on the handle's reader thread for every event."""
         self.events.append(ev)
-        self._last_event[ev["event"]] = ev
+        if isinstance(ev, msg.SafetyChanged):
+            with self._safety_cv:
+                self._safety = ev.view
+                self._safety_cv.notify_all()
 
-    def last_event(self, kind: str) -> dict[str, Any] | None:
-        return self._last_event.get(kind)
+    def last_event(self, kind: type[msg.Event]) -> msg.Event | None:
+        for ev in reversed(self.events):
+            if isinstance(ev, kind):
+                return ev
+        return None
 
-    def _send(self, msg: dict[str, Any]) -> None:
+    @property
+    def servo_alive(self) -> bool:
+        return self.stream is not None and self.stream.alive
+
+    def request(self, req: msg.Request, timeout: float | None = None) -> Any:
+        """Send a typed request to the servo process and wait for its reply.
+
+        A refusal raises CommandRejected. With the servo process dead: a stop is accepted (nothing
+        moves any more), a start first brings up a new process, anything else is refused with the
+        cause and the way out."""
+        if not self.servo_alive:
+            if isinstance(req, msg.Stop):
+                return None
+            if isinstance(req, msg.Start) and self.stream is not None:
+                self._replace_servo_process()
+            else:
+                raise CommandRejected(self._dead_why())
+        assert self.stream is not None
+        if timeout is None:
+            timeout = self.cfg.request_timeout_s
+            if isinstance(req, msg.Start):
+                timeout += self.cfg.start_timeout_s
+        return self.stream.request(req, timeout)
+
+    def _dead_why(self) -> str:
+        if self.stream is None:
+            return "the service is not open"
+        cause = self.servo_fault["message"] if self.servo_fault else "the servo process is not running"
+        return f"{cause}: reset (POST /api/reset) to start a new servo process"
+
+    def _replace_servo_process(self) -> None:
+        with self._lifecycle:
+            if not self.servo_alive:
+                self._spawn()
+
+    def send(self, req: msg.Request) -> None:
+        """Fire-and-forget: no reply is asked for (the servo process validates and drops bad ones)."""
         if self.stream is None:
             raise RuntimeError("the service is not open")
-        with self._send_lock:
-            self.stream._conn.send(msg)  # StreamProcess.request is not thread-safe
-
-    def request(self, op: str, timeout: float | None = None, **kw: Any) -> Any:
-        """Send a request to the servo process and wait for its reply; a refusal raises CommandRejected."""
-        if self.stream is None or not self.servo_alive:
-            raise TimeoutError("the servo process is not running")
-        with self._send_lock:
-            self._next_id += 1
-            rid = self._next_id
-        with self._cv:
-            self._waiting.add(rid)
-        try:
-            self._send({"id": rid, "op": op, **kw})
-            deadline = time.monotonic() + (timeout or self.cfg.request_timeout_s)
-            with self._cv:
-                while rid not in self._replies:
-                    left = deadline - time.monotonic()
-                    if left <= 0 or not self.servo_alive:
-                        raise TimeoutError(f"servo process did not answer '{op}'")
-                    self._cv.wait(left)
-                reply = self._replies.pop(rid)
-        finally:
-            with self._cv:
-                self._waiting.discard(rid)
-                self._replies.pop(rid, None)
-        if not reply["ok"]:
-            raise CommandRejected(reply["error"])
-        return reply.get("result")
-
-    def send(self, op: str, **kw: Any) -> None:
-        """Fire-and-forget: no reply is asked for (the servo process validates and drops bad ones)."""
-        self._send({"op": op, **kw})
+        self.stream.send(req)
 
     def stop(self, reason: str, fast: bool = False) -> None:
         self.stops_by_reason[reason] += 1
-        self.request("stop", fast=fast, reason=reason)
+        self.request(msg.Stop(reason=reason, fast=fast))
 
     def reset(self) -> None:
-        """Clear a fault: the simulator's alarm (as an operator at the pendant would), then the supervisor."""
+        """Clear a fault: the simulator's alarm (as an operator at the pendant would), then the
+        supervisor; a dead servo process is replaced by a new one (in disconnected: start next)."""
+        if not self.servo_alive and self.stream is not None:
+            # First the new process (about a second of warm-up), then the controller's reset: the
+            # alarm the old process's silence caused (MOTN-603) has been posted by then.
+            self._replace_servo_process()
+            if self.sim is not None:
+                self.sim_call("reset")
+            return
         if self.sim is not None:
             self.sim_call("reset")
-        self.request("reset")
+        self.request(msg.Reset())
 
     # ------------------------------------------------------------ simulator
     def sim_call(self, name: str, *args: Any) -> Any:
@@ -346,8 +379,8 @@ class ServoService:
             if spec is not None and not spec.warning:
                 self.faults.append(ev)
             # Fire-and-forget: this thread must not wait on the pipe reader; warnings are reported too.
-            with contextlib.suppress(RuntimeError, OSError):
-                self.send("controller_alarm", code=ev["code"], message=ev["message"])
+            with contextlib.suppress(RuntimeError, OSError, TimeoutError):
+                self.send(msg.ControllerAlarm(code=ev["code"], message=ev["message"]))
         self._alarms_seen = len(events)
         self._sim_events = events
 
@@ -373,14 +406,14 @@ class ServoService:
 
     def io_write(self, io_type: str, index: int, mask: int, value: int) -> None:
         name = self._check_io(io_type, index)
-        self.request("io_write", type=name, index=index, mask=mask, value=value)
+        self.request(msg.IoWrite(type=name, index=index, mask=mask, value=value))
 
     def io_read(self, io_type: str, index: int, mask: int = 0xFFFF, timeout: float = 1.0) -> int:
         """Read 16 points through the command packets: the value comes back in a later status packet."""
         name = self._check_io(io_type, index)
         if self.state_vector()["link"] != "streaming":
             raise CommandRejected("I/O is read through command packets: only while streaming")
-        self.request("io_read", type=name, index=index, mask=mask)
+        self.request(msg.IoRead(type=name, index=index, mask=mask))
         seq0 = self.state_vector()["status_seq"]  # published just before the reply: the request's cycle
         # The read rides on the next command sent; with `lead` commands queued ahead, the controller
         # processes it lead + 1 statuses later. Any earlier write is processed before it.
@@ -414,27 +447,31 @@ class ServoService:
 
     # ----------------------------------------------------------------- views
     def state_vector(self) -> dict[str, Any]:
-        """The servo process's published state alone (cheap: a shared-memory copy)."""
+        """The servo process's published state alone (cheap: a shared-memory copy); a dead process's
+        last state shows the fault."""
         if self.stream is None:
             return {"state": "disconnected", "link": "idle"}
-        return self.stream.state()
+        s = self.stream.state()
+        if self.servo_fault is not None:
+            s["state"], s["link"] = "fault", "fault"
+        return s
 
     def state(self) -> dict[str, Any]:
         if self.stream is None:
             return {"state": "disconnected", "link": "idle"}
         s = self.stream.state()
-        safety = self._last_event.get("safety") or {}
         # The servo process sends its safety event (stop reason, fault) before it publishes the mode,
-        # but the pipe's reader thread may not have taken it in yet: give it a moment to catch up.
-        deadline = time.monotonic() + 0.05
-        while safety and safety.get("state") != s["state"] and time.monotonic() < deadline:
-            time.sleep(0.001)
-            s = self.stream.state()
-            safety = self._last_event.get("safety") or {}
+        # but the pipe's reader thread may not have taken it in yet: wait for it (it is on its way).
+        with self._safety_cv:
+            self._safety_cv.wait_for(lambda: not self._safety or self._safety.get("state") == s["state"]
+                                     or self.servo_fault is not None, 0.05)
+            safety = self._safety
         s.update({k: v for k, v in safety.items() if k not in ("event", "state", "link")})
-        s["servo_process"] = "running" if self.servo_alive else "stopped"
-        if "crashed" in self._last_event:
-            s["servo_process"] = "crashed"
+        s["servo_process"] = "running"
+        if self.servo_fault is not None:  # the last published state is stale: the process is gone
+            s.update(state="fault", link="fault", fault=self.servo_fault, resumable=False, at_rest=True)
+            s["servo_process"] = self.servo_fault["message"].removeprefix("servo process ")
+        s["servo_starts"] = self.servo_starts
         s["model"] = self.profile.name
         # Why a Cartesian motion goes slower than asked, or stops short (None: no Cartesian motion).
         s["cartesian"] = {"scale": s["ik_scale"], "condition": s["ik_condition"],
@@ -460,8 +497,7 @@ class ServoService:
     def stops(self) -> dict[str, int]:
         """Stops by reason: the servo process's (hold-to-run, lease, signals, API) plus API-only counts."""
         out = Counter(self.stops_by_reason)
-        safety = self._last_event.get("safety") or {}
-        out.update(safety.get("stops") or {})
+        out.update(self._safety.get("stops") or {})
         return dict(out)
 
     def _janome_limits(self) -> dict[str, Any]:

@@ -28,7 +28,8 @@ Format (version 1), little-endian:
   20     9xf32 values: servo joints J1..J9 / X Y Z R (status); commanded values (command)
   ====== ===== ==============================================================================
 
-The writer flushes at least once per second of records, so a crash loses at most the last second.
+Every record goes to the kernel as it is written (one unbuffered ``write`` per record, after the
+datagram has left): a killed process, even by SIGKILL, loses nothing it logged.
 """
 
 from __future__ import annotations
@@ -56,16 +57,15 @@ assert RECORD_DTYPE.itemsize == RECORD_SIZE == 56
 
 
 class SessionLogWriter:
-    def __init__(self, path: Path, header: dict[str, Any], flush_every: int = 100) -> None:
+    def __init__(self, path: Path, header: dict[str, Any]) -> None:
         self.path = path
         path.parent.mkdir(parents=True, exist_ok=True)
-        self._f: IO[bytes] = open(path, "wb")  # noqa: SIM115 - closed by close()
+        # Unbuffered: a record in a userspace buffer dies with the process (a SIGKILLed servo process
+        # lost its unflushed records, issue 13). One 56-byte write measured 1.7 us here.
+        self._f: IO[bytes] = open(path, "wb", buffering=0)  # noqa: SIM115 - closed by close()
         meta = {"format_version": FORMAT_VERSION, "opened_unix": time.time(), **header}
         blob = json.dumps(meta).encode()
         self._f.write(MAGIC + struct.pack("<I", len(blob)) + blob)
-        self._f.flush()
-        self._pending = 0
-        self._flush_every = flush_every
         self.records = 0
 
     def status(self, t: float, seq: int, bits: int, io: int, joints: tuple[float, ...]) -> None:
@@ -80,14 +80,9 @@ class SessionLogWriter:
         vals = tuple(values[:9]) + (0.0,) * (9 - len(values[:9]))
         self._f.write(_RECORD.pack(kind, t, seq, flags, io, latency_us, *vals))
         self.records += 1
-        self._pending += 1
-        if self._pending >= self._flush_every:
-            self._f.flush()
-            self._pending = 0
 
     def close(self) -> None:
         if not self._f.closed:
-            self._f.flush()
             self._f.close()
 
 

@@ -1,22 +1,66 @@
-"""What every servo-process supervisor shares, whatever the robot's protocol (FANUC's
-:class:`~servo_app.fanuc.supervisor.StreamSupervisor`, Janome's
-:class:`~servo_app.janome.supervisor.JanomeSupervisor`).
+"""The generic supervisor: what every servo-process supervisor does, whatever the robot's protocol.
 
-The safety state and its log, refused requests raised as :class:`CommandRejected` with the state
-machine's reason, the gate every motion command passes, input control (a stale source stops a
-streaming arm), and the safety part of ``describe()``. Each backend feeds events through its own
-``_feed`` (how a fault is worded, which actions it carries out) and moves its own motion stage in
-``_input_move``. Pure: no sockets, no clock.
+A backend's supervisor (FANUC's :class:`~servo_app.fanuc.supervisor.StreamSupervisor`, Janome's
+:class:`~servo_app.janome.supervisor.JanomeSupervisor`) subclasses :class:`SupervisorBase` and
+supplies its link (``_link_*``: open, close, arm, end, abandon), its motion stage (``self.motion``:
+``stop``, ``resume``, ``shaper``) and the requests only it understands. Everything else is here:
+
+- typed requests (:mod:`servo_app.messages`) dispatched by type; a refused one raises
+  :class:`CommandRejected` with the state machine's reason and changes nothing;
+- every safety event goes through :func:`servo_app.safety.transition`, and its actions are carried out
+  in order (decelerate, resume, abandon, record);
+- a start waits for the controller: ``start_pending`` until the stream runs, or until it is given up
+  (the link failed, or ``start_timeout_s`` passed), with ``start_error`` saying why;
+- hold-to-run, the motion gate, input control (a stale source stops a streaming arm), and the safety
+  part of ``describe()``.
+
+Pure: no sockets, no clock of its own (``now`` comes in with every call).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any, ClassVar
 
+import numpy as np
+
+from servo_app import messages as msg
 from servo_app.errors import CommandRejected
 from servo_app.input_slot import InputCommand, InputControl
-from servo_app.safety import Event, InputStale, Mode, SafetyState, motion_allowed
+from servo_app.safety import (
+    STREAM_ALIVE,
+    AbandonStream,
+    Action,
+    BeginDeceleration,
+    ConnectRequested,
+    ControllerAlarm,
+    EndRequested,
+    Event,
+    FaultInfo,
+    HoldToRun,
+    InputStale,
+    JogExpired,
+    LeaseLost,
+    Mode,
+    RecordFault,
+    ReportWarning,
+    ResetRequested,
+    ResumeMotion,
+    ResumeRequested,
+    SafetyState,
+    SendFirstCommand,
+    SendLastData,
+    StartRequested,
+    StartStatusOutput,
+    StopRequested,
+    StopStatusOutput,
+    motion_allowed,
+    safe_to_exit,
+    transition,
+)
+
+JOG_EXPIRED = "hold-to-run expired"  # the state machine's stop reason for JogExpired
 
 
 @dataclass
@@ -28,34 +72,269 @@ class SupervisorLog:
     stops: dict[str, int] = field(default_factory=dict)
 
 
+def not_waiting_why(state: SafetyState) -> str:
+    """Why a start cannot begin streaming yet, for the operator."""
+    status = state.status
+    if status is None:
+        return "no status from the controller: check that it is running and reachable"
+    if not status.sysrdy:
+        return "SYSRDY is off (servo power not ready)"
+    if not status.bit0:
+        return "the controller is not waiting for commands: start its streaming program"
+    return "the controller already received commands in this program run: restart the program"
+
+
 class SupervisorBase:
-    def __init__(self, min_input_hold_s: float) -> None:
+    motion: Any  # the backend's motion stage: ``shaper``, ``stop(fast)``, ``resume()``, ``at_rest()``
+    default_hold_s: float = 0.2
+    max_hold_s: float = 2.0
+
+    def __init__(self, min_input_hold_s: float, hold_s: float | None = None, start_timeout_s: float = 5.0) -> None:
         self.state = SafetyState()
         self.log = SupervisorLog()
         self.inputs = InputControl(min_hold_s=min_input_hold_s)
+        if hold_s is not None:
+            self.default_hold_s = hold_s
+        self.hold = HoldToRun(timeout_s=self.default_hold_s)
         self.changed = False  # set when the safety state changed; the runner clears it after publishing
+        self.start_timeout_s = start_timeout_s
         self._start_pending = False
+        self._start_deadline = 0.0
+        self.start_error = ""  # why the last start was given up
 
-    # -- what each backend implements
-    def _feed(self, event: Event, now: float) -> str | None:
-        """Apply one safety event and carry out its actions; the refusal text, if refused."""
+    # ------------------------------------------------------------ what each backend implements
+    def _link_open(self, now: float) -> None:
+        """Status output on (FANUC) / accept the robot's connection (Janome)."""
         raise NotImplementedError
+
+    def _link_close(self) -> None:
+        raise NotImplementedError
+
+    def _link_arm(self) -> None:
+        """Stream from the next status that shows the controller waiting."""
+        raise NotImplementedError
+
+    def _link_end(self) -> None:
+        """Decelerate to rest, then last data."""
+        raise NotImplementedError
+
+    def _link_abandon(self, reason: str, now: float) -> None:
+        """Send no further command: the controller stopped or will alarm."""
+        raise NotImplementedError
+
+    def _link_recover(self, now: float) -> None:
+        """The fault was reset: make a failed link usable for the next start."""
+
+    def _link_failure(self) -> str:
+        """Why the link failed, if it has (a pending start gives up at once); empty while it is fine."""
+        return ""
+
+    def alarm_event(self, code: str, message: str) -> ControllerAlarm:
+        """A controller alarm as a safety event, with the backend's catalogue entry."""
+        return ControllerAlarm(code=code, message=message)
+
+    def _word_fault(self, fault: FaultInfo, context: dict[str, Any]) -> FaultInfo:
+        """A new fault in the backend's own words (``context`` comes from ``_feed``'s keywords)."""
+        return fault
 
     def _input_move(self, cmd: InputCommand, name: str, hold: float, now: float) -> None:
         """Move as a live input command asks (its hold-to-run renewed for ``hold`` seconds)."""
         raise NotImplementedError
 
-    # -- shared
+    def _jog_axes(self, v: np.ndarray) -> None:
+        self.motion.jog(v)
+
+    def _joint_target(self, q: np.ndarray, speed_scale: float) -> None:
+        self.motion.set_target(q, speed_scale)
+
+    # ------------------------------------------------------------------------------ safety events
+    def _feed(self, event: Event, now: float, **context: Any) -> str | None:
+        """Apply one safety event and carry out its actions; the refusal text, if refused."""
+        before = self.state
+        t = transition(before, event)
+        state = t.state
+        if state.fault is not None and state.fault != before.fault:
+            state = replace(state, fault=self._word_fault(state.fault, context))
+        if state != before:
+            self.log.transitions.append((now, before.mode.value, state.mode.value, type(event).__name__))
+            self.changed = True
+        self.state = state
+        for action in t.actions:
+            self._do(action, now)
+        return t.error
+
+    def _do(self, action: Action, now: float) -> None:
+        if isinstance(action, StartStatusOutput):
+            self._link_open(now)
+        elif isinstance(action, StopStatusOutput):
+            self._link_close()
+        elif isinstance(action, SendFirstCommand):
+            self._link_arm()
+        elif isinstance(action, BeginDeceleration):
+            if self.motion.shaper is not None:
+                self.motion.stop(fast=action.fast)
+            reason = self.state.stop_reason or "stop"
+            self.log.stops[reason] = self.log.stops.get(reason, 0) + 1
+            self.hold = self.hold.release()
+        elif isinstance(action, ResumeMotion):
+            self.motion.resume()
+        elif isinstance(action, SendLastData):
+            self._link_end()
+        elif isinstance(action, AbandonStream):
+            self._link_abandon(self.state.fault.message if self.state.fault else "stream abandoned", now)
+            self.hold = self.hold.release()
+        elif isinstance(action, RecordFault):
+            self.changed = True
+        elif isinstance(action, ReportWarning):
+            self._warn(action.code, action.message, now)
+        # HoldPosition: the motion stage holds by itself once at rest.
+
+    def _warn(self, code: str, message: str, now: float) -> None:
+        self.log.warnings.append({"code": code, "message": message, "t": now})
+        del self.log.warnings[:-50]
+
     def _request(self, event: Event, now: float) -> None:
         err = self._feed(event, now)
         if err:
             raise CommandRejected(err)
 
-    def _motion_gate(self, what: str) -> None:
+    # ---------------------------------------------------------------------------------- requests
+    _HANDLERS: ClassVar[dict[type, Callable[[Any, Any, float], Any]]] = {}
+
+    def request(self, req: msg.Request, now: float) -> Any:
+        """Carry out one request from the service; raises CommandRejected with a clear message if refused."""
+        handler = type(self)._HANDLERS.get(type(req))
+        if handler is None:
+            raise CommandRejected(f"{type(req).__name__} is not supported by this robot")
+        return handler(self, req, now)
+
+    def _on_start(self, req: msg.Start, now: float) -> None:
+        mode = self.state.mode
+        if mode in STREAM_ALIVE:
+            raise CommandRejected(f"start refused in {mode.value}: a stream is already running; stop or end it first")
+        if mode == Mode.FAULT:
+            raise CommandRejected("start refused in fault: reset the fault first (POST /api/reset)")
+        if self.state.shutdown:
+            raise CommandRejected("start refused: the service is shutting down")
+        if mode == Mode.READY or (mode == Mode.ENDED and self.state.status and self.state.status.waiting):
+            self._request(StartRequested(), now)
+            return
+        # Link first (status output on / accept the robot); StartRequested follows when the controller
+        # shows it is waiting. Refused only where status already flows, which is as good.
+        self._feed(ConnectRequested(), now)
+        self._start_pending = True
+        self._start_deadline = now + self.start_timeout_s
+        self.start_error = ""
+
+    def _on_stop(self, req: msg.Stop, now: float) -> None:
+        self._request(StopRequested(reason=req.reason, fast=bool(req.fast)), now)
+
+    def _on_resume(self, req: msg.Resume, now: float) -> None:
+        self._request(ResumeRequested(), now)
+
+    def _on_end(self, req: msg.End, now: float) -> None:
+        self._cancel_start("an end was requested")
+        self._request(EndRequested(), now)
+
+    def _on_reset(self, req: msg.Reset, now: float) -> None:
+        was_fault = self.state.mode == Mode.FAULT
+        self._request(ResetRequested(), now)
+        if was_fault:
+            self._link_recover(now)
+
+    def _on_lease_lost(self, req: msg.LeaseLost, now: float) -> None:
+        self._feed(LeaseLost(holder=req.holder), now)
+
+    def _on_alarm(self, req: msg.ControllerAlarm, now: float) -> None:
+        self._feed(self.alarm_event(req.code, req.message), now)
+
+    def _on_jog(self, req: msg.Jog, now: float) -> None:
+        v = np.asarray(req.joints, dtype=float)
+        hold_s = self.default_hold_s if req.hold_s is None else float(req.hold_s)
+        self._hold_checked(hold_s)
+        self._motion_gate("jog", resume_after_hold=True, now=now)
+        self._jog_axes(v)
+        self.hold = HoldToRun(timeout_s=hold_s).renew(now)
+
+    def _on_joint_target(self, req: msg.JointTarget, now: float) -> None:
+        self._motion_gate("target", resume_after_hold=True, now=now)
+        self._joint_target(np.asarray(req.joints, dtype=float), float(req.speed_scale))
+
+    def _on_inputs(self, req: msg.ConfigureInputs, now: float) -> None:
+        self.inputs.configure(bool(req.enable), list(req.sources) if req.sources is not None else None)
+        self.changed = True
+
+    _BASE_HANDLERS: ClassVar[dict[type, str]] = {
+        msg.Start: "_on_start", msg.Stop: "_on_stop", msg.Resume: "_on_resume", msg.End: "_on_end",
+        msg.Reset: "_on_reset", msg.LeaseLost: "_on_lease_lost", msg.ControllerAlarm: "_on_alarm",
+        msg.Jog: "_on_jog", msg.JointTarget: "_on_joint_target", msg.ConfigureInputs: "_on_inputs",
+    }
+
+    def __init_subclass__(cls, **kw: Any) -> None:
+        super().__init_subclass__(**kw)
+        handlers = {t: getattr(cls, name) for t, name in SupervisorBase._BASE_HANDLERS.items()}
+        handlers.update({t: getattr(cls, name) for t, name in getattr(cls, "REQUESTS", {}).items()})
+        cls._HANDLERS = handlers
+
+    # -------------------------------------------------------------------------------- the gates
+    def _hold_checked(self, hold_s: float) -> None:
+        if not (np.isfinite(hold_s) and 0.0 < hold_s <= self.max_hold_s):
+            raise CommandRejected(f"hold_s={hold_s} must be in (0, {self.max_hold_s:g}]")
+
+    def _motion_gate(self, what: str, resume_after_hold: bool = False, now: float = 0.0) -> None:
+        """Refuse motion unless the stream runs. A new press after the hold-to-run ran out resumes by
+        itself; any other stop needs a resume. Checked before anything changes."""
+        if resume_after_hold and self._resumable_by_press():
+            self._request(ResumeRequested(), now)
         if not motion_allowed(self.state):
             raise CommandRejected(f"{what} refused in {self.state.mode.value}"
                                   + (f" (stopped: {self.state.stop_reason})" if self.state.stop_reason else ""))
 
+    def _resumable_by_press(self) -> bool:
+        reason = self.state.stop_reason or ""
+        return self.state.mode in (Mode.STOPPED, Mode.STOPPING) and reason.startswith(JOG_EXPIRED)
+
+    def _hold_to_run(self, hold_s: float, now: float, what: str) -> None:
+        """Gate a hold-to-run motion and renew its deadline."""
+        self._hold_checked(hold_s)
+        self._motion_gate(what, resume_after_hold=True, now=now)
+        self.hold = HoldToRun(timeout_s=hold_s).renew(now)
+
+    def _poll_hold(self, now: float) -> None:
+        self.hold, expired = self.hold.poll(now)
+        if expired is not None and self.state.mode == Mode.STREAMING:
+            self._feed(JogExpired(), now)
+
+    # ------------------------------------------------------------------------------------ start
+    @property
+    def start_pending(self) -> bool:
+        return self._start_pending
+
+    def _start_when_ready(self, now: float) -> None:
+        """Called on each new status: a pending start begins once the controller is waiting."""
+        st = self.state.status
+        ready = self.state.mode == Mode.READY or (self.state.mode == Mode.ENDED and st is not None and st.waiting)
+        if self._start_pending and ready:
+            self._start_pending = False
+            self._feed(StartRequested(), now)
+
+    def watch_start(self, now: float) -> None:
+        """A pending start that cannot succeed is given up, with the reason, instead of waiting forever."""
+        if not self._start_pending:
+            return
+        failure = self._link_failure()
+        if failure:
+            self._cancel_start(f"the link failed: {failure}")
+        elif now > self._start_deadline:
+            self._cancel_start(f"no stream within {self.start_timeout_s:g} s: {not_waiting_why(self.state)}")
+
+    def _cancel_start(self, why: str) -> None:
+        if self._start_pending:
+            self._start_pending = False
+            self.start_error = why
+            self.changed = True
+
+    # ----------------------------------------------------------------------------------- inputs
     def on_input(self, cmd: InputCommand, now: float) -> None:
         """The inputs bridge's live command (read from shared memory when a status arrives)."""
         self.inputs.apply(cmd, lambda name: self._input_stale(name, now),
@@ -64,6 +343,15 @@ class SupervisorBase:
     def _input_stale(self, name: str, now: float) -> None:
         if self.state.mode == Mode.STREAMING:
             self._feed(InputStale(source=name), now)
+
+    # ------------------------------------------------------------------------------------ views
+    def _link_closed(self) -> bool:
+        raise NotImplementedError
+
+    @property
+    def finished(self) -> bool:
+        """After a signal: no stream left and the link closed (or dead): the process may exit."""
+        return self.state.shutdown and safe_to_exit(self.state) and self._link_closed()
 
     def _safety_view(self) -> dict[str, Any]:
         st = self.state
@@ -79,4 +367,8 @@ class SupervisorBase:
                                                  "during": fault.during.value if fault.during else None},
             "stops": dict(self.log.stops),
             "warnings": self.log.warnings[-10:],
+            "start_pending": self._start_pending,
+            "start_error": self.start_error or None,
+            "inputs_enabled": self.inputs.enabled,
+            "input_error": self.inputs.error,
         }

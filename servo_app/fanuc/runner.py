@@ -12,9 +12,9 @@ SIGINT/SIGTERM end the stream cleanly: decelerate, last data, then status output
 from __future__ import annotations
 
 import bisect
+import contextlib
 import gc
 import os
-import signal
 import socket
 import time
 from collections import deque
@@ -25,20 +25,20 @@ from typing import Any
 
 import numpy as np
 
-from servo_app.errors import CommandRejected
-from servo_app.fanuc.packets import ROBOT_PORT, IoType, Status
+from servo_app import messages as msg
+from servo_app.fanuc.packets import ROBOT_PORT, Status
 from servo_app.fanuc.session import Phase, SessionConfig
 from servo_app.fanuc.supervisor import StreamSupervisor
 from servo_app.input_slot import InputSlotReader
-from servo_app.ipc import LatestValueSlot
+from servo_app.messages import LogClosed, LogOpened, Ready
 from servo_app.motion.servo import ServoCycle, ServoSettings
-from servo_app.process_handle import ChildLink, ServoProcessHandle, run_child
+from servo_app.process_handle import ServoProcessHandle, ServoProcessHost, run_child
 from servo_app.realtime import WakeLatencyHold, make_realtime
 from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.profile import load_profile
 from servo_app.safety import Mode
 from servo_app.session_log import SessionLogWriter
-from servo_app.state import LATENCY_BUCKETS_US, MODES, PHASES, STATE_SIZE, StateVector, command_derivatives
+from servo_app.state import LATENCY_BUCKETS_US, MODES, PHASES, StateVector, command_derivatives
 
 assert all(p.value in PHASES for p in Phase)
 assert all(m.value in MODES for m in Mode)
@@ -55,7 +55,9 @@ class StreamConfig:
     limit_fraction: float = 0.9
     flange_speed_cap: float | None = None
     payload_kg: float | None = None
-    status_timeout_s: float = 0.1
+    status_timeout_s: float = 0.1  # no status packet for this long while streaming: the link is lost
+    link_timeout_s: float = 1.0  # no status packet for this long after status output start: no controller
+    start_timeout_s: float = 5.0  # a start that is not streaming by then is given up, with the reason
     late_threshold_ms: float | None = None  # None: half an interval
     # An input that reaches the slot while the IK solves a status packet's command is solved into that
     # packet if the IK finished within this time of the packet's arrival (None: a quarter interval, so
@@ -93,11 +95,10 @@ class _Latency:
         return float(p50), float(p99)
 
 
-class _ServoProcess(ChildLink):
+class _ServoProcess(ServoProcessHost):
     def __init__(self, cfg: StreamConfig, conn: Connection, slot_name: str) -> None:
+        self._init_host(conn, slot_name)
         self.cfg = cfg
-        self.conn = conn
-        self.slot = LatestValueSlot(STATE_SIZE, name=slot_name, create=False)
         self.profile = load_profile(cfg.model)
         self.dt = (cfg.interval_ms or self.profile.interval_ms) / 1000.0
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -107,7 +108,8 @@ class _ServoProcess(ChildLink):
                                  payload_kg=cfg.payload_kg)
         self.cycle = ServoCycle(self.profile, self.dt, settings)
         self.sup = StreamSupervisor(self.cycle, SessionConfig(
-            lead=cfg.lead, status_timeout_s=cfg.status_timeout_s, max_payload_kg=self.profile.max_payload_kg))
+            lead=cfg.lead, status_timeout_s=cfg.status_timeout_s, link_timeout_s=cfg.link_timeout_s,
+            max_payload_kg=self.profile.max_payload_kg), start_timeout_s=cfg.start_timeout_s)
         self.inputs = InputSlotReader(cfg.input_slot) if cfg.input_slot else None
         self._t_recv = 0.0  # when the status packet being answered arrived
         late_ms = self.dt * 1000 / 4 if cfg.late_input_ms is None else cfg.late_input_ms
@@ -120,42 +122,38 @@ class _ServoProcess(ChildLink):
         elif cfg.data_format != "joint":
             raise ValueError(f"data_format={cfg.data_format!r} must be 'joint' or 'cartesian'")
         self.log: SessionLogWriter | None = None
-        self.t0 = time.monotonic()
-        self.state = StateVector()
         self.latency = _Latency()
         # Histogram over the process's life (Prometheus wants counters that only grow).
         self.lat_hist = np.zeros(len(LATENCY_BUCKETS_US) + 1)
         self.lat_sum_us = 0.0
         self.late_us = (cfg.late_threshold_ms or self.dt * 1000 / 2) * 1000
         self.hist: deque[np.ndarray] = deque(maxlen=4)  # last commanded positions, for finite differences
-        self.pending_signal: int | None = None
-        self.quit = False
         self.last_status_t = 0.0
         self._logged_seq: int | None = None
-        self._last_link = Phase.IDLE
         self._log_streamed = False
 
     # -- main loop
     def run(self) -> None:
-        signal.signal(signal.SIGTERM, self._on_signal)
-        signal.signal(signal.SIGINT, self._on_signal)
+        self._install_signals()
         # Warm up first: it is CPU-bound for most of a second, and at SCHED_FIFO it would starve every
         # normal process on its core (a simulator there went silent for 100 ms: MOTN-603).
         self._warm_up()
         realtime = make_realtime(self.cfg.realtime_priority)
-        wake = WakeLatencyHold(self.cfg.wake_latency_us)
+        self.wake = WakeLatencyHold(self.cfg.wake_latency_us)
         # Objects made at start-up never become garbage: keep them out of the collector's scans.
         gc.collect()
         gc.freeze()
-        self._event("ready", pid=os.getpid(), realtime=f"{realtime}; {wake.status}")
-        try:
-            while not self.quit:
-                self._step()
-        finally:
-            wake.close()
-            self._finish_log()
-            self.sock.close()
-            self.slot.close()
+        self.serve(Ready(pid=os.getpid(), realtime=f"{realtime}; {self.wake.status}"))
+
+    def _shutdown(self) -> None:
+        if self.sup.session.output_on:
+            # Leaving with the status output on (the parent died, or the link failed mid-shutdown):
+            # switch it off, so the controller does not stream status to a socket nobody reads.
+            with contextlib.suppress(OSError):
+                self._send(self.sup.session.close_now())
+        self.wake.close()
+        self._finish_log()
+        self.sock.close()
 
     def _warm_up(self) -> None:
         """Run every per-cycle code path once before streaming: first calls pay for lazy set-up
@@ -174,14 +172,14 @@ class _ServoProcess(ChildLink):
         cycle.stop(fast=False)
         cycle.next_command(Status(seq=1))
         self.hist.append(q0)
-        self._publish()
+        self._publish_backend(self.state)
         self.hist.clear()
 
     def _send(self, out: list[bytes]) -> None:
         for b in out:
             self.sock.send(b)
 
-    def _step(self) -> None:
+    def _io_step(self) -> None:
         try:
             data = self.sock.recv(1024)
         except (TimeoutError, ConnectionRefusedError):
@@ -193,19 +191,22 @@ class _ServoProcess(ChildLink):
                 cmd = self.inputs.poll()
                 if cmd is not None:
                     self.sup.on_input(cmd, now)
-            self._send(self.sup.on_datagram(data, now))
+            out = self.sup.on_datagram(data, now)
+            self._send(out)
             t_sent = time.monotonic()
             self._after_datagram(now, t_sent)
         else:
             self._send(self.sup.on_idle(now))
-        if self.pending_signal is not None:  # handled here, not inside the signal handler
-            sig, self.pending_signal = self.pending_signal, None
-            self._send(self.sup.signal(sig, time.monotonic()))
-        self._poll_requests()
-        self._watch_link()
-        self._publish()
-        if self.sup.finished:
-            self.quit = True
+
+    def _deliver_signal(self, sig: int, now: float) -> None:
+        self._send(self.sup.signal(sig, now))
+
+    def _before_request(self, req: msg.Request) -> None:
+        if isinstance(req, msg.Start):
+            self._open_log()
+
+    def _after_request(self) -> None:
+        self._send(self.sup._take())
 
     def _late_input(self) -> None:
         """``ServoCycle.late_command``: the slot read again after each of the IK's solves.
@@ -226,6 +227,8 @@ class _ServoProcess(ChildLink):
             self.inputs.consume()
 
     def _after_datagram(self, t_recv: float, t_sent: float) -> None:
+        """Log what really crossed the wire: the status just received (once per sequence number) and
+        the commands just sent for it. A malformed datagram leaves ``session.sent`` empty."""
         s = self.sup.session
         st = s.last_status
         if st is None or self.log is None:
@@ -245,30 +248,7 @@ class _ServoProcess(ChildLink):
             self.lat_hist[bisect.bisect_left(LATENCY_BUCKETS_US, lat_us)] += 1  # le semantics
             self.lat_sum_us += lat_us
             self.hist.append(np.array(c.values[:6]))
-
-    # -- requests from the parent
-    def _poll_requests(self) -> None:
-        while self.conn.poll():
-            try:
-                req = self.conn.recv()
-            except EOFError:  # the parent is gone: end the stream as on SIGTERM
-                self.pending_signal = int(signal.SIGTERM)
-                return
-            rid = req.pop("id", None)
-            op = req.pop("op")
-            try:
-                if op == "start":
-                    self._open_log()
-                if op in ("io_read", "io_write"):
-                    req["type"] = _io_type(req["type"])
-                result = self.sup.request(op, time.monotonic(), **req)
-                self._send(self.sup._take())
-                reply = {"id": rid, "ok": True, "result": result}
-            except (CommandRejected, ValueError, KeyError, RuntimeError) as exc:
-                reply = {"id": rid, "ok": False, "error": str(exc)}
-            if rid is not None:
-                self._publish()  # a reader after the reply sees the request's effect
-                self.conn.send(reply)
+        s.sent = []
 
     def _open_log(self) -> None:
         if self.log is not None:
@@ -280,40 +260,36 @@ class _ServoProcess(ChildLink):
         self._logged_seq = None
         stamp = time.strftime("%Y%m%d-%H%M%S")
         path = Path(self.cfg.log_dir) / f"session-{stamp}-{os.getpid()}-{int(self.t0 * 1000) % 100000}.srvlog"
-        per_s = max(1, int(1 / self.dt))
         self.log = SessionLogWriter(path, {"model": self.profile.name, "interval_ms": self.dt * 1000,
                                            "j23_factor": self.profile.j23_factor, "protocol": "fanuc-j519-v1",
-                                           "robot": f"{self.cfg.host}:{self.cfg.port}"}, flush_every=per_s)
-        self._event("log_opened", path=str(path))
+                                           "robot": f"{self.cfg.host}:{self.cfg.port}"})
+        self._event(LogOpened(path=str(path)))
 
-    def _watch_link(self) -> None:
-        link = self.sup.session.phase
-        if self.sup.state.mode in (Mode.STREAMING, Mode.STOPPING, Mode.STOPPED, Mode.ENDING):
-            self._log_streamed = True
-        if link == self._last_link:
-            return
-        self._last_link = link
-        self._event("phase", phase=link.value, reason=self.sup.session.fault_reason)
+    def _on_link_phase(self, phase: str) -> None:
         # A start from ended or disconnected reconnects (link -> connected) before the mode moves on:
         # only a stream that has run since the log opened may close it.
-        if link in (Phase.CLOSED, Phase.FAULT, Phase.CONNECTED) and self.sup.state.mode in (
+        if phase in (Phase.CLOSED, Phase.FAULT, Phase.CONNECTED) and self.sup.state.mode in (
                 Mode.ENDED, Mode.FAULT, Mode.DISCONNECTED) and self._log_streamed:
+            self._finish_log()
+
+    def _watch_link(self) -> None:
+        if self.sup.state.mode in (Mode.STREAMING, Mode.STOPPING, Mode.STOPPED, Mode.ENDING):
+            self._log_streamed = True
+        super()._watch_link()
+        # A start that was given up leaves no empty log behind.
+        if (self.log is not None and not self._log_streamed and not self.sup.start_pending
+                and self.sup.state.mode not in (Mode.STREAMING,)):
             self._finish_log()
 
     def _finish_log(self) -> None:
         if self.log is not None:
             self.log.close()
-            self._event("log_closed", path=str(self.log.path), records=self.log.records)
+            self._event(LogClosed(path=str(self.log.path), records=self.log.records))
             self.log = None
 
     # -- publishing
-    def _publish(self) -> None:
-        self._publish_safety()
-        sv, s, c = self.state, self.sup.session, self.cycle
-        sv.set("published_unix", time.time())
-        sv.set("phase", PHASES.index(s.phase.value))
-        sv.set("mode", MODES.index(self.sup.state.mode.value))
-        sv.set("session_time", time.monotonic() - self.t0)
+    def _publish_backend(self, sv: StateVector) -> None:
+        s, c = self.sup.session, self.cycle
         st = s.last_status
         if isinstance(st, Status):
             sv.set("status_seq", st.seq)
@@ -354,16 +330,6 @@ class _ServoProcess(ChildLink):
         if self.hist:
             for key, value in command_derivatives(self.hist, self.dt).items():
                 sv.set(key, value)
-        self.slot.write(sv.data)
-
-
-def _io_type(value: Any) -> int:
-    if isinstance(value, str):
-        try:
-            return int(IoType[value.upper()])
-        except KeyError:
-            raise CommandRejected(f"io type={value!r} is unknown (DI, DO, RI, RO, ..., F, M)") from None
-    return int(IoType(int(value)))
 
 
 def _child_main(cfg_dict: dict[str, Any], conn: Connection, slot_name: str) -> None:
@@ -376,5 +342,5 @@ def _child_main(cfg_dict: dict[str, Any], conn: Connection, slot_name: str) -> N
 class StreamProcess(ServoProcessHandle):
     """Parent-side handle of the FANUC servo process."""
 
-    def __init__(self, cfg: StreamConfig) -> None:
-        super().__init__(cfg, _child_main, "servo process")
+    def __init__(self, cfg: StreamConfig, **watch: Any) -> None:
+        super().__init__(cfg, _child_main, "servo process", **watch)

@@ -92,6 +92,8 @@ class SessionConfig:
     table_retries: int = 3
     ready_timeout_s: float = 10.0  # no status bit 0 within this -> fault
     status_timeout_s: float = 0.1  # no status packet within this while streaming -> fault
+    link_timeout_s: float = 1.0  # no status packet within this otherwise (status output on) -> fault
+    flowing_window_s: float = 0.05  # a status packet within this counts as status still flowing
     max_payload_kg: float = 0.0  # for building LimitTables from responses
 
     def __post_init__(self) -> None:
@@ -146,6 +148,7 @@ class StreamSession:
         self._last_data_sent = False
         self._io_writes: list[IoRequest] = []
         self._q_last: np.ndarray | None = None
+        self._malformed_at_status = 0  # malformed count at the last valid status packet
         self.sent: list[SentCommand] = []  # filled per call, for the runner's log
 
     # ----------------------------------------------------------------- requests
@@ -192,6 +195,17 @@ class StreamSession:
         self._armed = False
         self._fault(reason, now)
 
+    def recover(self, now: float) -> bool:
+        """After the operator's reset: a failed link is usable again. With status still flowing it is
+        connected (a start needs no new status output start); else idle, and the next start sends a
+        status output start, which a restarted or taken-over controller needs. True if flowing."""
+        flowing = self.last_status is not None and now - self._last_status_at <= self.config.flowing_window_s
+        if self.phase == Phase.FAULT:
+            self.fault_reason = ""
+            self._armed = False
+            self._enter(Phase.CONNECTED if flowing else Phase.IDLE, now)
+        return flowing
+
     def write_io(self, req: IoRequest) -> None:
         self._io_writes.append(req)
 
@@ -222,12 +236,21 @@ class StreamSession:
         self.sent = []
         silent = now - self._last_status_at
         if self.phase in (Phase.STREAMING, Phase.ENDING) and silent > self.config.status_timeout_s:
-            self._fault(f"no status packet for {silent:.3f} s", now)
+            self._fault(f"no status packet for {silent:.3f} s{self._refused_note()}", now)
         elif self.phase == Phase.WAITING_READY and now - self._phase_since > self.config.ready_timeout_s:
             self._fault(f"controller not ready (status bit 0) within {self.config.ready_timeout_s} s", now)
-        elif self.phase == Phase.FETCHING_TABLES and now - self._last_status_at > 1.0:
-            self._fault("no status packets after status output start", now)
+        elif self.phase in (Phase.FETCHING_TABLES, Phase.CONNECTED, Phase.WAITING_READY) \
+                and silent > self.config.link_timeout_s:
+            what = "after status output start" if self.last_status is None else "while connected"
+            self._fault(f"no status packet for {silent:.3f} s {what}: is the controller running and "
+                        f"reachable?{self._refused_note()}", now)
         return []
+
+    def _refused_note(self) -> str:
+        """Datagrams that came but were refused (a version mismatch, a wrong length) explain a silence."""
+        if self.stats.malformed > self._malformed_at_status:
+            return f" (datagrams refused meanwhile: {self.stats.last_error})"
+        return ""
 
     # --------------------------------------------------------------- internals
     def _enter(self, phase: Phase, now: float) -> None:
@@ -276,11 +299,18 @@ class StreamSession:
         prev = self.last_status
         if prev is not None:
             gap = seq_diff(st.seq, prev.seq)
+            if st.seq == 1 and gap != 1 and self.phase in (Phase.STREAMING, Phase.ENDING):
+                # Sending status output start resets the sequence to 1 (Table 2): somebody else did,
+                # or the controller restarted. The stream it belonged to is gone either way.
+                self._fault(f"the controller restarted its status output (sequence {prev.seq} -> 1): another "
+                            "host sent a status output start, or the controller restarted", now)
+                return []
             if gap <= 0 and st.seq != 1:  # duplicate or reordered (seq 1 = output restarted)
                 self.stats.status_duplicated += 1
                 return []
             if gap > 1:
                 self.stats.status_lost += gap - 1
+        self._malformed_at_status = self.stats.malformed
         self.stats.status_received += 1
         self.last_status = st
         self._last_status_at = now

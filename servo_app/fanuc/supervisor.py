@@ -15,54 +15,74 @@ returns the datagrams to send. Every decision about motion goes through
 
 from __future__ import annotations
 
-import signal as _signal
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
+from servo_app import messages as msg
 from servo_app.errors import CommandRejected
 from servo_app.fanuc.alarms import ALARMS
-from servo_app.fanuc.packets import LimitTableResponse, Status
+from servo_app.fanuc.packets import IoType, LimitTableResponse, Status
 from servo_app.fanuc.session import IoRequest, Phase, SessionConfig, StreamSession
 from servo_app.input_slot import POSE, TWIST, InputCommand
 from servo_app.motion.commands import PoseTarget, Twist
 from servo_app.motion.servo import ServoCycle
 from servo_app.safety import (
-    AbandonStream,
-    Action,
-    BeginDeceleration,
-    ConnectRequested,
     ControllerAlarm,
-    EndRequested,
-    Event,
-    HoldToRun,
-    JogExpired,
-    LeaseLost,
     Mode,
-    RecordFault,
-    ReportWarning,
-    ResetRequested,
-    ResumeMotion,
-    ResumeRequested,
-    SendFirstCommand,
-    SendLastData,
     ShaperAtRest,
     Signal,
-    StartRequested,
-    StartStatusOutput,
     StatusLost,
     StatusReceived,
-    StopRequested,
-    StopStatusOutput,
-    safe_to_exit,
-    transition,
 )
 from servo_app.supervision import SupervisorBase
 
-JOG_EXPIRED = "hold-to-run expired"  # the state machine's stop reason for JogExpired
-
 
 class StreamSupervisor(SupervisorBase):
+    REQUESTS: ClassVar[dict[type, str]] = {
+        msg.Twist: "_on_twist", msg.PoseTarget: "_on_pose", msg.IoRead: "_on_io_read", msg.IoWrite: "_on_io_write",
+    }
+
+    def __init__(self, cycle: ServoCycle, session_config: SessionConfig | None = None,
+                 start_timeout_s: float = 5.0) -> None:
+        super().__init__(min_input_hold_s=0.02, hold_s=0.2, start_timeout_s=start_timeout_s)
+        self.cycle = self.motion = cycle
+        self.session = StreamSession(cycle, session_config or SessionConfig())
+        self._out: list[bytes] = []
+
+    # ------------------------------------------------------------------- the link
+    def _link_open(self, now: float) -> None:
+        # From fault too: after a lost link the status output must be started afresh (a restarted
+        # controller sends nothing until it gets a status output start).
+        if self.session.phase in (Phase.IDLE, Phase.CLOSED, Phase.FAULT):
+            self._out += self.session.open(now)
+
+    def _link_close(self) -> None:
+        if self.session.output_on:
+            self._out += self.session.close_now()
+
+    def _link_arm(self) -> None:
+        self.session.arm()
+
+    def _link_end(self) -> None:
+        self.session.request_end()
+
+    def _link_abandon(self, reason: str, now: float) -> None:
+        self.session.abandon(reason, now)
+
+    def _link_recover(self, now: float) -> None:
+        # A fault the controller's alarm reported first leaves the last status bits behind although
+        # the status may have stopped (taken over, stopped by another host): tell the safety state.
+        if not self.session.recover(now) and self.state.status is not None:
+            self._feed(StatusLost(detail="no status since the fault"), now)
+
+    def _link_failure(self) -> str:
+        return self.session.fault_reason if self.session.phase == Phase.FAULT else ""
+
+    def _link_closed(self) -> bool:
+        # A dead link (fault) has nothing left to close: the controller stopped talking.
+        return not self.session.output_on or self.session.phase == Phase.FAULT
+
     def alarm_event(self, code: str, message: str) -> ControllerAlarm:
         spec = ALARMS.get(code)  # an unknown code still stops: the state machine words it generically
         if spec is None:
@@ -70,140 +90,38 @@ class StreamSupervisor(SupervisorBase):
         return ControllerAlarm(code=code, message=message, warning=spec.warning, cause=spec.cause,
                                remedy=spec.remedy)
 
-    def __init__(self, cycle: ServoCycle, session_config: SessionConfig | None = None) -> None:
-        super().__init__(min_input_hold_s=0.02)
-        self.cycle = cycle
-        self.session = StreamSession(cycle, session_config or SessionConfig())
-        self.hold = HoldToRun(timeout_s=0.2)
-        self._now = 0.0
-        self._out: list[bytes] = []
-
-    # ------------------------------------------------------------------ events
-    def _feed(self, event: Event, now: float) -> str | None:
-        t = transition(self.state, event)
-        if t.state != self.state:
-            self.log.transitions.append((now, self.state.mode.value, t.state.mode.value, type(event).__name__))
-            self.changed = True
-        self.state = t.state
-        for action in t.actions:
-            self._do(action, now)
-        return t.error
-
-    def _do(self, action: Action, now: float) -> None:
-        s, c = self.session, self.cycle
-        if isinstance(action, StartStatusOutput):
-            if not s.output_on:
-                self._out += s.open(now)
-        elif isinstance(action, StopStatusOutput):
-            if s.output_on:
-                self._out += s.close_now()
-        elif isinstance(action, SendFirstCommand):
-            s.arm()
-        elif isinstance(action, BeginDeceleration):
-            if c.shaper is not None:
-                c.stop(fast=action.fast)
-            reason = self.state.stop_reason or "stop"
-            self.log.stops[reason] = self.log.stops.get(reason, 0) + 1
-            self.hold = self.hold.release()
-        elif isinstance(action, ResumeMotion):
-            c.resume()
-        elif isinstance(action, SendLastData):
-            s.request_end()
-        elif isinstance(action, AbandonStream):
-            s.abandon(self.state.fault.message if self.state.fault else "stream abandoned", now)
-            self.hold = self.hold.release()
-        elif isinstance(action, RecordFault):
-            self.changed = True
-        elif isinstance(action, ReportWarning):
-            self.log.warnings.append({"code": action.code, "message": action.message})
-        # HoldPosition: the shaper holds by itself once at rest.
-
-    # ----------------------------------------------------------------- requests
-    def request(self, op: str, now: float, **kw: Any) -> Any:
-        """Carry out one request from the API; raises CommandRejected with a clear message if refused."""
-        self._now = now
-        if op == "start":
-            return self._start(now)
-        if op == "stop":
-            self._request(StopRequested(reason=str(kw.get("reason", "stop requested")),
-                                        fast=bool(kw.get("fast", False))), now)
-        elif op == "resume":
-            self._request(ResumeRequested(), now)
-        elif op == "end":
-            self._start_pending = False
-            self._request(EndRequested(), now)
-        elif op == "reset":
-            self._request(ResetRequested(), now)
-        elif op == "lease_lost":
-            self._feed(LeaseLost(holder=str(kw.get("holder", ""))), now)
-        elif op == "controller_alarm":
-            self._feed(self.alarm_event(str(kw["code"]), str(kw.get("message", ""))), now)
-        elif op == "jog":
-            self._jog(np.asarray(kw["joints"], dtype=float), float(kw.get("hold_s", 0.2)), now)
-        elif op == "twist":
-            try:
-                cmd = Twist(source=str(kw.get("source", "api")), stamp=now, frame=kw.get("frame", "base"),
-                            linear=tuple(kw.get("linear", (0.0, 0.0, 0.0))),
-                            angular=tuple(kw.get("angular", (0.0, 0.0, 0.0))))
-            except ValueError as exc:
-                raise CommandRejected(str(exc)) from None
-            self._hold_to_run(float(kw.get("hold_s", 0.2)), now, "twist")
-            self.cycle.twist(cmd)
-        elif op == "pose":
-            try:
-                pose = PoseTarget(source=str(kw.get("source", "api")), stamp=now, xyzwpr=tuple(kw["xyzwpr"]),
-                                  linear_speed=float(kw.get("linear_speed", 100.0)),
-                                  angular_speed=float(kw.get("angular_speed", 30.0)))
-            except ValueError as exc:
-                raise CommandRejected(str(exc)) from None
-            self._motion_gate("pose target")
-            self.cycle.pose_target(pose)
-        elif op == "target":
-            self._motion_gate("target")
-            self.cycle.set_joint_target(np.asarray(kw["joints"], dtype=float), float(kw.get("speed_scale", 1.0)))
-        elif op == "inputs":
-            self.inputs.configure(kw.get("enable", False), kw.get("sources"))
-            self.changed = True
-        elif op == "io_read":
-            self.session.io_read = IoRequest(int(kw["type"]), int(kw["index"]), int(kw.get("mask", 0xFFFF)))
-        elif op == "io_write":
-            if not self.session.phase == Phase.STREAMING:
-                raise CommandRejected("I/O is written through command packets: only while streaming")
-            self.session.write_io(IoRequest(int(kw["type"]), int(kw["index"]), int(kw.get("mask", 0xFFFF)),
-                                            int(kw["value"])))
-        else:
-            raise CommandRejected(f"op={op!r} is unknown")
-        return None
-
-    def _start(self, now: float) -> None:
-        mode = self.state.mode
-        if mode in (Mode.STREAMING, Mode.STOPPING, Mode.STOPPED, Mode.ENDING):
-            raise CommandRejected(f"StartRequested refused in {mode.value}: a stream is already running")
-        if mode == Mode.FAULT:
-            raise CommandRejected("StartRequested refused in fault: reset first")
-        if self.state.shutdown:
-            raise CommandRejected("StartRequested refused: the service is shutting down")
-        if mode == Mode.READY or (mode == Mode.ENDED and self.state.status and self.state.status.waiting):
-            self._request(StartRequested(), now)
-            return
-        # Status output first; StartRequested follows when the controller shows it is waiting.
-        self._feed(ConnectRequested(), now)
-        self._start_pending = True
-
-    def _jog(self, v: np.ndarray, hold_s: float, now: float) -> None:
-        self._hold_to_run(hold_s, now, "jog")
+    # ------------------------------------------------------------- FANUC requests
+    def _jog_axes(self, v: np.ndarray) -> None:
         self.cycle.jog_joints(v)
 
-    def _hold_to_run(self, hold_s: float, now: float, what: str) -> None:
-        """Gate a hold-to-run motion and renew its deadline."""
-        if not 0.0 < hold_s <= 2.0:
-            raise CommandRejected(f"hold_s={hold_s} must be in (0, 2]")
-        # A new press after the hold-to-run ran out resumes by itself; any other stop needs a resume.
-        reason = self.state.stop_reason or ""
-        if self.state.mode in (Mode.STOPPED, Mode.STOPPING) and reason.startswith(JOG_EXPIRED):
-            self._request(ResumeRequested(), now)
-        self._motion_gate(what)
-        self.hold = HoldToRun(timeout_s=hold_s).renew(now)
+    def _joint_target(self, q: np.ndarray, speed_scale: float) -> None:
+        self.cycle.set_joint_target(q, speed_scale)
+
+    def _on_twist(self, req: msg.Twist, now: float) -> None:
+        try:
+            cmd = Twist(source=req.source, stamp=now, frame=req.frame,  # type: ignore[arg-type]
+                        linear=tuple(req.linear), angular=tuple(req.angular))  # type: ignore[arg-type]
+        except ValueError as exc:
+            raise CommandRejected(str(exc)) from None
+        self._hold_to_run(float(req.hold_s), now, "twist")
+        self.cycle.twist(cmd)
+
+    def _on_pose(self, req: msg.PoseTarget, now: float) -> None:
+        try:
+            pose = PoseTarget(source=req.source, stamp=now, xyzwpr=tuple(req.xyzwpr),  # type: ignore[arg-type]
+                              linear_speed=float(req.linear_speed), angular_speed=float(req.angular_speed))
+        except ValueError as exc:
+            raise CommandRejected(str(exc)) from None
+        self._motion_gate("pose target", resume_after_hold=True, now=now)
+        self.cycle.pose_target(pose)
+
+    def _on_io_read(self, req: msg.IoRead, now: float) -> None:
+        self.session.io_read = IoRequest(_io_type(req.type), int(req.index), int(req.mask))
+
+    def _on_io_write(self, req: msg.IoWrite, now: float) -> None:
+        if self.session.phase != Phase.STREAMING:
+            raise CommandRejected("I/O is written through command packets: only while streaming; start a session first")
+        self.session.write_io(IoRequest(_io_type(req.type), int(req.index), int(req.mask), int(req.value)))
 
     def on_late_input(self, cmd: InputCommand, now: float) -> bool:
         """A command that reached the slot while this cycle's IK was solving (``ServoCycle.late_command``).
@@ -234,14 +152,10 @@ class StreamSupervisor(SupervisorBase):
         self._feed(Signal(sig=sig), now)
         return self._take()
 
-    @property
-    def finished(self) -> bool:
-        """After a signal: the stream ended (or never ran) and the status output is off."""
-        return self.state.shutdown and safe_to_exit(self.state) and not self.session.output_on
-
     # ------------------------------------------------------------------ cycle
     def on_datagram(self, data: bytes, now: float) -> list[bytes]:
         self._out = []
+        self.session.sent = []  # a malformed datagram sends nothing: nothing of an earlier one may be logged
         packet = self.session.decode(data)
         if packet is None:
             return []
@@ -262,16 +176,10 @@ class StreamSupervisor(SupervisorBase):
                                   moving=st.moving), now)
         # A start after an ended stream stays in ended (not ready) while the controller comes back to
         # IBGN start: the waiting status there is as good as ready.
-        st_bits = self.state.status
-        ready = self.state.mode == Mode.READY or (self.state.mode == Mode.ENDED and st_bits is not None
-                                                  and st_bits.waiting)
-        if self._start_pending and ready and self.session.phase != Phase.FETCHING_TABLES:
-            self._start_pending = False
-            self._feed(StartRequested(), now)
+        if self.session.phase != Phase.FETCHING_TABLES:
+            self._start_when_ready(now)
         # Hold-to-run and rest are judged before the command for this status is computed.
-        self.hold, expired = self.hold.poll(now)
-        if expired is not None and self.state.mode == Mode.STREAMING:
-            self._feed(JogExpired(), now)
+        self._poll_hold(now)
 
     def _after_status(self, st: Status, now: float) -> None:
         if self.state.mode == Mode.STOPPING and self.cycle.at_rest():
@@ -285,6 +193,7 @@ class StreamSupervisor(SupervisorBase):
 
     def on_idle(self, now: float) -> list[bytes]:
         self._out = []
+        self.session.sent = []
         self.session.on_idle(now)
         if self.session.phase == Phase.FAULT and self.state.mode not in (Mode.FAULT, Mode.DISCONNECTED,
                                                                         Mode.ENDED):
@@ -304,9 +213,14 @@ class StreamSupervisor(SupervisorBase):
             **self._safety_view(),
             "link": self.session.phase.value,
             "link_error": self.session.fault_reason or self.session.stats.last_error,
-            "inputs_enabled": self.inputs.enabled,
-            "input_error": self.inputs.error,
         }
 
 
-SIGNALS = {int(_signal.SIGTERM), int(_signal.SIGINT)}
+def _io_type(value: Any) -> int:
+    if isinstance(value, str):
+        try:
+            return int(IoType[value.upper()])
+        except KeyError:
+            raise CommandRejected(f"io type={value!r} is unknown (DI, DO, RI, RO, ..., F, M)") from None
+    return int(IoType(int(value)))
+

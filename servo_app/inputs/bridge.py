@@ -49,8 +49,9 @@ from servo_app.inputs.problems import ProblemLog
 from servo_app.inputs.samples import ButtonEvent, PoseSample, TwistSample
 from servo_app.inputs.slots import EventQueue, LatestValue
 from servo_app.inputs.validate import ValueRejected
+from servo_app.messages import ConfigureInputs
 
-Request = Callable[..., Any]
+Request = Callable[[ConfigureInputs], Any]  # the service's request(): a typed message to the servo process
 Feedback = Callable[[], Mapping[str, Any]]
 Act = Callable[[OutputToggle], Any]
 HOUSEKEEPING_S = 0.1  # the loop wakes at least this often (rates, summaries)
@@ -192,7 +193,7 @@ class InputsBridge:
         """Let the input sources move the arm (or stop them); the servo process gets the source names."""
         if self._request is None:
             raise RuntimeError("the inputs bridge is not connected to a servo process")
-        self._request("inputs", enable=bool(on), sources=self.source_names)
+        self._request(ConfigureInputs(enable=bool(on), sources=tuple(self.source_names)))
         with self._lock:
             self.enabled = bool(on)
             self._last = None  # the next sample is sent again, whatever was sent while disabled

@@ -16,7 +16,6 @@ from __future__ import annotations
 import contextlib
 import os
 import select
-import signal
 import socket
 import time
 from collections import deque
@@ -27,18 +26,17 @@ from typing import Any
 
 import numpy as np
 
-from servo_app.errors import CommandRejected
 from servo_app.input_slot import InputSlotReader
-from servo_app.ipc import LatestValueSlot
 from servo_app.janome.motion import JanomeMotion, MotionSettings
 from servo_app.janome.profile import load_janome_profile
 from servo_app.janome.protocol import Cmd, FrameError, Target
 from servo_app.janome.session import Phase, SessionConfig
 from servo_app.janome.supervisor import JanomeSupervisor
-from servo_app.process_handle import ChildLink, ServoProcessHandle, run_child
+from servo_app.messages import LogClosed, LogOpened, PeerConnected, PeerDisconnected, PeerRefused, Ready
+from servo_app.process_handle import ServoProcessHandle, ServoProcessHost, run_child
 from servo_app.safety import Mode, safe_to_exit
 from servo_app.session_log import SessionLogWriter
-from servo_app.state import MODES, PHASES, STATE_SIZE, StateVector, command_derivatives
+from servo_app.state import MODES, PHASES, StateVector, command_derivatives
 
 assert all(p.value in PHASES for p in Phase)
 assert all(m.value in MODES for m in Mode)
@@ -66,11 +64,12 @@ class JanomeConfig:
 # --------------------------------------------------------------------------- child side
 
 
-class _JanomeServoProcess(ChildLink):
+class _JanomeServoProcess(ServoProcessHost):
+    start_waits_for_stream = False  # the robot's point job connects when the operator runs it
+
     def __init__(self, cfg: JanomeConfig, conn: Connection, slot_name: str) -> None:
+        self._init_host(conn, slot_name)
         self.cfg = cfg
-        self.conn = conn
-        self.slot = LatestValueSlot(STATE_SIZE, name=slot_name, create=False)
         self.profile = load_janome_profile(cfg.model)
         if cfg.move not in ("line", "ptp"):
             raise ValueError(f"move={cfg.move!r} must be 'line' or 'ptp'")
@@ -85,37 +84,26 @@ class _JanomeServoProcess(ChildLink):
         self.listener.setblocking(False)
         self.sock: socket.socket | None = None
         self.peer = ""
-        self.t0 = time.monotonic()
-        self.state = StateVector()
         self.lat_us: deque[float] = deque(maxlen=1024)
         self.lat_max = 0.0
         self.hist: deque[np.ndarray] = deque(maxlen=4)
-        self.pending_signal: int | None = None
-        self.quit = False
         self.last_status_t = 0.0
         self._last_pub = 0.0
-        self._last_phase = self.sup.session.phase
         self.log: SessionLogWriter | None = None
         self._logged_seq: int | None = None
         self.inputs = InputSlotReader(cfg.input_slot) if cfg.input_slot else None
 
     # -- main loop
     def run(self) -> None:
-        signal.signal(signal.SIGTERM, self._on_signal)
-        signal.signal(signal.SIGINT, self._on_signal)
-        self._event("ready", pid=os.getpid(), address=list(self.listener.getsockname()[:2]),
-                    model=self.profile.name, robot_kind=self.profile.kind.name.lower())
-        self._publish()
-        try:
-            while not self.quit:
-                self._step()
-        finally:
-            self._close_conn("servo process exiting", notify=False)
-            self.listener.close()
-            self.slot.close()
+        self._install_signals()
+        self.serve(Ready(pid=os.getpid(), address=tuple(self.listener.getsockname()[:2])))  # type: ignore[arg-type]
 
-    def _step(self) -> None:
-        rlist: list[Any] = [self.conn]
+    def _shutdown(self) -> None:
+        self._close_conn("servo process exiting", notify=False)
+        self.listener.close()
+
+    def _io_step(self) -> None:
+        rlist: list[Any] = [] if self.parent_gone else [self.conn]
         if self.sup.session.accepting and not self.sup.state.shutdown:  # shutting down: no new robot
             rlist.append(self.listener)
         if self.sock is not None:
@@ -128,23 +116,26 @@ class _JanomeServoProcess(ChildLink):
             self._read()
         if self.listener in ready:
             self._accept()
-        now = time.monotonic()
-        self.sup.on_idle(now)
-        if self.pending_signal is not None:  # handled here, not inside the signal handler
-            sig, self.pending_signal = self.pending_signal, None
-            self.sup.signal(sig, now)
-        if self.conn in ready:
-            self._poll_requests()
+        self.sup.on_idle(time.monotonic())
+
+    def _deliver_signal(self, sig: int, now: float) -> None:
+        self.sup.signal(sig, now)
+
+    def _after_request(self) -> None:
+        self._maybe_close()
+
+    def _housekeeping(self) -> None:
+        super()._housekeeping()
         self._maybe_close()
         if self.sup.state.shutdown and safe_to_exit(self.sup.state) and self.sock is not None:
             # Nothing left to stream: hang up, so the robot's point job sees the end (its inCOM times out
             # or its socket closes) and this process can exit.
             self._close_conn("servo_app is shutting down", notify=True)
-        self._watch()
-        if time.monotonic() - self._last_pub >= self.cfg.publish_interval_s:
-            self._publish()
-        if self.sup.finished:
-            self.quit = True
+
+    def _publish(self) -> None:
+        # Frames come a few times a second: publish on each (in _read) and otherwise at a fixed rate.
+        if self.sup.changed or time.monotonic() - self._last_pub >= self.cfg.publish_interval_s:
+            super()._publish()
 
     def _accept(self) -> None:
         try:
@@ -154,14 +145,14 @@ class _JanomeServoProcess(ChildLink):
         peer = f"{addr[0]}:{addr[1]}"
         if self.sock is not None:  # one robot per stream
             sock.close()
-            self._event("connection_refused", peer=peer, reason=f"already serving {self.peer}")
+            self._event(PeerRefused(peer=peer, reason=f"already serving {self.peer}"))
             return
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.setblocking(False)
         self.sock, self.peer = sock, peer
         self._open_log()
         self.sup.on_connect(time.monotonic())
-        self._event("connected", peer=peer)
+        self._event(PeerConnected(peer=peer))
 
     def _read(self) -> None:
         assert self.sock is not None
@@ -199,7 +190,7 @@ class _JanomeServoProcess(ChildLink):
             self.last_status_t = t_recv
         if self.motion.last is not None:
             self.hist.append(self.motion.last.copy())
-        self._publish()
+        ServoProcessHost._publish(self)
 
     def _log_exchange(self, t_recv: float, out: list[bytes], latency_us: float) -> None:
         """One record per new robot status and per target frame sent (the shared .srvlog format: flags
@@ -223,14 +214,14 @@ class _JanomeServoProcess(ChildLink):
         self._close_log()
         path = Path(self.cfg.log_dir) / f"janome-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.srvlog"
         self.log = SessionLogWriter(path, {"model": self.profile.name, "protocol": "janome-pointjob-v1",
-                                           "axes": ["X", "Y", "Z", "R"], "peer": self.peer}, flush_every=10)
+                                           "axes": ["X", "Y", "Z", "R"], "peer": self.peer})
         self._logged_seq = None
-        self._event("log_opened", path=str(path))
+        self._event(LogOpened(path=str(path)))
 
     def _close_log(self) -> None:
         if self.log is not None:
             self.log.close()
-            self._event("log_closed", path=str(self.log.path), records=self.log.records)
+            self._event(LogClosed(path=str(self.log.path), records=self.log.records))
             self.log = None
 
     def _lost(self, reason: str) -> None:
@@ -245,48 +236,17 @@ class _JanomeServoProcess(ChildLink):
         self._close_log()
         if notify:
             self.sup.on_disconnect(reason, time.monotonic())
-            self._event("disconnected", peer=self.peer, reason=reason)
+            self._event(PeerDisconnected(peer=self.peer, reason=reason))
 
     def _maybe_close(self) -> None:
         s = self.sup.session
         if s.want_close and self.sock is not None:
             self._close_conn(s.fault_reason or s.stats.last_error or "closed by servo_app", notify=True)
 
-    # -- requests from the parent
-    def _poll_requests(self) -> None:
-        while self.conn.poll():
-            try:
-                req = self.conn.recv()
-            except EOFError:  # the parent is gone: end as on SIGTERM
-                self.pending_signal = int(signal.SIGTERM)
-                return
-            rid = req.pop("id", None)
-            op = req.pop("op")
-            try:
-                result = self.sup.request(op, time.monotonic(), **req)
-                reply = {"id": rid, "ok": True, "result": result}
-            except (CommandRejected, ValueError, KeyError, TypeError, RuntimeError) as exc:
-                reply = {"id": rid, "ok": False, "error": str(exc)}
-            if rid is not None:
-                self._maybe_close()
-                self._publish()  # a reader after the reply sees the request's effect
-                self.conn.send(reply)
-
-    def _watch(self) -> None:
-        phase = self.sup.session.phase
-        if phase != self._last_phase:
-            self._last_phase = phase
-            self._event("phase", phase=phase.value, reason=self.sup.session.fault_reason)
-
     # -- publishing
-    def _publish(self) -> None:
-        self._publish_safety()
+    def _publish_backend(self, sv: StateVector) -> None:
         self._last_pub = time.monotonic()
-        sv, s, m = self.state, self.sup.session, self.motion
-        sv.set("published_unix", time.time())
-        sv.set("phase", PHASES.index(s.phase.value))
-        sv.set("mode", MODES.index(self.sup.state.mode.value))
-        sv.set("session_time", time.monotonic() - self.t0)
+        s, m = self.sup.session, self.motion
         st = s.last_status
         if st is not None:
             sv.set("status_seq", st.seq)
@@ -309,7 +269,6 @@ class _JanomeServoProcess(ChildLink):
         if self.hist:
             for key, value in command_derivatives(self.hist, m.step_s).items():
                 sv.set(key, _pad(value))
-        self.slot.write(sv.data)
 
 
 def _pad(v: Any) -> np.ndarray:
@@ -329,11 +288,12 @@ def _child_main(cfg_dict: dict[str, Any], conn: Connection, slot_name: str) -> N
 class JanomeProcess(ServoProcessHandle):
     """Parent-side handle of the Janome servo process; ``address`` is where it listens for the robot."""
 
-    def __init__(self, cfg: JanomeConfig) -> None:
-        super().__init__(cfg, _child_main, "janome servo process")
+    def __init__(self, cfg: JanomeConfig, **watch: Any) -> None:
+        super().__init__(cfg, _child_main, "janome servo process", **watch)
         self.address: tuple[str, int] = (cfg.host, cfg.port)
 
-    def start(self, timeout: float = 30.0) -> dict[str, Any]:
+    def start(self, timeout: float = 30.0) -> Ready:
         ev = super().start(timeout)
-        self.address = (str(ev["address"][0]), int(ev["address"][1]))
+        assert ev.address is not None
+        self.address = (str(ev.address[0]), int(ev.address[1]))
         return ev

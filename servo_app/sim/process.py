@@ -33,7 +33,8 @@ def _serve(kwargs: dict[str, Any], conn: Connection) -> None:
                 continue
             try:
                 msg = conn.recv()
-            except EOFError:
+            except (EOFError, OSError):
+                _outlive_parent(sim)
                 return
             name = msg["call"]
             if name == "quit":
@@ -52,6 +53,22 @@ def _serve(kwargs: dict[str, Any], conn: Connection) -> None:
                 conn.send({"ok": False, "error": f"{type(exc).__name__}: {exc}"})
     finally:
         sim.stop()
+
+
+# The embedded controller stands in for a real one, which does not vanish with servo_app: after the
+# service's main process dies it keeps serving the servo process's soft stop (deceleration, last data,
+# status output stop), then goes. A soft stop from jog speed takes well under a second.
+LINGER_S = 1.5
+
+
+def _outlive_parent(sim: Any) -> None:
+    """The parent is gone: keep answering until the client stops the status output, LINGER_S at most."""
+    deadline = time.monotonic() + LINGER_S
+    while time.monotonic() < deadline:
+        with sim.lock:
+            if not sim.controller.status_active:
+                return
+        time.sleep(0.01)
 
 
 class SimulatorProcess:

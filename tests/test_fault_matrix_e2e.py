@@ -1,0 +1,376 @@
+"""The fault matrix (issue 13), end to end with real processes, sockets and signals on loopback.
+
+Each case breaks something while the arm moves and ends with: the service still up and the fault
+named in ``/api/state``; recovery over REST (reset, start, a jog that moves the arm) without a
+restart; no process left behind; session logs that ``servo-app check`` passes, with no gap and no
+phantom record. (SIGTERM while the arm moves: tests/test_faults_e2e.py::test_signal_mid_motion_to_servo_app_run.)
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+from test_api_harness import AUTH, TOKEN, Rig, assert_log_complete, running_rig
+
+from servo_app.fanuc.packets import StatusStart, StatusStop
+from servo_app.session_log import read_session_log
+
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(180)]
+
+ROOT = Path(__file__).resolve().parents[1]
+MODEL = "lrmate200id"
+JOG = [20.0, 0.0, 0.0, 30.0, 0.0, 0.0]
+
+
+# ------------------------------------------------------------------------------------------ helpers
+
+
+def eventually(pred: Any, timeout: float) -> bool:
+    """Whether ``pred()`` holds within ``timeout`` (polled every 10 ms)."""
+    deadline = time.monotonic() + timeout
+    while not pred():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def children_of(pid: int) -> list[int]:
+    """Every live descendant of ``pid`` (from /proc)."""
+    parents: dict[int, int] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except (OSError, IndexError):
+                continue
+            if fields[0] != "Z":
+                parents[int(entry.name)] = int(fields[1])
+    out, frontier = [], [pid]
+    while frontier:
+        p = frontier.pop()
+        kids = [c for c, pp in parents.items() if pp == p]
+        out += kids
+        frontier += kids
+    return out
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def check_log(path: Path) -> None:
+    """``servo-app check`` passes the log, as the controller would judge what was sent."""
+    r = subprocess.run([sys.executable, "-m", "servo_app.cli", "check", str(path), "--model", MODEL],
+                       cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stdout + r.stderr
+
+
+def all_logs(var_dir: Path) -> list[Path]:
+    return sorted((var_dir / "sessions").glob("*.srvlog"), key=lambda p: p.stat().st_mtime)
+
+
+def assert_logs_sound(var_dir: Path) -> None:
+    """Every session log: consecutive command sequence numbers, statuses present, check passes."""
+    logs = all_logs(var_dir)
+    assert logs
+    for path in logs:
+        log = read_session_log(path)
+        if len(log.commands) == 0:
+            continue
+        assert_log_complete(log, ended=False, min_records=1)
+        check_log(path)
+
+
+def moves(rig: Rig, h: dict[str, str]) -> None:
+    """A jog moves the arm (commanded J1 changes) and the stream is ended cleanly."""
+    q0 = rig.state()["q_cmd"][0]
+    rig.jog_for(h, JOG, 0.6)
+    s = rig.state()
+    assert abs(s["q_cmd"][0] - q0) > 1.0, (q0, s["q_cmd"], s["state"], s.get("fault"))
+    rig.end_and_wait(h)
+
+
+def recover(rig: Rig, h: dict[str, str]) -> None:
+    """Reset, start, jog: back in business over REST alone."""
+    rig.post("/api/reset", h)
+    s = rig.wait_state("disconnected", "connected", "ready", timeout=15)
+    assert s["fault"] is None, s["fault"]
+    rig.post("/api/session/start", h)
+    assert rig.state()["state"] == "streaming"  # start answers once streaming, never before
+    moves(rig, h)
+
+
+def service_children() -> list[bytes]:
+    """The service's processes still running: this test process's children, but multiprocessing's
+    resource tracker (one per interpreter) and a test's external controller."""
+    out = []
+    for pid in children_of(os.getpid()):
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
+        except OSError:
+            continue
+        if b"resource_tracker" not in cmd and b"servo_app.cli\x00sim" not in cmd:  # the tests' own controller
+            out.append(cmd)
+    return out
+
+
+def no_children_left() -> None:
+    assert eventually(lambda: not service_children(), timeout=5.0), service_children()
+
+
+class SimProcess:
+    """``servo-app sim fanuc`` as a process of its own, on a fixed port (so it can be restarted there)."""
+
+    def __init__(self, port: int) -> None:
+        self.port = port
+        self.proc: subprocess.Popen[str] | None = None
+        self.stderr: list[str] = []
+
+    def start(self) -> SimProcess:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "servo_app.cli", "sim", "fanuc", "--port", str(self.port), "--joints",
+             "0,0,0,0,-90,0"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        assert self.proc.stdout is not None and self.proc.stderr is not None
+        line = self.proc.stdout.readline()
+        assert re.search(r"udp://[\d.]+:(\d+)", line), line
+        threading.Thread(target=lambda f=self.proc.stderr: self.stderr.extend(iter(f.readline, "")),
+                         daemon=True).start()
+        return self
+
+    def kill(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(10)
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+
+    def alarms(self) -> list[str]:
+        return [line for line in self.stderr if line.startswith(("MOTN-", "PRIO-"))]
+
+
+@pytest.fixture
+def external_sim() -> Iterator[SimProcess]:
+    sim = SimProcess(free_port(socket.SOCK_DGRAM)).start()
+    yield sim
+    sim.stop()
+
+
+# ---------------------------------------------------------------------------------- the controller
+
+
+def test_controller_killed_and_restarted(tmp_path: Path, external_sim: SimProcess) -> None:
+    with running_rig(tmp_path, robot=f"fanuc:127.0.0.1:{external_sim.port}", model=MODEL) as rig:
+        h = rig.lease()
+        rig.start_streaming(h)
+        rig.jog_for(h, JOG, 0.3)
+        external_sim.kill()
+        s = rig.wait_state("fault", timeout=5)
+        assert "no status packet" in s["fault"]["message"], s["fault"]
+        assert s["fault"]["remedy"], s["fault"]
+        # Nothing answers yet: a start says why instead of answering 200 and staying disconnected.
+        rig.post("/api/reset", h)
+        r = rig.post("/api/session/start", h, expect=409)
+        assert "start failed" in r.json()["detail"] and "no status" in r.json()["detail"], r.text
+        assert rig.state()["state"] in ("disconnected", "fault")
+        external_sim.start()  # the controller is back, on the same port
+        if rig.state()["state"] == "fault":
+            rig.post("/api/reset", h)
+        rig.post("/api/session/start", h)
+        assert rig.state()["state"] == "streaming"
+        moves(rig, h)
+    assert external_sim.alarms() == [], external_sim.stderr
+    assert_logs_sound(tmp_path)
+    no_children_left()
+
+
+@pytest.mark.parametrize("stray", ["status-start", "status-stop", "version-2"])
+def test_a_stray_datagram_to_the_controller_is_a_named_fault_then_recovered(tmp_path: Path, stray: str) -> None:
+    """Another socket talks to the controller mid-stream: it takes the status output over, stops it,
+    or speaks protocol version 2 (MOTN-607). The stream is lost; reset and start bring it back."""
+    datagram, alarm = {"status-start": (StatusStart().encode(), "MOTN-603"),  # commands stop arriving
+                       "status-stop": (StatusStop().encode(), "MOTN-608"),
+                       "version-2": (StatusStart(version=2).encode(), "MOTN-607")}[stray]
+    with running_rig(tmp_path) as rig:
+        h = rig.lease()
+        rig.start_streaming(h)
+        rig.jog_for(h, JOG, 0.3)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as other:
+            other.sendto(datagram, rig.service.robot_address)
+            rig.wait_state("fault", timeout=5)
+        # Named by the controller's own alarm, with its cause and remedy, once it is reported.
+        s = rig.wait(lambda s: (s["fault"] or {}).get("code") == alarm, timeout=5, what=alarm)
+        assert s["fault"]["cause"] and s["fault"]["remedy"], s["fault"]
+        recover(rig, h)
+    assert_logs_sound(tmp_path)
+    no_children_left()
+
+
+def test_malformed_datagrams_from_the_controller_are_counted_never_logged(tmp_path: Path) -> None:
+    """Datagrams from the controller's own address that do not decode: counted, the stream goes on,
+    and the log holds only what was sent (before the fix, each one logged the previous command again)."""
+    from servo_app.sim.fanuc_server import FanucSimulator
+
+    with FanucSimulator(port=0, model=MODEL, initial_joints=[0, 0, 0, 0, -90, 0]) as sim, \
+            running_rig(tmp_path, robot=f"fanuc:{sim.address[0]}:{sim.address[1]}", model=MODEL) as rig:
+        h = rig.lease()
+        rig.start_streaming(h)
+        servo_addr = sim.controller.status_addr
+        for i in range(40):
+            sim._sock.sendto(b"\x00\x00\x00\x00\x00\x00\x00\x01" + bytes(i % 7), servo_addr)  # wrong lengths
+            rig.http.post("/api/jog", json={"joints": JOG, "hold_ms": 300}, headers=h)
+        s = rig.state()
+        assert s["malformed"] >= 40 and s["state"] == "streaming", s
+        rig.end_and_wait(h)
+        sent = rig.state()["commands_sent"]
+        assert sim.alarms == [], sim.alarms
+    (path,) = all_logs(tmp_path)
+    log = read_session_log(path)
+    assert len(log.commands) == sent  # one record per command really sent
+    assert_log_complete(log, ended=True)
+    check_log(path)
+    no_children_left()
+
+
+# -------------------------------------------------------------------------------- the servo process
+
+
+def test_servo_process_killed(tmp_path: Path) -> None:
+    with running_rig(tmp_path) as rig:
+        h = rig.lease()
+        rig.start_streaming(h)
+        rig.jog_for(h, JOG, 0.3)
+        pid = rig.service.stream.pid  # type: ignore[union-attr]
+        t_kill = time.monotonic()
+        os.kill(pid, signal.SIGKILL)
+        s = rig.wait_state("fault", timeout=2)
+        assert time.monotonic() - t_kill < 0.5
+        assert "signal 9" in s["fault"]["message"] and s["servo_process"].startswith("ended by signal 9"), s
+        # Every request answers with a status code that says what to do, never 500.
+        r = rig.post("/api/jog", h, json={"joints": JOG}, expect=409)
+        assert "reset" in r.json()["detail"]
+        rig.post("/api/session/stop", h)  # a stop is never refused
+        recover(rig, h)
+        assert rig.state()["servo_starts"] == 2
+    assert_logs_sound(tmp_path)
+    no_children_left()
+
+
+# ------------------------------------------------------------------------------------ the main process
+
+
+def _serve(args: list[str], var_dir: Path) -> tuple[subprocess.Popen[str], str, list[str]]:
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "servo_app.cli", "run", "--http-port", str(port), "--var-dir",
+                             str(var_dir), "--token", TOKEN, *args], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    err: list[str] = []
+    assert proc.stderr is not None
+    threading.Thread(target=lambda: err.extend(iter(proc.stderr.readline, "")), daemon=True).start()  # type: ignore[union-attr]
+    base = f"http://127.0.0.1:{port}"
+
+    def up() -> bool:
+        assert proc.poll() is None, "".join(err)
+        try:
+            return httpx.get(f"{base}/api/health", timeout=1).status_code == 200
+        except httpx.TransportError:
+            return False
+
+    assert eventually(up, timeout=60), "servo-app run did not come up"
+    return proc, base, err
+
+
+def _jog_then_kill_main(proc: subprocess.Popen[str], base: str) -> tuple[list[int], float]:
+    with httpx.Client(base_url=base, timeout=5) as c:
+        lease = c.post("/api/lease", json={"client": "ops"}, headers=AUTH).json()["lease_id"]
+        h = {**AUTH, "X-Lease-Id": lease}
+        assert c.post("/api/session/start", headers=h).status_code == 200
+        assert c.post("/api/jog", json={"joints": [30.0, 0, 0, 0, 0, 0], "hold_ms": 2000}, headers=h).status_code == 200
+        assert eventually(lambda: c.get("/api/state").json()["vel"][0] > 10.0, timeout=5)
+    kids = children_of(proc.pid)
+    assert kids
+    proc.kill()
+    t = time.monotonic()
+    proc.wait(5)
+    return kids, t
+
+
+@pytest.mark.parametrize("controller", ["embedded", "external"])
+def test_main_process_killed(tmp_path: Path, controller: str) -> None:
+    """SIGKILL to `servo-app run` mid-motion: its servo process stops the arm softly, sends last data,
+    stops the status output and exits, whether the controller is its embedded simulator or external;
+    nothing outlives the main process by more than 2 s."""
+    sim = SimProcess(free_port(socket.SOCK_DGRAM)).start() if controller == "external" else None
+    try:
+        args = ["--robot", f"fanuc:127.0.0.1:{sim.port}"] if sim else []
+        proc, base, err = _serve(args, tmp_path)
+        try:
+            kids, t_kill = _jog_then_kill_main(proc, base)
+            gone = eventually(lambda: not any(alive(p) for p in kids), timeout=2.0)
+            left = [p for p in kids if alive(p)]
+        finally:
+            for p in kids if "kids" in locals() else []:
+                if alive(p):
+                    os.kill(p, signal.SIGKILL)
+        assert gone, f"still running {time.monotonic() - t_kill:.2f} s after the main process died: {left}"
+        alarms = [line for line in err if line.startswith(("MOTN-", "PRIO-"))]
+        alarms += sim.alarms() if sim else []
+        assert alarms == [], "".join(err)
+    finally:
+        if sim is not None:
+            sim.stop()
+    (path,) = all_logs(tmp_path)
+    log = read_session_log(path)
+    assert_log_complete(log, ended=True)  # the stream ended with last data: a soft stop, not a cut
+    v = np.diff(log.commands["values"][:, 0].astype(float)) / 0.008
+    assert np.abs(v).max() > 10.0 and abs(v[-1]) < 0.1  # it moved, then came to rest
+    check_log(path)
+
+
+def test_sigterm_to_the_servo_process_ends_it_cleanly(tmp_path: Path) -> None:
+    """SIGTERM to the servo process alone: soft stop, last data, exit; the service names it and recovers."""
+    with running_rig(tmp_path) as rig:
+        h = rig.lease()
+        rig.start_streaming(h)
+        rig.jog_for(h, JOG, 0.3)
+        handle = rig.service.stream
+        assert handle is not None
+        os.kill(handle.pid, signal.SIGTERM)  # type: ignore[arg-type]
+        s = rig.wait_state("fault", timeout=5)
+        assert handle.process.exitcode == 0 and "exited with code 0" in s["fault"]["message"], s["fault"]
+        assert rig.sim_alarms() == []
+        recover(rig, h)
+    log = read_session_log(all_logs(tmp_path)[0])
+    assert_log_complete(log, ended=True)
+    assert_logs_sound(tmp_path)
+    no_children_left()
