@@ -18,7 +18,7 @@ def add_run_parser(sub: Any) -> None:
     p = sub.add_parser("run", help="run the service (default: against the embedded FANUC simulator)")
     p.add_argument("--robot", default=None,
                    help="fanuc:HOST[:PORT] of an external controller; default: the embedded simulator")
-    p.add_argument("--model", default="lrmate200id", help="robot profile (see `servo-app profiles`)")
+    p.add_argument("--model", default=None, help="robot profile (see `servo-app profiles`); default: the backend's")
     p.add_argument("--host", default="127.0.0.1", help="HTTP interface to listen on")
     p.add_argument("--http-port", type=int, default=8000)
     p.add_argument("--interval-ms", type=int, choices=(4, 8), default=None,

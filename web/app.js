@@ -32,8 +32,8 @@ function say(text, kind = "info") {
 const sayError = (text) => say(text, "error");
 
 // ------------------------------------------------------------------ settings
-/** Twist (Cartesian) jog is a FANUC feature; Janome robots jog their X Y Z R axes directly. */
-const cartesianJog = () => !ui.robot || ui.robot.backend !== "janome";
+/** Whether the robot's backend takes twists (Cartesian jog); others jog their axes directly. */
+const cartesianJog = () => !ui.robot || ui.robot.cartesian_jog !== false;
 
 function settings() {
   const pick = (name) => $(`input[name="${name}"]:checked`).value;
@@ -270,18 +270,16 @@ async function loadRobot() {
   }
   const names = ui.robot.joint_names;
   joints.build(names);
-  // FANUC: the limit tables in force; Janome: the profile's axis speeds.
+  // The limit tables in force where the controller has them, else the profile's axis speeds.
   jog.build({ jointNames: names, velLimit: ui.limits.vel_deg_s || ui.robot.axes.map((a) => a.speed),
     units: ui.robot.axes.map((a) => a.unit) });
-  const janome = ui.robot.backend === "janome";
-  $("#joint-label").textContent = janome ? "Axis" : "Joint";
-  if (janome) $('input[name="jog-kind"][value="joint"]').checked = true;
+  $("#joint-label").textContent = ui.robot.axis_label;
+  if (!cartesianJog()) $('input[name="jog-kind"][value="joint"]').checked = true;
   jogKind();
   showSpeed();
   jog.render();
-  $("#pose-caption").textContent = janome ? "tool X Y Z (mm), R (°): controller feedback"
-    : "flange X Y Z (mm), W P R (°): controller feedback";
-  // Outputs through the stream exist only where the service allows DO (FANUC).
+  $("#pose-caption").textContent = ui.robot.pose_caption;
+  // Outputs through the stream exist only where the backend allows DO.
   io.available = Boolean(ui.limits.io_allow && ui.limits.io_allow.DO);
   $("#io-card").hidden = !io.available;
   arm.draw(ui.robot);

@@ -7,7 +7,8 @@ const KIND_COMMAND = 1;
 const JOINT_FORMAT = 1; // DataFormat.JOINT, in bit 1 of a command's flags
 
 /** -> {header, t: Float64Array, q: Float32Array[] (per axis), count, axes: names} of the position
- * commands. FANUC logs: joint-format commands (deg). Janome logs: every target sent (X Y Z R). */
+ * commands. The header says which (``commands``: "joint_format" keeps joint-format commands only, as
+ * a FANUC stream may mix formats; "all" every target sent) and whether they come at a fixed interval. */
 export function parseSessionLog(buf) {
   const bytes = new Uint8Array(buf);
   if (bytes.length < 12 || new TextDecoder().decode(bytes.subarray(0, 8)) !== MAGIC) {
@@ -16,9 +17,9 @@ export function parseSessionLog(buf) {
   const dv = new DataView(buf);
   const n = dv.getUint32(8, true);
   const header = JSON.parse(new TextDecoder().decode(bytes.subarray(12, 12 + n)));
-  const janome = String(header.protocol || "").startsWith("janome");
+  const all = header.commands === "all";
   const axes = header.axes || ["J1", "J2", "J3", "J4", "J5", "J6"];
-  const wanted = janome ? (off) => dv.getUint8(off) === KIND_COMMAND : (off) => isJointCommand(dv, off);
+  const wanted = all ? (off) => dv.getUint8(off) === KIND_COMMAND : (off) => isJointCommand(dv, off);
   const start = 12 + n;
   const total = Math.floor((buf.byteLength - start) / RECORD); // a partial last record is dropped
   let count = 0;
@@ -33,7 +34,7 @@ export function parseSessionLog(buf) {
     for (let j = 0; j < axes.length; j += 1) q[j][k] = dv.getFloat32(off + 20 + 4 * j, true);
     k += 1;
   }
-  return { header, t, q, count, axes, fixedInterval: !janome };
+  return { header, t, q, count, axes, fixedInterval: header.fixed_interval !== false };
 }
 
 function isJointCommand(dv, off) {

@@ -31,10 +31,9 @@ export function renderHeldBack(s) {
   }
 }
 
-/** Flange (FANUC: X Y Z W P R) or tool (Janome: X Y Z R) pose from the controller's feedback. */
+/** The flange or tool pose from the controller's feedback, named as the backend names it. */
 export function renderPose(s, robot) {
-  const janome = robot && robot.backend === "janome";
-  const names = janome ? ["X", "Y", "Z", "R"] : ["X", "Y", "Z", "W", "P", "R"];
+  const names = (robot && robot.pose_names) || ["X", "Y", "Z", "W", "P", "R"];
   const head = $("#pose-head");
   if (head.dataset.names !== names.join()) {
     head.dataset.names = names.join();

@@ -262,7 +262,8 @@ class _ServoProcess(ServoProcessHost):
         path = Path(self.cfg.log_dir) / f"session-{stamp}-{os.getpid()}-{int(self.t0 * 1000) % 100000}.srvlog"
         self.log = SessionLogWriter(path, {"model": self.profile.name, "interval_ms": self.dt * 1000,
                                            "j23_factor": self.profile.j23_factor, "protocol": "fanuc-j519-v1",
-                                           "robot": f"{self.cfg.host}:{self.cfg.port}"})
+                                           "robot": f"{self.cfg.host}:{self.cfg.port}",
+                                           "commands": "joint_format", "fixed_interval": True})
         self._event(LogOpened(path=str(path)))
 
     def _on_link_phase(self, phase: str) -> None:

@@ -214,7 +214,8 @@ class _JanomeServoProcess(ServoProcessHost):
         self._close_log()
         path = Path(self.cfg.log_dir) / f"janome-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.srvlog"
         self.log = SessionLogWriter(path, {"model": self.profile.name, "protocol": "janome-pointjob-v1",
-                                           "axes": ["X", "Y", "Z", "R"], "peer": self.peer})
+                                           "axes": ["X", "Y", "Z", "R"], "peer": self.peer,
+                                           "commands": "all", "fixed_interval": False})
         self._logged_seq = None
         self._event(LogOpened(path=str(path)))
 

@@ -78,6 +78,7 @@ class SimulatorProcess:
         kwargs.setdefault("host", "127.0.0.1")
         self.process = ctx.Process(target=_serve, args=(kwargs, child), name="fanuc-sim", daemon=True)
         self.address: tuple[str, int] = ("", 0)
+        self.scheduling = "not set"  # its real-time priority, as make_realtime reports it
 
     def start(self, timeout: float = 30.0) -> SimulatorProcess:
         with single_threaded_blas():

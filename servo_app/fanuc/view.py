@@ -1,13 +1,7 @@
-"""What the web console needs to draw the arm: profile geometry and the axes' positions from FK.
+"""What the console needs to draw a FANUC six-axis arm: profile geometry and the joint centres from FK.
 
 Read-only and computed on request (a handful of sines), so the console can poll it a few times a
-second. Both backends answer in one shape: ``axes`` (name, unit, range, speed), the current
-positions ``q`` and ``points``, a chain of named points in the robot's world frame (mm) for a stick
-figure in side (X-Z) and top (X-Y) views, plus ``view_box_mm`` to scale the drawing.
-
-- FANUC six-axis arms: the joint centres; the flange point is exactly :meth:`ArmKinematics.fk`.
-- Janome Cartesian robots: the X beam, the Y carriage and the tool (the axes are the positions).
-- Janome SCARA: J1, the elbow (from the profile's arm configuration) and the R shaft down to Z.
+second. The flange point is exactly :meth:`ArmKinematics.fk`.
 """
 
 from __future__ import annotations
@@ -18,9 +12,6 @@ from typing import Any
 
 import numpy as np
 
-from servo_app.janome.kinematics import Unreachable
-from servo_app.janome.profile import JanomeProfile
-from servo_app.janome.protocol import RobotKind
 from servo_app.robots.conventions import fanuc_deg_to_model_rad
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import RobotProfile
@@ -69,6 +60,9 @@ def fanuc_view(profile: RobotProfile, q_fanuc_deg: Sequence[float]) -> dict[str,
         "display_name": profile.display_name,
         "dof": profile.dof,
         "joint_names": names,
+        "axis_label": "Joint",
+        "pose_names": ["X", "Y", "Z", "W", "P", "R"],
+        "pose_caption": "flange X Y Z (mm), W P R (°): controller feedback",
         # Ranges are in the model convention (J3's FANUC range moves with J2): j23_factor converts.
         "axes": [{"name": n, "unit": "deg", "min": lo, "max": hi, "speed": v} for n, lo, hi, v in
                  zip(names, profile.joint_min_deg, profile.joint_max_deg, profile.vel_limit, strict=True)],
@@ -84,51 +78,3 @@ def fanuc_view(profile: RobotProfile, q_fanuc_deg: Sequence[float]) -> dict[str,
         "points": arm_points(kin, q6),
         "view_box_mm": {"min": [-reach, -reach, -d.d1 * 1000.0], "max": [reach, reach, reach]},
     }
-
-
-def janome_view(profile: JanomeProfile, q_xyzr: Sequence[float]) -> dict[str, Any]:
-    x, y, z, r = (float(v) for v in q_xyzr[:4])
-    lo, hi = list(profile.axis_min), list(profile.axis_max)
-    top = hi[2]  # the arm (SCARA) or the beam (Cartesian) at the top of the Z stroke
-    scara = profile.kind == RobotKind.SCARA and profile.arm is not None
-    if scara:
-        arm = profile.arm
-        assert arm is not None
-        try:
-            j1, _ = arm.ik(x, y, int(profile.elbow))
-            elbow = [arm.l1 * math.cos(math.radians(j1)), arm.l1 * math.sin(math.radians(j1)), top]
-        except Unreachable:  # no feedback yet, or outside the reach: draw the hand alone
-            elbow = [x, y, top]
-        reach = arm.l1 + arm.l2
-        points = [{"name": "base", "xyz_mm": [0.0, 0.0, lo[2]]}, {"name": "J1", "xyz_mm": [0.0, 0.0, top]},
-                  {"name": "J2", "xyz_mm": elbow}, {"name": "R", "xyz_mm": [x, y, top]},
-                  {"name": "tool", "xyz_mm": [x, y, z], "approach": [0.0, 0.0, -1.0]}]
-        box = {"min": [-reach, -reach, lo[2]], "max": [reach, reach, top]}
-    else:
-        points = [{"name": "beam", "xyz_mm": [x, lo[1], top]}, {"name": "carriage", "xyz_mm": [x, y, top]},
-                  {"name": "tool", "xyz_mm": [x, y, z], "approach": [0.0, 0.0, -1.0]}]
-        box = {"min": lo[:3], "max": hi[:3]}
-    units = ["mm", "mm", "mm", "deg"]
-    names = ["X", "Y", "Z", "R"]
-    return {
-        "backend": "janome",
-        "kind": "scara" if scara else "cartesian",
-        "model": profile.name,
-        "display_name": profile.display_name,
-        "dof": 4,
-        "joint_names": names,
-        "axes": [{"name": n, "unit": u, "min": a, "max": b, "speed": v} for n, u, a, b, v in
-                 zip(names, units, lo, hi, profile.speed, strict=True)],
-        "j23_factor": 0.0,
-        "q": [x, y, z, r],
-        "points": points,
-        "view_box_mm": box,
-    }
-
-
-def robot_view(profile: RobotProfile | JanomeProfile, q: Sequence[float]) -> dict[str, Any]:
-    """The profile's axes and ranges, and the drawing points of positions ``q`` (FANUC joints in
-    deg, FANUC convention; Janome X Y Z R in mm and deg)."""
-    if isinstance(profile, JanomeProfile):
-        return janome_view(profile, q)
-    return fanuc_view(profile, q)

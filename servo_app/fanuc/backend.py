@@ -1,0 +1,135 @@
+"""FANUC Stream Motion (J519) as a robot backend: what the service asks of a FANUC controller."""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from servo_app.backends import AlarmInfo, InvalidRequest, ProcessOptions, RobotBackend, Target
+from servo_app.fanuc.alarms import ALARMS
+from servo_app.fanuc.packets import ROBOT_PORT, IoType
+from servo_app.fanuc.runner import StreamConfig, StreamProcess
+from servo_app.fanuc.view import fanuc_view
+from servo_app.messages import Event
+from servo_app.motion.limit_tables import default_tables
+from servo_app.realtime import make_realtime
+from servo_app.robots.profile import RobotProfile, available_profiles, load_profile
+
+IO_SPAN = 16  # a command packet's read or write covers 16 points from its index (manual 61.7)
+
+# The embedded simulator's assigned I/O (points per type). SI/SO/WI/WO/WSI/WSO are not assigned
+# there, and UI/UO drive the controller itself: not offered.
+DEFAULT_IO_ALLOW: dict[str, int] = {"DI": 512, "DO": 512, "RI": 8, "RO": 8, "F": 1024, "M": 1024}
+
+
+class FanucBackend(RobotBackend):
+    name = "fanuc"
+    default_port = ROBOT_PORT
+    default_model = "lrmate200id"
+    cartesian_jog = True
+    default_io_allow = DEFAULT_IO_ALLOW
+
+    @classmethod
+    def models(cls) -> list[str]:
+        return available_profiles()
+
+    def load_profile(self, model: str) -> RobotProfile:
+        return load_profile(model)
+
+    # -- the servo process and the simulator
+    def make_process(self, target: Target, options: ProcessOptions, on_event: Callable[[Event], None],
+                     on_exit: Callable[[str], None]) -> StreamProcess:
+        o = options
+        return StreamProcess(StreamConfig(
+            host=target.host, port=target.port, model=self.model, interval_ms=o.interval_ms, lead=o.lead,
+            log_dir=o.log_dir, limit_fraction=o.limit_fraction, flange_speed_cap=o.flange_speed_cap,
+            payload_kg=o.payload_kg, input_slot=o.input_slot, start_timeout_s=o.start_timeout_s),
+            on_event=on_event, on_exit=on_exit)
+
+    def start_simulator(self, target: Target, sim_options: dict[str, Any], realtime_priority: int | None) -> Any:
+        from servo_app.sim.process import SimulatorProcess
+
+        # The embedded controller starts at the usual FANUC home (wrist bent down), as a cell would
+        # after a taught joint move before IBGN start; all-zero joints would be a wrist singularity.
+        options = {"initial_joints": [0.0, 0.0, 0.0, 0.0, -90.0, 0.0], **sim_options}
+        sim = SimulatorProcess(model=self.model, port=target.port, **options)
+        # Ctrl-C reaches the whole process group: the simulator (the "controller") must keep sending
+        # status while the servo process decelerates and sends last data. A child inherits SIG_IGN.
+        if threading.current_thread() is not threading.main_thread():
+            sim.start()
+        else:
+            old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+            try:
+                sim.start()
+            finally:
+                signal.signal(signal.SIGINT, old)
+        sim.scheduling = make_realtime(realtime_priority, sim.process.pid)
+        return sim
+
+    # -- views
+    def axes(self) -> list[dict[str, Any]]:
+        return fanuc_view(self.profile, [0.0] * 6)["axes"]  # type: ignore[no-any-return]
+
+    def robot_view(self, q: list[float]) -> dict[str, Any]:
+        return fanuc_view(self.profile, q)
+
+    def limits(self, state: dict[str, Any], options: ProcessOptions) -> dict[str, Any]:
+        p = self.profile
+        tables = default_tables(p)
+        vel, acc, jerk = tables.for_cap(options.flange_speed_cap or tables.vmax, options.payload_kg)
+        from_ctrl = bool(state.get("tables_from_controller"))
+        if from_ctrl:
+            vel, acc, jerk = state["vel_limit"], state["acc_limit"], state["jerk_limit"]
+        return {
+            "model": p.name,
+            "backend": self.name,
+            "source": "controller limit tables" if from_ctrl else "profile defaults (configured, not published)",
+            "interval_ms": options.interval_ms or p.interval_ms,
+            "limit_fraction": options.limit_fraction,
+            "joint_min_deg": list(p.joint_min_deg),
+            "joint_max_deg": list(p.joint_max_deg),
+            "vel_deg_s": [float(v) for v in vel],
+            "acc_deg_s2": [float(v) for v in acc],
+            "jerk_deg_s3": [float(v) for v in jerk],
+            "max_flange_speed_mm_s": tables.vmax,
+            "io_allow": {t: [1, n] for t, n in self._io_allow.items()},
+        }
+
+    def alarm(self, code: str) -> AlarmInfo | None:
+        spec = ALARMS.get(code)
+        return None if spec is None else AlarmInfo(code, spec.cause, spec.remedy, spec.warning)
+
+    # -- I/O: a command packet reads or writes 16 points from an index; anything outside the assigned
+    # points makes the controller post PRIO-023 and stop, so it is refused here first.
+    def check_io(self, io_type: str, index: int) -> str:
+        name = str(io_type).upper()
+        allowed = ", ".join(f"{t} 1..{n}" for t, n in self._io_allow.items())
+        if name not in self._io_allow:
+            known = name in IoType.__members__
+            raise InvalidRequest(
+                f"type={io_type!r}: {'this I/O type is not' if known else 'not an I/O type'} allowed by the "
+                f"service (allowed: {allowed}); the controller would post PRIO-023 and stop")
+        n = self._io_allow[name]
+        if n < IO_SPAN:
+            raise InvalidRequest(
+                f"type={name}: only {n} points are assigned and an access always covers {IO_SPAN} points, so "
+                f"any {name} access would make the controller post PRIO-023")
+        if not 1 <= index <= n - IO_SPAN + 1:
+            raise InvalidRequest(
+                f"index={index}: an access covers {IO_SPAN} points from the index, so {name} indexes must be in "
+                f"1..{n - IO_SPAN + 1} ({name} has points 1..{n}); the controller would post PRIO-023")
+        return name
+
+    def io_type_code(self, name: str) -> int:
+        return int(IoType[name])
+
+    def io_window(self, io_type: str, point: int) -> tuple[int, int]:
+        """The index is the point itself where the allowed range permits, else the last index that
+        reaches it (an access covers 16 points from its index)."""
+        n = self._io_allow.get(io_type, 0)
+        if io_type in self._io_allow and point > n:  # an unknown type is check_io's to refuse, by name
+            raise InvalidRequest(f"{io_type}[{point}] is outside the allowed {io_type} 1..{n}")
+        index = max(1, min(point, n - IO_SPAN + 1))
+        return index, 1 << (point - index)

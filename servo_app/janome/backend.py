@@ -1,0 +1,73 @@
+"""Janome JR3000 / JC-3 / JS3 as a robot backend: servo_app listens, the robot's point job connects."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from servo_app.backends import AlarmInfo, ProcessOptions, RobotBackend, Target
+from servo_app.janome.alarms import alarm_for_code
+from servo_app.janome.profile import JanomeProfile, available_janome_profiles, load_janome_profile
+from servo_app.janome.runner import DEFAULT_PORT, JanomeConfig, JanomeProcess
+from servo_app.janome.view import janome_view
+from servo_app.messages import Event
+
+
+class JanomeBackend(RobotBackend):
+    name = "janome"
+    default_port = DEFAULT_PORT
+    default_model = "jr3000"
+    listens = True  # the robot is the TCP client (manual 21.1)
+
+    @classmethod
+    def models(cls) -> list[str]:
+        return available_janome_profiles()
+
+    @classmethod
+    def resolve_model(cls, model: str | None) -> str:
+        # The service's model option defaults to a FANUC arm: any name Janome does not know means
+        # "the default Janome model" (a path to a profile TOML is taken as given).
+        if model and (model in cls.models() or model.endswith(".toml")):
+            return model
+        return cls.default_model
+
+    def load_profile(self, model: str) -> JanomeProfile:
+        return load_janome_profile(model)
+
+    def make_process(self, target: Target, options: ProcessOptions, on_event: Callable[[Event], None],
+                     on_exit: Callable[[str], None]) -> JanomeProcess:
+        return JanomeProcess(JanomeConfig(host=target.host, port=target.port, model=self.model,
+                                          log_dir=options.log_dir, input_slot=options.input_slot),
+                             on_event=on_event, on_exit=on_exit)
+
+    def start_simulator(self, target: Target, sim_options: dict[str, Any], realtime_priority: int | None) -> Any:
+        from servo_app.sim.process import JanomeSimulatorProcess
+
+        return JanomeSimulatorProcess(server=(target.host, target.port), model=self.model).start()
+
+    def axes(self) -> list[dict[str, Any]]:
+        return janome_view(self.profile, [0.0] * 4)["axes"]  # type: ignore[no-any-return]
+
+    def robot_view(self, q: list[float]) -> dict[str, Any]:
+        return janome_view(self.profile, q)
+
+    def limits(self, state: dict[str, Any], options: ProcessOptions) -> dict[str, Any]:
+        p = self.profile
+        return {
+            "model": p.name,
+            "backend": self.name,
+            "axes": ["X", "Y", "Z", "R"],
+            "source": "profile (configured)",
+            "axis_min": list(p.axis_min),
+            "axis_max": list(p.axis_max),
+            "speed": list(p.speed),
+            "accel": list(p.accel),
+            "cp_speed_mm_s": p.cp_speed,
+            "step_s": p.step_s,
+            "max_step_mm": p.max_step_mm,
+            "max_step_deg": p.max_step_deg,
+        }
+
+    def alarm(self, code: str) -> AlarmInfo | None:
+        spec = alarm_for_code(code)
+        return None if spec is None else AlarmInfo(code, spec.cause, spec.remedy)

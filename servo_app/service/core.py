@@ -1,0 +1,294 @@
+"""The service object behind the API: the robot backend, its servo process and simulator, the views.
+
+It lives in the API process and stays thin: every motion decision is taken in the servo process
+(the cycle owns stops, hold-to-run and watchdogs, so a frozen API cannot leave the arm moving). This
+object owns the lifecycle and forwards typed requests; alarm forwarding, I/O and the views are
+their own modules beside it, and everything vendor-specific comes from the backend.
+
+The servo process is watched: if it dies, the state shows a fault naming the cause as soon as its
+pipe ends (milliseconds), requests are refused with that cause and the way out instead of timing
+out, and ``reset`` or ``start`` bring up a new process. Nothing here waits by sleeping.
+
+Threads: the API calls in from many worker threads at once (requests, telemetry, metrics). The
+servo process's handle owns its pipe (one reader thread: replies wake their own waiter, so a stop
+never queues behind other requests; events and the process's death are passed here).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections import Counter, deque
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from servo_app import messages as msg
+from servo_app.backends import ProcessOptions, RobotBackend, open_backend
+from servo_app.errors import CommandRejected
+from servo_app.process_handle import ServoProcessHandle
+from servo_app.service.alarms import AlarmForwarder
+from servo_app.service.config import ServiceConfig
+from servo_app.service.io import StreamIo
+from servo_app.service.views import StateViews
+
+
+class ServoService:
+    def __init__(self, cfg: ServiceConfig) -> None:
+        self.cfg = cfg
+        self.backend: RobotBackend = open_backend(cfg.robot, cfg.model, cfg.io_allow)
+        self.profile: Any = self.backend.profile
+        self.model = self.backend.model
+        self.sim: Any = None
+        self.stream: ServoProcessHandle | None = None
+        self.stops_by_reason: Counter[str] = Counter()
+        self.robot_address: tuple[str, int] | None = None
+        self.events: deque[msg.Event] = deque(maxlen=2000)
+        self._safety: dict[str, Any] = {}  # the servo process's last SafetyChanged view
+        self._safety_cv = threading.Condition()
+        self._lifecycle = threading.Lock()  # one open / replace / close at a time
+        self._sim_lock = threading.Lock()
+        self.servo_fault: dict[str, Any] | None = None  # the servo process died: why, and what to do
+        self.servo_starts = 0
+        self.inputs: Any = None  # the InputsBridge, with cfg.inputs_config
+        self.alarm_forwarder = AlarmForwarder(self.backend, self.sim_call, self.send, cfg.alarm_poll_s)
+        self.io = StreamIo(self.backend, self.request, self.state_vector, cfg.lead)
+        self.views = StateViews(self)
+
+    @property
+    def options(self) -> ProcessOptions:
+        c = self.cfg
+        return ProcessOptions(interval_ms=c.interval_ms, lead=c.lead, log_dir=str(c.log_dir),
+                              limit_fraction=c.limit_fraction, flange_speed_cap=c.flange_speed_cap,
+                              payload_kg=c.payload_kg, start_timeout_s=c.start_timeout_s,
+                              input_slot=self.inputs.slot_name if self.inputs is not None else None)
+
+    @property
+    def sim_scheduling(self) -> str:
+        return str(getattr(self.sim, "scheduling", "no embedded simulator"))
+
+    # ------------------------------------------------------------------ life
+    def open(self) -> None:
+        if self.cfg.inputs_config is not None:  # first: a bad file stops here; the servo process maps its slot
+            from servo_app.inputs.bridge import InputsBridge
+
+            self.inputs = InputsBridge.from_file(self.cfg.inputs_config)
+        target = self.backend.target
+        if target.embedded:
+            target = replace(target, port=self.cfg.sim_port)
+        if target.embedded and self.backend.simulator_first:
+            sim_options = {"interval_ms": self.cfg.interval_ms, **self.cfg.sim_options}
+            self.sim = self.backend.start_simulator(target, sim_options, self.cfg.sim_realtime_priority)
+            target = replace(target, host=self.sim.address[0], port=self.sim.address[1])
+        self.robot_address = (target.host, target.port)
+        with self._lifecycle:
+            self._spawn()
+        if target.embedded and not self.backend.simulator_first:  # the robot connects to us: it comes second
+            assert self.robot_address is not None
+            self.sim = self.backend.start_simulator(replace(target, host=self.robot_address[0],
+                                                            port=self.robot_address[1]),
+                                                    self.cfg.sim_options, self.cfg.sim_realtime_priority)
+        if self.sim is not None:
+            self.alarm_forwarder.start()
+        if self.inputs is not None:
+            self.inputs.start(request=self.request, feedback=self.state_vector, act=self.io.on_action)
+
+    def _spawn(self) -> None:
+        """Start a servo process (the first, or one replacing a dead one). Holds ``_lifecycle``."""
+        if self.stream is not None:
+            self.stream.shutdown(timeout=2.0)
+        with self._safety_cv:
+            self._safety = {}
+        assert self.robot_address is not None
+        # A replacement listens or connects where the first one did: the robot is configured for it.
+        target = replace(self.backend.target, host=self.robot_address[0], port=self.robot_address[1])
+        handle = self.backend.make_process(target, self.options, self._on_event, self._on_servo_exit)
+        ready = handle.start()
+        if ready.address is not None:  # a listening backend: where it listens (port 0: any free port)
+            self.robot_address = (str(ready.address[0]), int(ready.address[1]))
+        if self.sim is not None:
+            self.alarm_forwarder.skip_past()
+        self.stream = handle
+        self.servo_fault = None
+        self.servo_starts += 1
+
+    def _on_servo_exit(self, cause: str) -> None:
+        """The servo process died (the pipe's end of file): a fault the operator can leave with reset."""
+        self.servo_fault = {
+            "message": f"servo process {cause}",
+            "code": None,
+            "cause": "The process that streams to the robot ended unexpectedly; the controller got no "
+                     "further commands and stopped the arm itself.",
+            "remedy": "Reset (POST /api/reset) to start a new servo process, then start a new stream. "
+                      "The session log is complete up to the process's last record.",
+            "during": self._safety.get("state"),
+        }
+        self.alarm_forwarder.record_fault("SERVO", self.servo_fault["message"])
+        with self._safety_cv:
+            self._safety_cv.notify_all()
+
+    def close(self, group_signal_wait_s: float = 0.0) -> dict[str, Any]:
+        """End the stream cleanly (the servo process decelerates, sends last data, stops the status
+        output), then stop the simulator. Returns what happened, for the operator.
+
+        ``group_signal_wait_s``: after a Ctrl-C the servo process got the terminal's SIGINT too; wait
+        this long to see it shutting down by itself, since a second signal would escalate its soft
+        stop to the fast ramp."""
+        summary: dict[str, Any] = {}
+        stream = self.stream
+        if stream is not None and group_signal_wait_s > 0:
+            with self._safety_cv:
+                self._safety_cv.wait_for(lambda: bool(self._safety.get("shutdown")) or not stream.alive,
+                                         group_signal_wait_s)
+            if self._safety.get("shutdown"):
+                stream.process.join(10.0)  # then shutdown() finds it gone and sends no signal
+        if self.inputs is not None:  # adapters close their devices; the slot lives until the servo process exits
+            self.inputs.stop()
+        self.alarm_forwarder.stop()
+        with self._lifecycle:
+            if self.stream is not None:
+                died = self.servo_fault is not None
+                summary["servo_exit_code"] = self.stream.shutdown()
+                safety = self._safety
+                summary.update(state=safety.get("state"), link=safety.get("link"),
+                               stop_reason=safety.get("stop_reason"), fault=safety.get("fault"))
+                if died:
+                    summary.update(state="fault", fault=self.servo_fault)
+                self.stream = None
+        if self.sim is not None:
+            with contextlib.suppress(TimeoutError, RuntimeError, OSError, EOFError):
+                summary["alarms"] = [e["code"] for e in self.sim_call("events")]
+            self.sim.stop()
+            self.sim = None
+        if self.inputs is not None:
+            self.inputs.close()
+            self.inputs = None
+        return summary
+
+    # ------------------------------------------------------------ the pipe
+    def _on_event(self, ev: msg.Event) -> None:
+        """Called on the handle's reader thread for every event."""
+        self.events.append(ev)
+        if isinstance(ev, msg.SafetyChanged):
+            with self._safety_cv:
+                self._safety = ev.view
+                self._safety_cv.notify_all()
+
+    def last_event(self, kind: type[msg.Event]) -> msg.Event | None:
+        for ev in reversed(self.events):
+            if isinstance(ev, kind):
+                return ev
+        return None
+
+    def safety_view(self, mode: str, timeout: float = 0.05) -> dict[str, Any]:
+        """The servo process's last safety view. It is sent just before the state vector shows a new
+        ``mode``, but the reader thread may not have taken it in yet: wait for it (it is on its way)."""
+        with self._safety_cv:
+            self._safety_cv.wait_for(lambda: not self._safety or self._safety.get("state") == mode
+                                     or self.servo_fault is not None, timeout)
+            return self._safety
+
+    @property
+    def servo_alive(self) -> bool:
+        return self.stream is not None and self.stream.alive
+
+    def request(self, req: msg.Request, timeout: float | None = None) -> Any:
+        """Send a typed request to the servo process and wait for its reply.
+
+        A refusal raises CommandRejected. With the servo process dead: a stop is accepted (nothing
+        moves any more), a start first brings up a new process, anything else is refused with the
+        cause and the way out."""
+        if not self.servo_alive:
+            if isinstance(req, msg.Stop):
+                return None
+            if isinstance(req, msg.Start) and self.stream is not None:
+                self._replace_servo_process()
+            else:
+                raise CommandRejected(self._dead_why())
+        assert self.stream is not None
+        if timeout is None:
+            timeout = self.cfg.request_timeout_s
+            if isinstance(req, msg.Start):
+                timeout += self.cfg.start_timeout_s
+        return self.stream.request(req, timeout)
+
+    def _dead_why(self) -> str:
+        if self.stream is None:
+            return "the service is not open"
+        cause = self.servo_fault["message"] if self.servo_fault else "the servo process is not running"
+        return f"{cause}: reset (POST /api/reset) to start a new servo process"
+
+    def _replace_servo_process(self) -> None:
+        with self._lifecycle:
+            if not self.servo_alive:
+                self._spawn()
+
+    def send(self, req: msg.Request) -> None:
+        """Fire-and-forget: no reply is asked for (the servo process validates and drops bad ones)."""
+        if self.stream is None:
+            raise RuntimeError("the service is not open")
+        self.stream.send(req)
+
+    def stop(self, reason: str, fast: bool = False) -> None:
+        self.stops_by_reason[reason] += 1
+        self.request(msg.Stop(reason=reason, fast=fast))
+
+    def reset(self) -> None:
+        """Clear a fault: the simulator's alarm (as an operator at the pendant would), then the
+        supervisor; a dead servo process is replaced by a new one (in disconnected: start next)."""
+        if not self.servo_alive and self.stream is not None:
+            # First the new process (about a second of warm-up), then the controller's reset: the
+            # alarm the old process's silence caused (MOTN-603) has been posted by then.
+            self._replace_servo_process()
+            if self.sim is not None:
+                self.sim_call("reset")
+            return
+        if self.sim is not None:
+            self.sim_call("reset")
+        self.request(msg.Reset())
+
+    # ------------------------------------------------------------ simulator
+    def sim_call(self, name: str, *args: Any) -> Any:
+        """A control of the embedded simulator (reset, set_override, ...): the teach pendant's part."""
+        if self.sim is None:
+            raise RuntimeError("no embedded simulator: the robot is external")
+        with self._sim_lock:
+            return self.sim.call(name, *args)
+
+    # ----------------------------------------------------- I/O and views (their own modules)
+    def io_read(self, io_type: str, index: int, mask: int = 0xFFFF, timeout: float = 1.0) -> int:
+        return self.io.read(io_type, index, mask, timeout)
+
+    def io_write(self, io_type: str, index: int, mask: int, value: int) -> None:
+        self.io.write(io_type, index, mask, value)
+
+    def state_vector(self) -> dict[str, Any]:
+        return self.views.state_vector()
+
+    def state(self) -> dict[str, Any]:
+        return self.views.state()
+
+    def stops(self) -> dict[str, int]:
+        return self.views.stops()
+
+    def limits(self) -> dict[str, Any]:
+        return self.views.limits()
+
+    def robot_view(self) -> dict[str, Any]:
+        return self.views.robot()
+
+    def session_logs(self) -> list[dict[str, Any]]:
+        return self.views.session_logs()
+
+    def session_log_path(self, name: str) -> Path:
+        return self.views.session_log_path(name)
+
+    def wait_state(self, state: str, timeout: float = 10.0) -> dict[str, Any]:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            s = self.state()
+            if s["state"] == state:
+                return s
+            time.sleep(0.01)
+        raise TimeoutError(f"state {state!r} not reached within {timeout} s (now {self.state()['state']})")

@@ -1,0 +1,91 @@
+"""What the API shows: the state (the servo process's published vector plus its safety view and
+the service's own facts), the limits, the robot's drawing, the session logs."""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from servo_app.motion.diffik import holding_back
+
+if TYPE_CHECKING:
+    from servo_app.service.core import ServoService
+
+
+class StateViews:
+    def __init__(self, service: ServoService) -> None:
+        self.service = service
+
+    def state_vector(self) -> dict[str, Any]:
+        """The servo process's published state alone (cheap: a shared-memory copy); a dead process's
+        last state shows the fault."""
+        svc = self.service
+        if svc.stream is None:
+            return {"state": "disconnected", "link": "idle"}
+        s = svc.stream.state()
+        if svc.servo_fault is not None:
+            s["state"], s["link"] = "fault", "fault"
+        return s
+
+    def state(self) -> dict[str, Any]:
+        svc = self.service
+        if svc.stream is None:
+            return {"state": "disconnected", "link": "idle"}
+        s = svc.stream.state()
+        safety = svc.safety_view(s["state"])
+        s.update({k: v for k, v in safety.items() if k not in ("state", "link")})
+        s["servo_process"] = "running"
+        if svc.servo_fault is not None:  # the last published state is stale: the process is gone
+            s.update(state="fault", link="fault", fault=svc.servo_fault, resumable=False, at_rest=True)
+            s["servo_process"] = svc.servo_fault["message"].removeprefix("servo process ")
+        s["servo_starts"] = svc.servo_starts
+        s["backend"] = svc.backend.name
+        s["model"] = svc.profile.name
+        # Why a Cartesian motion goes slower than asked, or stops short (None: no Cartesian motion).
+        s["cartesian"] = {"scale": s["ik_scale"], "condition": s["ik_condition"],
+                          "held_back_by": holding_back(s["ik_flags"])} if s.get("ik_active") else None
+        s["robot"] = f"{svc.robot_address[0]}:{svc.robot_address[1]}" if svc.robot_address else None
+        s["simulated"] = svc.sim is not None
+        s["alarms"] = svc.alarm_forwarder.alarms()
+        s["faults"] = svc.alarm_forwarder.faults[-10:]
+        if svc.inputs is not None:
+            s["inputs"] = svc.inputs.summary()
+        return s
+
+    def stops(self) -> dict[str, int]:
+        """Stops by reason: the servo process's (hold-to-run, lease, signals, API) plus API-only counts."""
+        out = Counter(self.service.stops_by_reason)
+        out.update(self.service.safety_view("", timeout=0).get("stops") or {})
+        return dict(out)
+
+    def limits(self) -> dict[str, Any]:
+        svc = self.service
+        return svc.backend.limits(svc.stream.state() if svc.stream else {}, svc.options)
+
+    def robot(self) -> dict[str, Any]:
+        """Arm geometry for the console: the backend's axes, ranges and drawing of the current position."""
+        svc = self.service
+        st = svc.stream.state() if svc.stream is not None else {}
+        q = st.get("q_servo") if st.get("status_received") else st.get("q_cmd")
+        view = svc.backend.robot_view(q or [0.0] * 6)
+        view["cartesian_jog"] = svc.backend.cartesian_jog
+        return view
+
+    def session_logs(self) -> list[dict[str, Any]]:
+        d = self.service.cfg.log_dir
+        if not d.is_dir():
+            return []
+        return [{"name": p.name, "bytes": p.stat().st_size, "modified_unix": p.stat().st_mtime}
+                for p in sorted(d.glob("*.srvlog"), key=lambda p: p.stat().st_mtime, reverse=True)]
+
+    def session_log_path(self, name: str) -> Path:
+        d = self.service.cfg.log_dir
+        try:
+            p = (d / name).resolve()
+            ok = p.parent == d.resolve() and p.suffix == ".srvlog" and p.is_file()
+        except (OSError, ValueError):  # a NUL byte or an over-long name: no such log either
+            ok = False
+        if not ok:
+            raise FileNotFoundError(f"no session log named {name!r}")
+        return p
