@@ -52,7 +52,8 @@ from servo_app.robots.conventions import (
     rot_z,
     xyzwpr_to_matrix,
 )
-from servo_app.robots.kinematics import FLANGE_ROTATION, ArmKinematics
+from servo_app.robots.geometry import FLANGE_ROTATION
+from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import RobotProfile
 
 CONFIG_CODE = "MOTN-156"

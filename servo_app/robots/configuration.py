@@ -24,14 +24,11 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from servo_app.robots.conventions import ArrayLike
-
-if TYPE_CHECKING:
-    from servo_app.robots.kinematics import ArmKinematics
+from servo_app.robots.geometry import ArmGeometry
 
 TWO_PI = 2.0 * math.pi
 _PATTERN = re.compile(r"^\s*([NF])\s*([UD])\s*([TB])\s*(?:,?\s*(-?\d+)\s*,?\s*(-?\d+)\s*,?\s*(-?\d+))?\s*$",
@@ -77,7 +74,7 @@ def turn_number(angle_rad: float) -> int:
     return round((angle_rad - wrap_pi(angle_rad)) / (2.0 * math.pi))
 
 
-def configuration_of(q_model_rad: ArrayLike, kin: ArmKinematics) -> ArmConfiguration:
+def configuration_of(q_model_rad: ArrayLike, kin: ArmGeometry) -> ArmConfiguration:
     """The configuration of a model-convention joint vector (rad); see the module docstring."""
     q1, q2, q3, q4, q5, q6 = (float(v) for v in q_model_rad[:6])
     up = kin.d4 * math.cos(q3) - kin.a3 * math.sin(q3) > 0.0
@@ -87,7 +84,7 @@ def configuration_of(q_model_rad: ArrayLike, kin: ArmKinematics) -> ArmConfigura
                             turn1=turn_number(q1), turn4=turn_number(q4), turn6=turn_number(q6))
 
 
-def boundary_distances(q_model_rad: ArrayLike, kin: ArmKinematics) -> np.ndarray:
+def boundary_distances(q_model_rad: ArrayLike, kin: ArmGeometry) -> np.ndarray:
     """How far ``q`` is from each configuration boundary, as angles (rad) where the boundary is one.
 
     [flip (J5 from 0 or 180 deg), up/down (elbow from the stretched-forearm line), top/bottom (wrist
@@ -105,18 +102,18 @@ def boundary_distances(q_model_rad: ArrayLike, kin: ArmKinematics) -> np.ndarray
     ])
 
 
-def wrist_centre_offset(q2: ArrayLike, q3: ArrayLike, kin: ArmKinematics) -> np.ndarray:
+def wrist_centre_offset(q2: ArrayLike, q3: ArrayLike, kin: ArmGeometry) -> np.ndarray:
     """Signed distance (m) of the wrist centre in front of the J1 axis in the arm's plane (> 0: Top)."""
     phi = np.subtract(q2, q3)
     return kin.a1 + kin.a2 * np.sin(q2) + kin.d4 * np.cos(phi) + kin.a3 * np.sin(phi)
 
 
-def _elbow_angle(kin: ArmKinematics) -> float:
+def _elbow_angle(kin: ArmGeometry) -> float:
     """psi: Up <=> cos(q3 + psi) > 0 (the module docstring's ``d4 cos q3 - a3 sin q3 > 0``)."""
     return math.atan2(kin.a3, kin.d4)
 
 
-def _reach(kin: ArmKinematics) -> float:
+def _reach(kin: ArmGeometry) -> float:
     return kin.a2 + math.hypot(kin.d4, kin.a3)
 
 
@@ -135,10 +132,10 @@ class ConfigurationRegion:
     lower: np.ndarray  # (6,) model rad, inclusive
     upper: np.ndarray
     top_margin_m: float  # the wrist centre stays at least this far on its side of the J1 axis
-    kin: ArmKinematics
+    kin: ArmGeometry
 
     @classmethod
-    def around(cls, q_model_rad: ArrayLike, kin: ArmKinematics, margins: ArrayLike) -> ConfigurationRegion:
+    def around(cls, q_model_rad: ArrayLike, kin: ArmGeometry, margins: ArrayLike) -> ConfigurationRegion:
         """The region of ``q``'s configuration; ``margins`` in :func:`boundary_distances`' order and units."""
         q = np.asarray(q_model_rad, dtype=float)[:6]
         m_flip, m_up, m_top, m1, m4, m6 = (float(v) for v in np.asarray(margins, dtype=float))

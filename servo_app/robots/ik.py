@@ -22,16 +22,12 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from servo_app.robots.configuration import ArmConfiguration, configuration_of, wrap_pi
 from servo_app.robots.conventions import ArrayLike
-from servo_app.robots.kinematics import FLANGE_ROTATION
-
-if TYPE_CHECKING:
-    from servo_app.robots.kinematics import ArmKinematics
+from servo_app.robots.geometry import FLANGE_ROTATION, ArmGeometry
 
 _DEGENERATE = 1e-9  # below this the free angle is chosen (exact singularity, up to rounding)
 SINGULAR_TOL = 1e-6  # solutions closer than this (sine / metres) to a singularity are flagged
@@ -48,7 +44,7 @@ class IkSolution:
     within_limits: bool
 
 
-def solve(kin: ArmKinematics, pose: np.ndarray, *, with_turns: bool = False, within_limits: bool = False,
+def solve(kin: ArmGeometry, pose: np.ndarray, *, with_turns: bool = False, within_limits: bool = False,
           seed: ArrayLike | None = None) -> list[IkSolution]:
     """All solutions for a 4x4 flange pose (FANUC world frame, metres).
 
@@ -73,7 +69,7 @@ def solve(kin: ArmKinematics, pose: np.ndarray, *, with_turns: bool = False, wit
     return out
 
 
-def nearest(kin: ArmKinematics, pose: np.ndarray, seed_q: ArrayLike,
+def nearest(kin: ArmGeometry, pose: np.ndarray, seed_q: ArrayLike,
             config: ArmConfiguration | None = None) -> np.ndarray | None:
     """The in-limits solution closest to ``seed_q`` (Euclidean in joint space), optionally only of
     ``config`` (flip, up, top *and* turn numbers must match). None when there is none."""
@@ -88,7 +84,7 @@ def nearest(kin: ArmKinematics, pose: np.ndarray, seed_q: ArrayLike,
     return None if best is None else best.copy()
 
 
-def _base_solutions(kin: ArmKinematics, t: np.ndarray, seed: np.ndarray | None
+def _base_solutions(kin: ArmGeometry, t: np.ndarray, seed: np.ndarray | None
                     ) -> list[tuple[np.ndarray, bool]]:
     rot = t[:3, :3]
     c = t[:3, 3] - kin.d6 * rot[:, 2]  # wrist centre
@@ -148,7 +144,7 @@ def _wrist_solutions(q1: float, q2: float, q3: float, rot: np.ndarray, seed: np.
             ((-(alpha + math.pi), beta, -(gamma + math.pi)), singular)]
 
 
-def _into_range(kin: ArmKinematics, q: np.ndarray) -> np.ndarray:
+def _into_range(kin: ArmGeometry, q: np.ndarray) -> np.ndarray:
     """Wrap every joint to (-pi, pi]; J2, J3, J5 (no turn number) move by 2 pi if that enters their range."""
     out = np.array([wrap_pi(float(v)) for v in q])
     for i in (1, 2, 4):
@@ -160,7 +156,7 @@ def _into_range(kin: ArmKinematics, q: np.ndarray) -> np.ndarray:
     return out
 
 
-def _turn_variants(kin: ArmKinematics, q: np.ndarray) -> list[np.ndarray]:
+def _turn_variants(kin: ArmGeometry, q: np.ndarray) -> list[np.ndarray]:
     """``q`` plus every combination of 360-degree copies that fit the joint ranges."""
     options = []
     for i in range(6):
@@ -173,6 +169,6 @@ def _turn_variants(kin: ArmKinematics, q: np.ndarray) -> list[np.ndarray]:
     return [np.array(combo) for combo in itertools.product(*options)]
 
 
-def _fits(kin: ArmKinematics, i: int, v: float) -> bool:
-    # Same slack as ArmKinematics.within_limits: a limit of exactly 190 deg must admit -190 from 170 - 360.
+def _fits(kin: ArmGeometry, i: int, v: float) -> bool:
+    # Same slack as ArmGeometry.within_limits: a limit of exactly 190 deg must admit -190 from 170 - 360.
     return kin.q_min[i] - _LIMIT_TOL <= v <= kin.q_max[i] + _LIMIT_TOL

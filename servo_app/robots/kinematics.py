@@ -28,13 +28,11 @@ import numpy as np
 
 from servo_app.robots.configuration import ArmConfiguration, configuration_of
 from servo_app.robots.conventions import ArrayLike, fanuc_deg_to_model_rad, xyzwpr_to_matrix
+from servo_app.robots.geometry import FLANGE_ROTATION
+from servo_app.robots.ik import IkSolution, nearest, solve
 
 if TYPE_CHECKING:
-    from servo_app.robots.ik import IkSolution
     from servo_app.robots.profile import RobotProfile
-
-# Flange frame relative to the J6 link frame: columns are the flange x, y, z axes.
-FLANGE_ROTATION = np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])
 
 
 class ArmKinematics:
@@ -112,15 +110,11 @@ class ArmKinematics:
     def ik(self, pose: np.ndarray, *, with_turns: bool = False, within_limits: bool = False,
            seed: ArrayLike | None = None) -> list[IkSolution]:
         """All closed-form solutions for a 4x4 flange pose; see :func:`servo_app.robots.ik.solve`."""
-        from servo_app.robots.ik import solve  # ik imports this module
-
         return solve(self, pose, with_turns=with_turns, within_limits=within_limits, seed=seed)
 
     def ik_nearest(self, pose: np.ndarray, seed_q: ArrayLike, config: ArmConfiguration | None = None
                    ) -> np.ndarray | None:
         """The in-limits solution nearest ``seed_q``; see :func:`servo_app.robots.ik.nearest`."""
-        from servo_app.robots.ik import nearest
-
         return nearest(self, pose, seed_q, config)
 
     def configuration(self, q_model_rad: ArrayLike) -> ArmConfiguration:
