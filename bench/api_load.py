@@ -27,6 +27,7 @@ from pathlib import Path
 import uvicorn
 
 from servo_app.api.app import create_app
+from servo_app.messages import End, Jog, Start
 from servo_app.service import ServiceConfig, ServoService
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -76,7 +77,7 @@ def jog_direct(service: ServoService, seconds: float) -> str:
     t0, n = time.monotonic(), 0
     while (elapsed := time.monotonic() - t0) < seconds:
         sign = 1.0 if int(elapsed / 2) % 2 == 0 else -1.0
-        service.request("jog", joints=[20.0 * sign, 0, 0, 0, 0, 15.0 * sign], hold_s=0.2)
+        service.request(Jog(joints=(20.0 * sign, 0, 0, 0, 0, 15.0 * sign), hold_s=0.2))
         n += 1
         time.sleep(max(0.0, t0 + n / JOG_HZ - time.monotonic()))
     return f"no API load: jogs at {n / (time.monotonic() - t0):.0f} Hz into the service directly"
@@ -114,12 +115,12 @@ def main(argv: list[str] | None = None) -> int:
                 time.sleep(0.01)
             port = int(server.servers[0].sockets[0].getsockname()[1])
             for case in ("direct", "api"):
-                service.request("start")
+                service.request(Start())
                 wait_for(service, lambda s: s["state"] == "streaming", 15.0)
                 what = (jog_direct(service, args.seconds) if case == "direct"
                         else jog_over_api(port, args.seconds))
                 wait_for(service, lambda s: s["state"] == "stopped", 10.0)  # the last hold ran out
-                service.request("end")
+                service.request(End())
                 wait_for(service, lambda s: s["state"] in ("ended", "fault"), 30.0)
                 rows.append(latency_row(what, closed_log(service), args.lead))
             alarms = [e["code"] for e in service.sim_call("events")]

@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from servo_app.errors import CommandRejected
+from servo_app.messages import Reset, Resume, Start
 from servo_app.realtime import make_realtime
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -532,18 +533,18 @@ def streaming(service: Any, sim: Any) -> str | None:
     what = str((s.get("fault") or {}).get("message") or s.get("stop_reason") or s["state"])
     if s["state"] == "fault":
         sim.call("reset")  # the pendant's part
-        service.request("reset")
+        service.request(Reset())
         time.sleep(0.3)
     s = service.state()
     if s["state"] in ("stopped", "stopping"):
         service.wait_state("stopped", 5.0)
         try:
-            service.request("resume")
+            service.request(Resume())
         except CommandRejected:
             if service.state()["state"] != "streaming":  # else it was resumed meanwhile: all is well
                 raise
     else:
-        service.request("start")
+        service.request(Start())
     service.wait_state("streaming", 15.0)
     service.inputs.enable(True)
     return what
@@ -650,7 +651,7 @@ def main(argv: list[str] | None = None) -> int:
         bridge.writer.publish = recorded
         server, _, port = serve(create_app(service, TOKEN))
         sensors.start_http(f"http://127.0.0.1:{port}")
-        service.request("start")
+        service.request(Start())
         service.wait_state("streaming", 15.0)
         gc.collect()  # as `servo-app run` does before serving
         gc.freeze()

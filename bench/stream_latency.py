@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from servo_app.messages import End, JointTarget, LogClosed, LogOpened, Ready, Start
 from servo_app.service import ServiceConfig, ServoService
 from servo_app.session_log import SessionLog, read_session_log
 
@@ -58,9 +59,9 @@ def closed_log(service: ServoService, timeout: float = 10.0) -> SessionLog:
     """The log of the stream that just ended, once the servo process has closed it."""
     deadline = time.monotonic() + timeout
     while True:
-        opened, closed = service.last_event("log_opened"), service.last_event("log_closed")
-        if opened and closed and opened["path"] == closed["path"]:
-            return read_session_log(Path(closed["path"]))
+        opened, closed = service.last_event(LogOpened), service.last_event(LogClosed)
+        if isinstance(opened, LogOpened) and isinstance(closed, LogClosed) and opened.path == closed.path:
+            return read_session_log(Path(closed.path))
         if time.monotonic() > deadline:
             raise TimeoutError("the session log was not closed")
         time.sleep(0.02)
@@ -71,7 +72,7 @@ def move_through_poses(service: ServoService, seconds: float) -> int:
     end = time.monotonic() + seconds
     n = 0
     while time.monotonic() < end:
-        service.request("target", joints=POSES[n % len(POSES)], speed_scale=0.5)
+        service.request(JointTarget(joints=tuple(POSES[n % len(POSES)]), speed_scale=0.5))
         time.sleep(0.05)
         s = wait_for(service, lambda s: s["at_rest"] or s["state"] != "streaming", 30.0)
         if s["state"] != "streaming":  # a fault: report it with the figures up to it
@@ -92,16 +93,17 @@ def main(argv: list[str] | None = None) -> int:
         service = ServoService(ServiceConfig(var_dir=Path(tmp), interval_ms=args.interval_ms, lead=args.lead))
         service.open()
         try:
-            service.request("start")
+            service.request(Start())
             wait_for(service, lambda s: s["state"] == "streaming", 15.0)
             moves = move_through_poses(service, args.seconds)
             if service.state()["state"] == "streaming":
-                service.request("end")
+                service.request(End())
             s = wait_for(service, lambda s: s["state"] in ("ended", "fault"), 30.0)
             fault = (s.get("fault") or {}).get("message")
             log = closed_log(service)
             alarms = [e["code"] for e in service.sim_call("events")]
-            realtime = (service.last_event("ready") or {}).get("realtime", "?")
+            ready = service.last_event(Ready)
+            realtime = ready.realtime if isinstance(ready, Ready) else "?"
             sim_scheduling = service.sim_scheduling
         finally:
             service.close()

@@ -20,6 +20,7 @@ import pytest
 import uvicorn
 
 from servo_app.api.app import create_app
+from servo_app.messages import LogClosed, LogOpened
 from servo_app.service import ServiceConfig, ServoService
 from servo_app.session_log import SessionLog, read_session_log
 
@@ -132,9 +133,12 @@ class Rig:
     def latest_log(self, timeout: float = 5.0) -> SessionLog:
         """Download the newest session log through the API once the servo process has closed it."""
         deadline = time.monotonic() + timeout
-        while self.service.last_event("log_closed") is None or (
-                self.service.last_event("log_opened") or {}).get("path") != (
-                self.service.last_event("log_closed") or {}).get("path"):
+
+        def path_of(kind: type[LogOpened | LogClosed]) -> str | None:
+            ev = self.service.last_event(kind)
+            return ev.path if isinstance(ev, (LogOpened, LogClosed)) else None
+
+        while path_of(LogClosed) is None or path_of(LogOpened) != path_of(LogClosed):
             if time.monotonic() > deadline:
                 raise AssertionError("the session log was not closed")
             time.sleep(0.02)

@@ -17,6 +17,7 @@ from servo_app.input_slot import NONE, POSE, TWIST, InputCommand, InputSlotReade
 from servo_app.inputs import ConfigError
 from servo_app.inputs.apps.config import load_service_inputs
 from servo_app.inputs.bridge import InputsBridge
+from servo_app.messages import ConfigureInputs
 
 CONFIG = """
 [feeds.jog]
@@ -242,11 +243,11 @@ def test_the_thread_wakes_on_each_feed_sample(tmp_path: Path) -> None:
     path.write_text('[feeds.jog]\nkind = "twist"\nstale_after_s = 5.0\n')
     bridge = InputsBridge.from_file(path)
     reader = InputSlotReader(bridge.slot_name)
-    requests: list[dict[str, object]] = []
-    bridge.start(request=lambda op, **kw: requests.append({"op": op, **kw}))
+    requests: list[ConfigureInputs] = []
+    bridge.start(request=requests.append)
     try:
         assert bridge.enable(True) == {"enabled": True, "sources": ["jog"]}
-        assert requests == [{"op": "inputs", "enable": True, "sources": ["jog"]}]
+        assert requests == [ConfigureInputs(enable=True, sources=("jog",))]
         for x in (1.0, 2.0, 3.0):
             bridge.feeds.submit("jog", twist(x))
             deadline = time.monotonic() + 5.0

@@ -13,6 +13,19 @@ import numpy as np
 import pytest
 
 from servo_app.fanuc.runner import StreamConfig, StreamProcess
+from servo_app.messages import (
+    ConfigureInputs,
+    ControllerAlarm,
+    End,
+    Jog,
+    JointTarget,
+    LogClosed,
+    Ready,
+    Reset,
+    SafetyChanged,
+    Start,
+    Stop,
+)
 from servo_app.motion.checker import ControllerLimitChecker  # noqa: F401 - the simulator's own checker
 from servo_app.session_log import read_session_log
 from servo_app.sim.fanuc_server import FanucSimulator
@@ -20,13 +33,13 @@ from servo_app.sim.fanuc_server import FanucSimulator
 pytestmark = pytest.mark.e2e
 
 HOME = [0.0, 0.0, 0.0, 0.0, -90.0, 0.0]
+START_TIMEOUT = 10.0  # a FANUC start answers once the stream runs (or is given up after 5 s)
 
 
 def wait_for(sp: StreamProcess, state: str, timeout: float = 10.0) -> dict:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         s = sp.state()
-        sp.poll_events()
         if s["state"] == state:
             return s
         time.sleep(0.005)
@@ -68,30 +81,32 @@ def rig(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[tuple[FanucS
 
 def test_joint_move_out_and_back_with_zero_alarms(rig: tuple[FanucSimulator, StreamProcess, Path]) -> None:
     sim, sp, logs = rig
-    sp.request("start")
+    sp.request(Start(), timeout=START_TIMEOUT)
     wait_for(sp, "streaming")
     # One thread: numpy's linear algebra runs in the cycle itself (no BLAS workers to wait for).
     assert len(os.listdir(f"/proc/{sp.process.pid}/task")) == 1
-    scheduling = sp.wait_event("ready", 1)["realtime"]
+    ready = sp.wait_event(Ready, 1)
+    assert isinstance(ready, Ready)
+    scheduling = ready.realtime
     assert "cpu wake-up latency held at 0 us" in scheduling or "unavailable" in scheduling, scheduling
     out = [25.0, 15.0, -20.0, 40.0, -60.0, 90.0]
-    sp.request("target", joints=out)
+    sp.request(JointTarget(joints=tuple(out)))
     s = wait_rest(sp)
     time.sleep(0.1)
     s = wait_rest(sp)
     assert np.allclose(s["q_cmd"], out, atol=1e-3)
-    sp.request("target", joints=HOME)
+    sp.request(JointTarget(joints=tuple(HOME)))
     time.sleep(0.1)
     s = wait_rest(sp)
     assert np.allclose(s["q_cmd"], HOME, atol=1e-3)
-    sp.request("end")
+    sp.request(End())
     s = wait_for(sp, "ended")
     assert s["link"] == "closed"
     assert sim.alarms == [], [e.message for e in sim.alarms]
     # The simulator followed: its servo position is the last command.
     assert np.allclose(sim.controller.command_position[:6], HOME, atol=1e-3)
     # The session log holds every command with consecutive sequence numbers and ends with last data.
-    sp.wait_event("log_closed", 5)
+    sp.wait_event(LogClosed, 5)
     (path,) = logs.glob("*.srvlog")
     log = read_session_log(path)
     cmds = log.commands
@@ -103,16 +118,19 @@ def test_joint_move_out_and_back_with_zero_alarms(rig: tuple[FanucSimulator, Str
 
 def test_sigterm_mid_motion_decelerates_and_ends_cleanly(rig: tuple[FanucSimulator, StreamProcess, Path]) -> None:
     sim, sp, _ = rig
-    sp.request("start")
+    sp.request(Start(), timeout=START_TIMEOUT)
     wait_for(sp, "streaming")
-    sp.request("jog", joints=[60.0, 0, 0, 0, 0, 0], hold_s=2.0)
+    sp.request(Jog(joints=(60.0, 0, 0, 0, 0, 0), hold_s=2.0))
     time.sleep(0.4)
     assert abs(sp.state()["vel"][0]) > 10.0  # moving
     assert sp.process.pid is not None
     os.kill(sp.process.pid, signal.SIGTERM)
     sp.process.join(10)
     assert sp.process.exitcode == 0
-    kinds = [e.get("state") for e in sp.poll_events() if e["event"] == "safety"]
+    deadline = time.monotonic() + 5.0
+    while sp.alive and time.monotonic() < deadline:  # the reader thread takes the last events off the pipe
+        time.sleep(0.01)
+    kinds = [e.view.get("state") for e in sp.events if isinstance(e, SafetyChanged)]
     assert "stopping" in kinds and kinds[-1] == "ended"
     assert sim.alarms == [], [e.message for e in sim.alarms]
     assert not sim.controller.status_output_on
@@ -120,18 +138,18 @@ def test_sigterm_mid_motion_decelerates_and_ends_cleanly(rig: tuple[FanucSimulat
 
 def test_hold_to_run_expiry_stops_the_jog(rig: tuple[FanucSimulator, StreamProcess, Path]) -> None:
     sim, sp, _ = rig
-    sp.request("start")
+    sp.request(Start(), timeout=START_TIMEOUT)
     wait_for(sp, "streaming")
-    sp.request("jog", joints=[0, 0, 0, 40.0, 0, 0], hold_s=0.2)
+    sp.request(Jog(joints=(0, 0, 0, 40.0, 0, 0), hold_s=0.2))
     s = wait_for(sp, "stopped", timeout=5)
     assert s["at_rest"]
     moved = s["q_cmd"][3]
     assert 0.5 < moved < 20.0  # it moved, then stopped on its own
     # A new press resumes by itself (the stop was the hold running out).
-    sp.request("jog", joints=[0, 0, 0, -40.0, 0, 0], hold_s=0.2)
+    sp.request(Jog(joints=(0, 0, 0, -40.0, 0, 0), hold_s=0.2))
     assert sp.state()["state"] == "streaming"
     wait_for(sp, "stopped", timeout=5)
-    sp.request("end")
+    sp.request(End())
     wait_for(sp, "ended")
     assert sim.alarms == []
 
@@ -139,19 +157,20 @@ def test_hold_to_run_expiry_stops_the_jog(rig: tuple[FanucSimulator, StreamProce
 def test_controller_alarm_mid_stream_is_a_fault_and_needs_reset(
         rig: tuple[FanucSimulator, StreamProcess, Path]) -> None:
     sim, sp, _ = rig
-    sp.request("start")
+    sp.request(Start(), timeout=START_TIMEOUT)
     wait_for(sp, "streaming")
     sim.set_override(50)  # changing the override while IBGN start runs: MOTN-606, a power-off stop
     s = wait_for(sp, "fault", timeout=5)
     assert [e.code for e in sim.alarms] == ["MOTN-606"]
-    sp.request("controller_alarm", code="MOTN-606", message=sim.alarms[0].message)
-    ev = sp.last_event("safety")
-    assert ev is not None and ev["fault"]["code"] == "MOTN-606" and "100% OVERRIDE" in ev["fault"]["cause"]
+    sp.request(ControllerAlarm(code="MOTN-606", message=sim.alarms[0].message))
+    ev = sp.last_event(SafetyChanged)
+    assert isinstance(ev, SafetyChanged)
+    assert ev.view["fault"]["code"] == "MOTN-606" and "100% OVERRIDE" in ev.view["fault"]["cause"]
     with pytest.raises(Exception, match="reset first"):
-        sp.request("start")
+        sp.request(Start(), timeout=START_TIMEOUT)
     sim.set_override(100)
     sim.reset()
-    sp.request("reset")
+    sp.request(Reset())
     assert sp.state()["state"] in ("connected", "ready", "disconnected")
     assert s["link"] == "fault"
 
@@ -163,20 +182,20 @@ def test_cartesian_format_stream_moves_with_zero_alarms(tmp_path: Path) -> None:
     sp = StreamProcess(StreamConfig(host=host, port=port, log_dir=str(tmp_path), data_format="cartesian"))
     sp.start()
     try:
-        sp.request("start")
+        sp.request(Start(), timeout=START_TIMEOUT)
         wait_for(sp, "streaming")
         c0 = np.array(sp.state()["cart_servo"])
         out = [20.0, 10.0, -15.0, 30.0, -70.0, 40.0]
-        sp.request("target", joints=out)
+        sp.request(JointTarget(joints=tuple(out)))
         time.sleep(0.1)
         wait_rest(sp)
         time.sleep(0.2)
         assert np.allclose(sim.controller.command_position[:6], out, atol=1e-2)
         assert not np.allclose(sp.state()["cart_servo"], c0, atol=1.0)
-        sp.request("end")
+        sp.request(End())
         wait_for(sp, "ended")
         assert sim.alarms == [], [e.message for e in sim.alarms]
-        sp.wait_event("log_closed", 5)
+        sp.wait_event(LogClosed, 5)
         log = read_session_log(next(tmp_path.glob("*.srvlog")))
         assert np.all((log.commands["flags"] >> 1) & 1 == 0)  # data format bit: 0 = Cartesian
     finally:
@@ -191,15 +210,15 @@ def test_lead_zero_streams_one_command_per_status(tmp_path: Path) -> None:
     sp = StreamProcess(StreamConfig(host=host, port=port, log_dir=str(tmp_path), lead=0))
     sp.start()
     try:
-        sp.request("start")
+        sp.request(Start(), timeout=START_TIMEOUT)
         wait_for(sp, "streaming")
-        sp.request("target", joints=[10.0, 5.0, -5.0, 10.0, -80.0, 10.0])
+        sp.request(JointTarget(joints=(10.0, 5.0, -5.0, 10.0, -80.0, 10.0)))
         time.sleep(0.1)
         wait_rest(sp)
-        sp.request("end")
+        sp.request(End())
         wait_for(sp, "ended")
         assert sim.alarms == [], [e.message for e in sim.alarms]
-        sp.wait_event("log_closed", 5)
+        sp.wait_event(LogClosed, 5)
         log = read_session_log(next(tmp_path.glob("*.srvlog")))
         kinds = log.records["kind"]
         # Between two status records there is at most one command (none once last data has gone out).
@@ -221,9 +240,9 @@ def test_inputs_arriving_during_the_solve_are_taken_into_that_packet(tmp_path: P
     sp = StreamProcess(StreamConfig(host=host, port=port, log_dir=str(tmp_path), lead=2, input_slot=writer.name))
     sp.start()
     try:
-        sp.request("start")
+        sp.request(Start(), timeout=START_TIMEOUT)
         wait_for(sp, "streaming")
-        sp.request("inputs", enable=True, sources=["tracker"])
+        sp.request(ConfigureInputs(enable=True, sources=("tracker",)))
         x0 = sp.state()["cart_servo"][0]
         end = time.monotonic() + 1.5
         k = 0
@@ -237,7 +256,7 @@ def test_inputs_arriving_during_the_solve_are_taken_into_that_packet(tmp_path: P
         s = sp.state()
         assert s["late_inputs"] > 0, s
         assert s["state"] == "streaming" and s["cart_servo"][0] > x0 + 20.0
-        sp.request("stop")
+        sp.request(Stop())
         wait_for(sp, "stopped")
         assert sim.alarms == [], [e.message for e in sim.alarms]
     finally:

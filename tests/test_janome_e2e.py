@@ -12,6 +12,18 @@ import pytest
 
 from servo_app.errors import CommandRejected
 from servo_app.janome.runner import JanomeConfig, JanomeProcess
+from servo_app.messages import (
+    ConfigureInputs,
+    End,
+    Jog,
+    JointTarget,
+    PeerDisconnected,
+    PeerRefused,
+    Reset,
+    SafetyChanged,
+    Start,
+    Stop,
+)
 from servo_app.sim.janome_sim import JanomeSimulator
 
 pytestmark = pytest.mark.e2e
@@ -24,11 +36,34 @@ def wait_for(sp: JanomeProcess, cond: Any, what: str, timeout: float = 10.0) -> 
         if cond(s):
             return s
         time.sleep(0.01)
-    raise AssertionError(f"{what} not reached; state {sp.state()['state']}; events {sp.poll_events()[-4:]}")
+    raise AssertionError(f"{what} not reached; state {sp.state()['state']}; events {sp.events[-4:]}")
 
 
 def wait_state(sp: JanomeProcess, state: str, timeout: float = 10.0) -> dict:
     return wait_for(sp, lambda s: s["state"] == state, f"state {state!r}", timeout)
+
+
+def wait_safety(sp: JanomeProcess, timeout: float, **match: Any) -> dict[str, Any]:
+    """The view of the first safety event whose view has every ``match`` item."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for ev in list(sp.events):
+            if isinstance(ev, SafetyChanged) and all(ev.view.get(k) == v for k, v in match.items()):
+                return ev.view
+        time.sleep(0.01)
+    raise AssertionError(f"no safety event {match} within {timeout} s; events {sp.events[-4:]}")
+
+
+def last_safety(sp: JanomeProcess, state: str | None = None, timeout: float = 2.0) -> dict[str, Any] | None:
+    """The view of the last safety event; with ``state``, once the reader thread has taken the event
+    that shows it off the pipe (the state vector can show a mode before that)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        ev = sp.last_event(SafetyChanged)
+        view = ev.view if isinstance(ev, SafetyChanged) else None
+        if state is None or (view is not None and view.get("state") == state) or time.monotonic() > deadline:
+            return view
+        time.sleep(0.01)
 
 
 @pytest.fixture
@@ -46,18 +81,19 @@ def test_start_jog_stop_end(rig: tuple[JanomeProcess, JanomeSimulator]) -> None:
     sp, sim = rig
     wait_state(sp, "ready")
     with pytest.raises(CommandRejected, match="jog refused in ready"):
-        sp.request("jog", joints=[10.0, 0.0, 0.0, 0.0])
+        sp.request(Jog(joints=(10.0, 0.0, 0.0, 0.0)))
     # one robot per stream: a second connection is closed at once
     with socket.create_connection(sp.address, timeout=2.0) as other:
         assert other.recv(16) == b""
-    assert sp.wait_event("connection_refused", 5.0)["reason"].startswith("already serving")
-    sp.request("start")
+    refused = sp.wait_event(PeerRefused, 5.0)
+    assert isinstance(refused, PeerRefused) and refused.reason.startswith("already serving")
+    sp.request(Start())
     wait_state(sp, "streaming")
     x0 = sim.position[0]
     for _ in range(8):
-        sp.request("jog", joints=[40.0, 0.0, 0.0, 5.0], hold_s=0.5)
+        sp.request(Jog(joints=(40.0, 0.0, 0.0, 5.0), hold_s=0.5))
         time.sleep(0.1)
-    sp.request("stop")
+    sp.request(Stop())
     s = wait_state(sp, "stopped")
     assert sim.moves >= 3 and sim.position[0] > x0
     assert s["q_cmd"][:4] == pytest.approx(list(sim.position), abs=1e-3)
@@ -66,37 +102,38 @@ def test_start_jog_stop_end(rig: tuple[JanomeProcess, JanomeSimulator]) -> None:
     moves = sim.moves
     time.sleep(0.3)
     assert sim.moves == moves  # stopped: no new target
-    sp.request("end")
+    sp.request(End())
     wait_state(sp, "ended")
     assert sim.wait_done(5.0) and sim.end_reason == "END received"
-    assert sp.wait_event("disconnected", 5.0)["reason"]
+    disconnected = sp.wait_event(PeerDisconnected, 5.0)
+    assert isinstance(disconnected, PeerDisconnected) and disconnected.reason
 
 
 def test_link_loss_mid_motion_is_a_fault(rig: tuple[JanomeProcess, JanomeSimulator]) -> None:
     sp, sim = rig
     wait_state(sp, "ready")
-    sp.request("start")
+    sp.request(Start())
     wait_state(sp, "streaming")
     deadline = time.monotonic() + 5.0
     while sim.plan is None and time.monotonic() < deadline:  # until a move is under way
-        sp.request("jog", joints=[0.0, 60.0, 0.0, 0.0], hold_s=0.5)
+        sp.request(Jog(joints=(0.0, 60.0, 0.0, 0.0), hold_s=0.5))
         time.sleep(0.02)
     sim.kill_link()
     wait_state(sp, "fault")
-    safety = sp.wait_event("safety", 5.0, state="fault")
+    safety = wait_safety(sp, 5.0, state="fault")
     assert safety["fault"]["message"].startswith("connection lost while streaming")
     assert "TCP connection closed or reset" in safety["fault"]["cause"]
     assert sim.wait_done(5.0) and sim.end_reason == "link killed"
     with pytest.raises(CommandRejected, match="refused in fault"):
-        sp.request("jog", joints=[0.0, 10.0, 0.0, 0.0])
-    sp.request("reset")
+        sp.request(Jog(joints=(0.0, 10.0, 0.0, 0.0)))
+    sp.request(Reset())
     wait_state(sp, "disconnected")
 
 
 def test_bad_frames_are_rejected_without_a_crash(rig: tuple[JanomeProcess, JanomeSimulator]) -> None:
     sp, sim = rig
     wait_state(sp, "ready")
-    sp.request("start")
+    sp.request(Start())
     wait_state(sp, "streaming")
     sim.corrupt_next_status()  # one status with a flipped byte: servo_app rejects it, answers HOLD
     n = wait_for(sp, lambda s: s["malformed"] == 1, "the bad status counted")["status_received"]
@@ -106,16 +143,16 @@ def test_bad_frames_are_rejected_without_a_crash(rig: tuple[JanomeProcess, Janom
     sim.corrupt_next_target()  # one target garbled on the way: the robot rejects it, servo_app resends
     for _ in range(6):
         if sp.state()["state"] != "streaming":
-            raise AssertionError(f"{sp.last_event('safety')} {[(e.kind, e.message) for e in sim.events()]}")
-        sp.request("jog", joints=[30.0, 0.0, 0.0, 0.0], hold_s=0.5)
+            raise AssertionError(f"{last_safety(sp)} {[(e.kind, e.message) for e in sim.events()]}")
+        sp.request(Jog(joints=(30.0, 0.0, 0.0, 0.0), hold_s=0.5))
         time.sleep(0.1)
     rejected = sim.events("rejected")
     assert rejected and rejected[0].error in ("BAD_CHECKSUM", "BAD_MAGIC", "BAD_TERMINATOR")
     s = sp.state()
     assert s["state"] == "streaming" and s["status_lost"] >= 1
-    safety = sp.last_event("safety") or {}
+    safety = last_safety(sp, "streaming") or {}
     assert "checksum=" in (safety.get("link_error") or "") or s["malformed"] == 2
-    sp.request("stop")
+    sp.request(Stop())
     wait_state(sp, "stopped")
     assert sim.moves >= 2 and not sim.done.is_set()
 
@@ -124,17 +161,17 @@ def test_bad_frames_are_rejected_without_a_crash(rig: tuple[JanomeProcess, Janom
 def test_scara_target_keeps_its_arm_configuration(rig: tuple[JanomeProcess, JanomeSimulator]) -> None:
     sp, sim = rig
     wait_state(sp, "ready")
-    sp.request("start")
+    sp.request(Start())
     wait_state(sp, "streaming")
     with pytest.raises(CommandRejected, match=r"target refused: X=400\.000 mm is outside the stroke"):
-        sp.request("target", joints=[400.0, 0.0, 50.0, 0.0])
+        sp.request(JointTarget(joints=(400.0, 0.0, 50.0, 0.0)))
     goal = [260.0, 120.0, 30.0, 20.0]
-    sp.request("target", joints=goal, speed_scale=1.0)
+    sp.request(JointTarget(joints=tuple(goal), speed_scale=1.0))
     wait_for(sp, lambda s: np.allclose(s["q_servo"][:4], goal, atol=1e-3), "the target", timeout=15.0)
     _j1, j2, z, _r = sim.robot.joints()
     assert sim.robot.arm == 1 and j2 > 0 and z == pytest.approx(30.0)
     assert not sim.events("rejected")
-    sp.request("end")
+    sp.request(End())
     wait_state(sp, "ended")
 
 
@@ -148,9 +185,9 @@ def test_input_twist_through_the_slot_moves_the_robot_and_stale_stops_it() -> No
     sim = JanomeSimulator(sp.address, "jr3000").start()
     try:
         wait_state(sp, "ready")
-        sp.request("start")
+        sp.request(Start())
         wait_state(sp, "streaming")
-        sp.request("inputs", enable=True, sources=["spacemouse"])
+        sp.request(ConfigureInputs(enable=True, sources=("spacemouse",)))
         x0 = sim.position[0]
         end = time.monotonic() + 1.0
         while time.monotonic() < end:
@@ -162,7 +199,7 @@ def test_input_twist_through_the_slot_moves_the_robot_and_stale_stops_it() -> No
         writer.publish(InputCommand(kind=NONE, frame="base", values=(0,) * 6, linear_speed=0, angular_speed=0,
                                     stamp=time.monotonic(), timeout_s=0.3, source=0, stale=True))
         wait_state(sp, "stopped")
-        ev = sp.last_event("safety")
+        ev = last_safety(sp, "stopped")
         assert ev is not None and ev["stop_reason"] == "input spacemouse stale" and ev["fault"] is None
     finally:
         sim.stop()

@@ -13,6 +13,7 @@ from servo_app.janome.profile import load_janome_profile
 from servo_app.janome.protocol import Cmd, ErrorCode, RobotState, Status, Target
 from servo_app.janome.session import Phase
 from servo_app.janome.supervisor import JanomeSupervisor
+from servo_app.messages import End, Jog, JointTarget, Reset, Start, Stop
 from servo_app.safety import Mode
 from servo_app.sim.janome_pointjob import Decision, PointJob
 from servo_app.sim.janome_robot import JanomeRobot
@@ -76,7 +77,7 @@ def started(model: str = "jr3000") -> Rig:
     rig = Rig(model)
     rig.exchange()
     assert rig.mode == Mode.READY and rig.sup.session.phase == Phase.CONNECTED
-    rig.sup.request("start", rig.now)
+    rig.sup.request(Start(), rig.now)
     assert rig.mode == Mode.STREAMING
     return rig
 
@@ -84,7 +85,7 @@ def started(model: str = "jr3000") -> Rig:
 def test_start_jog_stop_end() -> None:
     rig = started()
     p0 = rig.robot.position.copy()
-    rig.sup.request("jog", rig.now, joints=[80.0, 0.0, 0.0, 0.0], hold_s=10.0)
+    rig.sup.request(Jog(joints=(80.0, 0.0, 0.0, 0.0), hold_s=10.0), rig.now)
     rig.run(20)
     moves = [t for t in rig.targets if t.cmd == Cmd.LINE]
     assert len(moves) >= 15
@@ -93,7 +94,7 @@ def test_start_jog_stop_end() -> None:
     assert steps[0] < steps[1] <= steps[2]  # a smooth start: the steps grow
     assert all(t.speed <= rig.profile.cp_speed for t in moves)
     # stop: no further step; the next status (the robot's last step done) ends the stop
-    rig.sup.request("stop", rig.now)
+    rig.sup.request(Stop(), rig.now)
     assert rig.mode == Mode.STOPPING
     x_at_stop = rig.targets[-1].x
     rig.exchange()
@@ -102,8 +103,8 @@ def test_start_jog_stop_end() -> None:
     rig.run(3)
     assert rig.robot.position[0] == pytest.approx(x_at_stop)  # finished its step, went no further
     with pytest.raises(CommandRejected, match="jog refused in stopped"):
-        rig.sup.request("jog", rig.now, joints=[10.0, 0.0, 0.0, 0.0])
-    rig.sup.request("end", rig.now)
+        rig.sup.request(Jog(joints=(10.0, 0.0, 0.0, 0.0)), rig.now)
+    rig.sup.request(End(), rig.now)
     assert rig.mode == Mode.ENDING
     d = rig.exchange()
     assert d is not None and d.kind == "end" and rig.targets[-1].cmd == Cmd.END
@@ -113,25 +114,25 @@ def test_start_jog_stop_end() -> None:
 
 def test_target_is_reached_in_short_steps_and_checked() -> None:
     rig = started()
-    rig.sup.request("target", rig.now, joints=[200.0, 100.0, 20.0, 45.0], speed_scale=0.5)
+    rig.sup.request(JointTarget(joints=(200.0, 100.0, 20.0, 45.0), speed_scale=0.5), rig.now)
     rig.run(80)
     assert rig.robot.position == pytest.approx([200.0, 100.0, 20.0, 45.0], abs=1e-3)
     d = np.diff([[150.0, 160.0, 50.0, 0.0]] + [list(t.xyzr) for t in rig.targets if t.moves], axis=0)
     assert np.max(np.linalg.norm(d[:, :3], axis=1)) <= rig.profile.max_step_mm + 1e-6
     with pytest.raises(CommandRejected, match=r"target refused: Y=400.000 mm is outside the stroke \[0.5, 319.5\]"):
-        rig.sup.request("target", rig.now, joints=[100.0, 400.0, 20.0, 0.0])
+        rig.sup.request(JointTarget(joints=(100.0, 400.0, 20.0, 0.0)), rig.now)
     with pytest.raises(CommandRejected, match=r"joints has 3 values, expected 4"):
-        rig.sup.request("target", rig.now, joints=[100.0, 100.0, 20.0])
+        rig.sup.request(JointTarget(joints=(100.0, 100.0, 20.0)), rig.now)
 
 
 def test_hold_to_run_expires_and_a_new_jog_resumes() -> None:
     rig = started()
-    rig.sup.request("jog", rig.now, joints=[0.0, 50.0, 0.0, 0.0], hold_s=0.35)
+    rig.sup.request(Jog(joints=(0.0, 50.0, 0.0, 0.0), hold_s=0.35), rig.now)
     rig.run(6)
     assert rig.mode in (Mode.STOPPING, Mode.STOPPED)
     rig.exchange()
     assert rig.mode == Mode.STOPPED and rig.sup.state.stop_reason == "hold-to-run expired"
-    rig.sup.request("jog", rig.now, joints=[0.0, -50.0, 0.0, 0.0], hold_s=0.35)
+    rig.sup.request(Jog(joints=(0.0, -50.0, 0.0, 0.0), hold_s=0.35), rig.now)
     assert rig.mode == Mode.STREAMING
 
 
@@ -146,7 +147,7 @@ def test_wrong_robot_kind_is_refused_at_the_handshake() -> None:
 
 def test_rejected_target_is_sent_again_then_faults() -> None:
     rig = started()
-    rig.sup.request("jog", rig.now, joints=[50.0, 0.0, 0.0, 0.0], hold_s=10.0)
+    rig.sup.request(Jog(joints=(50.0, 0.0, 0.0, 0.0), hold_s=10.0), rig.now)
     rig.run(3)
     n = len(rig.targets)
     d = rig.exchange(corrupt_target=True)
@@ -181,7 +182,7 @@ def test_malformed_status_is_answered_and_counted() -> None:
 
 def test_silence_is_a_fault_with_janome_words() -> None:
     rig = started()
-    rig.sup.request("jog", rig.now, joints=[50.0, 0.0, 0.0, 0.0], hold_s=10.0)
+    rig.sup.request(Jog(joints=(50.0, 0.0, 0.0, 0.0), hold_s=10.0), rig.now)
     rig.run(3)
     rig.sup.on_idle(rig.now + 0.5)
     assert rig.mode == Mode.STREAMING
@@ -194,14 +195,14 @@ def test_silence_is_a_fault_with_janome_words() -> None:
 
 def test_disconnect_mid_motion_is_a_fault() -> None:
     rig = started()
-    rig.sup.request("jog", rig.now, joints=[50.0, 0.0, 0.0, 0.0], hold_s=10.0)
+    rig.sup.request(Jog(joints=(50.0, 0.0, 0.0, 0.0), hold_s=10.0), rig.now)
     rig.run(3)
     rig.sup.on_disconnect("ConnectionResetError: [Errno 104] Connection reset by peer", rig.now)
     fault = rig.sup.state.fault
     assert rig.mode == Mode.FAULT and fault is not None
     assert fault.message.startswith("connection lost while streaming: ConnectionResetError")
     assert "TCP connection closed or reset" in fault.cause and "MOTN-603" not in fault.cause
-    rig.sup.request("reset", rig.now)
+    rig.sup.request(Reset(), rig.now)
     assert rig.mode == Mode.DISCONNECTED
 
 
@@ -209,7 +210,7 @@ def test_robot_motion_error_faults_but_keeps_the_link() -> None:
     rig = started()
     rig.robot.ws = load_janome_profile("jc3").workspace()  # pretend the profile is wider than the robot
     rig.robot.ws = type(rig.robot.ws)((0.0, 0.0, 0.0, -360.0), (155.0, 320.0, 100.0, 360.0))  # type: ignore[call-arg]
-    rig.sup.request("jog", rig.now, joints=[80.0, 0.0, 0.0, 0.0], hold_s=10.0)
+    rig.sup.request(Jog(joints=(80.0, 0.0, 0.0, 0.0), hold_s=10.0), rig.now)
     rig.run(8)
     fault = rig.sup.state.fault
     assert rig.mode == Mode.FAULT and fault is not None and fault.code == "JNM-006"
@@ -219,15 +220,15 @@ def test_robot_motion_error_faults_but_keeps_the_link() -> None:
     assert not s.want_close and s.phase == Phase.CONNECTED
     rig.run(2)
     assert rig.targets[-1].cmd == Cmd.HOLD and rig.targets[-1].stop
-    rig.sup.request("reset", rig.now)
+    rig.sup.request(Reset(), rig.now)
     assert rig.mode == Mode.READY
-    rig.sup.request("start", rig.now)
+    rig.sup.request(Start(), rig.now)
     assert rig.mode == Mode.STREAMING
 
 
 def test_sigterm_ends_the_stream_and_finishes() -> None:
     rig = started()
-    rig.sup.request("jog", rig.now, joints=[50.0, 0.0, 0.0, 0.0], hold_s=10.0)
+    rig.sup.request(Jog(joints=(50.0, 0.0, 0.0, 0.0), hold_s=10.0), rig.now)
     rig.run(3)
     rig.sup.signal(int(signal.SIGTERM), rig.now)
     assert rig.mode == Mode.STOPPING
@@ -239,7 +240,7 @@ def test_sigterm_ends_the_stream_and_finishes() -> None:
 
 def test_start_before_the_robot_connects_is_kept_pending() -> None:
     rig = Rig()
-    rig.sup.request("start", rig.now)
+    rig.sup.request(Start(), rig.now)
     assert rig.mode == Mode.DISCONNECTED
     rig.exchange()  # HELLO
     assert rig.mode == Mode.STREAMING
@@ -247,7 +248,7 @@ def test_start_before_the_robot_connects_is_kept_pending() -> None:
 
 def test_scara_jog_stops_at_the_edge_in_its_configuration() -> None:
     rig = started("js3")
-    rig.sup.request("jog", rig.now, joints=[200.0, 0.0, 0.0, 0.0], hold_s=100.0)
+    rig.sup.request(Jog(joints=(200.0, 0.0, 0.0, 0.0), hold_s=100.0), rig.now)
     rig.run(60)
     assert rig.mode == Mode.STREAMING
     _j1, j2, _, _ = rig.robot.joints()

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ from servo_app.errors import CommandRejected
 from servo_app.fanuc.packets import StatusStart
 from servo_app.fanuc.session import SessionConfig
 from servo_app.fanuc.supervisor import StreamSupervisor
+from servo_app.messages import End, Jog, JointTarget, PoseTarget, Request, Reset, Resume, Start, Stop, Twist
 from servo_app.motion.diffik import IkSettings
 from servo_app.motion.servo import ServoCycle
 from servo_app.robots.configuration import configuration_of
@@ -60,9 +62,9 @@ class Cell:
         self.deliver(self.sup.on_datagram(raw, self.t))
         self.sent += [np.array(c.command.values[:6]) for c in self.sup.session.sent]
 
-    def request(self, op: str, **kw: object) -> bool:
+    def request(self, req: Request) -> bool:
         try:
-            self.sup.request(op, self.t, **kw)
+            self.sup.request(req, self.t)
         except CommandRejected:
             return False
         finally:
@@ -71,7 +73,7 @@ class Cell:
 
     def start(self) -> None:
         assert self.ctrl.on_datagram(StatusStart().encode(), self.t, CLIENT) == []
-        self.request("start")
+        self.request(Start())
         for _ in range(200):
             self.cycle()
             if self.sup.state.mode.value == "streaming":
@@ -83,63 +85,75 @@ HOLD_RENEW_CYCLES = 10  # a held button: the client re-sends its jog this often
 BAD = [math.nan, math.inf, -math.inf, 50.0, -50.0]  # in units of the field's scale: absurd magnitudes
 
 
-def random_events(seed: int, n: int = 40) -> list[tuple[int, tuple[str, dict]]]:
+@dataclass(frozen=True)
+class PoseOffset:
+    """A pose target relative to where the arm is when it is sent (made into a PoseTarget then)."""
+
+    offset: tuple[float, ...]
+    linear_speed: float
+    angular_speed: float
+
+
+def random_events(seed: int, n: int = 40) -> list[tuple[int, Request | PoseOffset]]:
     """A realistic operator/sensor stream: mostly valid commands, ~10 % bad values, stops and resumes."""
     rng = np.random.default_rng(seed)
 
-    def vec(k: int, scale: float) -> list[float]:
+    def vec(k: int, scale: float) -> tuple[float, ...]:
         v = rng.uniform(-1, 1, k)
         if rng.random() < 0.1:
             v[rng.integers(k)] = rng.choice(BAD)
-        return list(v * scale)
+        return tuple(float(x) for x in v * scale)
 
-    out = []
+    out: list[tuple[int, Request | PoseOffset]] = []
     for _ in range(n):
         gap = int(rng.integers(5, 120))
         kind = rng.choice(["twist", "twist", "jog", "jog", "target", "pose", "pose", "stop", "stop_fast",
                            "resume"])
+        ev: Request | PoseOffset
         if kind == "twist":
-            ev = ("twist", {"frame": str(rng.choice(["base", "tool"])), "linear": vec(3, 400.0),
-                            "angular": vec(3, 90.0), "hold_s": float(rng.uniform(0.05, 0.5))})
+            frame = str(rng.choice(["base", "tool"]))
+            linear, angular = vec(3, 400.0), vec(3, 90.0)  # drawn in this order, as before
+            ev = Twist(frame=frame, linear=linear, angular=angular, hold_s=float(rng.uniform(0.05, 0.5)))
         elif kind == "jog":
-            ev = ("jog", {"joints": vec(6, 200.0), "hold_s": float(rng.uniform(0.05, 0.5))})
+            ev = Jog(joints=vec(6, 200.0), hold_s=float(rng.uniform(0.05, 0.5)))
         elif kind == "target":
-            ev = ("target", {"joints": vec(6, 120.0), "speed_scale": float(rng.uniform(0.05, 1.0))})
+            ev = JointTarget(joints=vec(6, 120.0), speed_scale=float(rng.uniform(0.05, 1.0)))
         elif kind == "pose":
-            ev = ("pose_offset", {"offset": vec(6, 250.0), "linear_speed": float(rng.uniform(10, 1500)),
-                                  "angular_speed": float(rng.uniform(5, 180))})
+            ev = PoseOffset(offset=vec(6, 250.0), linear_speed=float(rng.uniform(10, 1500)),
+                            angular_speed=float(rng.uniform(5, 180)))
+        elif kind == "stop":
+            ev = Stop()
+        elif kind == "stop_fast":
+            ev = Stop(fast=True)
         else:
-            ev = (str(kind), {})
+            ev = Resume()
         out.append((gap, ev))
     return out
 
 
-def run_events(cell: Cell, events: list[tuple[int, tuple[str, dict]]]) -> None:
+def run_events(cell: Cell, events: list[tuple[int, Request | PoseOffset]]) -> float:
     start_cfg = configuration_of(fanuc_deg_to_model_rad(np.array(HOME), PROFILE.j23_factor), KIN)
     lo, hi = np.array(PROFILE.joint_min_deg), np.array(PROFILE.joint_max_deg)
     queue = list(events)
     next_at = 0
-    held: tuple[str, dict] | None = None
+    held: Request | None = None
     for k in range(CYCLES_PER_EXAMPLE):
         if held is not None and k < next_at and k % HOLD_RENEW_CYCLES == 0:
-            cell.request(*held[:1], **held[1])
+            cell.request(held)
         if queue and k >= next_at:
-            gap, (op, kw) = queue.pop(0)
+            gap, ev = queue.pop(0)
             next_at = k + gap
-            held = (op, kw) if op in ("twist", "jog") else None
+            held = ev if isinstance(ev, (Twist, Jog)) else None
             if cell.sup.state.stop_fast and cell.sup.state.mode.value == "stopped":
-                cell.request("reset")  # the operator acknowledges a fast stop at rest, then goes on
-                cell.request("resume")
-            if op == "pose_offset":
+                cell.request(Reset())  # the operator acknowledges a fast stop at rest, then goes on
+                cell.request(Resume())
+            if isinstance(ev, PoseOffset):
                 here = matrix_to_xyzwpr(KIN.fk_fanuc_deg(np.array(cell.sent[-1] if cell.sent else HOME)))
-                cell.request("pose", xyzwpr=list(here + np.array(kw["offset"]) * [1, 1, 1, 0.1, 0.1, 0.1]),
-                             linear_speed=kw["linear_speed"], angular_speed=kw["angular_speed"])
-            elif op == "stop_fast":
-                cell.request("stop", fast=True)
-            elif op in ("stop", "resume", "reset"):
-                cell.request(op)
+                goal = here + np.array(ev.offset) * [1, 1, 1, 0.1, 0.1, 0.1]
+                cell.request(PoseTarget(xyzwpr=tuple(float(x) for x in goal), linear_speed=ev.linear_speed,
+                                        angular_speed=ev.angular_speed))
             else:
-                cell.request(op, **kw)
+                cell.request(ev)
         cell.cycle()
         alarms = [e for e in cell.ctrl.alarms()]
         assert not alarms, (alarms, cell.sup.describe())
@@ -181,7 +195,7 @@ def test_pose_target_step_reached_and_end_clean(interval_ms: int) -> None:
     here = matrix_to_xyzwpr(KIN.fk_fanuc_deg(np.array(HOME)))
     goal = here + np.array([80.0, -60.0, 50.0, 0.0, 0.0, 10.0])
     speed = 250.0
-    assert cell.request("pose", xyzwpr=list(goal), linear_speed=speed, angular_speed=45.0)
+    assert cell.request(PoseTarget(xyzwpr=tuple(goal), linear_speed=speed, angular_speed=45.0))
     errors = []
     for _ in range(int(3.0 / cell.dt)):
         cell.cycle()
@@ -202,10 +216,10 @@ def test_pose_target_step_reached_and_end_clean(interval_ms: int) -> None:
     # A stream repeating the reached target (a tracker whose part stopped) leaves the arm where it is.
     rest = cell.sent[-1].copy()
     for _ in range(int(0.5 / cell.dt)):
-        assert cell.request("pose", xyzwpr=list(goal), linear_speed=speed, angular_speed=45.0)
+        assert cell.request(PoseTarget(xyzwpr=tuple(goal), linear_speed=speed, angular_speed=45.0))
         cell.cycle()
     assert np.array_equal(cell.sent[-1], rest)
-    assert cell.request("end")
+    assert cell.request(End())
     for _ in range(300):
         cell.cycle()
     assert cell.sup.state.mode.value == "ended" and not cell.ctrl.alarms()
@@ -223,7 +237,7 @@ def test_moving_pose_target_is_followed_with_bounded_lag(interval_ms: int) -> No
     for k in range(int(4.0 / cell.dt)):
         t = k * cell.dt
         goal = centre + np.array([radius * (math.cos(omega * t) - 1), radius * math.sin(omega * t), 0, 0, 0, 0])
-        assert cell.request("pose", xyzwpr=list(goal), linear_speed=250.0, angular_speed=45.0)
+        assert cell.request(PoseTarget(xyzwpr=tuple(goal), linear_speed=250.0, angular_speed=45.0))
         cell.cycle()
         if t > 1.0:  # after the catch-up from rest
             here = matrix_to_xyzwpr(KIN.fk_fanuc_deg(cell.sent[-1]))

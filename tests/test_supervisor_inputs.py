@@ -8,6 +8,7 @@ import numpy as np
 from test_servo_cycle_property import KIN, Cell
 
 from servo_app.input_slot import NONE, POSE, TWIST, InputCommand, InputSlotReader, InputSlotWriter
+from servo_app.messages import ConfigureInputs, Stop
 from servo_app.robots.conventions import matrix_to_xyzwpr
 
 
@@ -28,7 +29,7 @@ def test_inputs_move_the_arm_only_when_enabled_and_stale_stops_it() -> None:
         cell.sup.on_input(twist(100.0, cell.t), cell.t)
         cell.cycle()
     assert flange_x(cell) == x0
-    cell.request("inputs", enable=True, sources=["spacemouse"])
+    cell.request(ConfigureInputs(enable=True, sources=("spacemouse",)))
     for _ in range(80):
         cell.sup.on_input(twist(100.0, cell.t), cell.t)
         cell.cycle()
@@ -51,7 +52,7 @@ def test_inputs_move_the_arm_only_when_enabled_and_stale_stops_it() -> None:
 def test_pose_inputs_track_a_target() -> None:
     cell = Cell()
     cell.start()
-    cell.request("inputs", enable=True, sources=["tracker"])
+    cell.request(ConfigureInputs(enable=True, sources=("tracker",)))
     goal = matrix_to_xyzwpr(KIN.fk_fanuc_deg(cell.sent[-1])) + np.array([30.0, 20.0, -10.0, 0, 0, 0])
     cmd = InputCommand(kind=POSE, frame="base", values=tuple(goal), linear_speed=200.0, angular_speed=30.0,
                        stamp=0.0, timeout_s=0.2, source=0, stale=False)
@@ -82,7 +83,7 @@ def test_an_input_taken_during_the_solve_makes_the_same_packet_as_one_read_befor
     late, timely = Cell(), Cell()
     for c in (late, timely):
         c.start()
-        c.request("inputs", enable=True, sources=["ft"])
+        c.request(ConfigureInputs(enable=True, sources=("ft",)))
     x0 = flange_x(late)
     pending: list[InputCommand] = []
     taken: list[bool] = []
@@ -110,12 +111,12 @@ def test_late_inputs_that_change_the_safety_state_wait_for_the_next_packet() -> 
     cell = Cell()
     cell.start()
     assert not cell.sup.on_late_input(twist(50.0, cell.t), cell.t)  # input control not enabled
-    cell.request("inputs", enable=True, sources=["ft"])
+    cell.request(ConfigureInputs(enable=True, sources=("ft",)))
     assert not cell.sup.on_late_input(twist(0.0, cell.t, stale=True, kind=NONE), cell.t)
     assert not cell.sup.on_late_input(twist(0.0, cell.t, kind=NONE), cell.t)
     assert cell.sup.state.mode.value == "streaming"
     assert cell.sup.on_late_input(twist(50.0, cell.t), cell.t)
-    cell.request("stop")
+    cell.request(Stop())
     assert not cell.sup.on_late_input(twist(50.0, cell.t), cell.t)  # stopping: only a resume moves it
 
 
