@@ -30,6 +30,7 @@ import traceback
 from collections.abc import Callable
 from dataclasses import asdict
 from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import Any
 
 from servo_app import messages as msg
@@ -37,6 +38,7 @@ from servo_app.errors import CommandRejected
 from servo_app.ipc import LatestValueSlot
 from servo_app.realtime import single_threaded_blas
 from servo_app.safety import Mode
+from servo_app.session_log import SessionLogWriter
 from servo_app.state import MODES, PHASES, STATE_SIZE, StateVector, decode_state
 
 # ------------------------------------------------------------------------------------- child side
@@ -75,6 +77,7 @@ class ServoProcessHost:
         self.t0 = time.monotonic()
         self._start_waiters: list[int] = []
         self._last_phase: str | None = None
+        self.log: SessionLogWriter | None = None
 
     # -- what each backend implements
     def _io_step(self) -> None:
@@ -110,6 +113,7 @@ class ServoProcessHost:
                 self._housekeeping()
         finally:
             self._shutdown()
+            self._close_log()
             self.slot.close()
 
     def _on_signal(self, signum: int, frame: object) -> None:
@@ -194,6 +198,19 @@ class ServoProcessHost:
             error = f"start failed: {why}"
         for rid in waiters:
             self._reply(rid, ok, error=error)
+
+    def _open_log(self, path: Path, header: dict[str, Any]) -> SessionLogWriter:
+        """Start a session log (closing one still open) and tell the parent."""
+        self._close_log()
+        self.log = SessionLogWriter(path, header)
+        self._event(msg.LogOpened(path=str(path)))
+        return self.log
+
+    def _close_log(self) -> None:
+        if self.log is not None:
+            self.log.close()
+            self._event(msg.LogClosed(path=str(self.log.path), records=self.log.records))
+            self.log = None
 
     def _event(self, event: msg.Event) -> None:
         with contextlib.suppress(BrokenPipeError, OSError):
@@ -303,6 +320,10 @@ class ServoProcessHandle:
             if self.on_event is not None:
                 self.on_event(item)
         self.process.join(2.0)
+        # Another thread's wait may have reaped it a moment ago: its exit code lands right after.
+        deadline = time.monotonic() + 1.0
+        while self.process.exitcode is None and time.monotonic() < deadline and not self.process.is_alive():
+            time.sleep(0.005)
         cause = describe_exit(self.process.exitcode)
         crashed = next((e for e in reversed(self.events) if isinstance(e, msg.Crashed)), None)
         if crashed is not None:
@@ -377,17 +398,27 @@ class ServoProcessHandle:
         _, data = self.slot.read()
         return decode_state(data)
 
+    def expect_exit(self) -> None:
+        """The process is about to end by our will (a signal we sent or the terminal's Ctrl-C): its
+        end is no fault to report."""
+        self._closing = True
+
+    def wait_exit(self, timeout: float) -> bool:
+        """Wait until the reader has seen the process end (it alone reaps it); True if it has."""
+        with self._cv:
+            return self._cv.wait_for(lambda: not self.alive, timeout)
+
     def shutdown(self, timeout: float = 10.0) -> int | None:
         """Signal the process (it ends a running stream cleanly) and wait for it; its exit code."""
         self._closing = True
-        if self.process.is_alive():
+        if self.alive:
             assert self.process.pid is not None
             with contextlib.suppress(ProcessLookupError):
                 os.kill(self.process.pid, signal.SIGTERM)
-            self.process.join(timeout)
-            if self.process.is_alive():
+            # The reader thread reaps it (one waiter only: two racing waits can lose the exit code).
+            if not self.wait_exit(timeout):
                 self.process.kill()
-                self.process.join(2)
+                self.wait_exit(3.0)
         if self._reader is not None:
             self._reader.join(3.0)
         with contextlib.suppress(OSError):

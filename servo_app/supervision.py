@@ -213,7 +213,7 @@ class SupervisorBase:
         if mode in STREAM_ALIVE:
             raise CommandRejected(f"start refused in {mode.value}: a stream is already running; stop or end it first")
         if mode == Mode.FAULT:
-            raise CommandRejected("start refused in fault: reset the fault first (POST /api/reset)")
+            raise CommandRejected("start refused in fault: reset first (POST /api/reset), then start")
         if self.state.shutdown:
             raise CommandRejected("start refused: the service is shutting down")
         if mode == Mode.READY or (mode == Mode.ENDED and self.state.status and self.state.status.waiting):
@@ -257,7 +257,7 @@ class SupervisorBase:
         self.hold = HoldToRun(timeout_s=hold_s).renew(now)
 
     def _on_joint_target(self, req: msg.JointTarget, now: float) -> None:
-        self._motion_gate("target", resume_after_hold=True, now=now)
+        self._motion_gate("target")
         self._joint_target(np.asarray(req.joints, dtype=float), float(req.speed_scale))
 
     def _on_inputs(self, req: msg.ConfigureInputs, now: float) -> None:

@@ -30,14 +30,13 @@ from servo_app.fanuc.packets import ROBOT_PORT, Status
 from servo_app.fanuc.session import Phase, SessionConfig
 from servo_app.fanuc.supervisor import StreamSupervisor
 from servo_app.input_slot import InputSlotReader
-from servo_app.messages import LogClosed, LogOpened, Ready
+from servo_app.messages import Ready
 from servo_app.motion.servo import ServoCycle, ServoSettings
 from servo_app.process_handle import ServoProcessHandle, ServoProcessHost, run_child
 from servo_app.realtime import WakeLatencyHold, make_realtime
 from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.profile import load_profile
 from servo_app.safety import Mode
-from servo_app.session_log import SessionLogWriter
 from servo_app.state import LATENCY_BUCKETS_US, MODES, PHASES, StateVector, command_derivatives
 
 assert all(p.value in PHASES for p in Phase)
@@ -121,7 +120,6 @@ class _ServoProcess(ServoProcessHost):
             self.sup.session.to_cartesian = lambda q: matrix_to_xyzwpr(kin.fk_fanuc_deg(q))
         elif cfg.data_format != "joint":
             raise ValueError(f"data_format={cfg.data_format!r} must be 'joint' or 'cartesian'")
-        self.log: SessionLogWriter | None = None
         self.latency = _Latency()
         # Histogram over the process's life (Prometheus wants counters that only grow).
         self.lat_hist = np.zeros(len(LATENCY_BUCKETS_US) + 1)
@@ -152,7 +150,7 @@ class _ServoProcess(ServoProcessHost):
             with contextlib.suppress(OSError):
                 self._send(self.sup.session.close_now())
         self.wake.close()
-        self._finish_log()
+        self._close_log()
         self.sock.close()
 
     def _warm_up(self) -> None:
@@ -203,7 +201,7 @@ class _ServoProcess(ServoProcessHost):
 
     def _before_request(self, req: msg.Request) -> None:
         if isinstance(req, msg.Start):
-            self._open_log()
+            self._open_stream_log()
 
     def _after_request(self) -> None:
         self._send(self.sup._take())
@@ -250,7 +248,7 @@ class _ServoProcess(ServoProcessHost):
             self.hist.append(np.array(c.values[:6]))
         s.sent = []
 
-    def _open_log(self) -> None:
+    def _open_stream_log(self) -> None:
         if self.log is not None:
             return
         self._log_streamed = False
@@ -260,33 +258,26 @@ class _ServoProcess(ServoProcessHost):
         self._logged_seq = None
         stamp = time.strftime("%Y%m%d-%H%M%S")
         path = Path(self.cfg.log_dir) / f"session-{stamp}-{os.getpid()}-{int(self.t0 * 1000) % 100000}.srvlog"
-        self.log = SessionLogWriter(path, {"model": self.profile.name, "interval_ms": self.dt * 1000,
-                                           "j23_factor": self.profile.j23_factor, "protocol": "fanuc-j519-v1",
-                                           "robot": f"{self.cfg.host}:{self.cfg.port}",
-                                           "commands": "joint_format", "fixed_interval": True})
-        self._event(LogOpened(path=str(path)))
+        self._open_log(path, {"model": self.profile.name, "interval_ms": self.dt * 1000,
+                              "j23_factor": self.profile.j23_factor, "protocol": "fanuc-j519-v1",
+                              "robot": f"{self.cfg.host}:{self.cfg.port}", "commands": "joint_format",
+                              "fixed_interval": True})
 
     def _on_link_phase(self, phase: str) -> None:
         # A start from ended or disconnected reconnects (link -> connected) before the mode moves on:
         # only a stream that has run since the log opened may close it.
         if phase in (Phase.CLOSED, Phase.FAULT, Phase.CONNECTED) and self.sup.state.mode in (
                 Mode.ENDED, Mode.FAULT, Mode.DISCONNECTED) and self._log_streamed:
-            self._finish_log()
+            self._close_log()
 
     def _watch_link(self) -> None:
         if self.sup.state.mode in (Mode.STREAMING, Mode.STOPPING, Mode.STOPPED, Mode.ENDING):
             self._log_streamed = True
         super()._watch_link()
-        # A start that was given up leaves no empty log behind.
+        # A start that was given up closes its log: the next start opens a new one.
         if (self.log is not None and not self._log_streamed and not self.sup.start_pending
                 and self.sup.state.mode not in (Mode.STREAMING,)):
-            self._finish_log()
-
-    def _finish_log(self) -> None:
-        if self.log is not None:
-            self.log.close()
-            self._event(LogClosed(path=str(self.log.path), records=self.log.records))
-            self.log = None
+            self._close_log()
 
     # -- publishing
     def _publish_backend(self, sv: StateVector) -> None:

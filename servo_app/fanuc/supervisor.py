@@ -112,7 +112,7 @@ class StreamSupervisor(SupervisorBase):
                               linear_speed=float(req.linear_speed), angular_speed=float(req.angular_speed))
         except ValueError as exc:
             raise CommandRejected(str(exc)) from None
-        self._motion_gate("pose target", resume_after_hold=True, now=now)
+        self._motion_gate("pose target")
         self.cycle.pose_target(pose)
 
     def _on_io_read(self, req: msg.IoRead, now: float) -> None:

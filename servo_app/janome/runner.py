@@ -32,10 +32,9 @@ from servo_app.janome.profile import load_janome_profile
 from servo_app.janome.protocol import Cmd, FrameError, Target
 from servo_app.janome.session import Phase, SessionConfig
 from servo_app.janome.supervisor import JanomeSupervisor
-from servo_app.messages import LogClosed, LogOpened, PeerConnected, PeerDisconnected, PeerRefused, Ready
+from servo_app.messages import PeerConnected, PeerDisconnected, PeerRefused, Ready
 from servo_app.process_handle import ServoProcessHandle, ServoProcessHost, run_child
 from servo_app.safety import Mode, safe_to_exit
-from servo_app.session_log import SessionLogWriter
 from servo_app.state import MODES, PHASES, StateVector, command_derivatives
 
 assert all(p.value in PHASES for p in Phase)
@@ -89,7 +88,6 @@ class _JanomeServoProcess(ServoProcessHost):
         self.hist: deque[np.ndarray] = deque(maxlen=4)
         self.last_status_t = 0.0
         self._last_pub = 0.0
-        self.log: SessionLogWriter | None = None
         self._logged_seq: int | None = None
         self.inputs = InputSlotReader(cfg.input_slot) if cfg.input_slot else None
 
@@ -150,7 +148,7 @@ class _JanomeServoProcess(ServoProcessHost):
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.setblocking(False)
         self.sock, self.peer = sock, peer
-        self._open_log()
+        self._open_connection_log()
         self.sup.on_connect(time.monotonic())
         self._event(PeerConnected(peer=peer))
 
@@ -210,20 +208,12 @@ class _JanomeServoProcess(ServoProcessHost):
                 continue
             log.command(t, tg.seq, int(tg.stop), int(tg.cmd), 0, latency_us, (tg.x, tg.y, tg.z, tg.r))
 
-    def _open_log(self) -> None:
-        self._close_log()
+    def _open_connection_log(self) -> None:
         path = Path(self.cfg.log_dir) / f"janome-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.srvlog"
-        self.log = SessionLogWriter(path, {"model": self.profile.name, "protocol": "janome-pointjob-v1",
-                                           "axes": ["X", "Y", "Z", "R"], "peer": self.peer,
-                                           "commands": "all", "fixed_interval": False})
+        self._open_log(path, {"model": self.profile.name, "protocol": "janome-pointjob-v1",
+                              "axes": ["X", "Y", "Z", "R"], "peer": self.peer, "commands": "all",
+                              "fixed_interval": False})
         self._logged_seq = None
-        self._event(LogOpened(path=str(path)))
-
-    def _close_log(self) -> None:
-        if self.log is not None:
-            self.log.close()
-            self._event(LogClosed(path=str(self.log.path), records=self.log.records))
-            self.log = None
 
     def _lost(self, reason: str) -> None:
         self._close_conn(reason, notify=True)

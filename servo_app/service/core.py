@@ -137,12 +137,14 @@ class ServoService:
         stop to the fast ramp."""
         summary: dict[str, Any] = {}
         stream = self.stream
+        if stream is not None:
+            stream.expect_exit()  # from here on its end is ours, not a fault
         if stream is not None and group_signal_wait_s > 0:
             with self._safety_cv:
                 self._safety_cv.wait_for(lambda: bool(self._safety.get("shutdown")) or not stream.alive,
                                          group_signal_wait_s)
             if self._safety.get("shutdown"):
-                stream.process.join(10.0)  # then shutdown() finds it gone and sends no signal
+                stream.wait_exit(10.0)  # then shutdown() finds it gone and sends no signal
         if self.inputs is not None:  # adapters close their devices; the slot lives until the servo process exits
             self.inputs.stop()
         self.alarm_forwarder.stop()
