@@ -21,6 +21,7 @@ from pydantic import BaseModel, Field
 from starlette.requests import HTTPConnection
 
 from servo_app.api.auth import token_matches
+from servo_app.api.models import Ack, InputsView
 from servo_app.inputs.bridge import InputsBridge
 from servo_app.inputs.feed.router import FeedPostFastPath, feed_post_handler, feed_router
 
@@ -68,7 +69,7 @@ def connection_auth(token: str, on_refused: Callable[[HTTPConnection], None]
 def include_inputs(app: FastAPI, bridge: InputsBridge, *, token: str, controlling: Callable[..., Any],
                    call: Callable[..., Any], metrics: Any, audit: Any) -> None:
     """Mount the feeds and the inputs routes; `controlling` and `call` are the app's lease dependency
-    and its audited service-call helper."""
+    (servo_app.api.deps) and its audited service-call helper (ServiceCalls.call, which answers an Ack)."""
 
     def refused(conn: HTTPConnection) -> None:
         metrics.count("unauthorized")
@@ -80,12 +81,12 @@ def include_inputs(app: FastAPI, bridge: InputsBridge, *, token: str, controllin
     app.add_middleware(FeedPostFastPath, handler=feed_post_handler(bridge.feeds, auth))
     router = APIRouter(tags=["inputs"])
 
-    @router.get("/api/inputs")
+    @router.get("/api/inputs", response_model=InputsView, response_model_exclude_unset=True)
     def inputs() -> dict[str, Any]:
         return bridge.describe()
 
     @router.post("/api/inputs/enable")
-    def enable(body: EnableInputs, client: Annotated[str, Depends(controlling)]) -> Any:
+    def enable(body: EnableInputs, client: Annotated[str, Depends(controlling)]) -> Ack:
         def run() -> dict[str, Any]:
             try:
                 return bridge.enable(body.enable)
@@ -94,13 +95,13 @@ def include_inputs(app: FastAPI, bridge: InputsBridge, *, token: str, controllin
         return call(client, "inputs.enable", run, {"enable": body.enable})
 
     @router.post("/api/inputs/owner")
-    def owner(body: InputsOwner, client: Annotated[str, Depends(controlling)]) -> Any:
+    def owner(body: InputsOwner, client: Annotated[str, Depends(controlling)]) -> Ack:
         if body.source is not None and body.source not in bridge.specs:
             raise HTTPException(404, f"no input source {body.source!r}; sources: {sorted(bridge.specs)}")
         return call(client, "inputs.owner", lambda: bridge.set_owner(body.source), {"source": body.source})
 
     @router.post("/api/inputs/{name}/zero")
-    def zero(name: str, client: Annotated[str, Depends(controlling)], body: ZeroRequest | None = None) -> Any:
+    def zero(name: str, client: Annotated[str, Depends(controlling)], body: ZeroRequest | None = None) -> Ack:
         try:
             bridge.application(name)
         except KeyError as exc:

@@ -1,0 +1,103 @@
+"""The routers' dependencies: the app's objects (reached through ``app.state.api``, so the routers
+need no closures), the bearer token check and the control lease.
+
+The dependencies are coroutines on purpose: they run on the event loop, with no hop to a worker
+thread, so a flood of jogs is refused without tying up the threads the real requests need.
+"""
+
+# No `from __future__ import annotations`: FastAPI reads these annotations at runtime.
+from dataclasses import dataclass
+from typing import Annotated
+
+from fastapi import Depends, Header, HTTPException
+from starlette.requests import HTTPConnection
+
+from servo_app.api.auth import AuditLog, LeaseManager, RateLimiter, token_matches
+from servo_app.api.calls import ServiceCalls
+from servo_app.api.metrics import Metrics
+from servo_app.service import ServoService
+
+
+@dataclass
+class ApiContext:
+    """Everything the routes share; one per app, at ``app.state.api``."""
+
+    service: ServoService
+    token: str
+    leases: LeaseManager
+    jog_limiter: RateLimiter
+    audit: AuditLog
+    metrics: Metrics
+    calls: ServiceCalls
+
+
+def api_of(conn: HTTPConnection) -> ApiContext:
+    return conn.app.state.api  # type: ignore[no-any-return]
+
+
+def client_of(conn: HTTPConnection) -> str:
+    host = conn.client.host if conn.client else "?"
+    return f"{host}:{conn.client.port if conn.client else 0}"
+
+
+async def context(conn: HTTPConnection) -> ApiContext:
+    return api_of(conn)
+
+
+async def service(conn: HTTPConnection) -> ServoService:
+    return api_of(conn).service
+
+
+async def leases(conn: HTTPConnection) -> LeaseManager:
+    return api_of(conn).leases
+
+
+async def audit(conn: HTTPConnection) -> AuditLog:
+    return api_of(conn).audit
+
+
+async def metrics(conn: HTTPConnection) -> Metrics:
+    return api_of(conn).metrics
+
+
+async def jog_limiter(conn: HTTPConnection) -> RateLimiter:
+    return api_of(conn).jog_limiter
+
+
+async def calls(conn: HTTPConnection) -> ServiceCalls:
+    return api_of(conn).calls
+
+
+async def authed(conn: HTTPConnection, authorization: Annotated[str | None, Header()] = None) -> str:
+    """The bearer token; returns the client (host:port)."""
+    api = api_of(conn)
+    if not token_matches(api.token, authorization):
+        api.metrics.count("unauthorized")
+        method = conn.scope.get("method", "WS")
+        api.audit.record(client_of(conn), f"{method} {conn.url.path}", False, "bad token")
+        raise HTTPException(401, "missing or wrong bearer token", headers={"WWW-Authenticate": "Bearer"})
+    return client_of(conn)
+
+
+async def controlling(conn: HTTPConnection, client: Annotated[str, Depends(authed)],
+                      x_lease_id: Annotated[str | None, Header()] = None) -> str:
+    """The token and the control lease; returns ``lease-holder@host:port``."""
+    api = api_of(conn)
+    try:
+        lease = api.leases.check(x_lease_id)
+    except PermissionError as exc:
+        api.metrics.count("no_lease")
+        api.audit.record(client, f"{conn.scope.get('method', 'WS')} {conn.url.path}", False, str(exc))
+        raise HTTPException(409, str(exc)) from None
+    return f"{lease.client}@{client}"
+
+
+Context = Annotated[ApiContext, Depends(context)]
+Service = Annotated[ServoService, Depends(service)]
+Leases = Annotated[LeaseManager, Depends(leases)]
+Audit = Annotated[AuditLog, Depends(audit)]
+MetricsDep = Annotated[Metrics, Depends(metrics)]
+JogLimiter = Annotated[RateLimiter, Depends(jog_limiter)]
+Calls = Annotated[ServiceCalls, Depends(calls)]
+Authed = Annotated[str, Depends(authed)]
+Controlling = Annotated[str, Depends(controlling)]

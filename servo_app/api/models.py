@@ -1,0 +1,406 @@
+"""The API's contract: pydantic models of every request body and every JSON response.
+
+Requests forbid unknown keys (a typo must not be silently ignored on a robot). Views of the service's
+state allow extra keys (``model_config = {"extra": "allow"}``), so a field the service adds later
+passes through before it is described here; their routes answer with ``exclude_unset``, so a key the
+service did not send is not invented as ``null`` either.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationInfo, field_validator
+
+from servo_app.state import MODES, PHASES
+
+_OPEN = ConfigDict(extra="allow")
+_CLOSED = ConfigDict(extra="forbid")
+
+
+def _finite(name: str, values: list[float]) -> list[float]:
+    for i, v in enumerate(values):
+        if not math.isfinite(v):
+            raise ValueError(f"{name}[{i}]={v} is not a finite number")
+    return values
+
+
+# ------------------------------------------------------------------------------------------ requests
+
+
+class TwistJog(BaseModel):
+    model_config = _CLOSED
+    frame: Literal["base", "tool"] = "base"
+    linear: list[float] = Field(min_length=3, max_length=3, description="mm/s along x y z")
+    angular: list[float] = Field(default=[0.0, 0.0, 0.0], min_length=3, max_length=3, description="deg/s")
+    hold_ms: float = Field(200.0, gt=0, le=2000, description="hold-to-run time: keep sending to keep moving")
+
+    @field_validator("linear", "angular")
+    @classmethod
+    def _fin(cls, v: list[float], info: ValidationInfo) -> list[float]:
+        return _finite(str(info.field_name), v)
+
+
+class JointJog(BaseModel):
+    model_config = _CLOSED
+    joints: list[float] = Field(min_length=1, max_length=9, description=(
+        "per axis: deg/s (FANUC J1..J6), or mm/s and deg/s (Janome X Y Z R); the backend checks the count"))
+    hold_ms: float = Field(200.0, gt=0, le=2000)
+
+    @field_validator("joints")
+    @classmethod
+    def _fin(cls, v: list[float]) -> list[float]:
+        return _finite("joints", v)
+
+
+def _jog_kind(body: Any) -> str:
+    # Pick the model by its key, so a bad value is reported against that model's field alone.
+    return "joint" if isinstance(body, dict) and "joints" in body else "twist"
+
+
+JogBody = Annotated[Annotated[JointJog, Tag("joint")] | Annotated[TwistJog, Tag("twist")], Discriminator(_jog_kind)]
+
+
+class JointTarget(BaseModel):
+    model_config = _CLOSED
+    joints: list[float] = Field(min_length=1, max_length=9, description=(
+        "per axis: deg (FANUC convention), or mm and deg (Janome X Y Z R); the backend checks the count"))
+    speed_scale: float = Field(1.0, gt=0, le=1)
+
+    @field_validator("joints")
+    @classmethod
+    def _fin(cls, v: list[float]) -> list[float]:
+        return _finite("joints", v)
+
+
+class PoseTargetBody(BaseModel):
+    model_config = _CLOSED
+    xyzwpr: list[float] = Field(min_length=6, max_length=6, description="TCP pose: X Y Z mm, W P R deg (world)")
+    linear_speed: float = Field(100.0, gt=0, le=2000, description="mm/s")
+    angular_speed: float = Field(30.0, gt=0, le=360, description="deg/s")
+
+    @field_validator("xyzwpr")
+    @classmethod
+    def _fin(cls, v: list[float]) -> list[float]:
+        return _finite("xyzwpr", v)
+
+
+class StopRequest(BaseModel):
+    model_config = _CLOSED
+    fast: bool = False
+
+
+class LeaseRequest(BaseModel):
+    model_config = _CLOSED
+    client: str = Field(min_length=1, max_length=64)
+    force: bool = False
+    ttl_s: float | None = Field(None, gt=0, description="shorter than the server's TTL if given (never longer)")
+
+
+class IoWrite(BaseModel):
+    model_config = _CLOSED
+    type: str = Field(description="DO, RO, F, M, ...")
+    index: int = Field(ge=1, le=65535)
+    mask: int = Field(0xFFFF, ge=0, le=0xFFFF)
+    value: int = Field(ge=0, le=0xFFFF)
+
+
+# ----------------------------------------------------------------------------------------- responses
+
+
+class Ack(BaseModel):
+    """A request carried out."""
+
+    ok: bool = Field(True, description="always true: a refusal is an HTTP error with a `detail` message")
+    detail: Any = Field(None, description="what the service answered, if anything")
+
+
+class IoValue(Ack):
+    detail: int | None = Field(None, description="the 16 points read from `index` (bit 0: the point at `index`)")
+
+
+class Problem(BaseModel):
+    """Why a request was refused (401, 409, 422 from the service, 429, 503)."""
+
+    detail: str
+
+
+class Health(BaseModel):
+    ok: bool = True
+
+
+class LeaseHolder(BaseModel):
+    held: bool = Field(description="someone holds the control lease")
+    client: str | None = Field(None, description="the holder's name, as it gave it when acquiring")
+
+
+class LeaseView(LeaseHolder):
+    expires_in_s: float | None = Field(None, description="until the lease expires unless renewed")
+
+
+class LeaseGranted(BaseModel):
+    lease_id: str = Field(description="send it as X-Lease-Id with every motion request")
+    client: str
+    ttl_s: float = Field(description="the lease expires this long after the last renewal")
+
+
+class LeaseRenewed(BaseModel):
+    lease_id: str
+    ttl_s: float
+
+
+class SessionLogInfo(BaseModel):
+    name: str = Field(description="file name, for GET /api/sessions/{name}")
+    bytes: int
+    modified_unix: float
+
+
+class LimitsView(BaseModel):
+    """The limits the service streams within: FANUC joint tables, or the Janome profile's axes."""
+
+    model_config = _OPEN
+    model: str
+    source: str = Field(description="where the limits come from (controller tables or the configured profile)")
+    backend: str | None = Field(None, description="'janome' for a Janome robot (absent for FANUC)")
+    # FANUC
+    interval_ms: int | None = Field(None, description="FANUC: the stream's command interval")
+    limit_fraction: float | None = Field(None, description="FANUC: share of the limits the motion may use")
+    joint_min_deg: list[float] | None = None
+    joint_max_deg: list[float] | None = None
+    vel_deg_s: list[float] | None = None
+    acc_deg_s2: list[float] | None = None
+    jerk_deg_s3: list[float] | None = None
+    max_flange_speed_mm_s: float | None = None
+    io_allow: dict[str, list[int]] | None = Field(None, description="I/O type -> [first, last] point allowed")
+    # Janome
+    axes: list[str] | None = Field(None, description="Janome: X Y Z R")
+    axis_min: list[float] | None = None
+    axis_max: list[float] | None = None
+    speed: list[float] | None = None
+    accel: list[float] | None = None
+    cp_speed_mm_s: float | None = None
+    step_s: float | None = None
+    max_step_mm: float | None = None
+    max_step_deg: float | None = None
+
+
+class AxisView(BaseModel):
+    model_config = _OPEN
+    name: str
+    unit: str = Field(description="deg or mm")
+    min: float
+    max: float
+    speed: float
+
+
+class DrawingPoint(BaseModel):
+    model_config = _OPEN
+    name: str
+    xyz_mm: list[float] = Field(description="in the robot's world frame")
+    approach: list[float] | None = Field(None, description="the tool's pointing direction (unit vector)")
+
+
+class ViewBox(BaseModel):
+    min: list[float]
+    max: list[float]
+
+
+class RobotView(BaseModel):
+    """What the web console draws: the axes and a stick figure of the current position."""
+
+    model_config = _OPEN
+    backend: str = Field(description="fanuc or janome")
+    kind: str = Field(description="arm6, scara or cartesian")
+    model: str
+    display_name: str
+    dof: int
+    joint_names: list[str]
+    axes: list[AxisView]
+    j23_factor: float
+    q: list[float] = Field(description="current positions: FANUC joints in deg, Janome X Y Z R (mm, deg)")
+    points: list[DrawingPoint]
+    view_box_mm: ViewBox
+    dims_mm: dict[str, float] | None = None
+    joint_min_deg: list[float] | None = None
+    joint_max_deg: list[float] | None = None
+    vel_limit_deg_s: list[float] | None = None
+    max_flange_speed_mm_s: float | None = None
+    q_fanuc_deg: list[float] | None = None
+    q_model_deg: list[float] | None = None
+
+
+# ---------------------------------------------------------------------------------------- the state
+
+Mode = Literal[MODES]  # type: ignore[valid-type]  # one source of truth: servo_app.state
+Phase = Literal[PHASES]  # type: ignore[valid-type]
+
+
+class FaultView(BaseModel):
+    """Why the stream died; for controller alarms the manual's cause and remedy."""
+
+    model_config = _OPEN
+    message: str
+    code: str | None = Field(None, description="controller alarm code (e.g. MOTN-603); null: our own detection")
+    cause: str | None = None
+    remedy: str | None = None
+    during: str | None = Field(None, description="the safety state the fault interrupted")
+
+
+class WarningView(BaseModel):
+    model_config = _OPEN
+    code: str | None = None
+    message: str
+    t: float | None = Field(None, description="servo-process clock, s (Janome)")
+
+
+class AlarmView(BaseModel):
+    """A controller alarm or warning (the embedded FANUC simulator's alarm history)."""
+
+    model_config = _OPEN
+    code: str
+    message: str
+    time_s: float | None = None
+    axis: int | None = None
+    seq: int | None = None
+    cause: str | None = None
+    remedy: str | None = None
+    warning: bool | None = Field(None, description="posted but does not stop the robot")
+
+
+class CartesianView(BaseModel):
+    model_config = _OPEN
+    scale: float = Field(description="share of the commanded Cartesian motion delivered")
+    condition: float = Field(description="condition number of the normalised flange Jacobian")
+    held_back_by: list[str] = Field(description="why it goes slower than asked, most specific first")
+
+
+class InputLatency(BaseModel):
+    last: float | None = None
+    mean: float | None = None
+    max: float | None = None
+
+
+class InputSourceSummary(BaseModel):
+    model_config = _OPEN
+    name: str
+    kind: str | None = None
+    rate_hz: float | None = None
+    age_s: float | None = Field(None, description="age of the newest sample; null before the first")
+    stale: bool | None = None
+    active: bool | None = Field(None, description="this source commands the arm now")
+    latency_ms: InputLatency | None = Field(None, description="feeds: sender to slot")
+
+
+class InputsSummary(BaseModel):
+    model_config = _OPEN
+    enabled: bool = Field(description="the input sources may move the arm")
+    active: str | None = Field(None, description="the source commanding now")
+    owner: str | None = Field(None, description="the one source allowed to command; null: all, by priority")
+    sources: list[InputSourceSummary] = []
+
+
+class StateView(BaseModel):
+    """``GET /api/state`` and each ``/ws/telemetry`` message: the servo process's published state, its
+    safety view, the service's additions and the API's lease.
+
+    Only ``state``, ``link``, ``lease`` and ``stops_by_reason`` are always there: while the service has
+    no servo process the rest is absent. Keys not described here pass through unchanged.
+    """
+
+    model_config = _OPEN
+
+    state: Mode = Field(description="the safety state")
+    link: Phase = Field(description="the stream (link) phase")
+
+    # The published state vector (servo_app.state), one copy per cycle.
+    published_unix: float | None = Field(None, description="when the servo process published this (Unix s)")
+    session_time: float | None = Field(None, description="s since the servo process started")
+    status_seq: int | None = Field(None, description="sequence number of the last status packet")
+    status_bits: int | None = Field(None, description="the last status packet's status bits")
+    commands_sent: int | None = Field(None, description="command packets sent")
+    status_received: int | None = Field(None, description="status packets received")
+    status_lost: int | None = Field(None, description="status packets lost (gaps in the sequence)")
+    status_duplicated: int | None = Field(None, description="duplicated or reordered status packets")
+    malformed: int | None = Field(None, description="datagrams from the controller that did not decode")
+    late_commands: int | None = Field(None, description="commands sent over half an interval after their status")
+    late_inputs: int | None = Field(None, description="IK solves repeated for an input that arrived during one")
+    ik_active: bool | None = Field(None, description="the last cycle was a Cartesian one")
+    ik_flags: int | None = Field(None, description="its IkFlag bits")
+    ik_scale: float | None = Field(None, description="share of the commanded Cartesian motion delivered")
+    ik_condition: float | None = Field(None, description="condition number of the normalised flange Jacobian")
+    latency_last_us: float | None = Field(None, description="status receipt to command send, last command")
+    latency_p50_us: float | None = Field(None, description="median over the last 4096 commands")
+    latency_p99_us: float | None = Field(None, description="99th percentile over the last 4096 commands")
+    latency_max_us: float | None = Field(None, description="maximum over the last 4096 commands")
+    status_interval_last_ms: float | None = Field(None, description="last interval between status packets")
+    io_read_value: int | None = Field(None, description="the 16 points the status echoes")
+    io_read_type: int | None = Field(None, description="I/O type of the echoed read (IoType)")
+    io_read_index: int | None = Field(None, description="index of the echoed read")
+    io_read_mask: int | None = Field(None, description="mask of the echoed read")
+    latency_sum_us: float | None = Field(None, description="sum of all latencies (never reset)")
+    latency_hist: list[int] | None = Field(None, description="commands per latency bucket (not cumulative)")
+    at_rest: bool | None = Field(None, description="the commanded motion is at rest")
+    stopped: bool | None = Field(None, description="the motion is stopped")
+    tables_from_controller: bool | None = Field(None, description="the limits come from the controller")
+    q_cmd: list[float] | None = Field(None, description="commanded position: FANUC J1..J6 deg, Janome X Y Z R 0 0")
+    q_servo: list[float] | None = Field(None, description="position the robot reports")
+    cart_servo: list[float] | None = Field(None, description="TCP pose the robot reports: X Y Z mm, W P R deg")
+    vel: list[float] | None = Field(None, description="commanded velocity per axis (/s)")
+    acc: list[float] | None = Field(None, description="commanded acceleration per axis (/s^2)")
+    jerk: list[float] | None = Field(None, description="commanded jerk per axis (/s^3)")
+    vel_limit: list[float] | None = Field(None, description="velocity limit per axis (/s)")
+    acc_limit: list[float] | None = Field(None, description="acceleration limit per axis (/s^2)")
+    jerk_limit: list[float] | None = Field(None, description="jerk limit per axis (/s^3)")
+
+    # The servo process's safety view (its last safety event).
+    stop_reason: str | None = Field(None, description="why the arm stopped (stopping, stopped, ending, ended)")
+    stop_fast: bool | None = Field(None, description="the stop used the fast ramp (a reset is needed after)")
+    resumable: bool | None = Field(None, description="POST /api/session/resume would move on")
+    shutdown: bool | None = Field(None, description="a signal asked the servo process to exit")
+    fault: FaultView | None = Field(None, description="set in the fault state")
+    stops: dict[str, int] | None = Field(None, description="the servo process's stops by reason")
+    warnings: list[WarningView] | None = Field(None, description="recent warnings")
+    start_pending: bool | None = Field(None, description="a start waits for the controller (until the stream runs)")
+    start_error: str | None = Field(None, description="why the last start was given up")
+    link_error: str | None = Field(None, description="the link's fault reason or last error")
+    inputs_enabled: bool | None = Field(None, description="FANUC: the servo process takes the input slot")
+    input_error: str | None = Field(None, description="FANUC: why the inputs were last refused")
+    robot_connected: bool | None = Field(None, description="Janome: the robot's point job is connected")
+
+    # The service's additions.
+    backend: str | None = Field(None, description="the robot family: fanuc or janome")
+    servo_process: str | None = Field(None, description="running, or how it ended (e.g. 'ended by signal 9')")
+    servo_starts: int | None = Field(None, description="servo processes started (a reset after one died starts one)")
+    model: str | None = Field(None, description="the robot profile")
+    cartesian: CartesianView | None = Field(None, description="why a Cartesian motion is held back (null: none)")
+    robot: str | None = Field(None, description="the controller's (FANUC) or our listening (Janome) host:port")
+    simulated: bool | None = Field(None, description="the robot is the embedded simulator")
+    alarms: list[AlarmView] | None = Field(None, description="the embedded simulator's recent alarms")
+    faults: list[AlarmView] | None = Field(None, description="recent alarms that stopped the robot")
+    inputs: InputsSummary | None = Field(None, description="the input sources (servo-app run --inputs)")
+
+    # The API's own.
+    lease: LeaseHolder = Field(description="who holds the control lease")
+    stops_by_reason: dict[str, int] = Field(description="all stops by reason: servo process and API")
+
+
+class InputsView(BaseModel):
+    """``GET /api/inputs``: sources with rate, age, staleness and errors, applications, the last command."""
+
+    model_config = _OPEN
+    enabled: bool
+    active: str | None = None
+    owner: str | None = None
+    slot: str | None = Field(None, description="the shared-memory input slot the servo process reads")
+    servo_sources: list[str] | None = None
+    sources: list[dict[str, Any]] | None = None
+    applications: list[dict[str, Any]] | None = None
+
+
+# What the routes that change something may answer besides 200 (and 422 for a malformed body).
+REFUSALS: dict[int | str, dict[str, Any]] = {
+    401: {"model": Problem, "description": "missing or wrong bearer token"},
+    409: {"model": Problem, "description": "refused: no control lease, or not in this state"},
+    503: {"model": Problem, "description": "the servo process did not answer"},
+}

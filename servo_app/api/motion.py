@@ -1,0 +1,44 @@
+"""``/api/jog`` (hold-to-run velocity, joint or Cartesian) and ``/api/target`` (joint or pose target).
+Both need the token and the control lease."""
+
+# No `from __future__ import annotations`: FastAPI reads the dependency annotations at runtime.
+import time
+
+from fastapi import APIRouter, HTTPException, Request
+from fastapi.concurrency import run_in_threadpool
+
+from servo_app import messages as msg
+from servo_app.api.deps import Calls, Controlling, api_of
+from servo_app.api.models import REFUSALS, Ack, JogBody, JointJog, JointTarget, PoseTargetBody, Problem
+
+router = APIRouter(tags=["motion"], responses=REFUSALS)
+
+
+@router.post("/api/jog", responses={429: {"model": Problem, "description": "too many jog requests"}})
+async def jog(body: JogBody, client: Controlling, request: Request) -> Ack:
+    # Async: the rate limit is checked on the event loop, before a worker thread is taken. The app's
+    # objects straight from the request, not through one more dependency: this route is the one
+    # clients hit 100 times a second, and each dependency costs the solver some tens of us.
+    api = api_of(request)
+    # Keyed by host, not host:port: a new connection must not buy a fresh allowance.
+    if not api.jog_limiter.allow(client.split("@")[-1].rsplit(":", 1)[0]):
+        api.metrics.count("rate_limited")
+        api.audit.record(client, "jog", False, "rate limited")
+        raise HTTPException(429, f"jog requests limited to {api.jog_limiter.per_second} per second per client")
+    admitted = time.time()
+    message: msg.Request
+    if isinstance(body, JointJog):
+        message = msg.Jog(joints=tuple(body.joints), hold_s=body.hold_ms / 1000)
+    else:
+        message = msg.Twist(frame=body.frame, linear=(body.linear[0], body.linear[1], body.linear[2]),
+                            angular=(body.angular[0], body.angular[1], body.angular[2]),
+                            hold_s=body.hold_ms / 1000)
+    return await run_in_threadpool(api.calls.forward, client, "jog", message, at=admitted)
+
+
+@router.post("/api/target")
+def target(body: JointTarget | PoseTargetBody, client: Controlling, calls: Calls) -> Ack:
+    if isinstance(body, PoseTargetBody):
+        return calls.forward(client, "target", msg.PoseTarget(
+            xyzwpr=tuple(body.xyzwpr), linear_speed=body.linear_speed, angular_speed=body.angular_speed))
+    return calls.forward(client, "target", msg.JointTarget(joints=tuple(body.joints), speed_scale=body.speed_scale))
