@@ -66,7 +66,7 @@ class ServoProcessHost:
     state: StateVector
     start_waits_for_stream = True  # answer a start once streaming (or given up), not at once
 
-    def _init_host(self, conn: Connection, slot_name: str) -> None:
+    def __init__(self, conn: Connection, slot_name: str) -> None:
         self.conn = conn
         self.slot = LatestValueSlot(STATE_SIZE, name=slot_name, create=False)
         self.state = StateVector()
@@ -99,7 +99,7 @@ class ServoProcessHost:
         """The link changed phase (already reported to the parent)."""
 
     def _shutdown(self) -> None:
-        """Close the link and the session log (every way out)."""
+        """Close the link (on every way out; the session log is closed after it)."""
 
     # -- the loop
     def serve(self, ready: msg.Ready) -> None:

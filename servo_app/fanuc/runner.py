@@ -96,7 +96,7 @@ class _Latency:
 
 class _ServoProcess(ServoProcessHost):
     def __init__(self, cfg: StreamConfig, conn: Connection, slot_name: str) -> None:
-        self._init_host(conn, slot_name)
+        super().__init__(conn, slot_name)
         self.cfg = cfg
         self.profile = load_profile(cfg.model)
         self.dt = (cfg.interval_ms or self.profile.interval_ms) / 1000.0

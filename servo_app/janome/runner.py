@@ -67,7 +67,7 @@ class _JanomeServoProcess(ServoProcessHost):
     start_waits_for_stream = False  # the robot's point job connects when the operator runs it
 
     def __init__(self, cfg: JanomeConfig, conn: Connection, slot_name: str) -> None:
-        self._init_host(conn, slot_name)
+        super().__init__(conn, slot_name)
         self.cfg = cfg
         self.profile = load_janome_profile(cfg.model)
         if cfg.move not in ("line", "ptp"):
