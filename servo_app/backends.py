@@ -7,14 +7,20 @@ for a vendor's name. ``docs/backends.md`` says what a new one implements.
 
 ``--robot NAME[:TARGET]`` picks one: ``fanuc:HOST[:PORT]``, ``janome:HOST[:PORT]``, or the name alone
 for the backend's embedded simulator. Backends register by name, lazily imported like python-can's
-interfaces, so a plug-in (tests/toy_backend.py) adds one without touching this file::
+interfaces, so a plug-in (tests/toy_backend.py) adds one without touching this file, in code::
 
     register_backend("toy", "toy_backend:ToyBackend")
+
+or, for ``servo-app run --robot toy``, as an installed package's entry point (python-can's way too)::
+
+    [project.entry-points."servo_app.backends"]
+    toy = "toy_backend:ToyBackend"
 """
 
 from __future__ import annotations
 
 import importlib
+import importlib.metadata
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -167,11 +173,21 @@ def register_backend(name: str, where: str) -> None:
     BACKENDS[name] = (module, cls)
 
 
+ENTRY_POINTS = "servo_app.backends"
+
+
+def known_backends() -> dict[str, tuple[str, str]]:
+    """The registered backends and those installed packages declare as entry points."""
+    found = {ep.name: (ep.module, ep.attr) for ep in importlib.metadata.entry_points(group=ENTRY_POINTS)}
+    return {**found, **BACKENDS}
+
+
 def backend_class(name: str) -> type[RobotBackend]:
+    known = known_backends()
     try:
-        module, cls = BACKENDS[name]
+        module, cls = known[name]
     except KeyError:
-        raise ValueError(f"robot backend {name!r} is unknown (known: {', '.join(sorted(BACKENDS))})") from None
+        raise ValueError(f"robot backend {name!r} is unknown (known: {', '.join(sorted(known))})") from None
     found = getattr(importlib.import_module(module), cls)
     if not (isinstance(found, type) and issubclass(found, RobotBackend)):
         raise TypeError(f"{module}:{cls} is not a RobotBackend")
@@ -184,8 +200,9 @@ def parse_robot(spec: str | None) -> tuple[str, Target]:
     if not spec:
         return DEFAULT_BACKEND, Target("127.0.0.1", 0, embedded=True)
     name, _, rest = spec.partition(":")
-    known = ", ".join(f"{n}[:HOST[:PORT]]" for n in sorted(BACKENDS))
-    if name not in BACKENDS:
+    backends = known_backends()
+    known = ", ".join(f"{n}[:HOST[:PORT]]" for n in sorted(backends))
+    if name not in backends:
         raise ValueError(f"--robot={spec!r}: unknown robot backend {name!r}; expected one of {known}")
     if not rest:
         return name, Target("127.0.0.1", 0, embedded=True)

@@ -216,12 +216,8 @@ class ServoProcessHost:
         with contextlib.suppress(BrokenPipeError, OSError):
             self.conn.send(event)
 
-    def _link_phase(self) -> tuple[str, str]:
-        s = self.sup.session
-        return s.phase.value, s.fault_reason
-
     def _watch_link(self) -> None:
-        phase, reason = self._link_phase()
+        phase, reason = self.sup.link_phase()
         if phase != self._last_phase:
             self._last_phase = phase
             self._event(msg.LinkPhase(phase=phase, reason=reason))
@@ -234,7 +230,7 @@ class ServoProcessHost:
             self._event(msg.SafetyChanged(view=self.sup.describe()))
         sv = self.state
         sv.set("published_unix", time.time())
-        sv.set("phase", PHASES.index(self._link_phase()[0]))
+        sv.set("phase", PHASES.index(self.sup.link_phase()[0]))
         sv.set("mode", MODES.index(self.sup.state.mode.value))
         sv.set("session_time", time.monotonic() - self.t0)
         self._publish_backend(sv)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
@@ -63,6 +63,18 @@ from servo_app.safety import (
 JOG_EXPIRED = "hold-to-run expired"  # the state machine's stop reason for JogExpired
 
 
+class MotionStage(Protocol):
+    """What the supervisor asks of a backend's motion stage (FANUC's servo cycle, Janome's stepper)."""
+
+    shaper: Any  # not None while a stream runs (its motion state)
+
+    def stop(self, fast: bool = False) -> None: ...
+
+    def resume(self) -> None: ...
+
+    def at_rest(self) -> bool: ...
+
+
 @dataclass
 class SupervisorLog:
     """What happened, for the parent process and the API (fault texts, warnings, stops)."""
@@ -85,7 +97,8 @@ def not_waiting_why(state: SafetyState) -> str:
 
 
 class SupervisorBase:
-    motion: Any  # the backend's motion stage: ``shaper``, ``stop(fast)``, ``resume()``, ``at_rest()``
+    motion: MotionStage
+    session: Any  # the backend's link session (``link_phase`` reads its ``phase`` and ``fault_reason``)
     default_hold_s: float = 0.2
     max_hold_s: float = 2.0
 
@@ -142,10 +155,13 @@ class SupervisorBase:
         raise NotImplementedError
 
     def _jog_axes(self, v: np.ndarray) -> None:
-        self.motion.jog(v)
+        """Jog each axis at ``v`` (the backend's units per second); the gate has been passed. By
+        default the motion stage's ``jog``."""
+        self.motion.jog(v)  # type: ignore[attr-defined]
 
     def _joint_target(self, q: np.ndarray, speed_scale: float) -> None:
-        self.motion.set_target(q, speed_scale)
+        """Move every axis to ``q``; the gate has been passed. By default the stage's ``set_target``."""
+        self.motion.set_target(q, speed_scale)  # type: ignore[attr-defined]
 
     # ------------------------------------------------------------------------------ safety events
     def _feed(self, event: Event, now: float, **context: Any) -> str | None:
@@ -319,7 +335,8 @@ class SupervisorBase:
             self._feed(StartRequested(), now)
 
     def watch_start(self, now: float) -> None:
-        """A pending start that cannot succeed is given up, with the reason, instead of waiting forever."""
+        """A pending start that cannot succeed is given up, with the reason, instead of waiting forever.
+        One that found status still flowing (its link request refused) opens the link once status stops."""
         if not self._start_pending:
             return
         failure = self._link_failure()
@@ -327,6 +344,8 @@ class SupervisorBase:
             self._cancel_start(f"the link failed: {failure}")
         elif now > self._start_deadline:
             self._cancel_start(f"no stream within {self.start_timeout_s:g} s: {not_waiting_why(self.state)}")
+        elif self.state.status is None and self._link_closed() and not self.state.shutdown:
+            self._feed(ConnectRequested(), now)
 
     def _cancel_start(self, why: str) -> None:
         if self._start_pending:
@@ -346,7 +365,12 @@ class SupervisorBase:
 
     # ------------------------------------------------------------------------------------ views
     def _link_closed(self) -> bool:
+        """Nothing is open on the link (or it is dead): a shut-down process may exit."""
         raise NotImplementedError
+
+    def link_phase(self) -> tuple[str, str]:
+        """The link's phase (one of :data:`servo_app.state.PHASES`) and, in fault, why."""
+        return self.session.phase.value, self.session.fault_reason
 
     @property
     def finished(self) -> bool:

@@ -162,7 +162,7 @@ class LimitsView(BaseModel):
     model_config = _OPEN
     model: str
     source: str = Field(description="where the limits come from (controller tables or the configured profile)")
-    backend: str | None = Field(None, description="'janome' for a Janome robot (absent for FANUC)")
+    backend: str | None = Field(None, description="the robot backend's registered name")
     # FANUC
     interval_ms: int | None = Field(None, description="FANUC: the stream's command interval")
     limit_fraction: float | None = Field(None, description="FANUC: share of the limits the motion may use")
@@ -210,15 +210,19 @@ class RobotView(BaseModel):
     """What the web console draws: the axes and a stick figure of the current position."""
 
     model_config = _OPEN
-    backend: str = Field(description="fanuc or janome")
-    kind: str = Field(description="arm6, scara or cartesian")
+    backend: str = Field(description="the robot backend's registered name (fanuc, janome, ...)")
+    kind: str = Field(description="what is drawn: arm6, scara, cartesian, or the backend's own kind")
     model: str
     display_name: str
     dof: int
     joint_names: list[str]
     axes: list[AxisView]
-    j23_factor: float
-    q: list[float] = Field(description="current positions: FANUC joints in deg, Janome X Y Z R (mm, deg)")
+    axis_label: str | None = Field(None, description="what the console calls an axis (Joint, Axis)")
+    pose_names: list[str] | None = Field(None, description="names of the feedback pose's components")
+    pose_caption: str | None = None
+    cartesian_jog: bool | None = Field(None, description="the backend takes twists (Cartesian jog)")
+    j23_factor: float | None = Field(None, description="FANUC: the J2/J3 coupling of the joint convention")
+    q: list[float] = Field(description="current positions in the backend's units (FANUC joints in deg, ...)")
     points: list[DrawingPoint]
     view_box_mm: ViewBox
     dims_mm: dict[str, float] | None = None
@@ -369,7 +373,7 @@ class StateView(BaseModel):
     robot_connected: bool | None = Field(None, description="Janome: the robot's point job is connected")
 
     # The service's additions.
-    backend: str | None = Field(None, description="the robot family: fanuc or janome")
+    backend: str | None = Field(None, description="the robot backend's registered name (fanuc, janome, ...)")
     servo_process: str | None = Field(None, description="running, or how it ended (e.g. 'ended by signal 9')")
     servo_starts: int | None = Field(None, description="servo processes started (a reset after one died starts one)")
     model: str | None = Field(None, description="the robot profile")
