@@ -27,7 +27,7 @@ from typing import Any
 from servo_app import messages as msg
 from servo_app.backends import ProcessOptions, RobotBackend, open_backend
 from servo_app.errors import CommandRejected
-from servo_app.process_handle import ServoProcessHandle
+from servo_app.process_handle import ServoProcessHandle, describe_exit
 from servo_app.service.alarms import AlarmForwarder
 from servo_app.service.config import ServiceConfig
 from servo_app.service.io import StreamIo
@@ -114,7 +114,8 @@ class ServoService:
         self.servo_starts += 1
 
     def _on_servo_exit(self, cause: str) -> None:
-        """The servo process died (the pipe's end of file): a fault the operator can leave with reset."""
+        """The servo process ended unasked (the pipe's end of file): a fault the operator can leave
+        with reset. (Even a clean exit on a signal: no stream can run until a new process is up.)"""
         self.servo_fault = {
             "message": f"servo process {cause}",
             "code": None,
@@ -150,7 +151,10 @@ class ServoService:
         self.alarm_forwarder.stop()
         with self._lifecycle:
             if self.stream is not None:
-                died = self.servo_fault is not None
+                # Ctrl-C reaches the whole process group: a servo process that ended its stream on
+                # it and exited cleanly before we got here did what it was asked, no fault.
+                clean = bool(self._safety.get("shutdown")) and self.stream.exit_cause in ("", describe_exit(0))
+                died = self.servo_fault is not None and not clean
                 summary["servo_exit_code"] = self.stream.shutdown()
                 safety = self._safety
                 summary.update(state=safety.get("state"), link=safety.get("link"),
