@@ -178,3 +178,52 @@ def test_unanswered_limit_tables_fall_back_to_the_profile() -> None:
         seq += 1
     assert s.phase == Phase.CONNECTED and s.tables is None
     assert "using the profile's limits" in s.stats.last_error
+
+
+# ------------------------------------------------------------------------- lost links (issue 13)
+
+
+def test_a_status_sequence_restarting_at_1_mid_stream_is_a_fault() -> None:
+    """Another host's status output start (or a restarted controller) resets the sequence to 1."""
+    s, _, _ = open_streaming(first_seq=50)
+    assert s.on_datagram(status(51), 0.024)  # the stream goes on
+    assert s.on_datagram(status(1), 0.032) == []
+    assert s.phase == Phase.FAULT and "restarted its status output (sequence 51 -> 1)" in s.fault_reason
+
+
+def test_silence_after_status_output_start_is_a_fault_that_names_refused_datagrams() -> None:
+    s = StreamSession(Hold(), SessionConfig(fetch_tables=False, link_timeout_s=1.0))
+    s.open(0.0)
+    s.on_datagram(b"\x00\x00\x00\x00\x00\x00\x00\x02" + bytes(124), 0.5)  # a version-2 status
+    s.on_idle(0.9)
+    assert s.phase == Phase.CONNECTED
+    s.on_idle(1.1)
+    assert s.phase == Phase.FAULT
+    assert "no status packet for 1.100 s after status output start" in s.fault_reason
+    assert "datagrams refused meanwhile" in s.fault_reason and "version" in s.fault_reason
+
+
+def test_a_malformed_datagram_sends_and_records_nothing() -> None:
+    s, _, out = open_streaming()
+    assert len(out) == 1 and len(s.sent) == 1
+    assert s.on_datagram(b"\x00" * 13, 0.020) == [] and s.sent == []
+    assert s.stats.malformed == 1
+
+
+def test_recover_after_a_lost_link_restarts_the_status_output() -> None:
+    s, _, _ = open_streaming()
+    s.on_idle(0.5)  # silence while streaming
+    assert s.phase == Phase.FAULT
+    assert s.recover(0.6) and s.phase == Phase.IDLE and s.fault_reason == ""
+    assert s.open(0.7) == [P.StatusStart().encode()]  # the next start sends a fresh status output start
+    assert s.phase == Phase.CONNECTED
+
+
+def test_status_arriving_after_a_reset_shows_the_link_is_up() -> None:
+    s, _, _ = open_streaming()
+    s.abandon("controller alarm", 0.3)  # the controller's alarm stopped the stream; status still flows
+    assert s.recover(0.31) and s.phase == Phase.IDLE
+    s.on_datagram(status(40, bits=P.StatusBit.SYSRDY), 0.32)
+    assert s.phase == Phase.CONNECTED
+    s.arm()  # a start can stream from the next waiting status without a new status output start
+    assert s.phase == Phase.WAITING_READY

@@ -93,7 +93,6 @@ class SessionConfig:
     ready_timeout_s: float = 10.0  # no status bit 0 within this -> fault
     status_timeout_s: float = 0.1  # no status packet within this while streaming -> fault
     link_timeout_s: float = 1.0  # no status packet within this otherwise (status output on) -> fault
-    flowing_window_s: float = 0.05  # a status packet within this counts as status still flowing
     max_payload_kg: float = 0.0  # for building LimitTables from responses
 
     def __post_init__(self) -> None:
@@ -196,15 +195,16 @@ class StreamSession:
         self._fault(reason, now)
 
     def recover(self, now: float) -> bool:
-        """After the operator's reset: a failed link is usable again. With status still flowing it is
-        connected (a start needs no new status output start); else idle, and the next start sends a
-        status output start, which a restarted or taken-over controller needs. True if flowing."""
-        flowing = self.last_status is not None and now - self._last_status_at <= self.config.flowing_window_s
-        if self.phase == Phase.FAULT:
-            self.fault_reason = ""
-            self._armed = False
-            self._enter(Phase.CONNECTED if flowing else Phase.IDLE, now)
-        return flowing
+        """After the operator's reset: a failed link starts afresh. It is idle, and the next start sends
+        a status output start, which a restarted or taken-over controller needs and any other takes
+        (its sequence restarts at 1). Whether status still trickles in cannot be known soon after a
+        fault without waiting out a timeout, so it is not guessed. True if the link had failed."""
+        if self.phase != Phase.FAULT:
+            return False
+        self.fault_reason = ""
+        self._armed = False
+        self._enter(Phase.IDLE, now)
+        return True
 
     def write_io(self, req: IoRequest) -> None:
         self._io_writes.append(req)
@@ -314,6 +314,8 @@ class StreamSession:
         self.stats.status_received += 1
         self.last_status = st
         self._last_status_at = now
+        if self.phase == Phase.IDLE:  # after a reset: status still flows, so the link is up
+            self._enter(Phase.CONNECTED, now)
         if self.phase == Phase.FETCHING_TABLES:
             out = self._table_requests(now)
             if self.phase == Phase.FETCHING_TABLES:

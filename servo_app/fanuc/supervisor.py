@@ -71,10 +71,10 @@ class StreamSupervisor(SupervisorBase):
         self.session.abandon(reason, now)
 
     def _link_recover(self, now: float) -> None:
-        # A fault the controller's alarm reported first leaves the last status bits behind although
-        # the status may have stopped (taken over, stopped by another host): tell the safety state.
-        if not self.session.recover(now) and self.state.status is not None:
-            self._feed(StatusLost(detail="no status since the fault"), now)
+        # The link starts afresh at the next start: the status bits from before the fault (a fault
+        # the controller's alarm reported first leaves them behind) no longer say anything.
+        if self.session.recover(now) and self.state.status is not None:
+            self._feed(StatusLost(detail="the link restarts at the next start"), now)
 
     def _link_failure(self) -> str:
         return self.session.fault_reason if self.session.phase == Phase.FAULT else ""
