@@ -187,6 +187,11 @@ class ServoService:
                 return ev
         return None
 
+    @property
+    def safety(self) -> dict[str, Any]:
+        """The servo process's last safety view (stop reason, fault, stops, ...), as it is now."""
+        return self._safety
+
     def safety_view(self, mode: str, timeout: float = 0.05) -> dict[str, Any]:
         """The servo process's last safety view. It is sent just before the state vector shows a new
         ``mode``, but the reader thread may not have taken it in yet: wait for it (it is on its way)."""

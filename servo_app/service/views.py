@@ -56,7 +56,7 @@ class StateViews:
     def stops(self) -> dict[str, int]:
         """Stops by reason: the servo process's (hold-to-run, lease, signals, API) plus API-only counts."""
         out = Counter(self.service.stops_by_reason)
-        out.update(self.service.safety_view("", timeout=0).get("stops") or {})
+        out.update(self.service.safety.get("stops") or {})
         return dict(out)
 
     def limits(self) -> dict[str, Any]:

@@ -6,8 +6,9 @@ fixed grid of absolute deadlines and sends the status packet to the address the 
 from. All model access holds ``lock``; use the delegating methods (or hold ``sim.lock`` yourself).
 
 Fault injection (status packets only, seeded RNG so runs repeat): drop, duplicate, delay by a
-uniform extra time, and tick jitter (each tick at its grid time + U(-jitter, +jitter), so
-intervals range period +- 2 * jitter: ``jitter_s=0.001`` gives the FAQ's 6-10 ms at 8 ms).
+uniform extra time, follow with a malformed datagram (the status cut short), and tick jitter (each
+tick at its grid time + U(-jitter, +jitter), so intervals range period +- 2 * jitter:
+``jitter_s=0.001`` gives the FAQ's 6-10 ms at 8 ms).
 """
 
 from __future__ import annotations
@@ -38,10 +39,13 @@ class FaultConfig:
     delay_prob: float = 0.0
     delay_range_s: tuple[float, float] = (0.002, 0.020)
     jitter_s: float = 0.0
+    # After a status packet, also send a malformed datagram (the status cut short) from the
+    # controller's own address with this probability: what a corrupting link delivers.
+    malformed_prob: float = 0.0
     seed: int | None = 0
 
     def __post_init__(self) -> None:
-        for name in ("drop_prob", "dup_prob", "delay_prob"):
+        for name in ("drop_prob", "dup_prob", "delay_prob", "malformed_prob"):
             p = getattr(self, name)
             if not 0.0 <= p <= 1.0:
                 raise ValueError(f"{name}={p} must be in 0..1")
@@ -62,6 +66,7 @@ class FaultCounts:
     dropped: int = 0
     duplicated: int = 0
     delayed: int = 0
+    malformed: int = 0
 
 
 MIN_SPACING = 0.75  # least spacing between two ticks, as a share of the interval
@@ -238,6 +243,9 @@ class FanucSimulator:
             return
         for _ in range(copies):
             self._send(pkt, addr)
+        if f.malformed_prob and self._rng.random() < f.malformed_prob:
+            self.fault_counts.malformed += 1
+            self._send(pkt[: self._rng.randrange(1, len(pkt))], addr)
 
     def _flush_delayed(self, now: float) -> None:
         while self._delayed and self._delayed[0][0] <= now:
