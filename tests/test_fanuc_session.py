@@ -57,7 +57,9 @@ def open_streaming(lead: int = 0, first_seq: int = 5) -> tuple[StreamSession, Ho
     assert s.on_datagram(status(first_seq - 2), 0.004) == []  # ready, but streaming is not armed
     s.arm()
     assert s.on_datagram(status(first_seq - 1, bits=P.StatusBit.SYSRDY), 0.008) == []  # not ready yet
-    return s, m, s.on_datagram(status(first_seq), 0.016)
+    out = s.on_datagram(status(first_seq), 0.016)
+    s.begin_motion()  # as the runner does once the first commands have gone
+    return s, m, out
 
 
 def test_first_command_carries_the_status_seq_then_plus_one() -> None:
@@ -162,6 +164,7 @@ def test_limit_tables_requested_one_per_interval_then_used() -> None:
                                            (5.0,) * 20).encode(), 0.3 * i + 0.001)
     assert [(r.axis, r.limit_type) for r in seen] == [(1, 0), (1, 1), (1, 2)]
     s.on_datagram(status(seq), 1.0)
+    s.begin_motion()
     assert s.tables is not None and s.tables.vmax == 2000
     assert m.tables is s.tables and s.phase == Phase.STREAMING
     assert s.tables.at_speed(1, 0.0, 0.0)[0] == pytest.approx(11.0)
@@ -227,3 +230,18 @@ def test_status_arriving_after_a_reset_shows_the_link_is_up() -> None:
     assert s.phase == Phase.CONNECTED
     s.arm()  # a start can stream from the next waiting status without a new status output start
     assert s.phase == Phase.WAITING_READY
+
+
+def test_the_first_commands_are_the_hold_position_sent_before_the_motion_is_set_up() -> None:
+    """The motion source's set-up takes most of a 4 ms interval: the hold position goes out first."""
+    m = Hold()
+    s = StreamSession(m, SessionConfig(lead=2, fetch_tables=False))
+    s.open(0.0)
+    s.arm()
+    cmds = commands(s.on_datagram(status(9), 0.004))
+    assert [c.seq for c in cmds] == [9, 10, 11]  # one for the status, two of lead
+    assert all(c.values[:6] == (1, 2, 3, 4, 5, 6) for c in cmds) and m.calls == 0 and m.q0 is None
+    s.begin_motion()
+    assert m.q0 is not None and list(m.q0) == [1, 2, 3, 4, 5, 6]
+    (c,) = commands(s.on_datagram(status(10), 0.008))
+    assert c.seq == 12 and m.calls == 1  # from here on the motion source computes every command

@@ -192,6 +192,7 @@ class _ServoProcess(ServoProcessHost):
             out = self.sup.on_datagram(data, now)
             self._send(out)
             t_sent = time.monotonic()
+            self.sup.session.begin_motion()  # a stream's first commands (the hold) left first
             self._after_datagram(now, t_sent)
         else:
             self._send(self.sup.on_idle(now))

@@ -148,6 +148,8 @@ class StreamSession:
         self._io_writes: list[IoRequest] = []
         self._q_last: np.ndarray | None = None
         self._malformed_at_status = 0  # malformed count at the last valid status packet
+        # Streaming began and the motion source is still to be set up from this (start joints, tables).
+        self._begin_with: tuple[np.ndarray, LimitTables | None] | None = None
         self.sent: list[SentCommand] = []  # filled per call, for the runner's log
 
     # ----------------------------------------------------------------- requests
@@ -178,8 +180,21 @@ class StreamSession:
     def output_on(self) -> bool:
         return self.phase not in (Phase.IDLE, Phase.CLOSED)
 
+    def begin_motion(self) -> None:
+        """Set the motion source up for the stream that began (``MotionSource.begin``), if not yet done.
+
+        The first commands of a stream are the hold position and need no motion source: they leave at
+        once, and the set-up (3.5 ms here, most of a 4 ms interval: the controller then already wanted
+        the next sequence number and posted MOTN-600) follows them. The runner calls this right after
+        sending; every other entry point calls it first, so a pure user never sees the difference."""
+        if self._begin_with is not None:
+            q0, tables = self._begin_with
+            self._begin_with = None
+            self.motion.begin(q0, tables)
+
     def request_end(self) -> None:
         """Decelerate, send last data, then stop the status output."""
+        self.begin_motion()
         self._end_requested = True
         self.motion.request_rest()
 
@@ -225,6 +240,7 @@ class StreamSession:
         return [] if packet is None else self.on_packet(packet, now)
 
     def on_packet(self, packet: Status | LimitTableResponse, now: float) -> list[bytes]:
+        self.begin_motion()
         self.sent = []
         if isinstance(packet, LimitTableResponse):
             self._on_table(packet)
@@ -233,6 +249,7 @@ class StreamSession:
 
     def on_idle(self, now: float) -> list[bytes]:
         """Call when no datagram arrived for a while: time-outs live here."""
+        self.begin_motion()
         self.sent = []
         silent = now - self._last_status_at
         if self.phase in (Phase.STREAMING, Phase.ENDING) and silent > self.config.status_timeout_s:
@@ -342,7 +359,7 @@ class StreamSession:
             return []
         self._armed = False
         q0 = np.array(st.joints[: self.config.n_axes], dtype=float)
-        self.motion.begin(q0, self.tables)
+        self._begin_with = (q0, self.tables)  # set up after the hold commands have gone (begin_motion)
         self._first_status_seq = st.seq
         self._next_cmd_seq = st.seq
         self._sent_since_start = 0
@@ -369,7 +386,9 @@ class StreamSession:
 
     def _command(self, st: Status) -> bytes:
         last = 0
-        if self._end_requested and self.motion.at_rest():
+        if self._begin_with is not None:  # the stream's first commands: the hold position itself
+            q = self._begin_with[0]
+        elif self._end_requested and self.motion.at_rest():
             last = 1
             q = self._q_last if self._q_last is not None else self.motion.next_command(st)
         else:

@@ -147,7 +147,12 @@ class StreamSupervisor(SupervisorBase):
             self._hold_to_run(hold, now, f"input {name}")
             self.cycle.pose_target(pose)
 
+    def request(self, req: msg.Request, now: float) -> Any:
+        self.session.begin_motion()  # a request acts on the stream's motion, which must be set up
+        return super().request(req, now)
+
     def signal(self, sig: int, now: float) -> list[bytes]:
+        self.session.begin_motion()
         self._out = []
         self._feed(Signal(sig=sig), now)
         return self._take()
