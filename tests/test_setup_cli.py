@@ -1,0 +1,72 @@
+"""Set-up and the command line as a new user meets them (issue 14, "Set-up, CLI and devices"):
+the documents point only at files in the repository; the install script skips an unchanged
+install; shutdown prints no leak dump; devices that cannot be opened are named at start-up."""
+
+from __future__ import annotations
+
+import glob
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# ------------------------------------------------------------------------ the documents' paths
+
+_TICKED = re.compile(r"`([^`\n]+)`")
+_LINK = re.compile(r"\]\(([^)\s#]+)[^)]*\)")
+_PLACEHOLDER = re.compile(r"^[A-Z][A-Z0-9_]*(\.\w+)?$")  # NAME.toml, SCRIPT.py: any file there
+
+
+def _tracked_tops() -> set[str]:
+    out = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    return {line.split("/", 1)[0] for line in out.splitlines()}
+
+
+def mentioned_paths(text: str, tops: set[str]) -> list[str]:
+    """Relative paths a document mentions: markdown link targets, and words in code spans that
+    start in one of the repository's top-level entries (or go up or sideways with ../ or ./)."""
+    found = [t for t in _LINK.findall(text) if "://" not in t and not t.startswith("mailto:")]
+    for span in _TICKED.findall(text):
+        for word in span.split():
+            word = word.rstrip(".,;:)")
+            if "/" not in word or word.startswith("/"):
+                continue
+            if word.startswith(("../", "./")) or word.split("/", 1)[0] in tops:
+                found.append(word)
+    return found
+
+
+def _exists(rel: str) -> bool:
+    target = (ROOT / rel).resolve()
+    if not target.is_relative_to(ROOT):
+        return False  # outside the repository: a fresh clone does not have it
+    parts = [("*" + m.group(1) if m.group(1) else "*") if (m := _PLACEHOLDER.match(p)) else p
+             for p in target.relative_to(ROOT).parts]
+    pattern = str(ROOT.joinpath(*parts)) if parts else str(ROOT)
+    if glob.glob(pattern):
+        return True
+    # Made at run time (var/, tests/artifacts/): ignored by git on purpose, so it is named, not shipped.
+    return subprocess.run(["git", "check-ignore", "-q", str(target)], cwd=ROOT).returncode == 0
+
+
+@pytest.mark.parametrize("doc", ["README.md", "docs/design.md"])
+def test_documents_point_only_at_files_in_the_repository(doc: str) -> None:
+    text = (ROOT / doc).read_text()
+    paths = mentioned_paths(text, _tracked_tops())
+    assert len(paths) >= 5, paths  # the extraction found the paths it should check
+    missing = sorted({p for p in paths if not _exists(p)})
+    assert missing == [], f"{doc} mentions paths that are not in the repository: {missing}"
+
+
+def test_readme_points_at_the_design_document() -> None:
+    assert "docs/design.md" in mentioned_paths((ROOT / "README.md").read_text(), _tracked_tops())
+
+
+def test_path_check_catches_a_path_outside_the_repository() -> None:
+    paths = mentioned_paths("See `../shared/DESIGN.md` and [x](docs/nope.md), `configs/robots/NAME.toml`.",
+                            _tracked_tops())
+    assert paths == ["docs/nope.md", "../shared/DESIGN.md", "configs/robots/NAME.toml"]
+    assert [_exists(p) for p in paths] == [False, False, True]
