@@ -9,6 +9,11 @@ One router per resource (session, motion, lease, state, io, logs, telemetry); th
 app's objects through the dependencies of :mod:`servo_app.api.deps` (``app.state.api``), answer with
 the models of :mod:`servo_app.api.models`, and send every request to the servo process through
 :meth:`servo_app.api.calls.ServiceCalls.forward`.
+
+In front of everything, :class:`~servo_app.api.body_limit.BodyLimit` refuses bodies over
+:data:`~servo_app.api.body_limit.MAX_BODY_BYTES` (413) before any parsing or authentication. The
+interactive documentation (``/docs``, ``/redoc``) is served from the ``fastapi-offline`` package's
+copies of Swagger UI and ReDoc: no CDN, so it works on a machine cut off from the internet.
 """
 
 from __future__ import annotations
@@ -23,13 +28,16 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse, RedirectResponse
+from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html, get_swagger_ui_oauth2_redirect_html
+from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
+from starlette.types import Scope
 
 from servo_app.api import io, lease, logs, motion, session, state, telemetry
 from servo_app.api.auth import AuditLog, LeaseManager, RateLimiter
+from servo_app.api.body_limit import MAX_BODY_BYTES, BodyLimit
 from servo_app.api.calls import ServiceCalls
-from servo_app.api.deps import ApiContext, controlling
+from servo_app.api.deps import ApiContext, api_of, client_of, controlling
 from servo_app.api.metrics import Metrics
 from servo_app.service import ServoService
 
@@ -50,9 +58,53 @@ def _json_safe(value: Any) -> Any:
     return value
 
 
+def audited(method: str, path: str) -> bool:
+    """Requests that move the arm or change state (motion, session, lease, I/O writes, inputs): their
+    refusals go to the audit log too. Feed samples do not (a sensor streams hundreds a second)."""
+    return method in ("POST", "PUT", "DELETE") and path.startswith("/api/") and not path.startswith("/api/feed/")
+
+
+def _client_of_scope(scope: Scope) -> str:
+    client = scope.get("client")
+    return f"{client[0]}:{client[1]}" if client else "?:0"
+
+
 async def _invalid_request(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
-    return JSONResponse(status_code=422, content={"detail": jsonable_encoder(_json_safe(list(exc.errors())))})
+    detail = jsonable_encoder(_json_safe(list(exc.errors())))
+    if audited(request.method, request.url.path):
+        api = api_of(request)
+        api.metrics.count("invalid")
+        api.audit.record(client_of(request), f"{request.method} {request.url.path}", False,
+                         {"status": 422, "errors": [{"loc": e.get("loc"), "msg": e.get("msg")} for e in detail]})
+    return JSONResponse(status_code=422, content={"detail": detail})
+
+
+def _offline_docs(app: FastAPI) -> None:
+    """Swagger UI at /docs and ReDoc at /redoc from the fastapi-offline package's files (FastAPI's
+    own pages load them, and the favicon, from CDNs: a blank page without internet)."""
+    import fastapi_offline
+
+    assets = Path(fastapi_offline.__file__).resolve().parent / "static"
+    app.mount("/docs-assets", StaticFiles(directory=assets), name="docs-assets")
+    oauth2 = app.swagger_ui_oauth2_redirect_url or "/docs/oauth2-redirect"
+
+    @app.get("/docs", include_in_schema=False)
+    def swagger_ui() -> HTMLResponse:
+        return get_swagger_ui_html(openapi_url=str(app.openapi_url), title=f"{app.title} - API",
+                                   oauth2_redirect_url=oauth2, swagger_js_url="/docs-assets/swagger-ui-bundle.js",
+                                   swagger_css_url="/docs-assets/swagger-ui.css",
+                                   swagger_favicon_url="/docs-assets/favicon.png")
+
+    @app.get(oauth2, include_in_schema=False)
+    def swagger_ui_redirect() -> HTMLResponse:
+        return get_swagger_ui_oauth2_redirect_html()
+
+    @app.get("/redoc", include_in_schema=False)
+    def redoc() -> HTMLResponse:
+        return get_redoc_html(openapi_url=str(app.openapi_url), title=f"{app.title} - API",
+                              redoc_js_url="/docs-assets/redoc.standalone.js",
+                              redoc_favicon_url="/docs-assets/favicon.png", with_google_fonts=False)
 
 
 def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
@@ -73,8 +125,13 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
             with contextlib.suppress(asyncio.CancelledError):
                 await task
 
-    app = FastAPI(title="servo_app", version="0.1.0", lifespan=lifespan,
-                  description="Online servo control of industrial robot arms (FANUC Stream Motion J519).")
+    app = FastAPI(title="servo_app", version="0.1.0", lifespan=lifespan, docs_url=None, redoc_url=None,
+                  description="Online servo control of industrial robot arms (FANUC Stream Motion J519, "
+                              "Janome). Reads are open; anything that moves the arm or changes state needs "
+                              "`Authorization: Bearer <token>`, and most also the control lease "
+                              "(`X-Lease-Id`, from `POST /api/lease`). Request bodies: at most "
+                              f"{MAX_BODY_BYTES} bytes (413).")
+    _offline_docs(app)
     app.state.api = api
     app.state.service, app.state.leases, app.state.metrics = service, api.leases, api.metrics
     app.add_exception_handler(RequestValidationError, _invalid_request)
@@ -94,6 +151,15 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
         @app.get("/", include_in_schema=False)
         def index() -> RedirectResponse:
             return RedirectResponse("/web/")
+
+    def body_refused(scope: Scope, detail: str) -> None:
+        api.metrics.count("too_large")
+        if audited(scope["method"], scope["path"]):
+            audit.record(_client_of_scope(scope), f"{scope['method']} {scope['path']}", False,
+                         {"status": 413, "detail": detail})
+
+    # In front of the feed's fast path and of every route: before authentication and parsing.
+    app.add_middleware(BodyLimit, limit=MAX_BODY_BYTES, on_refused=body_refused)
 
     if cors_origins:  # added last: the outermost middleware, in front of the feed's fast path too
         from fastapi.middleware.cors import CORSMiddleware

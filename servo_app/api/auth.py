@@ -7,7 +7,6 @@ import os
 import secrets
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -41,6 +40,9 @@ def token_matches(expected: str, header: str | None) -> bool:
     return secrets.compare_digest(header[len("Bearer "):].strip().encode(), expected.encode())
 
 
+TAKE_OVER = "take control: POST /api/lease with force=true"
+
+
 @dataclass
 class Lease:
     lease_id: str
@@ -50,36 +52,71 @@ class Lease:
 
 
 class LeaseManager:
-    """One control lease at a time; it expires unless renewed."""
+    """One control lease at a time; it expires unless renewed.
+
+    A lease that ends without its holder releasing it (it expired, or another client took over) is
+    kept as *lost* until someone stops the motion it may have left running: a take-over hands it to
+    the new holder's request (:meth:`take`), which stops the arm before answering; an expiry nobody
+    followed up is collected by the API's watch (:meth:`pop_expired`). One of the two, never both.
+    """
 
     def __init__(self, ttl_s: float = 10.0, clock: Any = time.monotonic) -> None:
         self.ttl_s = ttl_s
         self._clock = clock
         self._lease: Lease | None = None
+        self._expired: Lease | None = None  # expired, its motion not stopped yet
         self._lock = threading.Lock()
+
+    def _expire(self) -> None:  # under the lock
+        if self._lease and self._clock() > self._lease.expires_at:
+            self._expired, self._lease = self._lease, None
 
     def current(self) -> Lease | None:
         with self._lock:
-            if self._lease and self._clock() > self._lease.expires_at:
-                self._lease = None
+            self._expire()
             return self._lease
 
-    def acquire(self, client: str, force: bool = False, ttl_s: float | None = None) -> Lease:
-        """A new lease; ``ttl_s`` may shorten the manager's TTL for this lease, never lengthen it."""
+    def pop_expired(self) -> Lease | None:
+        """A lease that ran out since the last call, if nobody has taken control since."""
+        with self._lock:
+            self._expire()
+            lost, self._expired = self._expired, None
+            return lost
+
+    def take(self, client: str, force: bool = False, ttl_s: float | None = None) -> tuple[Lease, Lease | None]:
+        """A new lease and the one it displaced (a live one taken over with ``force``, or one that
+        expired with its motion not stopped yet): the caller stops that motion before answering.
+        ``ttl_s`` may shorten the manager's TTL for this lease, never lengthen it."""
         ttl = self.ttl_s if ttl_s is None else min(float(ttl_s), self.ttl_s)
         with self._lock:
+            self._expire()
             now = self._clock()
             held = self._lease
-            if held and now <= held.expires_at and not force:
-                raise PermissionError(f"control is held by '{held.client}' for {held.expires_at - now:.1f} s more")
+            if held and not force:
+                left = f"{held.expires_at - now:.1f} s"
+                if held.client == client:
+                    raise PermissionError(
+                        f"control is held by '{held.client}' (this name, another lease id) for {left} more: "
+                        f"renew it with its lease id as X-Lease-Id (POST /api/lease/renew), release it "
+                        f"(DELETE /api/lease), or {TAKE_OVER}")
+                raise PermissionError(f"control is held by '{held.client}' for {left} more: wait until it is "
+                                      f"released or expires, or {TAKE_OVER}")
+            displaced = held or self._expired
+            self._expired = None
             self._lease = Lease(secrets.token_urlsafe(12), client, now + ttl, ttl)
-            return self._lease
+            return self._lease, displaced
+
+    def acquire(self, client: str, force: bool = False, ttl_s: float | None = None) -> Lease:
+        return self.take(client, force, ttl_s)[0]
 
     def renew(self, lease_id: str | None) -> Lease:
         with self._lock:
+            self._expire()
             held = self._lease
-            if not held or held.lease_id != lease_id or self._clock() > held.expires_at:
-                raise PermissionError("this client does not hold the control lease (it may have expired)")
+            if not held or held.lease_id != lease_id:
+                who = f"'{held.client}' holds it" if held else "nobody holds it"
+                raise PermissionError(f"this client does not hold the control lease (it may have expired; {who}): "
+                                      "acquire it: POST /api/lease")
             held.expires_at = self._clock() + held.ttl_s
             return held
 
@@ -88,46 +125,87 @@ class LeaseManager:
         if lease is None:
             raise PermissionError("nobody holds the control lease: acquire it first (POST /api/lease)")
         if lease.lease_id != lease_id:
-            raise PermissionError(f"control is held by '{lease.client}': this request has no valid X-Lease-Id")
+            what = "has no X-Lease-Id" if not lease_id else "has an X-Lease-Id that is not the current lease's"
+            raise PermissionError(f"control is held by '{lease.client}': this request {what}; send the lease id "
+                                  f"from POST /api/lease as X-Lease-Id, or {TAKE_OVER}")
         return lease
 
-    def release(self, lease_id: str | None) -> None:
+    def release(self, lease_id: str | None) -> Lease | None:
+        """Release the lease ``lease_id`` names; None if nobody holds one. A lease id that is not the
+        holder's is refused (PermissionError): releasing must not take control away from another."""
         with self._lock:
-            if self._lease and self._lease.lease_id == lease_id:
-                self._lease = None
+            self._expire()
+            held = self._lease
+            if held is None:
+                return None
+            if held.lease_id != lease_id:
+                what = "no X-Lease-Id" if not lease_id else "an X-Lease-Id that is not the current lease's"
+                raise PermissionError(f"control is held by '{held.client}' and this request has {what}: nothing "
+                                      f"released; send the holder's lease id, or {TAKE_OVER}")
+            self._lease = None
+            return held
 
 
 class RateLimiter:
-    """Sliding one-second window per key."""
+    """A token bucket per key: ``per_second`` tokens a second, up to ``burst`` saved up.
 
-    def __init__(self, per_second: int) -> None:
+    A client that sends faster than the rate gets every request that fits, evenly spread (one each
+    1/per_second s), so a held jog button renews its hold-to-run continuously; a sliding window let
+    the first ``per_second`` through at once and then refused everything for the rest of the second,
+    longer than the hold-to-run, so the arm stopped and started again.
+    """
+
+    def __init__(self, per_second: int, burst: int | None = None) -> None:
         self.per_second = per_second
-        self._hits: dict[str, deque[float]] = {}
+        self.burst = max(1, per_second // 4) if burst is None else burst
+        self._buckets: dict[str, tuple[float, float]] = {}  # key -> (tokens, when counted)
         self._lock = threading.Lock()
 
     def allow(self, key: str, now: float | None = None) -> bool:
         now = time.monotonic() if now is None else now
         with self._lock:
-            q = self._hits.setdefault(key, deque())
-            while q and now - q[0] > 1.0:
-                q.popleft()
-            if len(q) >= self.per_second:
+            tokens, then = self._buckets.get(key, (float(self.burst), now))
+            tokens = min(float(self.burst), tokens + max(0.0, now - then) * self.per_second)
+            if tokens < 1.0:
+                self._buckets[key] = (tokens, now)
                 return False
-            q.append(now)
+            self._buckets[key] = (tokens - 1.0, now)
             return True
 
 
 class AuditLog:
-    """One JSON line per motion or state-changing request, with the client."""
+    """One JSON line per motion or state-changing request (refusals included), with the client.
 
-    def __init__(self, path: Path) -> None:
+    Rotates by size: past ``max_bytes`` the file becomes ``audit.log.1`` (the older ones shift up to
+    ``.{backups}``, the oldest is dropped), so a flood of refused requests cannot fill the disk.
+    """
+
+    def __init__(self, path: Path, max_bytes: int = 5 * 1024 * 1024, backups: int = 3) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         self.path = path
+        self.max_bytes = max_bytes
+        self.backups = backups
         self._lock = threading.Lock()
+        self._size = path.stat().st_size if path.exists() else 0
+
+    def _rotate(self) -> None:  # under the lock
+        for i in range(self.backups, 0, -1):
+            older = self.path.with_name(f"{self.path.name}.{i}")
+            newer = self.path.with_name(f"{self.path.name}.{i - 1}") if i > 1 else self.path
+            if newer.exists():
+                os.replace(newer, older)
+        if self.backups == 0:
+            self.path.unlink(missing_ok=True)
+        self._size = 0
 
     def record(self, client: str, action: str, ok: bool, detail: Any = None, t: float | None = None) -> None:
         """``t``: when the request was admitted (default now), so lines order as the decisions did."""
         line = json.dumps({"t": time.time() if t is None else t, "client": client, "action": action, "ok": ok,
-                           "detail": detail})
-        with self._lock, open(self.path, "a") as f:
-            f.write(line + "\n")
+                           "detail": detail}, default=str) + "\n"
+        data = line.encode()
+        with self._lock:
+            if self._size and self._size + len(data) > self.max_bytes:
+                self._rotate()
+            with open(self.path, "ab") as f:
+                f.write(data)
+            self._size += len(data)

@@ -1,6 +1,8 @@
 """The API's contract: pydantic models of every request body and every JSON response.
 
-Requests forbid unknown keys (a typo must not be silently ignored on a robot). Views of the service's
+Requests forbid unknown keys (a typo must not be silently ignored on a robot) and are strict about
+types: ``"1"`` is no number, ``true`` no integer and ``"1"`` no boolean (``{"fast": "1"}`` once made
+a fast stop); an integer is still a number where a float is expected. Views of the service's
 state allow extra keys (``model_config = {"extra": "allow"}``), so a field the service adds later
 passes through before it is described here; their routes answer with ``exclude_unset``, so a key the
 service did not send is not invented as ``null`` either.
@@ -16,7 +18,7 @@ from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, Validatio
 from servo_app.state import MODES, PHASES
 
 _OPEN = ConfigDict(extra="allow")
-_CLOSED = ConfigDict(extra="forbid")
+_CLOSED = ConfigDict(extra="forbid", strict=True)  # requests
 
 
 def _finite(name: str, values: list[float]) -> list[float]:
@@ -121,9 +123,26 @@ class IoValue(Ack):
 
 
 class Problem(BaseModel):
-    """Why a request was refused (401, 409, 422 from the service, 429, 503)."""
+    """Why a request was refused (401, 409, 413, 422 from the service, 429, 503)."""
 
     detail: str
+
+
+class FieldError(BaseModel):
+    """One schema error of a request: where (``loc``), what (``msg``) and the value sent (``input``)."""
+
+    model_config = _OPEN
+    loc: list[str | int]
+    msg: str
+    type: str
+    input: Any = None
+
+
+class Invalid(BaseModel):
+    """422: the request itself is bad. A schema error lists the fields (``detail`` is a list); a value
+    the service checks (a range, a joint count, plausibility) comes as one sentence naming the field."""
+
+    detail: str | list[FieldError]
 
 
 class Health(BaseModel):
@@ -405,6 +424,9 @@ class InputsView(BaseModel):
 # What the routes that change something may answer besides 200 (and 422 for a malformed body).
 REFUSALS: dict[int | str, dict[str, Any]] = {
     401: {"model": Problem, "description": "missing or wrong bearer token"},
-    409: {"model": Problem, "description": "refused: no control lease, or not in this state"},
+    409: {"model": Problem, "description": "refused: no control lease, or not in this state; the text ends with "
+                                           "the next step"},
+    413: {"model": Problem, "description": "the request body is larger than the API takes (MAX_BODY_BYTES)"},
+    422: {"model": Invalid, "description": "the request itself is bad: schema, type, range or plausibility"},
     503: {"model": Problem, "description": "the servo process did not answer"},
 }

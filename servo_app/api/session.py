@@ -1,7 +1,7 @@
 """``/api/session/*`` and ``/api/reset``: start, stop, resume and end a stream, leave a fault.
 
-Starting, resuming and resetting need the control lease; any authenticated client may stop the arm
-or end the stream, with or without it.
+Starting, resuming, ending and resetting need the control lease; any authenticated client may stop
+the arm, with or without it (a stop must never wait for control).
 """
 
 # No `from __future__ import annotations`: FastAPI reads the dependency annotations at runtime.
@@ -14,29 +14,36 @@ from servo_app.api.models import REFUSALS, Ack, StopRequest
 router = APIRouter(tags=["session"], responses=REFUSALS)
 
 
-@router.post("/api/session/start")
+@router.post("/api/session/start", summary="Start a stream")
 def session_start(client: Controlling, calls: Calls) -> Ack:
+    """Open the link if needed and start streaming, holding the current position (token and lease)."""
     return calls.forward(client, "session.start", msg.Start())
 
 
-@router.post("/api/session/stop")
+@router.post("/api/session/stop", summary="Stop the arm (any authenticated client)")
 def session_stop(client: Authed, calls: Calls, body: StopRequest | None = None) -> Ack:
-    # Any authenticated client may stop the arm, with or without the lease.
+    """Decelerate to rest and hold there, the stream alive. ``fast``: the shortest ramp, and a reset
+    (POST /api/reset) is needed before resuming. Needs the token only, not the lease."""
     fast = bool(body and body.fast)  # counted by reason in the servo process ("stop requested")
     return calls.forward(client, "session.stop", msg.Stop(fast=fast))
 
 
-@router.post("/api/session/resume")
+@router.post("/api/session/resume", summary="Resume after a stop")
 def session_resume(client: Controlling, calls: Calls) -> Ack:
+    """Move on from a soft stop (an interrupted target continues); token and lease."""
     return calls.forward(client, "session.resume", msg.Resume())
 
 
-@router.post("/api/session/end")
-def session_end(client: Authed, calls: Calls) -> Ack:
+@router.post("/api/session/end", summary="End the stream")
+def session_end(client: Controlling, calls: Calls) -> Ack:
+    """Decelerate, send last data at rest and close the stream and its session log (token and lease:
+    ending takes the arm away from whoever controls it; to stop it, any client may POST
+    /api/session/stop)."""
     return calls.forward(client, "session.end", msg.End())
 
 
-@router.post("/api/reset")
+@router.post("/api/reset", summary="Leave a fault or acknowledge a fast stop")
 def reset(client: Controlling, service: Service, calls: Calls) -> Ack:
-    """Leave a fault (the embedded simulator's alarm too, as an operator at the pendant would)."""
+    """Leave a fault (the embedded simulator's alarm too, as an operator at the pendant would), or
+    acknowledge a fast stop before resuming; token and lease."""
     return calls.call(client, "reset", service.reset)

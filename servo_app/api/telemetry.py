@@ -1,10 +1,16 @@
 """``/ws/telemetry``: the state (:class:`~servo_app.api.models.StateView`, as ``GET /api/state``
-answers it) pushed at ``?hz=`` (1..100, default 50)."""
+answers it) pushed at ``?hz=`` (1..100, default 50).
+
+A rate outside 1..100 (NaN, infinity, 0, negative, huge) is refused: the socket is accepted and
+closed at once with code 1008 and a reason naming the value, so a client sees why. (``hz=nan`` used
+to make the period NaN, and the loop sent as fast as it could to anyone who asked.)
+"""
 
 # No `from __future__ import annotations`: FastAPI reads the annotations at runtime.
 import asyncio
+import math
 
-from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+from fastapi import APIRouter, WebSocket, WebSocketDisconnect, status
 
 from servo_app.api.deps import api_of
 from servo_app.api.models import StateView
@@ -12,12 +18,26 @@ from servo_app.api.state import state_snapshot
 
 router = APIRouter()
 
+HZ_MIN, HZ_MAX = 1.0, 100.0
+
+
+def telemetry_rate_error(hz: float) -> str | None:
+    """Why ``hz`` is no telemetry rate, or None."""
+    if not math.isfinite(hz) or not HZ_MIN <= hz <= HZ_MAX:
+        return f"hz={hz} is outside {HZ_MIN:g}..{HZ_MAX:g} messages per second: connect with e.g. ?hz=50"
+    return None
+
 
 @router.websocket("/ws/telemetry")
 async def telemetry(ws: WebSocket, hz: float = 50.0) -> None:
+    """The state at ``hz`` messages a second (1..100)."""
     api = api_of(ws)
     await ws.accept()
-    period = 1.0 / min(max(hz, 1.0), 100.0)
+    error = telemetry_rate_error(hz)
+    if error is not None:
+        await ws.close(code=status.WS_1008_POLICY_VIOLATION, reason=error)
+        return
+    period = 1.0 / hz
     loop = asyncio.get_running_loop()
     due = loop.time()
     try:

@@ -22,7 +22,9 @@ class _Feed(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     stamp: Finite | None = Field(None, description="sender wall-clock time of the value, Unix seconds")
-    seq: int | None = Field(None, description="sender's counter; a sample older than the last one is dropped")
+    seq: int | None = Field(None, strict=True, description=(
+        "sender's counter: a sample a little behind the last one (within the source's seq_window) is a late "
+        "one and dropped; one further behind is taken as the sender's counter restarting (resynchronised)"))
 
 
 class PoseFeed(_Feed):
@@ -36,7 +38,9 @@ class TwistFeed(_Feed):
     kind: Literal["twist"]
     linear: Vec3 = Field(description="mm/s")
     angular: Vec3 = Field((0.0, 0.0, 0.0), description="deg/s")
-    frame: str = "base"
+    # The frames the servo commands twists in (servo_app.motion.commands); another name was once
+    # accepted here and then dropped further on, so nothing moved.
+    frame: Literal["base", "tool"] = Field("base", description="base (world) or tool")
 
 
 class MeasurementFeed(_Feed):
@@ -52,7 +56,8 @@ class FeedAck(BaseModel):
     accepted: bool = True
     seq: int = Field(description="the source slot's sequence number after this sample")
     latency_ms: float | None = Field(None, description="receive time minus the sample's stamp")
-    detail: str | None = None
+    detail: str | None = Field(None, description="why a sample was dropped, or that the sequence was resynchronised")
+    resynced: bool = Field(False, description="the sender's seq restarted or jumped: taken as the new sequence")
 
 
 class FeedSourceConfig(BaseModel):
@@ -65,6 +70,9 @@ class FeedSourceConfig(BaseModel):
     stale_after_s: float = Field(0.2, gt=0.0)
     yield_when_idle: bool = False
     max_future_s: float = Field(0.5, ge=0.0, description="reject stamps further ahead than this (clock skew)")
+    seq_window: int = Field(100, ge=1, description=(
+        "a seq at most this far behind the last is a late sample (dropped); further behind, the sender's "
+        "counter restarted: the sample is accepted and the sequence resynchronised"))
     max_linear_mm_s: float | None = Field(None, gt=0.0)  # twist feeds: reject faster commands
     max_angular_deg_s: float | None = Field(None, gt=0.0)
     # Pose feeds: limits per axis name x y z w p r; measurement feeds: per value name.

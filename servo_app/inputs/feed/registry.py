@@ -5,6 +5,12 @@ stamp, and the sample goes into its slot at (monotonic now - latency), so stalen
 extrapolation see how old the value really is. Stamps from the future beyond `max_future_s`
 (unsynchronised clocks) are rejected; slightly-future stamps count as zero latency. A sample older
 than the last published one (by seq or stamp) is dropped: a late packet must not move the robot back.
+
+Sequence numbers resynchronise: a seq at most `seq_window` behind the last accepted one is a late
+(or repeated) sample and dropped, but one further behind is the sender's counter restarting (a
+sensor rebooted), and one further ahead a jump: either is accepted as the new sequence, and the
+answer and the source's stats say so. Otherwise one stray seq far ahead, or a restarted counter,
+made every later sample "older than the last" and locked the feed out until the service restarted.
 """
 
 from __future__ import annotations
@@ -45,6 +51,7 @@ class FeedStats:
     accepted: int
     rejected: int
     out_of_order: int
+    resyncs: int  # the sender's seq restarted or jumped, and was taken as the new sequence
     rate_hz: float
     latency_ms_last: float | None
     latency_ms_mean: float | None
@@ -59,7 +66,7 @@ class _Source:
         self.slot: LatestValue[Any] = LatestValue(name)
         self.arrivals: deque[float] = deque()
         self.latencies: deque[float] = deque(maxlen=200)
-        self.accepted = self.rejected = self.out_of_order = 0
+        self.accepted = self.rejected = self.out_of_order = self.resyncs = 0
         self.last_seq: int | None = None
         self.last_error: str | None = None
 
@@ -161,8 +168,9 @@ class FeedRegistry:
                                    f"(more than max_future_s {cfg.max_future_s}); are the clocks synchronised?")
             stamp = now - max(latency, 0.0)
         prev = src.slot.read()
-        if (msg.seq is not None and src.last_seq is not None and msg.seq <= src.last_seq) or (
-                prev is not None and stamp < prev.stamp):
+        resync = self._seq_resync(src, msg.seq)
+        late_seq = resync is None and msg.seq is not None and src.last_seq is not None and msg.seq <= src.last_seq
+        if late_seq or (prev is not None and stamp < prev.stamp):
             src.out_of_order += 1
             return FeedAck(source=src.name, accepted=False, seq=src.slot.seq,
                            latency_ms=None if latency is None else latency * 1e3,
@@ -170,13 +178,30 @@ class FeedRegistry:
         sample = self._sample(src, msg, stamp)
         seq = src.slot.publish(sample)
         src.accepted += 1
+        if resync is not None:
+            src.resyncs += 1
         src.last_seq = msg.seq if msg.seq is not None else src.last_seq
         src.arrivals.append(now)
         while src.arrivals and now - src.arrivals[0] > self._window:
             src.arrivals.popleft()
         if latency is not None:
             src.latencies.append(latency)
-        return FeedAck(source=src.name, seq=seq, latency_ms=None if latency is None else latency * 1e3)
+        return FeedAck(source=src.name, seq=seq, latency_ms=None if latency is None else latency * 1e3,
+                       detail=resync, resynced=resync is not None)
+
+    @staticmethod
+    def _seq_resync(src: _Source, seq: int | None) -> str | None:
+        """Why ``seq`` starts a new sequence (too far behind or ahead of the last accepted), or None."""
+        if seq is None or src.last_seq is None:
+            return None
+        window = src.config.seq_window
+        if seq < src.last_seq - window:
+            return (f"seq {seq} is {src.last_seq - seq} behind the last accepted {src.last_seq} (more than "
+                    f"seq_window {window}): taken as the sender's counter restarting; resynchronised")
+        if seq > src.last_seq + window:
+            return (f"seq {seq} jumped {seq - src.last_seq} ahead of the last accepted {src.last_seq} (more than "
+                    f"seq_window {window}); resynchronised")
+        return None
 
     def _sample(self, src: _Source, msg: PoseFeed | TwistFeed | MeasurementFeed,
                 stamp: float) -> PoseSample | TwistSample | Measurement:
@@ -206,7 +231,7 @@ class FeedRegistry:
             lat = list(src.latencies)
             return FeedStats(
                 source=src.name, kind=src.config.kind, accepted=src.accepted, rejected=src.rejected,
-                out_of_order=src.out_of_order, rate_hz=(len(arr) - 1) / span if span > 0 else 0.0,
+                out_of_order=src.out_of_order, resyncs=src.resyncs, rate_hz=(len(arr) - 1) / span if span > 0 else 0.0,
                 latency_ms_last=lat[-1] * 1e3 if lat else None,
                 latency_ms_mean=sum(lat) / len(lat) * 1e3 if lat else None,
                 latency_ms_max=max(lat) * 1e3 if lat else None,

@@ -6,6 +6,11 @@ browsers cannot set headers on a WebSocket, from a query parameter.
 
 Validation errors are rendered by this router, not FastAPI's default handler: the default echoes the
 offending input, and a NaN in it makes the JSON encoder fail with a 500 instead of the 422 we want.
+
+A WebSocket message the socket cannot read closes it with a close frame and a reason, never an
+exception: too large (1009, over :data:`MAX_FEED_MESSAGE_BYTES`, the HTTP body limit too), nested
+too deeply for the JSON parser (1007: Python's parser raised RecursionError, which used to end the
+socket without a close frame), or binary data that is not UTF-8 (1007).
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ from collections.abc import Callable, Coroutine
 from dataclasses import asdict
 from typing import Any
 
-from fastapi import APIRouter, Depends, HTTPException, Request, Response, WebSocket, WebSocketDisconnect
+from fastapi import APIRouter, Depends, HTTPException, Request, Response, WebSocket, WebSocketDisconnect, status
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.routing import APIRoute
@@ -38,6 +43,18 @@ def _json_safe(v: Any) -> Any:
     if v is None or isinstance(v, str | int | float | bool):
         return v
     return repr(v)
+
+
+MAX_FEED_MESSAGE_BYTES = 64 * 1024  # one sample per message; as servo_app.api.body_limit.MAX_BODY_BYTES
+
+
+class Unreadable(ValueError):
+    """A WebSocket message that ends the socket: ``code`` and ``reason`` go into the close frame."""
+
+    def __init__(self, code: int, reason: str) -> None:
+        super().__init__(reason)
+        self.code = code
+        self.reason = reason
 
 
 def _validation_detail(errors: Any) -> list[dict[str, Any]]:
@@ -151,18 +168,22 @@ def feed_router(registry: FeedRegistry, auth_dependency: Callable[..., Any] | No
     router = APIRouter(tags=["feeds"], route_class=_route_class(registry))
     handler = feed_post_handler(registry, auth_dependency)
 
-    @router.post("/api/feed/{source}", response_model=FeedAck, openapi_extra=_FEED_BODY,
+    @router.post("/api/feed/{source}", response_model=FeedAck, openapi_extra=_FEED_BODY, summary="Send one feed sample",
                  responses={401: {"description": "missing or wrong token"}, 404: {"description": "unknown source"},
-                            422: {"description": "rejected sample"}})
+                            413: {"description": "body too large"}, 422: {"description": "rejected sample"}})
     async def post_feed(source: str, request: Request) -> Response:
-        """One sample (pose, twist or measurement; its kind must be the source's)."""
+        """One sample (pose, twist or measurement; its kind must be the source's), stamped with the
+        sender's wall clock if it can. Token only (a sensor holds no lease). The answer says whether
+        it was taken (``accepted``), the slot's sequence number and the measured latency."""
         # The token and the body are checked in the handler (the body in pydantic's JSON parser), not
         # through FastAPI's dependency and body machinery; with FeedPostFastPath installed the
         # handler is reached without this route.
         return await handler(source, request)
 
-    @router.get("/api/feed", dependencies=deps)
+    @router.get("/api/feed", dependencies=deps, summary="Feed statistics")
     async def feed_stats() -> list[dict[str, Any]]:
+        """Per feed source: samples accepted, rejected, out of order and resynchronised, the rate, the
+        latency (last, mean, max) and the last error. Token only."""
         return [_json_safe(asdict(s)) for s in registry.all_stats()]
 
     @router.websocket("/ws/feed/{source}", dependencies=deps)
@@ -174,8 +195,15 @@ def feed_router(registry: FeedRegistry, auth_dependency: Callable[..., Any] | No
             return
         try:
             while True:
-                text = await ws.receive_text()
-                reply = _submit_text(registry, source, text)
+                message = await ws.receive()
+                if message["type"] == "websocket.disconnect":
+                    return
+                try:
+                    reply = _submit_text(registry, source, _frame_text(message))
+                except Unreadable as exc:
+                    registry.note_rejected(source, exc.reason)
+                    await ws.close(code=exc.code, reason=exc.reason)
+                    return
                 if ack or not reply["accepted"]:
                     await ws.send_text(json.dumps(reply, allow_nan=False))
         except WebSocketDisconnect:
@@ -184,21 +212,45 @@ def feed_router(registry: FeedRegistry, auth_dependency: Callable[..., Any] | No
     return router
 
 
+def _frame_text(message: Any) -> str:
+    """The text of a WebSocket message (a binary frame must be UTF-8 JSON too); Unreadable if not."""
+    text = message.get("text")
+    if text is None:
+        data = message.get("bytes") or b""
+        if len(data) > MAX_FEED_MESSAGE_BYTES:
+            raise Unreadable(status.WS_1009_MESSAGE_TOO_BIG, _too_big(len(data)))
+        try:
+            text = data.decode()
+        except UnicodeDecodeError:
+            raise Unreadable(status.WS_1007_INVALID_FRAME_PAYLOAD_DATA, "binary message is not UTF-8 JSON") from None
+    if len(text) > MAX_FEED_MESSAGE_BYTES:
+        raise Unreadable(status.WS_1009_MESSAGE_TOO_BIG, _too_big(len(text)))
+    return str(text)
+
+
+def _too_big(size: int) -> str:
+    return f"message of {size} bytes: a feed message is one sample, at most {MAX_FEED_MESSAGE_BYTES} bytes"
+
+
 def _submit_text(registry: FeedRegistry, source: str, text: str) -> dict[str, Any]:
     def rejected(detail: str) -> dict[str, Any]:
         return {"source": source, "accepted": False, "seq": registry.slot(source).seq, "latency_ms": None,
                 "detail": detail}
 
     try:
-        payload = json.loads(text)  # Python's parser accepts NaN, so it is rejected by name in submit
-    except ValueError as exc:
-        detail = f"not JSON: {exc}"
-    else:
-        if isinstance(payload, dict):
-            try:
-                return registry.submit(source, payload).model_dump()
-            except FeedRejected as exc:  # already counted by the registry
-                return rejected(str(exc))
-        detail = f"message must be a JSON object, got {type(payload).__name__}"
+        try:
+            payload = json.loads(text)  # Python's parser accepts NaN, so it is rejected by name in submit
+        except ValueError as exc:
+            detail = f"not JSON: {exc}"
+        else:
+            if isinstance(payload, dict):
+                try:
+                    return registry.submit(source, payload).model_dump()
+                except FeedRejected as exc:  # already counted by the registry
+                    return rejected(str(exc))
+            detail = f"message must be a JSON object, got {type(payload).__name__}"
+    except RecursionError:  # the parser (or the error's description) went too deep
+        raise Unreadable(status.WS_1007_INVALID_FRAME_PAYLOAD_DATA,
+                         "message nested too deeply: a feed sample is a flat JSON object") from None
     registry.note_rejected(source, detail)
     return rejected(detail)
