@@ -1,4 +1,10 @@
-"""``servo-app check FILE --model MODEL``: validate a trajectory as the controller would.
+"""``servo-app check FILE [--model MODEL]``: validate a trajectory as the controller would.
+
+A session log names its robot model in its header, so ``--model`` is needed only for a CSV (or to
+check a log against another model). A Janome session log (header ``protocol`` ``janome-...``) is
+checked as the Janome robot would take its target frames: each move target within the strokes and,
+for a SCARA, reachable in the arm configuration (a line move all along its path); each step no
+longer than the link's ``max_step_mm`` / ``max_step_deg`` (what a stop may still travel).
 
 Input: a CSV (comma, semicolon, tab or space separated; ``#`` comments; an optional header row)
 with one row per communication interval: J1..J6 in FANUC convention degrees (extra columns, e.g.
@@ -219,7 +225,9 @@ def add_check_parser(sub: Any) -> argparse.ArgumentParser:
     p = sub.add_parser("check", help="validate a trajectory as the controller would (J519 limits)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("file", help="CSV of J1..J6 (FANUC deg) or X Y Z W P R rows, one per interval")
-    p.add_argument("--model", required=True, help="robot profile name or TOML path")
+    p.add_argument("--model", default=None,
+                   help="robot profile name or TOML path (default: the model in a session log's header; "
+                        "required for a CSV)")
     p.add_argument("--interval-ms", type=float, default=None, help="interval (default: the profile's)")
     p.add_argument("--payload", type=float, default=None, help="payload kg (default: maximum payload)")
     p.add_argument("--format", choices=FORMATS, default="auto", dest="fmt")
@@ -228,17 +236,49 @@ def add_check_parser(sub: Any) -> argparse.ArgumentParser:
     return p
 
 
+def model_for(traj_header: dict[str, Any] | None, given: str | None, source: Path) -> str:
+    """The model to check against: ``--model`` if given, else the session log's header's."""
+    if given:
+        return given
+    model = (traj_header or {}).get("model")
+    if isinstance(model, str) and model:
+        return model
+    if traj_header is None:
+        raise TrajectoryError(f"{source}: a CSV names no robot model: give one with --model "
+                              f"(see `servo-app profiles`)")
+    raise TrajectoryError(f"{source}: the session log's header names no model: give one with --model")
+
+
+def _log_header(path: str) -> dict[str, Any] | None:
+    """A session log's header (None for any other file)."""
+    p = Path(path)
+    if not p.is_file() or not _is_session_log(p):
+        return None
+    from servo_app.session_log import SessionLogError, read_session_log
+
+    try:
+        return read_session_log(p).header
+    except (SessionLogError, OSError) as exc:
+        raise TrajectoryError(str(exc)) from exc
+
+
 def run_check(args: argparse.Namespace) -> int:
     from servo_app.robots.profile import ProfileError, load_profile
 
     try:
-        profile = load_profile(args.model)
+        header = _log_header(args.file)
+        if header is not None and str(header.get("protocol", "")).startswith("janome"):
+            return run_janome_check(Path(args.file), model_for(header, args.model, Path(args.file)))
+        profile = load_profile(model_for(header, args.model, Path(args.file)))
         traj = load_trajectory(args.file, args.fmt)
         if args.interval_ms is not None and args.interval_ms <= 0:
             raise TrajectoryError(f"--interval-ms {args.interval_ms} must be > 0")
     except (ProfileError, TrajectoryError) as exc:
         print(f"servo-app check: {exc}", file=sys.stderr)
         return 2
+    if header is not None and args.model and header.get("model") not in (None, args.model):
+        print(f"note: the log was written for {header.get('model')}; checking against {args.model}",
+              file=sys.stderr)
     flange = None
     try:
         from servo_app.robots.kinematics import ArmKinematics
@@ -313,3 +353,100 @@ def render_report(report: CheckReport, traj: Trajectory, interval_ms: float) -> 
         out.append(f"J{i + 1}   {100 * u.ratio[0, i]:9.1f}  {100 * u.ratio[1, i]:12.1f}  {100 * u.ratio[2, i]:8.1f}")
     out.append(f"peak flange speed {u.max_flange_speed:.0f} mm/s ($MAX_SPD {report.vmax:.0f})")
     return "\n".join(out)
+
+
+# --------------------------------------------------------------------------------- Janome logs
+
+
+@dataclass(frozen=True)
+class JanomeFinding:
+    row: int  # 0-based index among the log's command records
+    seq: int  # the target frame's sequence number
+    text: str
+
+
+@dataclass
+class JanomeReport:
+    violations: list[JanomeFinding]
+    moves: int  # move targets checked
+    peak_step: np.ndarray  # per axis X Y Z R: the longest step (mm, mm, mm, deg)
+    lo: np.ndarray  # per axis: the smallest and largest target value
+    hi: np.ndarray
+
+
+def check_janome_targets(values: np.ndarray, cmds: np.ndarray, seqs: np.ndarray, start: np.ndarray | None,
+                         profile: Any) -> JanomeReport:
+    """Check a Janome log's target frames (X Y Z R, cmd) as the robot takes them. Pure.
+
+    ``start``: the robot's position before the first target (its first status), if logged."""
+    from servo_app.janome.kinematics import AXES, UNITS
+    from servo_app.janome.protocol import Cmd
+
+    ws = profile.workspace()
+    arm = int(profile.elbow)
+    prev = None if start is None else np.asarray(start, float)
+    found: list[JanomeFinding] = []
+    peak = np.zeros(4)
+    moves = [i for i, c in enumerate(cmds) if int(c) in (Cmd.LINE, Cmd.PTP)]
+    for i in moves:
+        p = np.asarray(values[i], float)
+        why = ws.check(p, arm)
+        if why is None and prev is not None and int(cmds[i]) == Cmd.LINE:
+            why = ws.check_path(prev, p, arm)
+        if why is not None:
+            axis = f"axis {AXES[why.axis - 1]}, " if why.axis else ""
+            found.append(JanomeFinding(i, int(seqs[i]), f"{why.code.name} (robot error {int(why.code)}): "
+                                                      f"{axis}{why.message}"))
+        if prev is not None:
+            step = np.abs(p - prev)
+            peak = np.maximum(peak, step)
+            lin = float(np.linalg.norm(step[:3]))
+            if lin > profile.max_step_mm + 1e-6:
+                found.append(JanomeFinding(i, int(seqs[i]), f"STEP: a {lin:.3f} mm step, longer than max_step_mm "
+                                                          f"{profile.max_step_mm:g} (a stop may travel a whole step)"))
+            if step[3] > profile.max_step_deg + 1e-6:
+                found.append(JanomeFinding(i, int(seqs[i]), f"STEP: a {step[3]:.3f} {UNITS[3]} R step, longer than "
+                                                          f"max_step_deg {profile.max_step_deg:g}"))
+        prev = p
+    targets = values[moves] if moves else np.zeros((0, 4))
+    lo = targets.min(axis=0) if len(targets) else np.full(4, np.nan)
+    hi = targets.max(axis=0) if len(targets) else np.full(4, np.nan)
+    return JanomeReport(found, len(moves), peak, lo, hi)
+
+
+def run_janome_check(path: Path, model: str) -> int:
+    from servo_app.janome.kinematics import AXES, UNITS
+    from servo_app.janome.profile import load_janome_profile
+    from servo_app.robots.profile import ProfileError
+    from servo_app.session_log import read_session_log
+
+    try:
+        profile = load_janome_profile(model)
+    except ProfileError as exc:
+        print(f"servo-app check: {exc}", file=sys.stderr)
+        return 2
+    log = read_session_log(path)
+    cmds = log.commands
+    if len(cmds) == 0:
+        print(f"servo-app check: {path}: the session log holds no target frames", file=sys.stderr)
+        return 2
+    statuses = log.statuses
+    first_cmd_t = float(cmds["t"][0])
+    before = statuses[statuses["t"] <= first_cmd_t]
+    start = before["values"][-1, :4].astype(float) if len(before) else None
+    report = check_janome_targets(cmds["values"][:, :4].astype(float), (cmds["flags"] >> 1) & 0x7F,
+                                  cmds["seq"].astype(np.int64), start, profile)
+    out = [f"{path}: {len(cmds)} target frames, {report.moves} moves, {profile.display_name} ({profile.name})"]
+    if report.violations:
+        v = report.violations[0]
+        out.append(f"FIRST VIOLATION: {v.text}\n  target {v.row + 1} of the log (seq {v.seq})")
+        out.append(f"violations: {len(report.violations)}")
+    else:
+        out.append("OK: no violation")
+    out.append("axis  range of targets              stroke                  longest step  max step")
+    for i in range(4):
+        cap = profile.max_step_deg if i == 3 else profile.max_step_mm
+        out.append(f"{AXES[i]}  {report.lo[i]:10.3f} .. {report.hi[i]:10.3f}  {profile.axis_min[i]:9.3f} .. "
+                   f"{profile.axis_max[i]:9.3f} {UNITS[i]:3s}  {report.peak_step[i]:10.3f}  {cap:g}")
+    print("\n".join(out))
+    return 1 if report.violations else 0

@@ -3,8 +3,8 @@
 Subcommands:
   run                      the service (REST/WS API, console) against the embedded simulator or a robot
   sim fanuc|janome         a controller simulator, standalone
-  check FILE --model M     validate a trajectory or session log as the controller would
-  profiles                 list the robot profiles found
+  check FILE [--model M]   validate a trajectory or session log as the controller would
+  profiles                 list the robot profiles found (FANUC and Janome)
 """
 
 from __future__ import annotations
@@ -17,11 +17,22 @@ Handler = Callable[[argparse.Namespace], int]
 
 
 def _cmd_profiles(args: argparse.Namespace) -> int:
-    from servo_app.robots.profile import available_profiles, load_profile
+    from servo_app.janome.profile import available_janome_profiles, load_janome_profile
+    from servo_app.robots.profile import ProfileError, available_profiles, load_profile
 
+    print("FANUC (servo-app run --robot fanuc[:HOST[:PORT]] --model NAME)")
     for name in available_profiles():
         p = load_profile(name)
-        print(f"{name:16s} {p.display_name:20s} interval {p.interval_ms} ms  payload {p.max_payload_kg:g} kg")
+        print(f"  {name:16s} {p.display_name:34s} interval {p.interval_ms} ms  payload {p.max_payload_kg:g} kg")
+    print("Janome (servo-app run --robot janome[:HOST[:PORT]] --model NAME)")
+    for name in available_janome_profiles():
+        try:
+            j = load_janome_profile(name)
+        except ProfileError as exc:  # one broken file must not hide the others
+            print(f"  {name:16s} invalid: {exc}")
+            continue
+        strokes = "  ".join(f"{ax} {lo:g}..{hi:g}" for ax, lo, hi in zip("XYZR", j.axis_min, j.axis_max, strict=True))
+        print(f"  {name:16s} {j.display_name:34s} {j.kind.name.lower():9s}  {strokes}")
     return 0
 
 

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -166,3 +169,72 @@ def test_session_log_is_checked_per_stream_with_wire_sequence_numbers(tmp_path: 
     assert code == 1
     assert "MOTN-611 ST:Exceeded Jnt Jerk Limit.(A:2,Sq.5030)" in out
     assert f"command {len(SMOOTH) + 31} of the log (Sq.5030)" in out
+
+
+# ----------------------------------------------- the model from the log's header; Janome logs (issue 14)
+
+
+def servo_app_cli(*argv: str) -> subprocess.CompletedProcess[str]:
+    """The real command, in a process of its own."""
+    return subprocess.run([sys.executable, "-m", "servo_app.cli", *argv], capture_output=True, text=True,
+                          timeout=120)
+
+
+def test_session_log_needs_no_model_its_header_names_it(tmp_path: Path) -> None:
+    ok = write_log(tmp_path / "ok.srvlog", [(1000, SMOOTH)])
+    r = servo_app_cli("check", str(ok))
+    assert r.returncode == 0, r.stderr
+    assert f"{len(SMOOTH)} rows (joints)" in r.stdout and "OK: no violation" in r.stdout
+    bad_rows = SMOOTH.copy()
+    bad_rows[50:, 2] += 0.05
+    r = servo_app_cli("check", str(write_log(tmp_path / "bad.srvlog", [(1000, bad_rows)])))
+    assert r.returncode == 1 and "MOTN-611" in r.stdout
+
+
+def test_csv_without_model_says_how_to_give_one(tmp_path: Path) -> None:
+    r = servo_app_cli("check", str(write_csv(tmp_path / "a.csv", SMOOTH[:5])))
+    assert r.returncode == 2 and "--model" in r.stderr and "servo-app profiles" in r.stderr
+
+
+def write_janome_log(path: Path, targets: list[tuple[float, float, float, float]], model: str = "jr3000",
+                     start: tuple[float, float, float, float] = (150.0, 160.0, 50.0, 0.0)) -> Path:
+    """A log as the Janome servo process writes it: status = state, error, X Y Z R; target = stop | cmd << 1."""
+    from servo_app.janome.protocol import Cmd, RobotState
+    from servo_app.session_log import SessionLogWriter
+
+    w = SessionLogWriter(path, {"model": model, "protocol": "janome-pointjob-v1", "axes": ["X", "Y", "Z", "R"],
+                                "fixed_interval": False})
+    t = 0.0
+    w.status(t, 1, RobotState.READY, 0, start)
+    for i, xyzr in enumerate(targets):
+        t += 0.05
+        w.command(t, i + 2, 0, Cmd.LINE, 0, 100.0, xyzr)
+        w.status(t + 0.04, i + 2, RobotState.READY, 0, xyzr)
+    w.close()
+    return path
+
+
+def test_janome_log_is_checked_against_its_strokes_and_step(tmp_path: Path) -> None:
+    good = [(150.0 + 4 * i, 160.0, 50.0, 0.5 * i) for i in range(1, 20)]
+    r = servo_app_cli("check", str(write_janome_log(tmp_path / "janome-ok.srvlog", good)))
+    assert r.returncode == 0, (r.stdout, r.stderr)
+    assert "jr3000" in r.stdout and "OK: no violation" in r.stdout and "19 moves" in r.stdout
+    # A target beyond the JR3000's X stroke (0..300 mm): the robot would answer OUT_OF_RANGE.
+    out_of_stroke = [(290.0, 160.0, 50.0, 0.0), (298.0, 160.0, 50.0, 0.0), (305.0, 160.0, 50.0, 0.0)]
+    r = servo_app_cli("check", str(write_janome_log(tmp_path / "janome-far.srvlog", out_of_stroke,
+                                                    start=(285.0, 160.0, 50.0, 0.0))))
+    assert r.returncode == 1, (r.stdout, r.stderr)
+    first = r.stdout.split("FIRST VIOLATION: ", 1)[1]
+    assert first.startswith("OUT_OF_RANGE") and "X=305.000 mm is outside the stroke [0, 300]" in first
+    assert "target 3 of the log (seq 4)" in first
+    # A step longer than the link's max_step_mm (10 mm for the JR3000): a stop could travel that far.
+    r = servo_app_cli("check", str(write_janome_log(tmp_path / "janome-jump.srvlog", [(180.0, 160.0, 50.0, 0.0)])))
+    assert r.returncode == 1 and "30.000 mm step, longer than max_step_mm 10" in r.stdout
+
+
+def test_profiles_lists_the_janome_models_too() -> None:
+    r = servo_app_cli("profiles")
+    assert r.returncode == 0, r.stderr
+    for name in ("lrmate200id", "jr3000", "jc3", "js3"):
+        assert re.search(rf"^\s*{name}\s", r.stdout, re.M), (name, r.stdout)
+    assert "scara" in r.stdout

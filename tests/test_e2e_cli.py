@@ -85,7 +85,7 @@ def test_run_against_an_external_simulator_process(sim: tuple[subprocess.Popen[s
                     break
                 time.sleep(0.02)
             assert abs(s["q_servo"][0] - 15) < 0.5  # the external controller followed
-            assert c.post("/api/session/end", headers=auth).status_code == 200
+            assert c.post("/api/session/end", headers=hdr).status_code == 200
             for _ in range(200):
                 if c.get("/api/state").json()["state"] == "ended":
                     break
@@ -143,7 +143,7 @@ def test_run_janome_with_its_embedded_simulator_through_rest(tmp_path: Path) -> 
             r = c.post("/api/jog", content='{"joints": [NaN, 0, 0, 0]}',
                        headers={**hdr, "content-type": "application/json"})
             assert r.status_code == 422 and "joints[0]=nan" in r.text  # named; nothing reaches the robot
-            assert c.post("/api/session/end", headers=auth).status_code == 200
+            assert c.post("/api/session/end", headers=hdr).status_code == 200
             for _ in range(300):
                 if c.get("/api/state").json()["state"] == "ended":
                     break
@@ -155,9 +155,14 @@ def test_run_janome_with_its_embedded_simulator_through_rest(tmp_path: Path) -> 
     # The exchange was logged frame by frame, readable like any session log.
     from servo_app.session_log import read_session_log
 
-    logs = [read_session_log(p) for p in (tmp_path / "sessions").glob("janome-*.srvlog")]
+    paths = sorted((tmp_path / "sessions").glob("janome-*.srvlog"))
+    logs = [read_session_log(p) for p in paths]
     assert logs
     log = max(logs, key=lambda lg: len(lg.commands))  # the point job may have reconnected afterwards
+    # `servo-app check` reads the model from the header and checks the targets as the robot takes them.
+    checked = subprocess.run([sys.executable, "-m", "servo_app.cli", "check", str(paths[logs.index(log)])],
+                             capture_output=True, text=True, timeout=120)
+    assert checked.returncode == 0 and "(jr3000)" in checked.stdout, (checked.stdout, checked.stderr)
     assert log.header["protocol"] == "janome-pointjob-v1"
     xs = log.commands["values"][:, 0]
     assert len(log.commands) > 5 and xs.max() > xs[0] + 5.0  # the +X jog is in it
