@@ -70,3 +70,72 @@ def test_path_check_catches_a_path_outside_the_repository() -> None:
                             _tracked_tops())
     assert paths == ["docs/nope.md", "../shared/DESIGN.md", "configs/robots/NAME.toml"]
     assert [_exists(p) for p in paths] == [False, False, True]
+
+
+# ------------------------------------------------------------------------------ scripts/install
+
+# A stand-in for python (a real full install takes ~1.5 min and the network: .ci/run does that on a
+# fresh clone). "-m venv DIR" makes DIR/bin/python (a copy of this script); every other call is a pip
+# run, logged; PIP_FAIL=1 makes it fail like a broken download.
+FAKE_PYTHON = """#!/bin/sh
+if [ "$1" = "-m" ] && [ "$2" = "venv" ]; then mkdir -p "$3/bin" && cp "$0" "$3/bin/python" && exit 0; fi
+echo "$*" >> "$PIP_LOG"
+[ "${PIP_FAIL:-0}" = 1 ] && exit 1
+exit 0
+"""
+
+
+@pytest.fixture
+def project(tmp_path: Path) -> Path:
+    """The install script and pyproject.toml in a directory of their own."""
+    (tmp_path / "scripts").mkdir()
+    (tmp_path / "scripts" / "install").write_text((ROOT / "scripts" / "install").read_text())
+    (tmp_path / "pyproject.toml").write_text((ROOT / "pyproject.toml").read_text())
+    fake = tmp_path / "fake-python"
+    fake.write_text(FAKE_PYTHON)
+    fake.chmod(0o755)
+    return tmp_path
+
+
+def install(project: Path, *args: str, fail: bool = False) -> tuple[int, list[str], str]:
+    """Run scripts/install; the pip runs it made, and its stderr."""
+    log = project / "pip.log"
+    log.write_text("")
+    env = {"PATH": "/usr/bin:/bin", "PYTHON": str(project / "fake-python"), "PIP_LOG": str(log),
+           "PIP_FAIL": "1" if fail else "0"}
+    r = subprocess.run(["bash", "scripts/install", *args], cwd=project, env=env, capture_output=True, text=True,
+                       timeout=60)
+    return r.returncode, log.read_text().splitlines(), r.stderr
+
+
+def test_install_skips_pip_when_nothing_changed(project: Path) -> None:
+    code, pips, _ = install(project)
+    assert code == 0
+    assert len(pips) == 2 and "--upgrade pip" in pips[0] and pips[1].endswith("-e .")  # a fresh .venv
+    assert all(" -q " in p for p in pips)  # pip stays quiet
+    code, pips, err = install(project)
+    assert code == 0 and pips == [] and err == ""  # unchanged: no pip at all
+    # The test extras are more: installed once, and they cover a plain run afterwards.
+    assert install(project, "--test")[1][-1].endswith("-e .[test]")
+    assert install(project)[1] == [] and install(project, "--test")[1] == []
+
+
+def test_install_runs_pip_again_when_pyproject_changes(project: Path) -> None:
+    install(project)
+    with (project / "pyproject.toml").open("a") as f:
+        f.write("\n# a new dependency\n")
+    code, pips, _ = install(project)
+    assert code == 0 and len(pips) == 1 and pips[0].endswith("-e .")  # the venv stays, the package is reinstalled
+    assert install(project)[1] == []
+
+
+def test_a_failed_install_is_retried_and_a_new_venv_installs(project: Path) -> None:
+    install(project)
+    (project / "pyproject.toml").write_text((project / "pyproject.toml").read_text() + "\n# changed\n")
+    code, pips, _ = install(project, fail=True)
+    assert code != 0 and len(pips) == 1
+    assert len(install(project)[1]) == 1  # the failure left no stamp: the next run tries again
+    import shutil
+
+    shutil.rmtree(project / ".venv")  # a fresh machine
+    assert len(install(project)[1]) == 2
