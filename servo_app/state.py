@@ -50,6 +50,9 @@ _FIELDS: list[tuple[str, int]] = [
     ("latency_sum_us", 1),  # over the servo process's life, never reset (Prometheus counters)
     ("latency_hist", len(LATENCY_BUCKETS_US) + 1),  # commands per latency bucket, not cumulative in le
     ("at_rest", 1),
+    ("settled", 1),  # the robot's feedback has stopped moving too (servo_app.motion.settle)
+    ("status_unix", 1),  # wall clock when the last status arrived (0: none from this process)
+    ("status_time_ms", 1),  # the controller's own time stamp in that status (-1: it has none)
     ("stopped", 1),
     ("tables_from_controller", 1),
     ("q_cmd", 6),
@@ -81,6 +84,7 @@ class StateVector:
 
     def __init__(self) -> None:
         self.data = np.zeros(STATE_SIZE)
+        self.set("status_time_ms", -1.0)
 
     def set(self, name: str, value: float | np.ndarray) -> None:
         sl = FIELDS[name]
@@ -99,8 +103,9 @@ def decode_state(data: np.ndarray) -> dict[str, Any]:
             out[name] = float(data[sl.start])
     out["link"] = PHASES[int(out.pop("phase"))]
     out["state"] = MODES[int(out.pop("mode"))]
-    for k in ("at_rest", "stopped", "tables_from_controller", "ik_active"):
+    for k in ("at_rest", "settled", "stopped", "tables_from_controller", "ik_active"):
         out[k] = bool(out[k])
+    out["status_time_ms"] = int(out["status_time_ms"]) if out["status_time_ms"] >= 0 else None
     for k in ("status_seq", "status_bits", "commands_sent", "status_received", "status_lost", "status_duplicated",
               "malformed", "late_commands", "late_inputs", "io_read_value", "io_read_type", "io_read_index",
               "io_read_mask", "ik_flags"):

@@ -66,6 +66,17 @@ class _StateCollector:
                                 value=float(state.get("status_interval_last_ms", 0.0)) / 1e3)
         yield GaugeMetricFamily("servo_at_rest", "1 when the commanded motion is at rest",
                                 value=1.0 if state.get("at_rest") else 0.0)
+        yield GaugeMetricFamily("servo_settled", "1 when the robot's reported position has stopped moving",
+                                value=1.0 if state.get("settled") else 0.0)
+        c = CounterMetricFamily("servo_alarms", "controller alarms and warnings by code", labels=["code"])
+        for code, n in sorted((state.get("alarm_counts") or {}).items()):
+            c.add_metric([code], float(n))
+        yield c
+        c = CounterMetricFamily("servo_faults", "faults by cause: the controller's alarm code, or what we "
+                                "detected (status_lost, servo_process, ...)", labels=["cause"])
+        for cause, n in sorted((state.get("fault_counts") or {}).items()):
+            c.add_metric([cause], float(n))
+        yield c
         c = CounterMetricFamily("servo_stops", "stops by reason", labels=["reason"])
         for reason, n in sorted(stops.items()):
             c.add_metric([reason], float(n))

@@ -215,6 +215,7 @@ class AlarmEvent:
     time_s: float
     axis: int | None = None
     seq: int | None = None
+    controller_time_ms: int | None = None  # the status packets' time stamp clock at the alarm
 
     @property
     def spec(self) -> AlarmSpec:

@@ -33,6 +33,7 @@ from servo_app.janome.protocol import Cmd, FrameError, Target
 from servo_app.janome.session import Phase, SessionConfig
 from servo_app.janome.supervisor import JanomeSupervisor
 from servo_app.messages import PeerConnected, PeerDisconnected, PeerRefused, Ready
+from servo_app.motion.settle import SettleDetector
 from servo_app.process_handle import ServoProcessHandle, ServoProcessHost, run_child
 from servo_app.safety import Mode, safe_to_exit
 from servo_app.state import MODES, PHASES, StateVector, command_derivatives
@@ -58,6 +59,11 @@ class JanomeConfig:
     publish_interval_s: float = 0.05
     log_dir: str = "var/sessions"  # every connection's exchange, per frame (servo_app/session_log.py)
     input_slot: str | None = None  # shared-memory name of the inputs bridge's live command
+    # settled: X Y Z (mm) and R (deg) each within settle_tol over settle_window_s of statuses. The
+    # status reports the position after the robot's last move, so at_rest (the last target sent)
+    # comes one move early: 4 mm at jog speed here. A holding robot reports every ~0.05-0.1 s.
+    settle_tol: float = 0.01
+    settle_window_s: float = 0.25
 
 
 # --------------------------------------------------------------------------- child side
@@ -90,6 +96,8 @@ class _JanomeServoProcess(ServoProcessHost):
         self._last_pub = 0.0
         self._logged_seq: int | None = None
         self.inputs = InputSlotReader(cfg.input_slot) if cfg.input_slot else None
+        self.settle = SettleDetector(cfg.settle_tol, cfg.settle_window_s)
+        self._settle_seq: int | None = None
 
     # -- main loop
     def run(self) -> None:
@@ -148,6 +156,8 @@ class _JanomeServoProcess(ServoProcessHost):
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.setblocking(False)
         self.sock, self.peer = sock, peer
+        self.settle.reset()  # another connection: its feedback is watched afresh
+        self._settle_seq = None
         self._open_connection_log()
         self.sup.on_connect(time.monotonic())
         self._event(PeerConnected(peer=peer))
@@ -182,6 +192,10 @@ class _JanomeServoProcess(ServoProcessHost):
             self.lat_max = max(self.lat_max, us)
         self._log_exchange(t_recv, out, us)
         st = self.sup.session.last_status
+        if st is not None and st.seq != self._settle_seq:  # a new status: where the last move ended
+            self._settle_seq = st.seq
+            self.settle.add(t_recv, st.xyzr)
+            self.state.set("status_unix", time.time() - (time.monotonic() - t_recv))
         if st is not None:
             if self.last_status_t:
                 self.state.set("status_interval_last_ms", (t_recv - self.last_status_t) * 1000)
@@ -253,6 +267,7 @@ class _JanomeServoProcess(ServoProcessHost):
             sv.set("latency_p99_us", float(np.percentile(a, 99)))
             sv.set("latency_max_us", self.lat_max)
         sv.set("at_rest", float(m.at_rest()))
+        sv.set("settled", float(m.at_rest() and self.settle.settled))
         sv.set("stopped", float(m.stopped))
         sv.set("vel_limit", _pad(m.vel))
         sv.set("acc_limit", _pad(m.acc))

@@ -3,6 +3,8 @@ the service's own facts), the limits, the robot's drawing, the session logs."""
 
 from __future__ import annotations
 
+import contextlib
+import time
 from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -13,19 +15,57 @@ if TYPE_CHECKING:
     from servo_app.service.core import ServoService
 
 
+# Link phases in which the controller sends status; in any other the last status bits are history.
+LIVE_LINKS = frozenset({"fetching_tables", "connected", "waiting_ready", "streaming", "ending"})
+# A status older than this is not live whatever the phase says (FANUC: every 2-8 ms; Janome: after
+# each move and every ~0.05-0.1 s while it holds; both links fault on far shorter silences).
+STATUS_STALE_S = 2.0
+
+
+def consistent(s: dict[str, Any], now: float) -> dict[str, Any]:
+    """Make the view agree with itself (the console once showed READY beside "link fault"): status
+    bits are reported only while status packets arrive (``status_live``; the last ones stay in
+    ``status_bits_last``, ``status_age_s`` old), and with the link faulted, a state that rests on the
+    controller's status (connected, ready) reads disconnected: the next start opens the link afresh."""
+    t = s.get("status_unix") or 0.0
+    age = max(0.0, now - t) if t > 0 else None
+    live = s.get("link") in LIVE_LINKS and age is not None and age < STATUS_STALE_S
+    s["status_age_s"] = age
+    s["status_live"] = live
+    s["status_bits_last"] = s.get("status_bits")
+    if not live:
+        s["status_bits"] = None
+    if s.get("link") == "fault" and s.get("state") in ("connected", "ready"):
+        s["state"] = "disconnected"
+    return s
+
+
 class StateViews:
     def __init__(self, service: ServoService) -> None:
         self.service = service
+        # The forwarder follows the servo process's safety view (resets, new streams, faults).
+        service.alarm_forwarder.attach(lambda: service.safety, lambda: service.servo_fault, self._status_time_ms)
+
+    def _status_time_ms(self) -> int | None:
+        """The controller's time stamp of the last status (None: none, or it has no clock)."""
+        stream = self.service.stream
+        if stream is None:
+            return None
+        with contextlib.suppress(AttributeError, OSError, ValueError):  # a slot closed by a replacement
+            t = stream.state().get("status_time_ms")
+            return None if t is None else int(t)
+        return None
 
     def state_vector(self) -> dict[str, Any]:
         """The servo process's published state alone (cheap: a shared-memory copy); a dead process's
-        last state shows the fault."""
+        last state shows the fault. With the alarm and fault counts for /metrics."""
         svc = self.service
         if svc.stream is None:
             return {"state": "disconnected", "link": "idle"}
         s = svc.stream.state()
         if svc.servo_fault is not None:
-            s["state"], s["link"] = "fault", "fault"
+            s["state"], s["link"], s["settled"] = "fault", "fault", False
+        s["alarm_counts"], s["fault_counts"] = svc.alarm_forwarder.counts()
         return s
 
     def state(self) -> dict[str, Any]:
@@ -37,7 +77,9 @@ class StateViews:
         s.update({k: v for k, v in safety.items() if k not in ("state", "link")})
         s["servo_process"] = "running"
         if svc.servo_fault is not None:  # the last published state is stale: the process is gone
-            s.update(state="fault", link="fault", fault=svc.servo_fault, resumable=False, at_rest=True)
+            # The controller stopped the arm; no feedback says where it came to rest.
+            s.update(state="fault", link="fault", fault=svc.servo_fault, resumable=False, at_rest=True,
+                     settled=False)
             s["servo_process"] = svc.servo_fault["message"].removeprefix("servo process ")
         s["servo_starts"] = svc.servo_starts
         s["backend"] = svc.backend.name
@@ -48,7 +90,9 @@ class StateViews:
         s["robot"] = f"{svc.robot_address[0]}:{svc.robot_address[1]}" if svc.robot_address else None
         s["simulated"] = svc.sim is not None
         s["alarms"] = svc.alarm_forwarder.alarms()
+        s["alarm_history"] = svc.alarm_forwarder.history()
         s["faults"] = svc.alarm_forwarder.faults[-10:]
+        consistent(s, time.time())
         if svc.inputs is not None:
             s["inputs"] = svc.inputs.summary()
         return s

@@ -425,7 +425,6 @@ class FanucControllerModel:
             rval = self.io.read(rtype, ridx, rmask)
         except IoError:
             rval = 0
-        ms = int((now - (self._t0 or 0.0)) * 1000.0) + self.config.timestamp_offset_ms
         cart = np.zeros(N_JOINTS)
         if self.kin.pose_xyzwpr is not None:
             cart[:6] = self.kin.pose_xyzwpr(self.servo.q[:6])
@@ -436,11 +435,16 @@ class FanucControllerModel:
             read_io_index=ridx,
             read_io_mask=rmask,
             read_io_value=rval,
-            timestamp_ms=(ms - ms % 2) % SEQ_MODULO,
+            timestamp_ms=self.timestamp_ms(now),
             cartesian=tuple(cart.tolist()),
             joints=tuple(self.servo.q.tolist()),
             currents=tuple(self.servo.currents().tolist()),
         ).encode()
+
+    def timestamp_ms(self, now: float) -> int:
+        """The controller's clock as status packets carry it: ms since the first datagram, in 2 ms steps."""
+        ms = int((now - (self._t0 or 0.0)) * 1000.0) + self.config.timestamp_offset_ms
+        return (ms - ms % 2) % SEQ_MODULO
 
     # ---- alarms ---------------------------------------------------------------------------------
 
@@ -448,7 +452,7 @@ class FanucControllerModel:
                rob: object = None) -> None:
         """Post an alarm or warning; an alarm is a power-off stop."""
         line = format_alarm(code, axis=axis, seq=seq, pc=pc, rob=rob)
-        self.events.append(AlarmEvent(code, line, self.now, axis, seq))
+        self.events.append(AlarmEvent(code, line, self.now, axis, seq, controller_time_ms=self.timestamp_ms(self.now)))
         if self.log is not None:
             self.log(line)
         if ALARMS[code].warning:

@@ -19,7 +19,8 @@ _CALLS = {"reset", "start_program", "abort_program", "set_mode", "set_override",
 
 
 def _event_dict(ev: Any) -> dict[str, Any]:
-    return {"code": ev.code, "message": ev.message, "time_s": ev.time_s, "axis": ev.axis, "seq": ev.seq}
+    return {"code": ev.code, "message": ev.message, "time_s": ev.time_s, "axis": ev.axis, "seq": ev.seq,
+            "controller_time_ms": ev.controller_time_ms}
 
 
 def _serve(kwargs: dict[str, Any], conn: Connection) -> None:
