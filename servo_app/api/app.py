@@ -12,8 +12,8 @@ the models of :mod:`servo_app.api.models`, and send every request to the servo p
 
 In front of everything, :class:`~servo_app.api.body_limit.BodyLimit` refuses bodies over
 :data:`~servo_app.api.body_limit.MAX_BODY_BYTES` (413) before any parsing or authentication. The
-interactive documentation (``/docs``, ``/redoc``) is served from the ``fastapi-offline`` package's
-copies of Swagger UI and ReDoc: no CDN, so it works on a machine cut off from the internet.
+interactive documentation (``/docs``) is served from the ``fastapi-offline`` package's copy of
+Swagger UI: no CDN, so it works on a machine cut off from the internet.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
-from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html, get_swagger_ui_oauth2_redirect_html
+from fastapi.openapi.docs import get_swagger_ui_html, get_swagger_ui_oauth2_redirect_html
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.types import Scope
@@ -81,8 +81,9 @@ async def _invalid_request(request: Request, exc: Exception) -> JSONResponse:
 
 
 def _offline_docs(app: FastAPI) -> None:
-    """Swagger UI at /docs and ReDoc at /redoc from the fastapi-offline package's files (FastAPI's
-    own pages load them, and the favicon, from CDNs: a blank page without internet)."""
+    """Swagger UI at /docs from the fastapi-offline package's files (FastAPI's own page loads them, and
+    the favicon, from CDNs: a blank page without internet). No /redoc: its page loads a logo from a
+    CDN whatever the options."""
     import fastapi_offline
 
     assets = Path(fastapi_offline.__file__).resolve().parent / "static"
@@ -99,12 +100,6 @@ def _offline_docs(app: FastAPI) -> None:
     @app.get(oauth2, include_in_schema=False)
     def swagger_ui_redirect() -> HTMLResponse:
         return get_swagger_ui_oauth2_redirect_html()
-
-    @app.get("/redoc", include_in_schema=False)
-    def redoc() -> HTMLResponse:
-        return get_redoc_html(openapi_url=str(app.openapi_url), title=f"{app.title} - API",
-                              redoc_js_url="/docs-assets/redoc.standalone.js",
-                              redoc_favicon_url="/docs-assets/favicon.png", with_google_fonts=False)
 
 
 def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
