@@ -247,7 +247,8 @@ def test_500_jog_requests_per_second(tmp_path: Path) -> None:
               f"p50 {after['latency_p50_us']:.0f} us, p99 {after['latency_p99_us']:.0f} us, "
               f"max {after['latency_max_us']:.0f} us, late commands {late}")
         assert set(codes) <= {200, 429} and codes.count(429) > 0
-        assert codes.count(200) <= 100 * (elapsed + 1.0) and most <= 100
+        # A token bucket (100/s, a burst of 25 saved up): at most 100 + 25 in any one second.
+        assert codes.count(200) <= 100 * (elapsed + 1.0) and most <= 125
         assert after["status_lost"] == 0 and rig.sim_alarms() == []
         assert after["q_cmd"][0] > before["q_cmd"][0] + 5.0  # the accepted jogs moved the arm
         finish(rig, h)
