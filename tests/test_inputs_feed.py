@@ -9,12 +9,13 @@ import socket
 import threading
 import time
 from collections.abc import Iterator
+from typing import Any
 
 import httpx
 import pytest
 import uvicorn
 import websockets
-from fastapi import FastAPI, HTTPException
+from fastapi import FastAPI, HTTPException, WebSocketDisconnect
 from fastapi.testclient import TestClient
 from starlette.requests import HTTPConnection
 
@@ -107,6 +108,51 @@ def test_registry_rejections_name_field_and_value() -> None:
     # Slightly-future stamps (within max_future_s) count as zero latency.
     ack = reg.submit("vision", {"kind": "pose", "xyzwpr": [0, 0, 0, 0, 0, 0], "stamp": c.wall + 0.01})
     assert ack.accepted and reg.slot("vision").read().stamp == c.mono
+
+
+def test_a_sequence_that_jumps_or_restarts_is_resynchronised_not_locked_out() -> None:
+    """A stray seq far ahead, or a sensor restarting its counter, must not make every later sample
+    "older than the last" until the service restarts; a sample a little behind is still a late one."""
+    c = Clocks()
+    reg = make_registry(c)
+
+    def send(seq: int, x: float) -> Any:
+        c.advance(0.01)
+        return reg.submit("vision", {"kind": "pose", "xyzwpr": [x, 0, 300, 180, 0, 0], "seq": seq})
+
+    assert all(send(i, i).accepted for i in range(1, 6))
+    ack = send(1_000_000, 6)  # a corrupt or stray seq far ahead: taken, and said so
+    assert ack.accepted and ack.resynced and "jumped" in ack.detail
+    ack = send(6, 7)  # the sender's own sequence goes on: resynchronised back, not dropped
+    assert ack.accepted and ack.resynced and "restarting" in ack.detail
+    assert send(7, 8).accepted and not send(8, 9).resynced
+    ack = send(4, 0)  # a little behind: a late sample, dropped as before
+    assert not ack.accepted and "older" in ack.detail
+    # The sensor rebooted and counts from 1 again. Stamped, the newer stamp tells at once; unstamped,
+    # a seq this close behind is a late sample until the counter passes the old one.
+    assert not send(1, 10).accepted
+    c.advance(0.01)
+    ack = reg.submit("vision", {"kind": "pose", "xyzwpr": [10, 0, 300, 180, 0, 0], "seq": 1, "stamp": c.wall})
+    assert ack.accepted and ack.resynced and reg.slot("vision").read().value.xyzwpr[0] == 10
+    assert send(2, 11).accepted
+    for seq in range(3, 500):  # a long run, then a reboot: far behind is a restart, stamped or not
+        send(seq, 12)
+    ack = send(1, 13)
+    assert ack.accepted and ack.resynced and "restarting" in ack.detail
+    st = reg.stats("vision")
+    assert st.resyncs == 4 and st.out_of_order == 2 and st.accepted == 5 + 1 + 3 + 1 + 1 + 497 + 1
+    # A restart whose stamp is older than the last sample is a late packet all the same.
+    ack = reg.submit("vision", {"kind": "pose", "xyzwpr": [0, 0, 300, 180, 0, 0], "seq": 50_000,
+                                "stamp": c.wall - 5.0})
+    assert not ack.accepted
+
+
+def test_a_twist_in_an_unknown_frame_is_refused() -> None:
+    reg = make_registry()
+    with pytest.raises(FeedRejected, match=r"field 'frame' value 'world'"):
+        reg.submit("jog", {"kind": "twist", "linear": [10, 0, 0], "frame": "world"})
+    assert reg.slot("jog").seq == 0 and reg.stats("jog").rejected == 1
+    assert reg.submit("jog", {"kind": "twist", "linear": [10, 0, 0], "frame": "tool"}).accepted
 
 
 def test_feed_sources_plug_into_the_arbiter() -> None:
@@ -211,6 +257,29 @@ def test_websocket_feed(client: tuple[TestClient, FeedRegistry]) -> None:
         assert getattr(ei.value, "code", None) == 1008
 
 
+NESTED = "[" * 20_000 + "]" * 20_000  # 40 KB: under the message limit, far over the JSON parser's depth
+
+
+@pytest.mark.parametrize(("message", "code", "words"), [
+    (NESTED, 1007, "nested too deeply"),
+    ('{"kind": "pose", "x": ' + '{"a": ' * 5000 + "1" + "}" * 5000 + "}", 1007, "nested too deeply"),
+    (b"\xff\xfe", 1007, "not UTF-8"),
+    ("x" * 70_000, 1009, "at most 65536 bytes"),
+])
+def test_an_unreadable_websocket_message_closes_the_feed_socket_with_a_reason(
+        client: tuple[TestClient, FeedRegistry], message: str | bytes, code: int, words: str) -> None:
+    c, reg = client
+    with c.websocket_connect(f"/ws/feed/vision?token={TOKEN}") as ws:
+        if isinstance(message, bytes):
+            ws.send_bytes(message)
+        else:
+            ws.send_text(message)
+        with pytest.raises(WebSocketDisconnect) as ei:
+            ws.receive_text()
+    assert ei.value.code == code and words in ei.value.reason
+    assert reg.stats("vision").rejected == 1 and words in reg.stats("vision").last_error
+
+
 # -- end to end on a real server -------------------------------------------------------------------
 
 @pytest.mark.e2e
@@ -243,6 +312,16 @@ def test_feed_over_real_uvicorn() -> None:
 
         replies = asyncio.run(stream())
         assert [r["seq"] for r in replies] == [1, 2, 3] and all(r["accepted"] for r in replies)
+
+        async def nested() -> tuple[int | None, str | None]:
+            async with websockets.connect(f"ws://127.0.0.1:{port}/ws/feed/jog?token={TOKEN}") as ws:
+                await ws.send("[" * 20_000 + "]" * 20_000)
+                with pytest.raises(websockets.ConnectionClosed) as ei:
+                    await asyncio.wait_for(ws.recv(), 10)
+            return ei.value.rcvd.code if ei.value.rcvd else None, ei.value.rcvd.reason if ei.value.rcvd else None
+
+        # Deeply nested JSON: a close frame with the reason (it was an exception, and no close frame).
+        assert asyncio.run(nested()) == (1007, "message nested too deeply: a feed sample is a flat JSON object")
         assert reg.slot("jog").read().value.linear[0] == 2 and reg.slot("gauge").read().value["distance"] == 42.0
     finally:
         server.should_exit = True

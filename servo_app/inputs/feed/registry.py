@@ -7,8 +7,9 @@ extrapolation see how old the value really is. Stamps from the future beyond `ma
 than the last published one (by seq or stamp) is dropped: a late packet must not move the robot back.
 
 Sequence numbers resynchronise: a seq at most `seq_window` behind the last accepted one is a late
-(or repeated) sample and dropped, but one further behind is the sender's counter restarting (a
-sensor rebooted), and one further ahead a jump: either is accepted as the new sequence, and the
+(or repeated) sample and dropped, unless its stamp is newer than the last one's (measured later with
+a smaller number: the counter restarted); one further behind is the sender's counter restarting (a
+sensor rebooted), and one further ahead a jump: each is accepted as the new sequence, and the
 answer and the source's stats say so. Otherwise one stray seq far ahead, or a restarted counter,
 made every later sample "older than the last" and locked the feed out until the service restarted.
 """
@@ -168,7 +169,9 @@ class FeedRegistry:
                                    f"(more than max_future_s {cfg.max_future_s}); are the clocks synchronised?")
             stamp = now - max(latency, 0.0)
         prev = src.slot.read()
-        resync = self._seq_resync(src, msg.seq)
+        # Stamped by the sender and placed after the last sample: measured later (the counter restarted).
+        later = msg.stamp is not None and prev is not None and stamp > prev.stamp
+        resync = self._seq_resync(src, msg.seq, later)
         late_seq = resync is None and msg.seq is not None and src.last_seq is not None and msg.seq <= src.last_seq
         if late_seq or (prev is not None and stamp < prev.stamp):
             src.out_of_order += 1
@@ -190,11 +193,15 @@ class FeedRegistry:
                        detail=resync, resynced=resync is not None)
 
     @staticmethod
-    def _seq_resync(src: _Source, seq: int | None) -> str | None:
-        """Why ``seq`` starts a new sequence (too far behind or ahead of the last accepted), or None."""
+    def _seq_resync(src: _Source, seq: int | None, measured_later: bool) -> str | None:
+        """Why ``seq`` starts a new sequence (too far behind or ahead of the last accepted, or behind
+        it but measured later by the sender's stamp), or None."""
         if seq is None or src.last_seq is None:
             return None
         window = src.config.seq_window
+        if seq <= src.last_seq and measured_later:
+            return (f"seq {seq} is not after the last accepted {src.last_seq} but its stamp is newer: taken as the "
+                    "sender's counter restarting; resynchronised")
         if seq < src.last_seq - window:
             return (f"seq {seq} is {src.last_seq - seq} behind the last accepted {src.last_seq} (more than "
                     f"seq_window {window}): taken as the sender's counter restarting; resynchronised")
