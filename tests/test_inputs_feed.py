@@ -229,7 +229,9 @@ def test_post_feed(client: tuple[TestClient, FeedRegistry]) -> None:
     assert r.status_code == 200 and isinstance(reg.slot("gauge").read().value, Measurement)
     stats = {s["source"]: s for s in c.get("/api/feed", headers=h).json()}
     assert stats["jog"]["accepted"] == 1 and stats["jog"]["rejected"] == 2 and stats["vision"]["rejected"] == 1
-    assert "/api/feed/{source}" in c.get("/openapi.json").json()["paths"]
+    paths = c.get("/openapi.json").json()["paths"]
+    for op in (paths["/api/feed/{source}"]["post"], paths["/api/feed"]["get"]):
+        assert op["summary"] and len(op["description"]) > 20, op  # /docs lists and explains them
 
 
 def test_websocket_feed(client: tuple[TestClient, FeedRegistry]) -> None:
