@@ -10,6 +10,7 @@ import signal
 import socket
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -198,3 +199,42 @@ def test_janome_settled_only_once_the_robot_reports_its_last_move_done(janome: t
             time.sleep(0.1)
         rig.wait(lambda s: s["at_rest"], 5.0, "at rest")
         watch_settling(rig, slice(0, 4), tol=0.01)
+
+
+def test_janome_robot_error_is_an_active_alarm_until_reset(tmp_path: Path) -> None:
+    """The robot's own error (a target beyond its stroke, reported over the link as OUT_OF_RANGE) is
+    listed with the FANUC alarms' fields; Janome's status has no clock: controller_time_ms is null."""
+    service = ServoService(ServiceConfig(robot="janome:127.0.0.1:0", model="jr3000", var_dir=tmp_path))
+    service.open()
+    server = LiveServer(create_app(service, TOKEN)).start()
+    rig = Rig(service, server, tmp_path)
+    assert service.robot_address is not None
+    # The robot's X stroke ends 5 mm beyond where it starts (the service's profile allows more).
+    prof = service.profile
+    hi = list(prof.axis_max)
+    hi[0] = prof.home[0] + 5.0
+    sim = JanomeSimulator(service.robot_address, replace(prof, axis_max=tuple(hi))).start()
+    try:
+        h = rig.lease()
+        rig.wait_state("ready")
+        rig.start_streaming(h)
+        t0 = time.time()
+        end = time.monotonic() + 3.0
+        while rig.state()["state"] != "fault" and time.monotonic() < end:
+            rig.http.post("/api/jog", json={"joints": [40.0, 0.0, 0.0, 0.0], "hold_ms": 300}, headers=h)
+            time.sleep(0.1)
+        s = rig.wait(lambda s: s["alarms"], 5.0, "the robot's alarm listed")
+        code = s["fault"]["code"]
+        assert code and code.startswith("JNM-"), s["fault"]
+        a = s["alarms"][0]
+        assert codes(s["alarms"]) == [code] and a["cause"] and a["remedy"] and a["warning"] is False
+        assert t0 <= a["time_unix"] <= time.time() and a["controller_time_ms"] is None
+        wait_metric(rig, "servo_alarms", "code", lambda c: c == {code: 1.0})
+        wait_metric(rig, "servo_faults", "cause", lambda c: c == {code: 1.0})
+        rig.post("/api/reset", h)
+        s = rig.wait(lambda s: s["state"] != "fault", 5.0, "out of fault")
+        assert s["alarms"] == [] and codes(s["alarm_history"]) == [code]
+    finally:
+        sim.stop()
+        server.stop()
+        service.close()
