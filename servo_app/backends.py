@@ -26,6 +26,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from servo_app.errors import InvalidRequest as InvalidRequest  # re-exported: the I/O rules raise it
 from servo_app.messages import Event
 from servo_app.process_handle import ServoProcessHandle
 
@@ -35,10 +36,6 @@ BACKENDS: dict[str, tuple[str, str]] = {
     "janome": ("servo_app.janome.backend", "JanomeBackend"),
 }
 DEFAULT_BACKEND = "fanuc"
-
-
-class InvalidRequest(ValueError):
-    """A request the service refuses before it reaches the controller (the API answers 422)."""
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ frozen dataclass: the supervisor dispatches requests by type (one handler per ty
 and an unknown or malformed request is refused by name instead of raising a ``KeyError`` somewhere.
 
 Units are the backend's own (FANUC: degrees in its J2/J3 convention; Janome: mm and degrees); the
-backend checks counts and ranges.
+backend checks counts, ranges and plausibility before anything changes.
 """
 
 from __future__ import annotations
@@ -133,10 +133,14 @@ class Envelope:
 
 @dataclass(frozen=True)
 class Reply:
+    """The answer to a request. A refusal has ``ok`` False, the reason in ``error``, and ``invalid``
+    True when the request itself was bad (a count, a range: 422) rather than refused by the state (409)."""
+
     id: int
     ok: bool
     result: Any = None
     error: str = ""
+    invalid: bool = False
 
 
 # ------------------------------------------------------------------------------------------- events

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from servo_app import messages as msg
-from servo_app.errors import CommandRejected
+from servo_app.errors import CommandRejected, InvalidRequest
 from servo_app.ipc import LatestValueSlot
 from servo_app.realtime import single_threaded_blas
 from servo_app.safety import Mode
@@ -169,8 +169,14 @@ class ServoProcessHost:
             self._before_request(req)
             result = self.sup.request(req, time.monotonic())
             self._after_request()
-        except (CommandRejected, ValueError, TypeError, RuntimeError) as exc:
+        except InvalidRequest as exc:
+            self._reply(env.id, False, error=str(exc), invalid=True)
+            return
+        except (CommandRejected, RuntimeError) as exc:  # refused by the state (RuntimeError: not set up yet)
             self._reply(env.id, False, error=str(exc))
+            return
+        except (ValueError, TypeError) as exc:  # a bad value found deeper down: the request's own fault
+            self._reply(env.id, False, error=str(exc), invalid=True)
             return
         if isinstance(req, msg.Start) and self.sup.start_pending and self.start_waits_for_stream:
             if env.id is not None:
@@ -178,12 +184,12 @@ class ServoProcessHost:
             return
         self._reply(env.id, True, result=result)
 
-    def _reply(self, rid: int | None, ok: bool, result: Any = None, error: str = "") -> None:
+    def _reply(self, rid: int | None, ok: bool, result: Any = None, error: str = "", invalid: bool = False) -> None:
         if rid is None:
             return
         self._publish()  # a reader after the reply sees the request's effect
         with contextlib.suppress(BrokenPipeError, OSError):
-            self.conn.send(msg.Reply(rid, ok, result, error))
+            self.conn.send(msg.Reply(rid, ok, result, error, invalid))
 
     def _answer_start(self) -> None:
         if not self._start_waiters or self.sup.start_pending:
@@ -338,8 +344,8 @@ class ServoProcessHandle:
             self._conn.send(msg.Envelope(None, req))
 
     def request(self, req: msg.Request, timeout: float = 2.0) -> Any:
-        """Send a request and wait for its reply; a refusal raises CommandRejected with its message, a
-        dead or silent process TimeoutError."""
+        """Send a request and wait for its reply; a refusal raises CommandRejected with its message
+        (InvalidRequest if the request itself was bad), a dead or silent process TimeoutError."""
         if not self.alive:
             raise TimeoutError(f"the {self.name} is not running ({self.exit_cause})")
         with self._send_lock:
@@ -360,7 +366,7 @@ class ServoProcessHandle:
                 self._cv.wait(left)
             reply = self._replies.pop(rid)
         if not reply.ok:
-            raise CommandRejected(reply.error)
+            raise (InvalidRequest if reply.invalid else CommandRejected)(reply.error)
         return reply.result
 
     def last_event(self, kind: type[msg.Event]) -> msg.Event | None:

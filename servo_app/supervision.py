@@ -5,8 +5,10 @@ A backend's supervisor (FANUC's :class:`~servo_app.fanuc.supervisor.StreamSuperv
 supplies its link (``_link_*``: open, close, arm, end, abandon), its motion stage (``self.motion``:
 ``stop``, ``resume``, ``shaper``) and the requests only it understands. Everything else is here:
 
-- typed requests (:mod:`servo_app.messages`) dispatched by type; a refused one raises
-  :class:`CommandRejected` with the state machine's reason and changes nothing;
+- typed requests (:mod:`servo_app.messages`) dispatched by type. A request is checked whole before
+  anything changes: its own values first (count, ranges, plausibility: :class:`InvalidRequest`), then
+  the state (:class:`CommandRejected`, whose text ends with the next step: :func:`next_step`). A
+  refused request changes nothing: no resume, no hold-to-run timer;
 - every safety event goes through :func:`servo_app.safety.transition`, and its actions are carried out
   in order (decelerate, resume, abandon, record);
 - a start waits for the controller: ``start_pending`` until the stream runs, or until it is given up
@@ -26,7 +28,7 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 
 from servo_app import messages as msg
-from servo_app.errors import CommandRejected
+from servo_app.errors import CommandRejected, InvalidRequest
 from servo_app.input_slot import InputCommand, InputControl
 from servo_app.safety import (
     STREAM_ALIVE,
@@ -55,12 +57,47 @@ from servo_app.safety import (
     StartStatusOutput,
     StopRequested,
     StopStatusOutput,
+    Then,
     motion_allowed,
     safe_to_exit,
     transition,
 )
 
 JOG_EXPIRED = "hold-to-run expired"  # the state machine's stop reason for JogExpired
+
+# The API's way to each next step, named in every refusal by the state (409).
+START = "start a session first: POST /api/session/start"
+START_NEW = "start a new session: POST /api/session/start"
+RESUME = "resume: POST /api/session/resume"
+RESET = "reset the fault: POST /api/reset"
+ACKNOWLEDGE = "acknowledge the fast stop: POST /api/reset, then resume: POST /api/session/resume"
+END_FIRST = "end it first: POST /api/session/end"
+MOVE = "nothing to do: it streams; jog (POST /api/jog) or send a target (POST /api/target)"
+# The state machine's event names, as the operator calls the request.
+_ACTIONS = {"StartRequested": "start", "ResumeRequested": "resume", "EndRequested": "end",
+            "ResetRequested": "reset", "ConnectRequested": "connect", "DisconnectRequested": "disconnect"}
+
+
+def next_step(state: SafetyState, request: str = "motion") -> str:
+    """What the operator does next when ``request`` (motion, start, resume, end, reset) is refused in
+    ``state``: the end of every 409 text."""
+    m, stop = state.mode, state.stop
+    if state.shutdown:
+        return "the servo process is shutting down: restart the service"
+    if m is Mode.FAULT:
+        return RESET
+    if m in (Mode.DISCONNECTED, Mode.CONNECTED, Mode.READY):
+        return START
+    if m in (Mode.ENDING, Mode.ENDED) or (stop is not None and stop.then is Then.END):
+        return START_NEW if m is Mode.ENDED else "wait until it has ended, then " + START_NEW
+    if m in (Mode.STOPPING, Mode.STOPPED):
+        if stop is not None and stop.fast:
+            return ACKNOWLEDGE if m is Mode.STOPPED else "wait for rest, then " + ACKNOWLEDGE
+        return RESUME
+    # streaming
+    if request == "start":
+        return "a stream is already running; " + END_FIRST
+    return MOVE
 
 
 class MotionStage(Protocol):
@@ -94,6 +131,39 @@ def not_waiting_why(state: SafetyState) -> str:
     if not status.bit0:
         return "the controller is not waiting for commands: start its streaming program"
     return "the controller already received commands in this program run: restart the program"
+
+
+def axis_values(name: str, values: Any) -> np.ndarray:
+    """``values`` as a vector of finite numbers; InvalidRequest naming the first bad one."""
+    try:
+        v = np.asarray(values, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise InvalidRequest(f"{name}={values!r} must be a list of numbers") from None
+    bad = np.flatnonzero(~np.isfinite(v))
+    if bad.size:
+        raise InvalidRequest(f"{name}[{int(bad[0])}]={v[bad[0]]} is not a finite number")
+    return v
+
+
+def checked_speed_scale(value: Any) -> float:
+    f = float(value)
+    if not (np.isfinite(f) and 0.0 < f <= 1.0):
+        raise InvalidRequest(f"speed_scale={value} must be in (0, 1]")
+    return f
+
+
+def check_count(name: str, v: np.ndarray, n: int, axes: str) -> None:
+    if v.size != n:
+        raise InvalidRequest(f"{name} has {v.size} values, expected {n} ({axes})")
+
+
+def check_speeds(name: str, v: np.ndarray, limits: Any, axis_names: list[str], units: list[str],
+                 source: str) -> None:
+    """Each |v[i]| within its axis's speed limit; InvalidRequest naming the axis and the limit."""
+    for i, (x, lim) in enumerate(zip(v, limits, strict=False)):
+        if abs(x) > lim:
+            raise InvalidRequest(f"{name}[{i}]={x:g} {units[i]} is faster than {axis_names[i]}'s speed limit "
+                                 f"{float(lim):.4g} {units[i]} ({source})")
 
 
 class SupervisorBase:
@@ -163,6 +233,15 @@ class SupervisorBase:
         """Move every axis to ``q``; the gate has been passed. By default the stage's ``set_target``."""
         self.motion.set_target(q, speed_scale)  # type: ignore[attr-defined]
 
+    def _check_jog(self, v: np.ndarray) -> np.ndarray:
+        """The axis velocities of a jog, checked (count, speed limits) before anything changes; raises
+        InvalidRequest naming the axis and its limit. Nothing is checked by default."""
+        return v
+
+    def _check_joint_target(self, q: np.ndarray, speed_scale: float) -> None:
+        """Check a joint target (count, ranges, reach from here) before anything changes; raises
+        InvalidRequest. Nothing is checked by default."""
+
     # ------------------------------------------------------------------------------ safety events
     def _feed(self, event: Event, now: float, **context: Any) -> str | None:
         """Apply one safety event and carry out its actions; the refusal text, if refused."""
@@ -210,9 +289,11 @@ class SupervisorBase:
         del self.log.warnings[:-50]
 
     def _request(self, event: Event, now: float) -> None:
+        name = type(event).__name__
         err = self._feed(event, now)
         if err:
-            raise CommandRejected(err)
+            action = _ACTIONS.get(name, name)
+            raise CommandRejected(f"{err.replace(name, action, 1)}; {next_step(self.state, action)}")
 
     # ---------------------------------------------------------------------------------- requests
     _HANDLERS: ClassVar[dict[type, Callable[[Any, Any, float], Any]]] = {}
@@ -227,11 +308,11 @@ class SupervisorBase:
     def _on_start(self, req: msg.Start, now: float) -> None:
         mode = self.state.mode
         if mode in STREAM_ALIVE:
-            raise CommandRejected(f"start refused in {mode.value}: a stream is already running; stop or end it first")
+            raise CommandRejected(f"start refused in {mode.value}: a stream is already running; {END_FIRST}")
         if mode == Mode.FAULT:
-            raise CommandRejected("start refused in fault: reset first (POST /api/reset), then start")
+            raise CommandRejected(f"start refused in fault; {RESET}, then start")
         if self.state.shutdown:
-            raise CommandRejected("start refused: the service is shutting down")
+            raise CommandRejected("start refused: the service is shutting down; restart the service")
         if mode == Mode.READY or (mode == Mode.ENDED and self.state.status and self.state.status.waiting):
             self._request(StartRequested(), now)
             return
@@ -265,7 +346,8 @@ class SupervisorBase:
         self._feed(self.alarm_event(req.code, req.message), now)
 
     def _on_jog(self, req: msg.Jog, now: float) -> None:
-        v = np.asarray(req.joints, dtype=float)
+        # The whole request first: a refused one must not resume the stream or start a hold timer.
+        v = self._check_jog(axis_values("joints", req.joints))
         hold_s = self.default_hold_s if req.hold_s is None else float(req.hold_s)
         self._hold_checked(hold_s)
         self._motion_gate("jog", resume_after_hold=True, now=now)
@@ -273,8 +355,11 @@ class SupervisorBase:
         self.hold = HoldToRun(timeout_s=hold_s).renew(now)
 
     def _on_joint_target(self, req: msg.JointTarget, now: float) -> None:
-        self._motion_gate("target")
-        self._joint_target(np.asarray(req.joints, dtype=float), float(req.speed_scale))
+        q = axis_values("joints", req.joints)
+        speed_scale = checked_speed_scale(req.speed_scale)
+        self._check_joint_target(q, speed_scale)
+        self._target_gate("target", now)
+        self._joint_target(q, speed_scale)
 
     def _on_inputs(self, req: msg.ConfigureInputs, now: float) -> None:
         self.inputs.configure(bool(req.enable), list(req.sources) if req.sources is not None else None)
@@ -295,16 +380,25 @@ class SupervisorBase:
     # -------------------------------------------------------------------------------- the gates
     def _hold_checked(self, hold_s: float) -> None:
         if not (np.isfinite(hold_s) and 0.0 < hold_s <= self.max_hold_s):
-            raise CommandRejected(f"hold_s={hold_s} must be in (0, {self.max_hold_s:g}]")
+            raise InvalidRequest(f"hold_s={hold_s} must be in (0, {self.max_hold_s:g}]")
 
     def _motion_gate(self, what: str, resume_after_hold: bool = False, now: float = 0.0) -> None:
         """Refuse motion unless the stream runs. A new press after the hold-to-run ran out resumes by
-        itself; any other stop needs a resume. Checked before anything changes."""
+        itself; any other stop needs a resume. Call it once the request's own values are checked: the
+        resume is the first change."""
         if resume_after_hold and self._resumable_by_press():
             self._request(ResumeRequested(), now)
         if not motion_allowed(self.state):
             raise CommandRejected(f"{what} refused in {self.state.mode.value}"
-                                  + (f" (stopped: {self.state.stop_reason})" if self.state.stop_reason else ""))
+                                  + (f" (stopped: {self.state.stop_reason})" if self.state.stop_reason else "")
+                                  + f"; {next_step(self.state)}")
+
+    def _target_gate(self, what: str, now: float) -> None:
+        """The gate for a target (joint or pose): after a hold-to-run stop it resumes the way a jog
+        does, and it ends any hold-to-run still running (a target is not held: the jog it replaces
+        must not stop it when that jog's hold runs out)."""
+        self._motion_gate(what, resume_after_hold=True, now=now)
+        self.hold = self.hold.release()
 
     def _resumable_by_press(self) -> bool:
         reason = self.state.stop_reason or ""

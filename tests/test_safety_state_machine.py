@@ -605,7 +605,7 @@ def test_new_stream_after_ended_only_when_the_controller_waits_again():
 
 
 @pytest.mark.parametrize(("state_name", "event", "expected"), [
-    ("ended", ResumeRequested(), "ResumeRequested refused in ended: the stream has ended; start a new one"),
+    ("ended", ResumeRequested(), "ResumeRequested refused in ended: the stream has ended"),
     ("fault_alarm", StartRequested(), "StartRequested refused in fault: reset the fault first"),
     ("disconnected", StartRequested(),
      "StartRequested refused in disconnected: no status packets: connect first"),

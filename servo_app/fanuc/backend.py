@@ -19,9 +19,11 @@ from servo_app.robots.profile import RobotProfile, available_profiles, load_prof
 
 IO_SPAN = 16  # a command packet's read or write covers 16 points from its index (manual 61.7)
 
-# The embedded simulator's assigned I/O (points per type). SI/SO/WI/WO/WSI/WSO are not assigned
-# there, and UI/UO drive the controller itself: not offered.
-DEFAULT_IO_ALLOW: dict[str, int] = {"DI": 512, "DO": 512, "RI": 8, "RO": 8, "F": 1024, "M": 1024}
+# The embedded simulator's assigned I/O (points per type) that clients may use. SI/SO/WI/WO/WSI/WSO
+# are not assigned there, and UI/UO drive the controller itself: not offered. RI/RO have 8 points
+# there, fewer than the 16 every access covers: the manual (61.7) alarms on an access "that contains
+# an index that has not been assigned", so no RI/RO access is safe and they are not offered either.
+DEFAULT_IO_ALLOW: dict[str, int] = {"DI": 512, "DO": 512, "F": 1024, "M": 1024}
 
 
 class FanucBackend(RobotBackend):
@@ -94,7 +96,8 @@ class FanucBackend(RobotBackend):
             "acc_deg_s2": [float(v) for v in acc],
             "jerk_deg_s3": [float(v) for v in jerk],
             "max_flange_speed_mm_s": tables.vmax,
-            "io_allow": {t: [1, n] for t, n in self._io_allow.items()},
+            # Only what check_io lets through: a type with fewer points than an access covers has none.
+            "io_allow": {t: [1, n] for t, n in self._io_allow.items() if n >= IO_SPAN},
         }
 
     def alarm(self, code: str) -> AlarmInfo | None:

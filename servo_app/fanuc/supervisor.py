@@ -5,7 +5,10 @@ returns the datagrams to send. Every decision about motion goes through
 :func:`servo_app.safety.transition`, and every stop is the shaper's jerk-limited deceleration:
 
 - requests (start, stop, resume, end, reset, jog, target) become safety events; refused ones raise
-  :class:`CommandRejected` with the state machine's message and change nothing;
+  :class:`CommandRejected` with the state machine's message and change nothing. Motion is checked
+  whole first (:class:`InvalidRequest`): counts and joint ranges, a jog within the live speed limits
+  (the controller's limit tables once fetched, in its J2/J3 convention), a twist or pose target within
+  the flange-speed cap, a pose within the arm's reach and in millimetres;
 - hold-to-run: each jog renews a deadline; when it passes, ``JogExpired`` stops the arm;
 - status packets feed ``StatusReceived``; silence feeds ``StatusLost``;
 - the shaper reaching rest during a stop feeds ``ShaperAtRest``;
@@ -15,18 +18,21 @@ returns the datagrams to send. Every decision about motion goes through
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar
 
 import numpy as np
 
 from servo_app import messages as msg
-from servo_app.errors import CommandRejected
+from servo_app.errors import CommandRejected, InvalidRequest
 from servo_app.fanuc.alarms import ALARMS
 from servo_app.fanuc.packets import IoType, LimitTableResponse, Status
 from servo_app.fanuc.session import IoRequest, Phase, SessionConfig, StreamSession
 from servo_app.input_slot import POSE, TWIST, InputCommand
 from servo_app.motion.commands import PoseTarget, Twist
+from servo_app.motion.limit_tables import default_tables
 from servo_app.motion.servo import ServoCycle
+from servo_app.robots.profile import RobotProfile
 from servo_app.safety import (
     ControllerAlarm,
     Mode,
@@ -35,7 +41,33 @@ from servo_app.safety import (
     StatusLost,
     StatusReceived,
 )
-from servo_app.supervision import SupervisorBase
+from servo_app.supervision import SupervisorBase, check_count, check_speeds, next_step
+
+# A pose whose X, Y and Z all lie within this many mm of the base was almost surely sent in metres.
+METRES_SUSPECT_MM = 5.0
+
+
+def reach_mm(profile: RobotProfile, tool_xyzwpr: tuple[float, ...] | None = None) -> float:
+    """How far the TCP can be from the J2 axis: upper arm + forearm to the wrist centre + flange (+ tool)."""
+    d = profile.dims
+    tool = math.hypot(*tool_xyzwpr[:3]) if tool_xyzwpr else 0.0
+    return 1000.0 * (d.a2 + math.hypot(d.a3, d.d4) + d.d6) + tool
+
+
+def check_pose_plausible(xyzwpr: tuple[float, ...], profile: RobotProfile,
+                         tool_xyzwpr: tuple[float, ...] | None = None) -> None:
+    """InvalidRequest for a pose in metres (X, Y and Z all within +-5) or beyond the arm's reach
+    (measured from the J2 axis, which turns with J1 at a1 from the base axis, at the world origin's height)."""
+    x, y, z = (float(v) for v in xyzwpr[:3])
+    if max(abs(x), abs(y), abs(z)) <= METRES_SUSPECT_MM:
+        raise InvalidRequest(f"xyzwpr X={x:g} Y={y:g} Z={z:g} all lie within +-{METRES_SUSPECT_MM:g}: units are mm "
+                             f"(did you send metres? 0.4 m is 400)")
+    limit = reach_mm(profile, tool_xyzwpr)
+    a1 = 1000.0 * profile.dims.a1
+    dist = math.hypot(math.hypot(x, y) - a1, z)
+    if dist > limit:
+        raise InvalidRequest(f"xyzwpr X={x:g} Y={y:g} Z={z:g} mm is {dist:.0f} mm from the J2 axis, out of "
+                             f"the {profile.display_name}'s reach of {limit:.0f} mm")
 
 
 class StreamSupervisor(SupervisorBase):
@@ -97,13 +129,58 @@ class StreamSupervisor(SupervisorBase):
     def _joint_target(self, q: np.ndarray, speed_scale: float) -> None:
         self.cycle.set_joint_target(q, speed_scale)
 
+    # ------------------------------------------------------------- checks (before anything changes)
+    def _names(self) -> list[str]:
+        return [f"J{i + 1}" for i in range(self.cycle.profile.dof)]
+
+    def _speed_limits(self) -> tuple[np.ndarray, str]:
+        """The joint speed limits in force (deg/s, FANUC convention) and where they come from: the
+        stream's tables once it began (the controller's, if it published them), else the profile's."""
+        c = self.cycle
+        if c.limits is not None:
+            src = "the controller's limit table" if c.tables_source == "controller" else "the profile's limit table"
+            return np.asarray(c.limits[0]), src
+        tables = default_tables(c.profile)
+        vel = tables.for_cap(c.settings.flange_speed_cap or tables.vmax, c.settings.payload_kg)[0]
+        return np.asarray(vel[: c.profile.dof]), "the profile's limit table"
+
+    def _flange_cap(self) -> float:
+        """The Cartesian speed the cycle takes (mm/s): its share of the flange-speed cap."""
+        c = self.cycle
+        cap = c.cap or c.settings.flange_speed_cap or default_tables(c.profile).vmax
+        return float(cap * c.settings.flange_speed_margin)
+
+    def _check_jog(self, v: np.ndarray) -> np.ndarray:
+        check_count("joints", v, self.cycle.profile.dof, ", ".join(self._names()) + " in deg/s")
+        vel, source = self._speed_limits()
+        check_speeds("joints", v, vel, self._names(), ["deg/s"] * v.size, source)
+        return v
+
+    def _check_joint_target(self, q: np.ndarray, speed_scale: float) -> None:
+        check_count("joints", q, self.cycle.profile.dof, ", ".join(self._names()) + " in deg")
+        try:
+            self.cycle._checked_position(q)  # the joint ranges, in the model convention
+        except CommandRejected as exc:
+            raise InvalidRequest(str(exc)) from None
+        c = self.cycle
+        if c.shaper is not None:  # while a stream is alive: the straight joint line must keep the configuration
+            reach = c._config_keeping_reach(c.shaper.state[0], q)
+            if reach < 1.0:
+                raise InvalidRequest(
+                    f"joints={[round(float(v), 3) for v in q]} leave the arm configuration {c.configuration} held "
+                    f"since the stream started (manual 61.5, MOTN-156): only {reach:.0%} of the way keeps it")
+
     def _on_twist(self, req: msg.Twist, now: float) -> None:
         try:
             cmd = Twist(source=req.source, stamp=now, frame=req.frame,  # type: ignore[arg-type]
                         linear=tuple(req.linear), angular=tuple(req.angular))  # type: ignore[arg-type]
         except ValueError as exc:
-            raise CommandRejected(str(exc)) from None
-        self._hold_to_run(float(req.hold_s), now, "twist")
+            raise InvalidRequest(str(exc)) from None
+        speed, cap = float(np.linalg.norm(cmd.linear)), self._flange_cap()
+        if speed > cap:
+            raise InvalidRequest(f"linear={list(cmd.linear)}: {speed:.1f} mm/s is above the flange-speed cap "
+                                 f"{cap:.0f} mm/s")
+        self._hold_to_run(float(req.hold_s), now, "twist")  # checks hold_s before the gate
         self.cycle.twist(cmd)
 
     def _on_pose(self, req: msg.PoseTarget, now: float) -> None:
@@ -111,8 +188,13 @@ class StreamSupervisor(SupervisorBase):
             pose = PoseTarget(source=req.source, stamp=now, xyzwpr=tuple(req.xyzwpr),  # type: ignore[arg-type]
                               linear_speed=float(req.linear_speed), angular_speed=float(req.angular_speed))
         except ValueError as exc:
-            raise CommandRejected(str(exc)) from None
-        self._motion_gate("pose target")
+            raise InvalidRequest(str(exc)) from None
+        cap = self._flange_cap()
+        if pose.linear_speed > cap:
+            raise InvalidRequest(f"linear_speed={pose.linear_speed:g} mm/s is above the flange-speed cap "
+                                 f"{cap:.0f} mm/s")
+        check_pose_plausible(pose.xyzwpr, self.cycle.profile, self.cycle.settings.tool_xyzwpr)
+        self._target_gate("pose target", now)
         self.cycle.pose_target(pose)
 
     def _on_io_read(self, req: msg.IoRead, now: float) -> None:
@@ -120,7 +202,8 @@ class StreamSupervisor(SupervisorBase):
 
     def _on_io_write(self, req: msg.IoWrite, now: float) -> None:
         if self.session.phase != Phase.STREAMING:
-            raise CommandRejected("I/O is written through command packets: only while streaming; start a session first")
+            raise CommandRejected("I/O is written through command packets: only while streaming; "
+                                  f"{next_step(self.state)}")
         self.session.write_io(IoRequest(_io_type(req.type), int(req.index), int(req.mask), int(req.value)))
 
     def on_late_input(self, cmd: InputCommand, now: float) -> bool:
@@ -226,6 +309,6 @@ def _io_type(value: Any) -> int:
         try:
             return int(IoType[value.upper()])
         except KeyError:
-            raise CommandRejected(f"io type={value!r} is unknown (DI, DO, RI, RO, ..., F, M)") from None
+            raise InvalidRequest(f"io type={value!r} is unknown (DI, DO, RI, RO, ..., F, M)") from None
     return int(IoType(int(value)))
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from servo_app.errors import CommandRejected
+from servo_app.errors import CommandRejected, InvalidRequest
 from servo_app.janome.kinematics import AXES, UNITS, Workspace
 from servo_app.janome.profile import JanomeProfile
 from servo_app.janome.protocol import SCALE, Arm, Cmd, RobotKind
@@ -127,19 +127,25 @@ class JanomeMotion:
         return self.shaper is None or self.shaper.at_rest
 
     # ---------------------------------------------------------------- commands
-    def set_target(self, xyzr: np.ndarray, speed_scale: float = 1.0) -> None:
-        p = self._checked(xyzr, "joints")
+    def check_target(self, xyzr: np.ndarray, speed_scale: float = 1.0, name: str = "joints") -> np.ndarray:
+        """The target X Y Z R if it is in the work envelope (and, while streaming, the straight path to
+        it too); else InvalidRequest naming the axis and its stroke. Changes nothing."""
+        p = self._checked(xyzr, name)
         if not (np.isfinite(speed_scale) and 0.0 < speed_scale <= 1.0):
-            raise CommandRejected(f"speed_scale={speed_scale} must be in (0, 1]")
-        shaper = self._require()
-        assert self.last is not None
+            raise InvalidRequest(f"speed_scale={speed_scale} must be in (0, 1]")
         why = self.ws.check(p, self.arm)
         if why is not None:
-            raise CommandRejected(f"target refused: {why.message}")
-        why = self.ws_hard.check_path(self.last, p, self.arm)
-        if why is not None:
-            raise CommandRejected(f"target refused: the straight path from the current position leaves the "
-                                  f"work envelope: {why.message}")
+            raise InvalidRequest(f"target refused: {why.message}")
+        if self.last is not None:
+            why = self.ws_hard.check_path(self.last, p, self.arm)
+            if why is not None:
+                raise InvalidRequest(f"target refused: the straight path from the current position leaves the "
+                                     f"work envelope: {why.message}")
+        return p
+
+    def set_target(self, xyzr: np.ndarray, speed_scale: float = 1.0) -> None:
+        shaper = self._require()
+        p = self.check_target(xyzr, speed_scale)
         self._target, self._jog = (p, float(speed_scale)), None
         self.stopped = False
         shaper.set_target(p, float(speed_scale))
@@ -190,9 +196,9 @@ class JanomeMotion:
     def _checked(values: np.ndarray, name: str) -> np.ndarray:
         v = np.asarray(values, dtype=float).reshape(-1)
         if v.shape != (4,):
-            raise CommandRejected(f"{name} has {v.size} values, expected 4 (X, Y, Z, R)")
+            raise InvalidRequest(f"{name} has {v.size} values, expected 4 (X, Y, Z, R)")
         bad = np.flatnonzero(~np.isfinite(v))
         if bad.size:
             i = int(bad[0])
-            raise CommandRejected(f"{name}[{i}] ({AXES[i]})={v[i]} {UNITS[i]} is not a finite number")
+            raise InvalidRequest(f"{name}[{i}] ({AXES[i]})={v[i]} {UNITS[i]} is not a finite number")
         return v

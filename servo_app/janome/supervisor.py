@@ -5,7 +5,10 @@ hands it connection events, bytes, requests and ``now``; it returns the frames t
 about motion goes through :func:`servo_app.safety.transition`:
 
 - requests (start, stop, resume, end, reset, jog, target) become safety events; refused ones raise
-  :class:`CommandRejected` with the state machine's message and change nothing;
+  :class:`CommandRejected` with the state machine's message and change nothing. A twist and a pose
+  target map onto X Y Z R (R turns about Z; a rotation about X or Y, or the tool frame, is refused as
+  not supported by the Janome backend); every motion is checked whole first (:class:`InvalidRequest`:
+  counts, the profile's axis speeds, the work envelope);
 - each valid status frame feeds ``StatusReceived``: bit 0 = the point job is in its loop (not BYE),
   bit 1 = 0 (the point job takes a new stream at any time), SYSRDY = 1 (it could not talk otherwise);
 - a stop sends no further step; the robot's next status proves its last step is done, which feeds
@@ -20,10 +23,12 @@ The state machine words its own faults for FANUC; faults caused here get Janome'
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
+from servo_app import messages as msg
+from servo_app.errors import InvalidRequest
 from servo_app.input_slot import TWIST, InputCommand
 from servo_app.janome.alarms import (
     LINK_LOST,
@@ -33,6 +38,7 @@ from servo_app.janome.alarms import (
     alarm_code,
     alarm_for_code,
 )
+from servo_app.janome.kinematics import AXES, UNITS
 from servo_app.janome.motion import JanomeMotion
 from servo_app.janome.protocol import FrameError, RobotState, Status
 from servo_app.janome.session import JanomeSession, Phase, SessionConfig
@@ -48,11 +54,14 @@ from servo_app.safety import (
     StatusReceived,
     stream_alive,
 )
-from servo_app.supervision import SupervisorBase
+from servo_app.supervision import SupervisorBase, axis_values, check_count, check_speeds
+
+UNSUPPORTED = "not supported by the Janome backend"
 
 
 class JanomeSupervisor(SupervisorBase):
     max_hold_s = float("inf")  # the robot's own move time bounds a step, not the hold
+    REQUESTS: ClassVar[dict[type, str]] = {msg.Twist: "_on_twist", msg.PoseTarget: "_on_pose"}
 
     def __init__(self, motion: JanomeMotion, session_config: SessionConfig | None = None,
                  hold_s: float = 0.5, start_timeout_s: float = float("inf")) -> None:
@@ -98,6 +107,63 @@ class JanomeSupervisor(SupervisorBase):
                        remedy=alarm.remedy)
 
     # ------------------------------------------------------------------ requests
+    def _check_jog(self, v: np.ndarray, names: list[str] | None = None) -> np.ndarray:
+        check_count("joints", v, 4, "X Y Z in mm/s, R in deg/s")
+        p = self.motion.profile
+        check_speeds("joints", v, p.speed, names or list(AXES), [f"{u}/s" for u in UNITS],
+                     f"the {p.display_name} profile's axis speeds")
+        return v
+
+    def _check_joint_target(self, q: np.ndarray, speed_scale: float) -> None:
+        self.motion.check_target(q, speed_scale)
+
+    def _on_twist(self, req: msg.Twist, now: float) -> None:
+        """X Y Z from ``linear`` (mm/s), R from ``angular`` about Z (deg/s), in the robot's base axes."""
+        lin, ang = axis_values("linear", req.linear), axis_values("angular", req.angular)
+        check_count("linear", lin, 3, "x y z in mm/s")
+        check_count("angular", ang, 3, "about x y z in deg/s")
+        name = self.motion.profile.display_name
+        if req.frame != "base":
+            raise InvalidRequest(f"{UNSUPPORTED}: frame={req.frame!r}; the {name} jogs along its own X Y Z "
+                                 f"axes and turns R about Z: send frame 'base'")
+        if ang[0] or ang[1]:
+            raise InvalidRequest(f"{UNSUPPORTED}: angular={[float(a) for a in ang]} deg/s turns about X or Y; "
+                                 f"the {name} turns only about Z (its R axis): send angular [0, 0, r]")
+        v = np.array([lin[0], lin[1], lin[2], ang[2]])
+        self._check_jog(v, ["X (linear[0])", "Y (linear[1])", "Z (linear[2])", "R (angular[2])"])
+        self._hold_to_run(float(req.hold_s), now, "twist")
+        self.motion.jog(v)
+
+    def _on_pose(self, req: msg.PoseTarget, now: float) -> None:
+        """X Y Z R from ``xyzwpr`` (W and P must be 0: nothing tilts); the speeds cap the move."""
+        pose = axis_values("xyzwpr", req.xyzwpr)
+        check_count("xyzwpr", pose, 6, "X Y Z in mm, W P R in deg")
+        name = self.motion.profile.display_name
+        if pose[3] or pose[4]:
+            raise InvalidRequest(f"{UNSUPPORTED}: W={pose[3]:g} P={pose[4]:g} deg tilt the tool about X or Y; the "
+                                 f"{name} turns only about Z: send W=0 and P=0, and R for the turn")
+        target = np.array([pose[0], pose[1], pose[2], pose[5]])
+        scale = self._pose_speed_scale(target, float(req.linear_speed), float(req.angular_speed))
+        self.motion.check_target(target, scale, "xyzwpr (X, Y, Z, R)")
+        self._target_gate("pose target", now)
+        self.motion.set_target(target, scale)
+
+    def _pose_speed_scale(self, target: np.ndarray, linear: float, angular: float) -> float:
+        """The share of the axis speeds that keeps the move within ``linear`` mm/s (X Y Z) and
+        ``angular`` deg/s (R), counting only what moves."""
+        for field, value in (("linear_speed", linear), ("angular_speed", angular)):
+            if not (np.isfinite(value) and value > 0):
+                raise InvalidRequest(f"{field}={value} must be a positive number")
+        m = self.motion
+        here = m.last if m.last is not None else target
+        d = np.abs(target - here)
+        scales = [1.0]
+        if np.linalg.norm(d[:3]) > 0:
+            scales.append(linear / m.cp_speed)
+        if d[3] > 0:
+            scales.append(angular / float(m.vel[3]))
+        return float(min(1.0, max(1e-3, min(scales))))
+
     def _input_move(self, cmd: InputCommand, name: str, hold: float, now: float) -> None:
         """A twist jogs X Y Z (mm/s) and R (its rotation about Z, deg/s); a pose input is an absolute
         X Y Z R target (W and P have no axis here)."""

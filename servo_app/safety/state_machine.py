@@ -7,7 +7,8 @@ stop is ours: a deceleration ramp of the shaper, then either holding still in th
 last data. Moving never jumps to rest or to the end: streaming -> stopping -> stopped / ending.
 
 Requests (Connect/Disconnect/Start/Stop/Resume/End/Reset) the state cannot honour come back as an
-unchanged state, no actions and an error naming the mode and the request. A stop is never refused:
+unchanged state, no actions and an error naming the mode, the request and why (the supervisor adds
+the operator's next step: :func:`servo_app.supervision.next_step`). A stop is never refused:
 where nothing moves it is simply accepted. Other events that do not apply are ignored (unchanged
 state, no actions, no error).
 
@@ -385,9 +386,9 @@ def _on_resume(s: SafetyState, e: ResumeRequested) -> Transition:
         return _go(s, (RESUME_MOTION,), mode=Mode.STREAMING, stop=None)
     why = {
         Mode.STREAMING: "already streaming",
-        Mode.ENDING: "the stream is ending; start a new one",
-        Mode.ENDED: "the stream has ended; start a new one",
-        Mode.FAULT: "reset the fault first",
+        Mode.ENDING: "the stream is ending",
+        Mode.ENDED: "the stream has ended",
+        Mode.FAULT: "the stream ended in a fault",
     }.get(m, "no stream to resume")
     return _refuse(s, e, why)
 
@@ -405,7 +406,7 @@ def _on_end(s: SafetyState, e: EndRequested) -> Transition:
     if m in (Mode.ENDING, Mode.ENDED):
         return _stay(s)
     if m is Mode.FAULT:
-        return _refuse(s, e, "the stream is already gone; reset the fault")
+        return _refuse(s, e, "the stream is already gone")
     return _refuse(s, e, "no stream to end")
 
 

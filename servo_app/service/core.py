@@ -207,9 +207,10 @@ class ServoService:
     def request(self, req: msg.Request, timeout: float | None = None) -> Any:
         """Send a typed request to the servo process and wait for its reply.
 
-        A refusal raises CommandRejected. With the servo process dead: a stop is accepted (nothing
-        moves any more), a start first brings up a new process, anything else is refused with the
-        cause and the way out."""
+        A refusal raises CommandRejected (InvalidRequest when the request itself is bad: the servo
+        process checks counts, ranges and plausibility first). With the servo process dead: a stop is
+        accepted (nothing moves any more), a start first brings up a new process, anything else is
+        refused with the cause and the way out."""
         if not self.servo_alive:
             if isinstance(req, msg.Stop):
                 return None
@@ -226,9 +227,9 @@ class ServoService:
 
     def _dead_why(self) -> str:
         if self.stream is None:
-            return "the service is not open"
+            return "the service is not open; restart the service"
         cause = self.servo_fault["message"] if self.servo_fault else "the servo process is not running"
-        return f"{cause}: reset (POST /api/reset) to start a new servo process"
+        return f"{cause}; reset the fault to start a new servo process: POST /api/reset"
 
     def _replace_servo_process(self) -> None:
         with self._lifecycle:
@@ -271,8 +272,8 @@ class ServoService:
     def io_read(self, io_type: str, index: int, mask: int = 0xFFFF, timeout: float = 1.0) -> int:
         return self.io.read(io_type, index, mask, timeout)
 
-    def io_write(self, io_type: str, index: int, mask: int, value: int) -> None:
-        self.io.write(io_type, index, mask, value)
+    def io_write(self, io_type: str, index: int, mask: int, value: int) -> str:
+        return self.io.write(io_type, index, mask, value)
 
     def state_vector(self) -> dict[str, Any]:
         return self.views.state_vector()

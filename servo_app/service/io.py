@@ -25,15 +25,18 @@ class StreamIo:
         self._state = state
         self._lead = lead
 
-    def write(self, io_type: str, index: int, mask: int, value: int) -> None:
+    def write(self, io_type: str, index: int, mask: int, value: int) -> str:
+        """Write with the next command packet; returns the type's canonical name (``do`` -> ``DO``)."""
         name = self.backend.check_io(io_type, index)
         self._request(msg.IoWrite(type=name, index=index, mask=mask, value=value))
+        return name
 
     def read(self, io_type: str, index: int, mask: int = 0xFFFF, timeout: float = 1.0) -> int:
         """Read 16 points through the command packets: the value comes back in a later status packet."""
         name = self.backend.check_io(io_type, index)
         if self._state()["link"] != "streaming":
-            raise CommandRejected("I/O is read through command packets: only while streaming; start a session first")
+            raise CommandRejected("I/O is read through command packets: only while streaming; "
+                                  "start a session first: POST /api/session/start")
         self._request(msg.IoRead(type=name, index=index, mask=mask))
         seq0 = self._state()["status_seq"]  # published just before the reply: the request's cycle
         # The read rides on the next command sent; with `lead` commands queued ahead, the controller
@@ -44,7 +47,8 @@ class StreamIo:
         while time.monotonic() < deadline:
             s = self._state()
             if s["link"] != "streaming":
-                raise CommandRejected(f"the stream stopped ({s['state']}) before the read came back")
+                raise CommandRejected(f"the stream stopped ({s['state']}) before the read came back; read "
+                                      "again once a session streams: POST /api/session/start")
             echo = (s["io_read_type"], s["io_read_index"], s["io_read_mask"])
             if echo == want and s["status_seq"] - seq0 >= self.backend.io_read_delay(self._lead):
                 return int(s["io_read_value"])
