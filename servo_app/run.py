@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import gc
 import signal
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +47,21 @@ def run(args: argparse.Namespace) -> int:
     token, new = resolve_token(args.token, args.var_dir / "token")
     if new:
         print(f"API token (saved in {args.var_dir / 'token'}, shown once): {token}", flush=True)
+    # From here until uvicorn installs its own handlers, SIGINT and SIGTERM are recorded, not raised: a
+    # KeyboardInterrupt in the middle of start-up left the servo process and its shared memory behind,
+    # and a signal absorbed with no effect was lost (the service kept running). The server, once made,
+    # exits as soon as it has started. uvicorn re-raises the signal that stopped it, after its shutdown,
+    # into these handlers, so the `finally` below still ends the stream before we exit.
+    received: list[int] = []
+    servers: list[Any] = []
+
+    def on_signal(signum: int, frame: object) -> None:
+        received.append(signum)
+        for s in servers:
+            s.should_exit = True
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
     service = ServoService(ServiceConfig(robot=args.robot, model=args.model, interval_ms=args.interval_ms,
                                          lead=args.lead, var_dir=args.var_dir, payload_kg=args.payload_kg,
                                          inputs_config=args.inputs))
@@ -54,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:  # nothing is started yet: the inputs file is read first
         print(f"servo_app: invalid inputs configuration:\n{exc}", flush=True)
         return 2
+    report_input_failures(service)
     target = "embedded simulator" if service.sim else args.robot
     assert service.robot_address is not None
     print(f"servo_app: {service.profile.display_name} via {target} at "
@@ -62,11 +79,8 @@ def run(args: argparse.Namespace) -> int:
     app = create_app(service, token, cors_origins=args.cors_origin or None)
     config = uvicorn.Config(app, host=args.host, port=args.http_port, log_level="warning")
     server = uvicorn.Server(config)
-    # uvicorn re-raises the signal that stopped it once it has shut down, with the handlers it found
-    # installed: these absorb it, so the `finally` below still ends the stream before we exit.
-    received: list[int] = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda signum, frame: received.append(signum))
+    servers.append(server)
+    server.should_exit = bool(received)
     # Start-up objects (FastAPI, pydantic, numpy, mujoco: ~100,000) never become garbage: keep them
     # out of the collector's scans. A full collection over them held the GIL for ~60 ms here,
     # stalling every input adapter's thread.
@@ -83,3 +97,13 @@ def run(args: argparse.Namespace) -> int:
               f"servo process exit code {summary.get('servo_exit_code')}, "
               f"controller alarms {summary.get('alarms', [])}", flush=True)
     return 0 if summary.get("servo_exit_code") == 0 else 1
+
+
+def report_input_failures(service: ServoService, timeout_s: float = 3.0) -> None:
+    """On stderr, each input device that could not be opened: which, why and the fix (the console and
+    GET /api/inputs show the same). Waits until every adapter has tried once, ``timeout_s`` at most."""
+    if service.inputs is None:
+        return
+    for adapter, failure in service.inputs.wait_first_open(timeout_s):
+        print(f"servo_app: input {adapter.name!r} ({adapter.config.type}) cannot be opened: {failure.message} "
+              f"[{failure.error}]", file=sys.stderr, flush=True)

@@ -17,6 +17,8 @@ from servo_app.input_slot import NONE, POSE, TWIST, InputCommand, InputSlotReade
 from servo_app.inputs import ConfigError
 from servo_app.inputs.apps.config import load_service_inputs
 from servo_app.inputs.bridge import InputsBridge
+from servo_app.inputs.feed.registry import FeedRejected
+from servo_app.inputs.samples import TwistSample
 from servo_app.messages import ConfigureInputs
 
 CONFIG = """
@@ -228,7 +230,10 @@ def test_a_source_publishing_a_frame_the_servo_does_not_know_is_refused(tmp_path
     bridge = InputsBridge.from_file(path, clock=clock)
     reader = InputSlotReader(bridge.slot_name)
     try:
-        bridge.feeds.submit("jog", twist(1.0, frame="world"))
+        with pytest.raises(FeedRejected, match="frame"):  # the feed refuses it at the door
+            bridge.feeds.submit("jog", twist(1.0, frame="world"))
+        # The bridge checks again whatever reaches a slot (an adapter publishes there directly).
+        bridge.feeds.slot("jog").publish(TwistSample((1.0, 0.0, 0.0), (0.0, 0.0, 0.0), "world", clock(), "jog"))
         bridge.step(clock())
         assert reader.poll() is None
         assert bridge.describe()["bridge_problems"] == {"rejected": 1}

@@ -6,10 +6,16 @@ from __future__ import annotations
 
 import glob
 import re
+import shutil
+import signal
+import socket
 import subprocess
+import sys
 from pathlib import Path
 
+import httpx
 import pytest
+from waiting import wait_until
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -135,7 +141,158 @@ def test_a_failed_install_is_retried_and_a_new_venv_installs(project: Path) -> N
     code, pips, _ = install(project, fail=True)
     assert code != 0 and len(pips) == 1
     assert len(install(project)[1]) == 1  # the failure left no stamp: the next run tries again
-    import shutil
-
     shutil.rmtree(project / ".venv")  # a fresh machine
     assert len(install(project)[1]) == 2
+
+
+# ------------------------------------------------------ `servo-app run`: devices, Ctrl-C, shutdown
+
+TOKEN = "setup-test-token"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+
+MISSING_DEVICES = """
+[adapters.spacenav]
+type = "spacenav"
+socket = "{tmp}/spnav.sock"
+
+[adapters.distance]
+type = "serial_line"
+port = "{tmp}/ttyUSB-missing"
+[adapters.distance.fields.distance]
+pattern = 'D=([-+0-9.eE]+)'
+
+[adapters.ft_can]
+type = "can"
+interface = "socketcan"
+channel = "srvtst0"
+[[adapters.ft_can.layout]]
+id = 0x2B0
+name = "Distance"
+[adapters.ft_can.layout.signals.distance]
+start = 0
+size = 2
+signed = false
+byte_order = "little"
+
+[[applications]]
+name = "teleop"
+type = "teleop"
+sources = {{ twist = "spacenav" }}
+priority = 30
+"""
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class Service:
+    """`servo-app run` in a process of its own, on a free port, with its own var directory."""
+
+    def __init__(self, tmp: Path, *args: str) -> None:
+        self.port = free_port()
+        self.base = f"http://127.0.0.1:{self.port}"
+        self.proc = subprocess.Popen([sys.executable, "-m", "servo_app.cli", "run", "--http-port", str(self.port),
+                                      "--var-dir", str(tmp / "var"), "--token", TOKEN, *args],
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    def wait_healthy(self, timeout: float = 60.0) -> None:
+        def up() -> bool:
+            assert self.proc.poll() is None, self.proc.communicate()
+            try:
+                return httpx.get(f"{self.base}/api/health", timeout=2).status_code == 200
+            except httpx.TransportError:
+                return False
+
+        wait_until(up, timeout)
+
+    def stop(self) -> tuple[int, str, str]:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+        try:
+            out, err = self.proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            out, err = self.proc.communicate()
+            raise AssertionError(f"servo-app run did not stop on SIGINT within 30 s:\n{out}\n{err}") from None
+        return self.proc.returncode, out, err
+
+
+@pytest.mark.e2e
+def test_devices_that_cannot_be_opened_are_named_at_start_up_with_the_fix(tmp_path: Path) -> None:
+    cfg = tmp_path / "inputs.toml"
+    cfg.write_text(MISSING_DEVICES.format(tmp=tmp_path))
+    svc = Service(tmp_path, "--inputs", str(cfg))
+    try:
+        svc.wait_healthy()
+        with httpx.Client(base_url=svc.base, timeout=10) as c:
+            rows = {r["name"]: r for r in c.get("/api/inputs").json()["sources"]}
+            spnav, serial, can = rows["spacenav"]["failure"], rows["distance"]["failure"], rows["ft_can"]["failure"]
+            assert spnav["device"] == f"spacenavd's socket {tmp_path}/spnav.sock"
+            assert "spacenavd is not running" in spnav["reason"] and "systemctl start spacenavd" in spnav["fix"]
+            assert serial["device"] == f"serial port {tmp_path}/ttyUSB-missing"
+            assert "not plugged in" in serial["reason"] and "/dev/serial/by-id" in serial["fix"]
+            assert can["device"] == "CAN interface srvtst0 (socketcan)"
+            assert "ip link set srvtst0 up type can" in can["fix"]  # no SocketCAN here, or no such interface
+            # The console polls the state: the failure is in its summary too.
+            summary = {s["name"]: s for s in c.get("/api/state").json()["inputs"]["sources"]}
+            assert summary["spacenav"]["failure"]["device"] == spnav["device"]
+            # Enabling goes ahead (other sources may command) and says which source cannot, and why.
+            lease = c.post("/api/lease", json={"client": "setup-test"}, headers=AUTH).json()["lease_id"]
+            r = c.post("/api/inputs/enable", json={"enable": True}, headers={**AUTH, "X-Lease-Id": lease})
+            assert r.status_code == 200, r.text
+            detail = r.json()["detail"]
+            assert {f["name"] for f in detail["failed_sources"]} == {"spacenav", "distance", "ft_can"}
+            assert "input source 'spacenav' (used by 'teleop') cannot command: spacenavd's socket" in detail["warning"]
+    finally:
+        code, _, err = svc.stop()
+    assert code == 0, err
+    lines = [ln for ln in err.splitlines() if "cannot be opened" in ln]
+    assert len(lines) == 3, err
+    assert any(f"input 'spacenav' (spacenav) cannot be opened: spacenavd's socket {tmp_path}/spnav.sock" in ln
+               and "Fix: install and start spacenavd" in ln for ln in lines), lines
+    assert any(f"serial port {tmp_path}/ttyUSB-missing" in ln and "Fix: plug it in" in ln for ln in lines), lines
+    assert any("CAN interface srvtst0 (socketcan)" in ln and "Fix: " in ln for ln in lines), lines
+
+
+@pytest.mark.e2e
+def test_shutdown_after_a_stream_with_inputs_prints_no_leak_dump(tmp_path: Path) -> None:
+    """A Ctrl-C after a session with an inputs file: the servo process (which reads the input slot
+    after each IK solve) exits with no "nanobind: leaked instances" dump of ruckig objects."""
+    cfg = tmp_path / "inputs.toml"
+    cfg.write_text(MISSING_DEVICES.format(tmp=tmp_path))
+    svc = Service(tmp_path, "--inputs", str(cfg))
+    try:
+        svc.wait_healthy()
+        with httpx.Client(base_url=svc.base, timeout=10) as c:
+            lease = c.post("/api/lease", json={"client": "setup-test"}, headers=AUTH).json()["lease_id"]
+            hdr = {**AUTH, "X-Lease-Id": lease}
+            assert c.post("/api/session/start", headers=hdr).status_code == 200
+            wait_until(lambda: c.get("/api/state").json()["state"] == "streaming", 30)
+            assert c.post("/api/jog", json={"linear": [10, 0, 0], "angular": [0, 0, 0]}, headers=hdr).status_code == 200
+    finally:
+        code, out, err = svc.stop()
+    assert code == 0, err
+    assert "servo_app: stopped; stream ended" in out, out
+    assert "leaked" not in err, err
+
+
+@pytest.mark.e2e
+def test_ctrl_c_during_start_up_stops_the_service(tmp_path: Path) -> None:
+    """SIGINT as soon as the service prints its address (before the HTTP server has installed its own
+    handlers) stops it; it used to be swallowed and the service kept running."""
+    svc = Service(tmp_path)
+    assert svc.proc.stdout is not None
+    line = svc.proc.stdout.readline()
+    assert "console http://" in line, line
+    svc.proc.send_signal(signal.SIGINT)
+    try:
+        out, err = svc.proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        svc.proc.kill()
+        svc.proc.communicate()
+        raise AssertionError("SIGINT during start-up was lost: the service kept running") from None
+    assert svc.proc.returncode == 0, err
+    assert "servo_app: stopped" in out, out

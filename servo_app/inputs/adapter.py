@@ -21,6 +21,7 @@ from typing import Any, ClassVar
 
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
 
+from servo_app.inputs.device_failure import DeviceFailure, generic_failure
 from servo_app.inputs.problems import Problem, ProblemLog
 from servo_app.inputs.samples import ButtonEvent
 from servo_app.inputs.slots import EventQueue, LatestValue
@@ -75,6 +76,7 @@ class AdapterStatus:
     problems: Counter[str]  # missing kinds read as 0
     last_problem: Problem | None
     recent_problems: tuple[Problem, ...]  # newest last, with the offending bytes in hex
+    failure: DeviceFailure | None = None  # the device cannot be opened now: which, why, what to do
 
 
 class InputAdapter(ABC):
@@ -93,6 +95,8 @@ class InputAdapter(ABC):
         self._thread: threading.Thread | None = None
         self._connected = False
         self._connects = 0
+        self.failure: DeviceFailure | None = None  # why the last open failed; None once open
+        self.first_attempt = threading.Event()  # set after the first open, failed or not
         self.scheduling = "not started"  # what the thread got: SCHED_FIFO or normal priority
 
     # -- identity -------------------------------------------------------------------------------
@@ -128,11 +132,16 @@ class InputAdapter(ABC):
     def _close(self) -> None:
         """Release the device (it may already be gone)."""
 
+    def explain_open_failure(self, exc: BaseException) -> DeviceFailure:
+        """What `_open` raising ``exc`` means: the device, the reason, the fix. Adapters name their device."""
+        return generic_failure(self.name, self.config.type, exc)
+
     # -- lifecycle ------------------------------------------------------------------------------
     def start(self) -> None:
         if self._thread is not None and self._thread.is_alive():
             return
         self._stop.clear()
+        self.first_attempt.clear()
         self._thread = threading.Thread(target=self._run, name=f"input-{self.name}", daemon=True)
         self._thread.start()
 
@@ -161,11 +170,19 @@ class InputAdapter(ABC):
             try:
                 self._open()
             except Exception as exc:  # a missing device is normal while unplugged
-                self.problems.record("open_failed", f"{type(exc).__name__}: {exc}", level=logging.INFO)
+                try:
+                    self.failure = self.explain_open_failure(exc)
+                except Exception:  # an explanation must never stop the retries
+                    self.failure = generic_failure(self.name, self.config.type, exc)
+                self.problems.record("open_failed", f"{self.failure.message} ({self.failure.error})",
+                                     level=logging.INFO)
+                self.first_attempt.set()
                 self._safe_close()
                 self._stop.wait(backoff)
                 backoff = min(backoff * 2.0, self.config.reconnect_max_s)
                 continue
+            self.failure = None
+            self.first_attempt.set()
             self._connected = True
             self._connects += 1
             backoff = self.config.reconnect_min_s
@@ -217,7 +234,7 @@ class InputAdapter(ABC):
             name=self.name, type=self.config.type, running=self.running, connected=self._connected,
             stale=age > self.stale_after_s, age_s=age, samples=self.output.seq, connects=self._connects,
             problems=counts, last_problem=recent[-1] if recent else None,
-            recent_problems=tuple(recent),
+            recent_problems=tuple(recent), failure=self.failure,
         )
 
 

@@ -29,6 +29,7 @@ from servo_app.inputs.bridge.publication import Publication
 from servo_app.inputs.bridge.status import application_rows, describe_view, source_rows, summary_view
 from servo_app.inputs.bridge.wiring import Slots, wire
 from servo_app.inputs.config import InputsConfig
+from servo_app.inputs.device_failure import DeviceFailure
 from servo_app.inputs.feed import FeedRegistry
 from servo_app.inputs.problems import ProblemLog
 from servo_app.inputs.samples import ButtonEvent
@@ -118,15 +119,44 @@ class InputsBridge:
         with contextlib.suppress(OSError, AttributeError):
             self.writer.close()
 
+    def failures(self) -> list[tuple[InputAdapter, DeviceFailure]]:
+        """The adapters whose device cannot be opened now, with why."""
+        return [(a, f) for a in self.adapters if (f := a.failure) is not None]
+
+    def wait_first_open(self, timeout: float) -> list[tuple[InputAdapter, DeviceFailure]]:
+        """Wait (at most ``timeout`` s in all) until every adapter has tried to open its device once;
+        then the ones that failed. For the start-up report."""
+        deadline = time.monotonic() + timeout
+        for a in self.adapters:
+            if a.running:
+                a.first_attempt.wait(max(0.0, deadline - time.monotonic()))
+        return self.failures()
+
+    def _users(self, source: str) -> list[str]:
+        """The applications that take input from ``source``."""
+        return [app.name for app in self.apps if any(ref.source == source for ref in app.inputs.values())]
+
+    def _failure_text(self, name: str, failure: DeviceFailure) -> str:
+        users = self._users(name)
+        used = f" (used by {', '.join(repr(u) for u in users)})" if users else ""
+        return f"input source {name!r}{used} cannot command: {failure.message}"
+
     # --------------------------------------------------------------- control
     def enable(self, on: bool) -> dict[str, Any]:
-        """Let the input sources move the arm (or stop them); the servo process gets the source names."""
+        """Let the input sources move the arm (or stop them); the servo process gets the source names.
+        Enabling while a source's device cannot be opened goes ahead (the others may command), and the
+        answer says which source, why, and what to do."""
         if self._request is None:
             raise RuntimeError("the inputs bridge is not connected to a servo process")
         self._request(ConfigureInputs(enable=bool(on), sources=tuple(self.source_names)))
         self._pipeline.enable(bool(on))
         self._loop.wake()
-        return {"enabled": self.enabled, "sources": self.source_names}
+        out: dict[str, Any] = {"enabled": self.enabled, "sources": self.source_names}
+        failed = self.failures()
+        if on and failed:
+            out["failed_sources"] = [{"name": a.name, "used_by": self._users(a.name), **f.view()} for a, f in failed]
+            out["warning"] = "; ".join(self._failure_text(a.name, f) for a, f in failed)
+        return out
 
     def set_owner(self, name: str | None) -> dict[str, Any]:
         """Give one source exclusive control (the others stay connected and reported, but cannot

@@ -18,7 +18,7 @@ from servo_app.inputs.arbiter import Arbiter
 from servo_app.inputs.feed import FeedRegistry
 from servo_app.inputs.problems import ProblemLog
 
-SUMMARY_KEYS = ("name", "kind", "rate_hz", "age_s", "stale", "active", "latency_ms")
+SUMMARY_KEYS = ("name", "kind", "rate_hz", "age_s", "stale", "active", "latency_ms", "failure")
 
 
 class Sources(Protocol):
@@ -92,7 +92,8 @@ def source_rows(src: Sources, active: str | None, now: float, rates: RateMeter) 
         st = a.status(now)
         row(a.name, "adapter", a.config.type, src.kinds.get(a.name, "unknown"), a.output, a.stale_after_s,
             connected=st.connected, connects=st.connects, scheduling=a.scheduling, errors=dict(st.problems),
-            last_error=st.last_problem.message if st.last_problem else None)
+            last_error=st.last_problem.message if st.last_problem else None,
+            failure=st.failure.view() if st.failure is not None else None)
     for s in src.feeds.all_stats():
         cfg = src.feeds.config(s.source)
         row(s.source, "feed", cfg.kind, cfg.kind, src.feeds.slot(s.source), cfg.stale_after_s,

@@ -19,6 +19,7 @@ from pydantic import Field, PrivateAttr, ValidationInfo, field_validator, model_
 from servo_app.inputs.adapter import AdapterConfig, Clock, InputAdapter
 from servo_app.inputs.can_sensor.decoders import CanMessageLayout, DbcDecoder, FrameDecoder, FrameProblem, LayoutDecoder
 from servo_app.inputs.can_sensor.slcan import SlcanBus
+from servo_app.inputs.device_failure import DeviceFailure, can_failure
 from servo_app.inputs.errors import KeyedError
 from servo_app.inputs.fields import FieldConfig
 from servo_app.inputs.samples import Measurement
@@ -93,6 +94,9 @@ class CanSensorAdapter(InputAdapter):
             self._bus = can.Bus(interface=c.interface, channel=c.channel, can_filters=self.decoder.can_filters(),
                                 **kwargs)
         self._latest.clear()  # values from before a reconnect must not merge with new ones
+
+    def explain_open_failure(self, exc: BaseException) -> DeviceFailure:
+        return can_failure(self.name, self.config.interface, self.config.channel, exc)
 
     def _close(self) -> None:
         bus, self._bus = self._bus, None

@@ -16,6 +16,7 @@ import serial
 from pydantic import Field, PositiveInt, field_validator, model_validator
 
 from servo_app.inputs.adapter import AdapterConfig, Clock, InputAdapter
+from servo_app.inputs.device_failure import DeviceFailure, serial_failure
 from servo_app.inputs.errors import KeyedError
 from servo_app.inputs.fields import DEFAULT_FIELD, FieldConfig
 from servo_app.inputs.samples import Measurement
@@ -118,6 +119,9 @@ class _SerialAdapter(InputAdapter):
         self._ser = serial.Serial(c.port, c.baudrate, bytesize=c.bytesize, parity=c.parity, stopbits=c.stopbits,
                                   timeout=c.poll_timeout_s, exclusive=c.exclusive)
         self._parser = self._new_parser()
+
+    def explain_open_failure(self, exc: BaseException) -> DeviceFailure:
+        return serial_failure(self.name, self.config.port, exc)
 
     def _close(self) -> None:
         ser, self._ser = self._ser, None

@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any, Literal, Protocol
 
 from servo_app.inputs.adapter import Clock, InputAdapter
+from servo_app.inputs.device_failure import DeviceFailure, hid_failure
 from servo_app.inputs.spacemouse.core import SpaceMouseConfig, SpaceMouseCore
 from servo_app.inputs.spacemouse.reader import drain
 from servo_app.inputs.spacemouse.reports import AxesReport, ButtonsReport, MalformedReport, decode_report
@@ -85,6 +86,11 @@ class SpaceMouseHidAdapter(InputAdapter):
         self._dev = self._open_device(self.config)
         # Whatever was deflected before an unplug is not deflected now.
         self.core.set_axes((0, 0, 0), (0, 0, 0))
+
+    def explain_open_failure(self, exc: BaseException) -> DeviceFailure:
+        c = self.config
+        what = f" {c.path}" if c.path else (f" {c.vendor_id:04x}:{c.product_id or 0:04x}" if c.vendor_id else "")
+        return hid_failure(self.name, what, exc)
 
     def _close(self) -> None:
         dev, self._dev = self._dev, None

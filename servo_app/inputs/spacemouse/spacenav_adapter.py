@@ -14,6 +14,7 @@ from typing import Literal
 from pydantic import Field
 
 from servo_app.inputs.adapter import Clock, InputAdapter
+from servo_app.inputs.device_failure import DeviceFailure, spacenav_failure
 from servo_app.inputs.spacemouse.core import SpaceMouseConfig, SpaceMouseCore
 from servo_app.inputs.spacemouse.spacenav import (
     DEFAULT_SOCKET,
@@ -49,6 +50,9 @@ class SpaceNavAdapter(InputAdapter):
 
     def _close(self) -> None:
         self.client.close()
+
+    def explain_open_failure(self, exc: BaseException) -> DeviceFailure:
+        return spacenav_failure(self.name, self.config.socket, exc)
 
     def _poll(self) -> None:
         self.process(self.client.receive(self.config.poll_timeout_s), self.clock())
