@@ -294,7 +294,7 @@ def test_holding_a_jog_at_500_requests_per_s_never_stops_the_arm(rig: Rig) -> No
     print(f"{len(codes)} jogs in {out['elapsed']:.2f} s: {ok} ok, {limited} limited; states {out['states'][:3]}...")
     assert ok + limited == len(codes), set(codes)
     assert ok > 0 and limited > 0
-    assert ok <= 100 * out["elapsed"] + RateLimiter(100).burst + 1
+    assert ok <= 100 * (out["elapsed"] + 1)  # the rate, and a burst of at most a second's worth
     # The arm streamed the whole time: no hold-to-run stop between the accepted jogs.
     assert {st for st, _ in out["states"]} == {"streaming"}, out["states"]
     assert all(n == before for _, n in out["states"]), (before, out["states"])
