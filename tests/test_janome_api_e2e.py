@@ -56,6 +56,49 @@ def test_link_loss_mid_motion_is_a_fault_with_the_reason(janome: tuple[Rig, Jano
     # Motion is refused until reset; the API stays up and says why.
     r = rig.http.post("/api/jog", json={"joints": [10.0, 0, 0, 0]}, headers=hdr)
     assert r.status_code == 409 and "fault" in r.text
+    assert r.json()["detail"].endswith("reset the fault: POST /api/reset"), r.text
+
+
+def test_twist_and_pose_target_map_to_x_y_z_r(janome: tuple[Rig, JanomeSimulator]) -> None:
+    """A twist jogs X Y Z and R (its rotation about Z); a pose target goes to X Y Z R. What a SCARA or
+    Cartesian robot cannot do is refused as not supported by the Janome backend, and changes nothing."""
+    rig, _sim = janome
+    hdr = rig.lease()
+    rig.wait_state("ready")
+    s0 = rig.start_streaming(hdr)
+    x0 = s0["q_cmd"][0]
+    for body, words in (({"linear": [10.0, 0, 0], "angular": [5.0, 0, 0]}, ["angular", "only about Z"]),
+                        ({"linear": [10.0, 0, 0], "frame": "tool"}, ["frame='tool'"]),
+                        ({"linear": [0, 0, 0], "angular": [0, 0, 5000.0]}, ["R (angular[2])", "speed limit"]),
+                        ({"joints": [900.0, 0, 0, 0]}, ["joints[0]", "X's speed limit 800 mm/s"]),
+                        ({"joints": [10.0, 0, 0]}, ["joints has 3 values, expected 4"])):
+        r = rig.http.post("/api/jog", json=body, headers=hdr)
+        assert r.status_code == 422, (body, r.text)
+        for w in words:
+            assert w in r.json()["detail"], (w, r.json())
+        if "angular" in body and body["angular"][0]:
+            assert r.json()["detail"].startswith("not supported by the Janome backend: ")
+    # A twist along +X and about Z moves X and R.
+    end = time.monotonic() + 0.6
+    while time.monotonic() < end:
+        r = rig.http.post("/api/jog", json={"linear": [40.0, 0, 0], "angular": [0, 0, 20.0], "hold_ms": 500},
+                          headers=hdr)
+        assert r.status_code == 200, r.text
+        time.sleep(0.1)
+    s = rig.wait(lambda s: s["state"] == "stopped" and s["at_rest"], 10.0, "hold-to-run stop")
+    assert s["q_cmd"][0] > x0 + 2.0 and s["q_cmd"][3] > s0["q_cmd"][3] + 1.0, s["q_cmd"]
+    # A pose target: tilting is refused; X Y Z R is reached (and resumes the hold-to-run stop).
+    r = rig.http.post("/api/target", json={"xyzwpr": [100.0, 100.0, 20.0, 10.0, 0.0, 30.0]}, headers=hdr)
+    assert r.status_code == 422 and r.json()["detail"].startswith("not supported by the Janome backend: W=10"), r.text
+    r = rig.http.post("/api/target", json={"xyzwpr": [100.0, 400.0, 20.0, 0.0, 0.0, 30.0]}, headers=hdr)
+    assert r.status_code == 422 and "Y=400" in r.json()["detail"], r.text
+    assert rig.state()["state"] == "stopped"  # nothing changed
+    goal = [100.0, 100.0, 20.0, 30.0]
+    rig.post("/api/target", hdr, {"xyzwpr": [100.0, 100.0, 20.0, 0.0, 0.0, 30.0], "linear_speed": 200.0,
+                                  "angular_speed": 90.0})
+    s = rig.wait(lambda s: (s["at_rest"] and abs(s["q_cmd"][0] - goal[0]) < 1e-3) or s["state"] != "streaming",
+                 15.0, "the pose reached")
+    assert s["state"] == "streaming" and s["q_cmd"][:4] == pytest.approx(goal, abs=1e-3), s["q_cmd"]
 
 
 def test_bad_frames_are_rejected_with_a_clear_error_and_the_arm_keeps_safe(
@@ -72,5 +115,5 @@ def test_bad_frames_are_rejected_with_a_clear_error_and_the_arm_keeps_safe(
     rig.post("/api/session/stop", {"Authorization": f"Bearer {TOKEN}"})
     s = rig.wait_state("stopped")
     assert s["fault"] is None
-    rig.post("/api/session/end", {"Authorization": f"Bearer {TOKEN}"})
+    rig.post("/api/session/end", hdr)  # ending needs the lease (stopping does not)
     rig.wait_state("ended")

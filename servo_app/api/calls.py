@@ -1,7 +1,9 @@
 """The one place that turns a service call into an HTTP answer, and writes its audit line.
 
-Refusals: :class:`~servo_app.service.InvalidRequest` -> 422 (invalid here, before the controller),
-:class:`CommandRejected` -> 409 (refused by the state), ``TimeoutError`` -> 503 (no answer). Every
+Refusals: :class:`~servo_app.service.InvalidRequest` -> 422 (the request itself is bad: found here or
+by the servo process, which checks a request whole before anything changes), :class:`CommandRejected`
+-> 409 (refused by the state; the text ends with the next step), ``TimeoutError`` -> 503 (no answer).
+InvalidRequest is a CommandRejected too, so it is caught first. Every
 request to the servo process is a typed message (:mod:`servo_app.messages`) passed to
 :meth:`ServiceCalls.forward`.
 """
