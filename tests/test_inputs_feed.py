@@ -19,6 +19,7 @@ from fastapi import FastAPI, HTTPException, WebSocketDisconnect
 from fastapi.testclient import TestClient
 from starlette.requests import HTTPConnection
 
+from servo_app.api.body_limit import MAX_BODY_BYTES, BodyLimit
 from servo_app.inputs import Arbiter, Measurement, PoseSample, TwistSample
 from servo_app.inputs.feed import FeedRegistry, FeedRejected, FeedSourceConfig, UnknownSource
 from servo_app.inputs.feed.router import FeedPostFastPath, feed_post_handler, feed_router
@@ -203,6 +204,28 @@ def test_fast_path_serves_feed_posts_and_passes_everything_else_on() -> None:
         assert c.post("/api/feed/jog/extra", headers=h).json() == "app"
         assert c.get("/api/feed/jog", headers=h).status_code == 404  # only POSTs are the feed's
         assert c.post("/api/feed/", headers=h).status_code == 404
+
+
+def test_the_body_limit_sits_in_front_of_the_feed_fast_path() -> None:
+    """As the service stacks them: a sample over the body limit is refused (413) before the token
+    check, whether it declares its length or streams it in chunks; nothing reaches the slot."""
+    reg = make_registry()
+    app = FastAPI()
+    app.include_router(feed_router(reg, auth))
+    app.add_middleware(FeedPostFastPath, handler=feed_post_handler(reg, auth))
+    app.add_middleware(BodyLimit, limit=MAX_BODY_BYTES)
+    big = json.dumps({"kind": "measurement", "values": {f"ch{i}": 1.0 for i in range(10_000)}}).encode()
+    assert len(big) > MAX_BODY_BYTES
+    h = {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"}
+    with TestClient(app) as c:
+        assert c.post("/api/feed/gauge", content=big, headers=h).status_code == 413
+        assert c.post("/api/feed/gauge", content=big).status_code == 413  # no token: still 413, not 401
+        r = c.post("/api/feed/gauge", content=iter([big[i:i + 4096] for i in range(0, len(big), 4096)]), headers=h)
+        assert r.status_code == 413 and str(MAX_BODY_BYTES) in r.json()["detail"]
+        # The largest legitimate sample, hundreds of named channels, fits.
+        ok = {"kind": "measurement", "values": {"distance": 5.0, **{f"channel_{i:03d}": 1.25 for i in range(500)}}}
+        assert c.post("/api/feed/gauge", json=ok, headers=h).status_code == 200
+    assert reg.slot("gauge").seq == 1
 
 
 def test_post_feed(client: tuple[TestClient, FeedRegistry]) -> None:
