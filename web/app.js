@@ -9,15 +9,17 @@ import { JOG, JogPad } from "./jog.js";
 import { installKeys } from "./keys.js";
 import { Lease } from "./lease.js";
 import { LogsPanel } from "./logs.js";
+import { TargetForm } from "./target.js";
 import { Telemetry } from "./telemetry.js";
 import {
   JointTable, renderAlarms, renderHeldBack, renderInputs, renderPose, renderStatus, renderTiming,
 } from "./views.js";
 
 const ROBOT_POLL_MS = 100; // arm view refresh (FK on the server)
+const INPUTS_POLL_MS = 1000; // GET /api/inputs: each source's connection and errors
 
 const api = new Api();
-const ui = { tel: null, limits: null, robot: null, lastMode: null };
+const ui = { tel: null, limits: null, robot: null, lastMode: null, telemetryUp: false, inputs: null };
 
 // ------------------------------------------------------------------ messages
 let messageTimer = null;
@@ -51,7 +53,7 @@ function showSpeed() {
   const s = settings();
   const pct = Math.round(s.speed * 100);
   $("#speed-out").textContent = s.kind === "joint"
-    ? `${pct} % · ${Math.round(s.speed * JOG.JOINT_FRACTION * 100)} % of each axis' speed limit`
+    ? `${pct} % · ${Math.round(s.speed * JOG.JOINT_FRACTION * 100)} % of axis limits`
     : `${pct} % · ${Math.round(s.speed * JOG.MAX_LINEAR_MM_S)} mm/s · ${Math.round(s.speed * JOG.MAX_ANGULAR_DEG_S)} °/s`;
 }
 
@@ -61,6 +63,7 @@ const io = new IoPanel({ api, root: $("#io-buttons"), onError: sayError });
 const logs = new LogsPanel({ api, root: $("#logs-card"), limits: () => ui.limits, onError: sayError });
 const arm = new ArmView($("#arm-side"), $("#arm-top"));
 const joints = new JointTable($("#joint-rows"));
+const target = new TargetForm({ api, root: $("#target-form"), telemetry: () => ui.tel, robot: () => ui.robot });
 const lease = new Lease({
   api,
   onChange: (held, why) => {
@@ -154,6 +157,38 @@ function bindButtons() {
     input.addEventListener("change", () => { jog.release(); $("#step-row").hidden = !settings().step; });
   }
   $("#speed").addEventListener("input", showSpeed);
+  $("#inputs-enable").addEventListener("click", enableInputs);
+}
+
+/** Enable or disable input control; the answer may warn (a configured source has failed). */
+async function enableInputs() {
+  const want = !(ui.tel && ui.tel.inputs && ui.tel.inputs.enabled);
+  const box = $("#inputs-error");
+  box.textContent = "";
+  try {
+    const ack = await api.post("/api/inputs/enable", { enable: want });
+    const d = ack && ack.detail;
+    const warn = d && (d.warning || d.message || (Array.isArray(d.failed) && d.failed.length
+      ? `failed sources: ${d.failed.join(", ")}` : ""));
+    if (warn) box.textContent = String(warn);
+    say(want ? "inputs enabled" : "inputs disabled");
+  } catch (exc) {
+    box.textContent = `${want ? "Enable" : "Disable"} inputs: ${exc.message}`;
+  }
+  pollInputs(false);
+}
+
+/** Each source's connection and errors (the telemetry's summary has rate and staleness only). */
+async function pollInputs(again = true) {
+  if (!document.hidden && ui.tel && ui.tel.inputs) {
+    try {
+      ui.inputs = await api.get("/api/inputs", { timeoutMs: 2000 });
+      renderInputs($("#inputs-card"), ui.tel, ui.inputs);
+    } catch {
+      // the telemetry pill already shows a dead server
+    }
+  }
+  if (again) setTimeout(pollInputs, INPUTS_POLL_MS);
 }
 
 function jogKind() {
@@ -197,13 +232,13 @@ async function signIn() {
 // ------------------------------------------------------------------ live state
 function onState(s) {
   ui.tel = s;
-  renderStatus(s);
+  renderStatus(s, ui.telemetryUp);
   if (lease.held) $("#lease-holder").textContent = `control: you (${api.operator})`;
   renderPose(s, ui.robot);
   renderHeldBack(s);
   renderTiming(s);
   renderAlarms(s);
-  renderInputs($("#inputs-card"), s);
+  renderInputs($("#inputs-card"), s, ui.inputs);
   io.render(s);
   joints.render(s, ui.robot, ui.limits, ui.limits ? ui.limits.limit_fraction : 0.9);
   if (s.state !== ui.lastMode) {
@@ -221,8 +256,11 @@ function onState(s) {
 }
 
 function onLink(up, why) {
+  ui.telemetryUp = up;
   const pill = $("#conn");
   pill.textContent = up ? "telemetry: live" : `telemetry: lost (${why})`;
+  pill.title = pill.textContent;
+  if (ui.tel) renderStatus(ui.tel, up); // the last state heard is not news any more
   pill.className = `pill ${up ? "ok" : "bad"}`;
   document.body.classList.toggle("offline", !up);
   if (!up && jog.holding) {
@@ -283,6 +321,7 @@ async function loadRobot() {
   io.available = Boolean(ui.limits.io_allow && ui.limits.io_allow.DO);
   $("#io-card").hidden = !io.available;
   arm.draw(ui.robot);
+  target.build(true);
   refreshControls();
   pollRobot();
 }
@@ -302,6 +341,7 @@ function main() {
   new Telemetry({ hz: 20, onState, onLink }).start();
   loadRobot();
   logs.refresh();
+  pollInputs();
 }
 
 main();

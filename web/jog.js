@@ -57,9 +57,11 @@ export class JogPad {
       type: "button", class: "jog", "aria-label": `jog ${axis.sign > 0 ? "plus" : "minus"} ${name}`,
       dataset: { jog: `${axis.sign > 0 ? "+" : "-"}${name}` },
     }, label);
-    // Pointer events cover mouse, touch and pen. No pointer capture: leaving the button must stop.
+    // Pointer events cover mouse, touch and pen. The press captures the pointer: the jog goes on while
+    // the pointer is down, wherever it is, and stops when it comes up, is cancelled or loses capture.
+    // (Without capture a page that moved under a still mouse fired pointerleave and cut the jog short.)
     btn.addEventListener("pointerdown", (ev) => this.onDown(ev, btn, axis));
-    for (const type of ["pointerup", "pointerleave", "pointercancel"]) {
+    for (const type of ["pointerup", "pointercancel", "lostpointercapture", "blur"]) {
       btn.addEventListener(type, () => { if (this.active && this.active.btn === btn) this.release(); });
     }
     btn.addEventListener("contextmenu", (ev) => ev.preventDefault()); // long-press menu on tablets
@@ -79,8 +81,14 @@ export class JogPad {
       this.step(axis, btn);
       return;
     }
-    this.active = { axis, btn, sent: 0, timer: setInterval(() => this.renew(), JOG.RENEW_MS) };
+    this.active = { axis, btn, sent: 0, pointerId: ev.pointerId, timer: setInterval(() => this.renew(), JOG.RENEW_MS) };
+    try {
+      btn.setPointerCapture(ev.pointerId);
+    } catch {
+      // a synthetic event without a live pointer: pointerup on the button still releases
+    }
     btn.classList.add("held");
+    document.body.classList.add("jogging");
     this.renew();
   }
 
@@ -126,6 +134,8 @@ export class JogPad {
     if (!a) return null;
     clearInterval(a.timer);
     a.btn.classList.remove("held");
+    document.body.classList.remove("jogging");
+    if (a.pointerId !== undefined && a.btn.hasPointerCapture(a.pointerId)) a.btn.releasePointerCapture(a.pointerId);
     this.active = null;
     return a;
   }

@@ -2,7 +2,7 @@
 // velocities as a percentage of each joint's limit (so all joints share one axis).
 
 import { $, el, fmt } from "./dom.js";
-import { envelope, parseSessionLog, velocities } from "./sessionlog.js";
+import { axisUnits, envelopeByTime, parseSessionLog, timeTicks, velocities } from "./sessionlog.js";
 
 const JOINT_COLORS = ["#4fb3ff", "#7ddc6f", "#ffcc4d", "#ff8a3d", "#d98cff", "#ff5f7a", "#5fe0d0", "#c0c0c0", "#a0a0ff"];
 
@@ -13,6 +13,7 @@ export class LogsPanel {
     this.canvas = $("#log-plot", root);
     this.summary = $("#log-summary", root);
     this.title = $("#log-title", root);
+    this.axes = $("#log-axes", root);
     this.selected = null;
     this.plotted = null;
     $("#log-refresh", root).addEventListener("click", () => this.refresh());
@@ -54,7 +55,8 @@ export class LogsPanel {
       // Limits of the running robot apply only if the log is of the same model.
       const sameModel = lim && log.header.model === lim.model;
       const limit = sameModel ? lim.vel_deg_s || lim.speed : null;
-      this.plotted = { name, log, vel: velocities(log), limit, fraction: lim ? lim.limit_fraction : null };
+      this.plotted = { name, log, vel: velocities(log), limit, fraction: lim ? lim.limit_fraction : null,
+        units: axisUnits(log) };
       const seconds = log.count > 1 ? log.t[log.count - 1] - log.t[0] : 0;
       this.title.textContent = `${name} · ${log.header.model} · ${log.count} commands · ${fmt(seconds, 1)} s`
         + (limit ? "" : " · limits unknown for this model: speeds shown unscaled");
@@ -66,7 +68,7 @@ export class LogsPanel {
     }
   }
 
-  renderSummary({ vel, limit, log }) {
+  renderSummary({ vel, limit, log, units }) {
     const rows = vel.map((v, j) => {
       let peak = 0;
       for (const x of v) peak = Math.max(peak, Math.abs(x));
@@ -75,17 +77,19 @@ export class LogsPanel {
       return el("tr", { dataset: { joint: name } },
         el("td", {}, el("span", { class: "swatch", style: `background:${JOINT_COLORS[j % JOINT_COLORS.length]}` }),
           ` ${name}`),
+        el("td", { class: "unit" }, `${units[j]}/s`),
         el("td", { class: "num peak" }, fmt(peak, 1)),
         el("td", { class: "num" }, limit ? fmt(limit[j], 0) : "—"),
-        el("td", { class: `num ${pct >= 100 ? "bad" : ""}` }, limit ? `${fmt(pct, 1)} %` : "—"));
+        el("td", { class: `num ${pct >= 100 ? "bad" : ""}` }, limit ? fmt(pct, 1) : "—"));
     });
+    // Every column says its unit; the speeds' unit is the axis' own (° or mm), in the unit column.
     this.summary.replaceChildren(
-      el("thead", {}, el("tr", {}, el("th", {}, "axis"), el("th", {}, "peak /s"), el("th", {}, "limit /s"),
-        el("th", {}, "peak %"))),
+      el("thead", {}, el("tr", {}, el("th", {}, "axis"), el("th", {}, "unit"), el("th", {}, "peak speed (unit)"),
+        el("th", {}, "limit (unit)"), el("th", {}, "peak (% of limit)"))),
       el("tbody", {}, rows));
   }
 
-  draw({ vel, limit, fraction }) {
+  draw({ vel, limit, fraction, log, units }) {
     const c = this.canvas;
     const dpr = window.devicePixelRatio || 1;
     const w = c.clientWidth;
@@ -102,17 +106,41 @@ export class LogsPanel {
     // Full scale shows the margin to the limit; "fit" shows the shape of slow motions.
     const fit = $("#log-fit", this.root).checked;
     const yMax = limit && !fit ? Math.max(110, peak * 1.05) : Math.max(limit ? 5 : 1, peak * 1.15);
-    const left = 44;
+    const left = 56;
+    const bottom = 22; // the time axis
     const plotW = w - left - 8;
-    const y = (val) => h / 2 - (val / yMax) * (h / 2 - 10);
+    const plotH = h - bottom;
+    const y = (val) => plotH / 2 - (val / yMax) * (plotH / 2 - 10);
     g.font = "11px system-ui, sans-serif";
     g.fillStyle = "#9fb0c3";
     g.strokeStyle = "#2b3440";
     g.beginPath();
     g.moveTo(left, y(0)); g.lineTo(w, y(0));
+    g.moveTo(left, plotH); g.lineTo(w, plotH);
     g.stroke();
-    const unit = limit ? "%" : "/s";
+    const mixed = new Set(units).size > 1;
+    const unit = limit ? "%" : mixed ? " /s" : ` ${units[0]}/s`;
     for (const val of [yMax, 0, -yMax]) g.fillText(`${val.toFixed(0)}${unit}`, 2, y(val) + 4);
+    // The time axis: seconds from the log's first command.
+    const t0 = log.count ? log.t[0] : 0;
+    const duration = log.count > 1 ? log.t[log.count - 1] - t0 : 0;
+    const ticks = timeTicks(duration, Math.max(2, Math.floor(plotW / 70)));
+    const xOf = (sec) => left + (duration > 0 ? (sec / duration) * plotW : 0);
+    g.strokeStyle = "#2b3440";
+    g.beginPath();
+    for (const sec of ticks) {
+      g.moveTo(xOf(sec), plotH); g.lineTo(xOf(sec), plotH + 4);
+    }
+    g.stroke();
+    g.fillStyle = "#9fb0c3";
+    for (const sec of ticks) {
+      const text = `${+sec.toFixed(2)} s`;
+      const tw = g.measureText(text).width;
+      g.fillText(text, Math.min(w - tw - 2, Math.max(left, xOf(sec) - tw / 2)), plotH + 16);
+    }
+    c.dataset.ticks = ticks.map((sec) => +sec.toFixed(2)).join(" ");
+    this.axes.textContent = `x: time since the first command (s), 0 to ${fmt(duration, 2)} s · y: speed, `
+      + (limit ? "% of each axis' limit" : mixed ? units.map((u, j) => `${log.axes[j]} ${u}/s`).join(", ") : `${units[0]}/s`);
     if (limit && yMax >= 100) {
       this.hline(g, left, w, y(100), "#ff5f7a", [6, 4]);
       this.hline(g, left, w, y(-100), "#ff5f7a", [6, 4]);
@@ -124,9 +152,11 @@ export class LogsPanel {
       g.fillText("limit", w - 36, y(100) - 3);
     }
     const buckets = Math.max(1, Math.floor(plotW));
+    // velocity k is between commands k and k + 1: placed at the later one's time
+    const times = log.t.subarray(1, log.count);
     series.forEach((s, j) => {
       if (s.length === 0) return;
-      const { lo, hi } = envelope(s, buckets);
+      const { lo, hi } = envelopeByTime(s, times, t0, duration, buckets);
       g.strokeStyle = JOINT_COLORS[j % JOINT_COLORS.length];
       g.lineWidth = 1.2;
       g.beginPath();

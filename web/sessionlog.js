@@ -75,3 +75,49 @@ export function envelope(v, buckets) {
   }
   return { lo, hi };
 }
+
+/** Each axis' position unit: the header's ``units`` when it has them, else mm for X Y Z (a Janome's
+ * axes) and ° for the rest (joints, R). */
+export function axisUnits(log) {
+  const u = log.header.units;
+  if (Array.isArray(u) && u.length === log.axes.length) return u.map((x) => (x === "deg" ? "°" : x));
+  return log.axes.map((a) => (["X", "Y", "Z"].includes(a) ? "mm" : "°"));
+}
+
+/** Min/max per time bucket over [t0, t0 + duration]: samples need not be evenly spaced (Janome). A
+ * bucket without a sample repeats the one before, so a pause draws as a flat line, not a gap. */
+export function envelopeByTime(v, t, t0, duration, buckets) {
+  if (!(duration > 0)) return envelope(v, buckets);
+  const lo = new Float32Array(buckets).fill(Infinity);
+  const hi = new Float32Array(buckets).fill(-Infinity);
+  for (let i = 0; i < v.length; i += 1) {
+    const b = Math.min(buckets - 1, Math.max(0, Math.floor(((t[i] - t0) / duration) * buckets)));
+    if (v[i] < lo[b]) lo[b] = v[i];
+    if (v[i] > hi[b]) hi[b] = v[i];
+  }
+  let last = 0;
+  for (let b = 0; b < buckets; b += 1) {
+    if (lo[b] === Infinity) {
+      lo[b] = last;
+      hi[b] = last;
+    } else {
+      last = (lo[b] + hi[b]) / 2;
+    }
+  }
+  return { lo, hi };
+}
+
+/** Round tick times (s) from 0 to ``duration``, at most ``most`` of them: 1, 2, 5 times a power of 10. */
+export function timeTicks(duration, most = 10) {
+  if (!(duration > 0)) return [0];
+  let step = 10 ** Math.floor(Math.log10(duration / most));
+  for (const m of [1, 2, 5, 10]) {
+    if (duration / (step * m) <= most) {
+      step *= m;
+      break;
+    }
+  }
+  const out = [];
+  for (let k = 0; k * step <= duration + 1e-9; k += 1) out.push(k * step);
+  return out;
+}

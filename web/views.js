@@ -7,16 +7,44 @@ const MODE_CLASS = {
   stopping: "warn", stopped: "warn", ending: "warn", fault: "bad",
 };
 
-export function renderStatus(s) {
+/** Link phases in which the controller's own state (READY, STREAMING, ...) is live news. */
+const LINK_HEALTHY = new Set(["connected", "fetching_tables", "waiting_ready", "streaming", "ending"]);
+
+/** What the mode pill may say: the controller's state only while the link carries it. A READY beside
+ * "link fault" contradicted itself: with the link down (fault, closed, idle), or no telemetry, the
+ * last state heard is no longer true. Pure: (state, telemetry up?) -> {text, cls, title}. */
+export function headerMode(s, telemetryUp = true) {
+  const state = s.state || "";
+  if (!telemetryUp) {
+    return { text: "no telemetry", cls: "bad", title: `last heard: ${state || "nothing"} (not live)` };
+  }
+  if (state === "fault") return { text: "fault", cls: "bad", title: s.fault ? s.fault.message : "" };
+  if (state === "disconnected" || state === "ended") return { text: state, cls: "idle", title: "" };
+  const link = s.link || "";
+  if (link === "fault" || (link && !LINK_HEALTHY.has(link) && state !== "ending")) {
+    return { text: link === "fault" ? "link fault" : `link ${link}`, cls: "bad",
+      title: `controller state ${state} is not live: ${s.link_error || `the link is ${link}`}` };
+  }
+  return { text: state || "—", cls: MODE_CLASS[state] || "idle", title: "" };
+}
+
+export function renderStatus(s, telemetryUp = true) {
   const mode = $("#mode");
-  setText(mode, s.state || "—");
-  mode.className = `pill mode ${MODE_CLASS[s.state] || "idle"}`;
+  const m = headerMode(s, telemetryUp);
+  setText(mode, m.text);
+  mode.className = `pill mode ${m.cls}`;
+  mode.title = m.title;
   setText($("#link"), `link ${s.link || "—"}`);
-  setText($("#model"), `${s.model || ""}${s.simulated ? " · simulator" : ""} ${s.robot ? `@ ${s.robot}` : ""}`);
+  $("#link").title = s.link_error || "";
+  const model = `${s.model || ""}${s.simulated ? " · simulator" : ""} ${s.robot ? `@ ${s.robot}` : ""}`;
+  setText($("#model"), model);
+  $("#model").title = model;
   const why = s.state === "fault" && s.fault ? `fault: ${s.fault.message}`
     : s.stop_reason && ["stopping", "stopped"].includes(s.state)
-      ? `stopped: ${s.stop_reason}${s.resumable ? " (resumable)" : ""}` : "";
+      ? `stopped: ${s.stop_reason}${s.resumable ? " (resumable)" : ""}`
+      : s.link === "fault" && s.link_error ? `link fault: ${s.link_error}` : "";
   setText($("#stop-reason"), why);
+  $("#stop-reason").title = why;
   setText($("#lease-holder"), s.lease && s.lease.held ? `control: ${s.lease.client}` : "control: free");
 }
 
@@ -31,9 +59,22 @@ export function renderHeldBack(s) {
   }
 }
 
+/** Where each pose name lives in ``cart_servo``, which is always X Y Z W P R (a Janome's R, the
+ * rotation about Z, is in slot 5 like FANUC's R: its 4-name row showed slot 3, W, as R). */
+const POSE_SLOT = { X: 0, Y: 1, Z: 2, W: 3, P: 4, R: 5 };
+
+export function poseSlots(robot) {
+  const names = (robot && robot.pose_names) || ["X", "Y", "Z", "W", "P", "R"];
+  if (robot && Array.isArray(robot.pose_slots) && robot.pose_slots.length === names.length) {
+    return names.map((n, i) => [n, robot.pose_slots[i]]);
+  }
+  return names.map((n, i) => [n, n in POSE_SLOT ? POSE_SLOT[n] : i]);
+}
+
 /** The flange or tool pose from the controller's feedback, named as the backend names it. */
 export function renderPose(s, robot) {
-  const names = (robot && robot.pose_names) || ["X", "Y", "Z", "W", "P", "R"];
+  const slots = poseSlots(robot);
+  const names = slots.map(([n]) => n);
   const head = $("#pose-head");
   if (head.dataset.names !== names.join()) {
     head.dataset.names = names.join();
@@ -41,7 +82,7 @@ export function renderPose(s, robot) {
     $("#pose-row").replaceChildren(...names.map((n) => el("td", { id: `pose-${n}` }, "—")));
   }
   const c = s.cart_servo || [];
-  names.forEach((n, i) => setText($(`#pose-${n}`), fmt(c[i], 1)));
+  for (const [n, slot] of slots) setText($(`#pose-${n}`), fmt(c[slot], 1));
 }
 
 /** Joint rows: position in its range, then velocity, acceleration and jerk as % of their limits. */
@@ -53,7 +94,7 @@ export class JointTable {
 
   build(names) {
     this.rows = names.map((name) => {
-      const cells = { pos: el("td", { class: "num" }), range: bar(), vel: bar(), acc: bar(), jerk: bar() };
+      const cells = { pos: el("td", { class: "num" }), range: rangeBar(), vel: bar(), acc: bar(), jerk: bar() };
       const tr = el("tr", { dataset: { joint: name } }, el("th", {}, name), cells.pos,
         el("td", {}, cells.range.node), el("td", {}, cells.vel.node), el("td", {}, cells.acc.node),
         el("td", {}, cells.jerk.node));
@@ -76,13 +117,12 @@ export class JointTable {
       if (axis) {
         // FANUC ranges are in the model convention: J3 there is J3 + j23 * J2 of the FANUC convention.
         const qm = i === 2 && robot.j23_factor ? q[2] + robot.j23_factor * q[1] : q[i];
-        cells.range.set(((qm - axis.min) / (axis.max - axis.min)) * 100, `${fmt(axis.min, 0)}…${fmt(axis.max, 0)}`,
-          true);
+        cells.range.set(((qm - axis.min) / (axis.max - axis.min)) * 100, `${fmt(axis.min, 0)}…${fmt(axis.max, 0)}`);
       }
       ["vel", "acc", "jerk"].forEach((key, k) => {
         const v = s[key] ? Math.abs(s[key][i]) : NaN;
         const pct = limitsNow[k][i] ? (100 * v) / limitsNow[k][i] : NaN;
-        cells[key].set(pct, Number.isFinite(pct) ? `${fmt(pct, 0)}%` : "—", false, warnFraction);
+        cells[key].set(pct, Number.isFinite(pct) ? `${fmt(pct, 0)}%` : "—", warnFraction);
       });
     });
   }
@@ -93,21 +133,32 @@ export function axisPositions(s) {
   return (s.status_received > 0 ? s.q_servo : s.q_cmd) || [];
 }
 
+/** A joint's position in its range: a marker on a track, the range's text beside the track. */
+function rangeBar() {
+  const marker = el("span", { class: "marker" });
+  const label = el("span", { class: "label" });
+  const node = el("span", { class: "range" }, el("span", { class: "track" }, marker), label);
+  return {
+    node,
+    set(pct, text) {
+      const p = Number.isFinite(pct) ? Math.max(0, Math.min(100, pct)) : 0;
+      marker.style.left = `calc(${p}% - ${(p / 100) * 4}px)`; // the 4 px marker stays inside the track
+      setText(label, text);
+    },
+  };
+}
+
+/** A share of a limit: a fill under its percentage. */
 function bar() {
   const fill = el("span", { class: "fill" });
   const label = el("span", { class: "label" });
   const node = el("span", { class: "bar" }, fill, label);
   return {
     node,
-    set(pct, text, isPosition = false, warnFraction = 0.9) {
+    set(pct, text, warnFraction = 0.9) {
       const p = Number.isFinite(pct) ? Math.max(0, Math.min(100, pct)) : 0;
-      if (isPosition) {
-        fill.style.left = `calc(${p}% - 2px)`; // a marker at the position, not a fill
-        fill.className = "fill marker";
-      } else {
-        fill.style.width = `${p}%`;
-        fill.className = `fill ${pct >= 100 ? "bad" : pct >= 100 * warnFraction ? "warn" : "ok"}`;
-      }
+      fill.style.width = `${p}%`;
+      fill.className = `fill ${pct >= 100 ? "bad" : pct >= 100 * warnFraction ? "warn" : "ok"}`;
       setText(label, text);
     },
   };
@@ -127,47 +178,100 @@ export function renderTiming(s) {
   $("#t-lost").classList.toggle("bad", s.status_lost > 0);
 }
 
-/** Fault (what stopped the session) first, then the controller's alarm history, newest first. */
+/** When an alarm happened: the wall clock (the service's, else when this console first saw it) and
+ * the controller's own time stamp when it sent one. */
+export function alarmWhen(a, firstSeenUnix) {
+  const unix = Number.isFinite(a.time_unix) ? a.time_unix : firstSeenUnix;
+  const parts = [];
+  if (Number.isFinite(unix)) {
+    const d = new Date(unix * 1000);
+    const hms = d.toLocaleTimeString([], { hour: "2-digit", minute: "2-digit", second: "2-digit", hour12: false });
+    parts.push(`${Number.isFinite(a.time_unix) ? "" : "seen "}${hms}.${String(d.getMilliseconds()).padStart(3, "0")}`);
+  }
+  if (Number.isFinite(a.controller_time_ms)) parts.push(`controller ${a.controller_time_ms} ms`);
+  return parts.join(" · ");
+}
+
+/** The identity of an alarm occurrence, to remember when the console first saw it. */
+const alarmKey = (a) => `${a.code}|${a.message}|${a.time_unix ?? ""}|${a.controller_time_ms ?? ""}`;
+const firstSeen = new Map();
+
+/** Active: the fault (what stopped the session), the link error, then the controller's active alarms,
+ * newest first. History, apart: the service's ``alarm_history`` (else what this console saw). */
 export function renderAlarms(s) {
   const box = $("#alarm-list");
+  const now = Date.now() / 1000;
+  const active = s.alarms || [];
+  for (const a of active) if (!firstSeen.has(alarmKey(a))) firstSeen.set(alarmKey(a), { a, seen: now });
+  const when = (a) => alarmWhen(a, firstSeen.has(alarmKey(a)) ? firstSeen.get(alarmKey(a)).seen : undefined);
   const items = [];
-  if (s.state === "fault" && s.fault) items.push(alarmItem({ ...s.fault, kind: "fault" }));
+  if (s.state === "fault" && s.fault) items.push(alarmItem({ ...s.fault, kind: "fault" }, ""));
   if (s.link_error) items.push(el("li", { class: "alarm warn" }, el("b", {}, "link "), s.link_error));
-  for (const a of [...(s.alarms || [])].reverse()) items.push(alarmItem({ ...a, kind: a.warning ? "warning" : "alarm" }));
-  for (const w of [...(s.warnings || [])].reverse()) items.push(alarmItem({ ...w, kind: "warning" }));
-  const key = JSON.stringify([s.state, s.fault, s.link_error, s.alarms, s.warnings]);
+  for (const a of [...active].reverse()) items.push(alarmItem({ ...a, kind: a.warning ? "warning" : "alarm" }, when(a)));
+  for (const w of [...(s.warnings || [])].reverse()) items.push(alarmItem({ ...w, kind: "warning" }, when(w)));
+  const history = Array.isArray(s.alarm_history) ? s.alarm_history
+    : [...firstSeen.values()].map(({ a }) => a).slice(-50);
+  const key = JSON.stringify([s.state, s.fault, s.link_error, active, s.warnings, history]);
   if (box.dataset.key === key) return; // same content: keep the DOM (and any text selection)
   box.dataset.key = key;
   box.replaceChildren(...(items.length ? items : [el("li", { class: "muted" }, "no alarms")]));
-  $("#alarm-count").textContent = String((s.alarms || []).filter((a) => !a.warning).length);
+  $("#alarm-count").textContent = String(active.filter((a) => !a.warning).length);
+  $("#alarm-history-count").textContent = `(${history.length})`;
+  $("#alarm-history").replaceChildren(...(history.length
+    ? [...history].reverse().map((a) => alarmItem({ ...a, kind: a.warning ? "warning" : "alarm", past: true }, when(a)))
+    : [el("li", { class: "muted" }, "no alarms seen")]));
 }
 
-function alarmItem(a) {
-  return el("li", { class: `alarm ${a.kind === "warning" ? "warn" : "bad"}`, dataset: { code: a.code || "" } },
-    el("div", {}, el("b", { class: "code" }, a.code || a.kind), " ", a.message || ""),
-    a.cause ? el("div", { class: "cause" }, el("span", { class: "muted" }, "cause: "), a.cause) : null,
-    a.remedy ? el("div", { class: "remedy" }, el("span", { class: "muted" }, "remedy: "), a.remedy) : null);
+function alarmItem(a, when) {
+  return el("li", { class: `alarm ${a.kind === "warning" ? "warn" : "bad"}${a.past ? " past" : ""}`,
+    dataset: { code: a.code || "" } },
+  el("div", {}, el("b", { class: "code" }, a.code || a.kind), " ", a.message || ""),
+  when ? el("div", { class: "when" }, when) : null,
+  a.cause ? el("div", { class: "cause" }, el("span", { class: "muted" }, "cause: "), a.cause) : null,
+  a.remedy ? el("div", { class: "remedy" }, el("span", { class: "muted" }, "remedy: "), a.remedy) : null);
 }
 
-/** Input sources, when the service runs with --inputs: {enabled, active, sources: [{name, kind,
- * rate_hz, age_s, stale, active}]}. */
-export function renderInputs(section, s) {
+/** Why a source is down, from GET /api/inputs' full row (errors, last_error, connected), or "". */
+export function sourceFailure(row) {
+  if (!row) return "";
+  const errors = row.errors && typeof row.errors === "object" ? Object.entries(row.errors).filter(([, n]) => n > 0) : [];
+  const down = row.connected === false || row.failed === true || row.state === "failed";
+  if (!down && !row.last_error && errors.length === 0) return "";
+  const counts = errors.map(([k, n]) => `${k.replaceAll("_", " ")} ×${n}`).join(", ");
+  const reason = row.reason || row.last_error || row.error || (down ? "not connected" : "");
+  return [reason, counts && `(${counts})`].filter(Boolean).join(" ");
+}
+
+/** Input sources, when the service runs with --inputs. ``s.inputs`` (telemetry): {enabled, active,
+ * owner, sources: [{name, kind, rate_hz, age_s, stale, active}]}; ``detail``: GET /api/inputs, whose
+ * rows add each source's connection and errors (a source that cannot be opened says why). */
+export function renderInputs(section, s, detail = null) {
   const summary = s.inputs;
   const sources = summary && Array.isArray(summary.sources) ? summary.sources : [];
   section.hidden = !summary;
   if (!summary) return;
   setText($("#inputs-status", section), `${summary.enabled ? "enabled" : "disabled"} · in control: `
     + `${summary.active || "none"}${summary.owner ? ` · only ${summary.owner} may command` : ""}`);
-  const rows = sources.map((src) => el("tr", { class: src.stale ? "warn-row" : "", dataset: { source: src.name } },
-    el("td", {}, src.name), el("td", {}, src.kind || ""), el("td", {}, src.stale ? "stale" : "live"),
-    el("td", { class: "num" }, Number.isFinite(src.rate_hz) ? `${fmt(src.rate_hz, 0)} Hz` : "—"),
-    el("td", { class: "num" }, Number.isFinite(src.age_s) ? `${fmt(src.age_s * 1000, 0)} ms` : "—"),
-    el("td", {}, src.active ? "in control" : "")));
-  const key = JSON.stringify(sources.map((r) => [r.name, r.stale, r.active, Math.round(r.rate_hz || 0),
-    Math.round((r.age_s || 0) * 100)]));
+  const enable = $("#inputs-enable", section);
+  setText(enable, summary.enabled ? "Disable inputs" : "Enable inputs");
+  enable.setAttribute("aria-pressed", String(Boolean(summary.enabled)));
+  const full = new Map(((detail && detail.sources) || []).map((r) => [r.name, r]));
+  const failures = sources.map((src) => [src.name, sourceFailure(full.get(src.name))]).filter(([, why]) => why);
+  const failed = new Set(failures.filter(([n]) => full.get(n).connected === false || full.get(n).failed).map(([n]) => n));
+  const stateOf = (src) => (failed.has(src.name) ? "failed" : src.stale ? "stale" : "live");
+  const rows = sources.map((src) => el("tr", {
+    class: failed.has(src.name) ? "bad-row" : src.stale ? "warn-row" : "", dataset: { source: src.name } },
+  el("td", {}, src.name), el("td", {}, src.kind || ""), el("td", {}, stateOf(src)),
+  el("td", { class: "num" }, Number.isFinite(src.rate_hz) ? `${fmt(src.rate_hz, 0)} Hz` : "—"),
+  el("td", { class: "num" }, Number.isFinite(src.age_s) ? `${fmt(src.age_s * 1000, 0)} ms` : "—"),
+  el("td", {}, src.active ? "in control" : "")));
+  const key = JSON.stringify([sources.map((r) => [r.name, r.stale, r.active, Math.round(r.rate_hz || 0),
+    Math.round((r.age_s || 0) * 100)]), failures, [...failed]]);
   const tbody = $("tbody", section);
   if (tbody.dataset.key === key) return;
   tbody.dataset.key = key;
   tbody.replaceChildren(...(rows.length ? rows : [el("tr", {}, el("td", { colspan: "6", class: "muted" },
     "no sources configured"))]));
+  $("#inputs-failures", section).replaceChildren(...failures.map(([name, why]) => el("li",
+    { dataset: { source: name } }, el("b", {}, `${name}: `), why)));
 }
