@@ -125,7 +125,7 @@ def test_killed_toy_servo_process_is_a_fault_and_reset_recovers(toy_registered: 
         assert time.monotonic() - t_kill < 0.5
         assert "signal 9" in s["fault"]["message"] and s["servo_process"].startswith("ended by signal 9"), s
         assert rig.post("/api/jog", h, json={"joints": JOG_X}, expect=409).json()["detail"].endswith(
-            "reset (POST /api/reset) to start a new servo process")
+            "reset the fault to start a new servo process: POST /api/reset")
 
         rig.post("/api/reset", h)  # a new toy servo process
         s = rig.wait_state("disconnected", "connected", "ready")

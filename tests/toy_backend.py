@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from servo_app.backends import ProcessOptions, RobotBackend, Target
-from servo_app.errors import CommandRejected
+from servo_app.errors import CommandRejected, InvalidRequest
 from servo_app.messages import Event, Ready
 from servo_app.process_handle import ServoProcessHandle, ServoProcessHost, run_child
 from servo_app.safety import FaultInfo, Mode, ShaperAtRest, Signal, StatusLost, StatusReceived, stream_alive
@@ -166,10 +166,10 @@ class ToyMotion:
     def set_target(self, q: np.ndarray, speed_scale: float = 1.0) -> None:
         self._require()
         if not (np.isfinite(speed_scale) and 0.0 < speed_scale <= 1.0):
-            raise CommandRejected(f"speed_scale={speed_scale} must be in (0, 1]")
+            raise InvalidRequest(f"speed_scale={speed_scale} must be in (0, 1]")
         q = self._checked(q, "joints")
         if np.any(q < self.lo) or np.any(q > self.hi):
-            raise CommandRejected(f"target {q.tolist()} mm is outside the axes {self.lo.tolist()}..{self.hi.tolist()}")
+            raise InvalidRequest(f"target {q.tolist()} mm is outside the axes {self.lo.tolist()}..{self.hi.tolist()}")
         self._target, self._jog = (q, float(speed_scale)), np.zeros(N_AXES)
 
     def stop(self, fast: bool = False) -> None:
@@ -187,7 +187,7 @@ class ToyMotion:
     def _checked(values: np.ndarray, name: str) -> np.ndarray:
         v = np.asarray(values, dtype=float).reshape(-1)
         if v.shape != (N_AXES,) or not np.all(np.isfinite(v)):
-            raise CommandRejected(f"{name} must be {N_AXES} finite numbers (X, Y), got {v.tolist()}")
+            raise InvalidRequest(f"{name} must be {N_AXES} finite numbers (X, Y), got {v.tolist()}")
         return v
 
 
