@@ -22,6 +22,8 @@ from typing import Any
 
 import pytest
 import websockets.sync.client
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from test_api_harness import AUTH, Rig, running_rig
 from websockets.exceptions import ConnectionClosed
 
@@ -50,6 +52,25 @@ def test_jog_limiter_is_a_token_bucket_that_spreads_a_fast_client_evenly() -> No
     assert limiter.allow("10.0.0.2", t)
     quiet = t + 2.0 + 60.0
     assert sum(limiter.allow("127.0.0.1", quiet) for _ in range(1000)) == limiter.burst
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(0.0, 0.05), min_size=1, max_size=400), st.integers(1, 200))
+def test_jog_limiter_never_admits_more_than_the_rate_and_the_burst(gaps: list[float], rate: int) -> None:
+    """Whatever the arrivals: in any span of t seconds at most burst + rate * t requests get through,
+    and a request is refused only when the bucket is empty (a client at or under the rate is never
+    refused once its burst is spent evenly)."""
+    limiter = RateLimiter(rate)
+    t, admitted = 0.0, []
+    for g in gaps:
+        t += g
+        if limiter.allow("k", t):
+            admitted.append(t)
+    for i, start in enumerate(admitted):
+        for j in range(i, len(admitted)):
+            assert j - i + 1 <= limiter.burst + rate * (admitted[j] - start) + 1e-6
+    calm = RateLimiter(rate)
+    assert all(calm.allow("k", i / rate) for i in range(3 * rate))  # exactly at the rate: never refused
 
 
 def test_lease_manager_hands_a_displaced_or_expired_lease_to_exactly_one_stopper() -> None:

@@ -166,10 +166,10 @@ class RateLimiter:
         with self._lock:
             tokens, then = self._buckets.get(key, (float(self.burst), now))
             tokens = min(float(self.burst), tokens + max(0.0, now - then) * self.per_second)
-            if tokens < 1.0:
+            if tokens < 1.0 - 1e-9:  # (a client exactly at the rate must not lose a request to rounding)
                 self._buckets[key] = (tokens, now)
                 return False
-            self._buckets[key] = (tokens - 1.0, now)
+            self._buckets[key] = (max(0.0, tokens - 1.0), now)
             return True
 
 
