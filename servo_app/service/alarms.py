@@ -184,7 +184,9 @@ class AlarmForwarder:
     def _count_fault(self, fault: dict[str, Any]) -> None:
         self.fault_counts[fault_cause(fault)] += 1
         if fault.get("code") is None:  # a coded one is listed with the controller's alarm
-            self._fault({**fault, "time_unix": time.time(), "controller_time_ms": self._status_time()})
+            # Our own detection has no controller code: the list names its cause instead.
+            self._fault({**fault, "code": fault_cause(fault), "time_unix": time.time(),
+                         "controller_time_ms": self._status_time()})
 
     def alarms(self) -> list[dict[str, Any]]:
         """The active alarms and warnings, oldest first: since the last reset or new stream."""
