@@ -52,6 +52,13 @@ def test_jog_limiter_is_a_token_bucket_that_spreads_a_fast_client_evenly() -> No
     assert limiter.allow("10.0.0.2", t)
     quiet = t + 2.0 + 60.0
     assert sum(limiter.allow("127.0.0.1", quiet) for _ in range(1000)) == limiter.burst
+    # Many clients that came and went are forgotten once their buckets are full again; a busy one is not.
+    for i in range(5000):
+        limiter.allow(f"10.1.{i // 256}.{i % 256}", quiet + 1.0)
+    assert len(limiter._buckets) > 4096
+    for _ in range(limiter.burst):  # the first of these forgets the 5000, full again by now
+        limiter.allow("busy", quiet + 1.999)
+    assert limiter.allow("10.9.9.9", quiet + 2.0) and set(limiter._buckets) == {"busy", "10.9.9.9"}
 
 
 @settings(max_examples=200, deadline=None)

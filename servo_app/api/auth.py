@@ -164,6 +164,9 @@ class RateLimiter:
     def allow(self, key: str, now: float | None = None) -> bool:
         now = time.monotonic() if now is None else now
         with self._lock:
+            if len(self._buckets) > 4096:  # many clients come and go: forget those whose bucket is full again
+                self._buckets = {k: (n, w) for k, (n, w) in self._buckets.items()
+                                 if n + (now - w) * self.per_second < self.burst}
             tokens, then = self._buckets.get(key, (float(self.burst), now))
             tokens = min(float(self.burst), tokens + max(0.0, now - then) * self.per_second)
             if tokens < 1.0 - 1e-9:  # (a client exactly at the rate must not lose a request to rounding)
