@@ -201,7 +201,9 @@ class ServoProcessHost:
         error = ""
         if not ok:
             why = self.sup.start_error or (fault.message if fault else f"the stream did not start ({mode.value})")
-            error = f"start failed: {why}"
+            then = ("reset the fault: POST /api/reset" if mode is Mode.FAULT
+                    else "then start again: POST /api/session/start")
+            error = f"start failed: {why}; {then}"
         for rid in waiters:
             self._reply(rid, ok, error=error)
 

@@ -302,7 +302,7 @@ class SupervisorBase:
         """Carry out one request from the service; raises CommandRejected with a clear message if refused."""
         handler = type(self)._HANDLERS.get(type(req))
         if handler is None:
-            raise CommandRejected(f"{type(req).__name__} is not supported by this robot")
+            raise InvalidRequest(f"{type(req).__name__} is not supported by this robot's backend")
         return handler(self, req, now)
 
     def _on_start(self, req: msg.Start, now: float) -> None:

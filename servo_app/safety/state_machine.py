@@ -417,7 +417,7 @@ def _on_reset(s: SafetyState, e: ResetRequested) -> Transition:
     if m is Mode.STOPPED and _cur(s).fast:
         return _go(s, stop=replace(_cur(s), kind=StopKind.SOFT))
     if m is Mode.STOPPING and _cur(s).fast:
-        return _refuse(s, e, "still decelerating; acknowledge the fast stop at rest")
+        return _refuse(s, e, "still decelerating")
     if m is Mode.STOPPED:
         return _refuse(s, e, "nothing to acknowledge (soft stop: resume instead)")
     return _refuse(s, e, "no fault to reset")

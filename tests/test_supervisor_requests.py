@@ -1,0 +1,87 @@
+"""Requests at the supervisor (pure: the controller model on a simulated clock): a request is checked
+whole before anything changes, and every refusal by the state ends with the operator's next step."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from test_safety_state_machine import STATES
+from test_servo_cycle_property import Cell
+
+from servo_app.errors import CommandRejected, InvalidRequest
+from servo_app.messages import End, Jog, JointTarget, PoseTarget, Request, Reset, Resume, Stop, Twist
+from servo_app.safety import Mode
+from servo_app.supervision import next_step
+
+# How a 409 text may end: an endpoint, or a plain word where no endpoint helps.
+NEXT = re.compile(r"(POST /api/[a-z/]+(, then resume: POST /api/session/resume)?\)?|restart the service)$")
+
+
+def stopped_by_hold_to_run(cell: Cell) -> None:
+    cell.sup.request(Jog(joints=(0, 0, 0, 0, 0, 10.0), hold_s=0.05), cell.t)
+    for _ in range(200):
+        cell.cycle()
+        if cell.sup.state.mode is Mode.STOPPED:
+            return
+    raise AssertionError(cell.sup.describe())
+
+
+@pytest.mark.parametrize("bad", [
+    Jog(joints=(10.0,)),
+    Jog(joints=(5000.0, 0, 0, 0, 0, 0)),
+    Jog(joints=(1e308, 0, 0, 0, 0, 0)),
+    Jog(joints=(10.0, 0, 0, 0, 0, 0), hold_s=-1.0),
+    JointTarget(joints=(400.0, 0, 0, 0, -90.0, 0)),
+    JointTarget(joints=(0.0, 0, 0, 0, -90.0, 0), speed_scale=2.0),
+    Twist(linear=(10000.0, 0.0, 0.0)),
+    PoseTarget(xyzwpr=(2000.0, 0.0, 300.0, 180.0, 0.0, 0.0)),
+    PoseTarget(xyzwpr=(0.4, 0.0, 0.3, 180.0, 0.0, 0.0)),
+])
+def test_a_bad_request_after_a_hold_to_run_stop_changes_nothing(bad: Request) -> None:
+    cell = Cell()
+    cell.start()
+    stopped_by_hold_to_run(cell)
+    before, hold = cell.sup.state, cell.sup.hold
+    with pytest.raises(InvalidRequest):
+        cell.sup.request(bad, cell.t)
+    assert cell.sup.state == before and cell.sup.hold == hold  # not resumed, no hold-to-run timer
+
+
+def test_a_target_after_a_hold_to_run_stop_resumes_and_is_not_held() -> None:
+    cell = Cell()
+    cell.start()
+    stopped_by_hold_to_run(cell)
+    goal = np.array(cell.sent[-1]) + np.array([5.0, 0, 0, 0, 0, 0])
+    cell.sup.request(JointTarget(joints=tuple(goal), speed_scale=0.3), cell.t)
+    assert cell.sup.state.mode is Mode.STREAMING
+    for _ in range(600):
+        cell.cycle()
+    assert cell.sup.state.mode is Mode.STREAMING and np.allclose(cell.sent[-1], goal, atol=1e-3)
+
+
+@pytest.mark.parametrize("state_name", list(STATES))
+@pytest.mark.parametrize("request_name", ["motion", "start", "resume", "end", "reset"])
+def test_every_state_names_a_next_step(state_name: str, request_name: str) -> None:
+    assert NEXT.search(next_step(STATES[state_name], request_name)) or "nothing to do" in next_step(
+        STATES[state_name], request_name)
+
+
+@pytest.mark.parametrize("state_name", [n for n, s in STATES.items() if s.mode is not Mode.STREAMING])
+@pytest.mark.parametrize("req", [Resume(), Reset(), End(), Jog(joints=(1.0, 0, 0, 0, 0, 0)),
+                                 JointTarget(joints=(0.0, 0, 0, 0, -90.0, 0)), Twist(linear=(1.0, 0, 0)),
+                                 PoseTarget(xyzwpr=(400.0, 0.0, 300.0, 180.0, 0.0, 0.0))])
+def test_every_refusal_by_the_state_ends_with_the_next_step(state_name: str, req: Request) -> None:
+    cell = Cell()
+    cell.start()  # the cycle is set up: a motion the gate lets through has somewhere to go
+    cell.sup.state = replace(STATES[state_name])
+    try:
+        cell.sup.request(req, cell.t)
+    except InvalidRequest as exc:
+        raise AssertionError(f"a valid request refused as invalid: {exc}") from None
+    except CommandRejected as exc:
+        assert NEXT.search(str(exc)), str(exc)
+        assert "Requested" not in str(exc), str(exc)  # the operator's words, not the state machine's
+    cell.sup.request(Stop(), cell.t)
