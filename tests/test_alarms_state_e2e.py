@@ -8,12 +8,14 @@ from __future__ import annotations
 import os
 import signal
 import socket
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import httpx
 import numpy as np
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
@@ -69,7 +71,22 @@ def test_reset_and_a_new_stream_clear_the_active_alarms_the_history_keeps_them_w
         assert 0 <= a["controller_time_ms"] - before["status_time_ms"] < 2000, (a, before["status_time_ms"])
         assert codes(s["alarm_history"]) == ["MOTN-603"]
 
+        # The reset replaces the dead servo process (about a second): the state answers all along.
+        answers: list[tuple[int, str]] = []
+        done = threading.Event()
+
+        def poll() -> None:
+            with httpx.Client(base_url=rig.base_url, timeout=10.0) as c:
+                while not done.is_set():
+                    r = c.get("/api/state")
+                    answers.append((r.status_code, "" if r.status_code == 200 else r.text[:300]))
+
+        poller = threading.Thread(target=poll, daemon=True)
+        poller.start()
         rig.post("/api/reset", h)
+        done.set()
+        poller.join(10.0)
+        assert answers and {code for code, _ in answers} == {200}, sorted(set(answers))
         s = rig.wait_state("disconnected", "connected", "ready", timeout=15)
         assert s["alarms"] == [], s["alarms"]
         assert codes(s["alarm_history"]) == ["MOTN-603"] and s["alarm_history"][0] == a

@@ -3,7 +3,6 @@ the service's own facts), the limits, the robot's drawing, the session logs."""
 
 from __future__ import annotations
 
-import contextlib
 import time
 from collections import Counter
 from pathlib import Path
@@ -46,23 +45,39 @@ class StateViews:
         # The forwarder follows the servo process's safety view (resets, new streams, faults).
         service.alarm_forwarder.attach(lambda: service.safety, lambda: service.servo_fault, self._status_time_ms)
 
-    def _status_time_ms(self) -> int | None:
-        """The controller's time stamp of the last status (None: none, or it has no clock)."""
+    def _published(self) -> dict[str, Any] | None:
+        """The servo process's published state; None without one, or while a reset replaces a dead
+        process (its handle's slot is closed before the new handle takes its place: reading it
+        raised AttributeError, a 500 on /api/state)."""
         stream = self.service.stream
         if stream is None:
             return None
-        with contextlib.suppress(AttributeError, OSError, ValueError):  # a slot closed by a replacement
-            t = stream.state().get("status_time_ms")
-            return None if t is None else int(t)
-        return None
+        try:
+            return stream.state()
+        except (AttributeError, BufferError, ValueError, OSError):
+            return None
+
+    def _status_time_ms(self) -> int | None:
+        """The controller's time stamp of the last status (None: none, or it has no clock)."""
+        t = (self._published() or {}).get("status_time_ms")
+        return None if t is None else int(t)
+
+    def _no_process(self) -> dict[str, Any]:
+        svc = self.service
+        if svc.stream is None:
+            return {"state": "disconnected", "link": "idle"}
+        # Being replaced: the old one's fault stands until the new one is up.
+        return {"state": "fault" if svc.servo_fault else "disconnected", "link": "fault" if svc.servo_fault else "idle",
+                "servo_process": "starting", "fault": svc.servo_fault, "status_live": False, "status_bits": None,
+                "alarms": svc.alarm_forwarder.alarms(), "alarm_history": svc.alarm_forwarder.history()}
 
     def state_vector(self) -> dict[str, Any]:
         """The servo process's published state alone (cheap: a shared-memory copy); a dead process's
         last state shows the fault. With the alarm and fault counts for /metrics."""
         svc = self.service
-        if svc.stream is None:
-            return {"state": "disconnected", "link": "idle"}
-        s = svc.stream.state()
+        s = self._published()
+        if s is None:
+            return {"state": "disconnected", "link": "idle"} if svc.stream is None else self._no_process()
         if svc.servo_fault is not None:
             s["state"], s["link"], s["settled"] = "fault", "fault", False
         s["alarm_counts"], s["fault_counts"] = svc.alarm_forwarder.counts()
@@ -70,9 +85,9 @@ class StateViews:
 
     def state(self) -> dict[str, Any]:
         svc = self.service
-        if svc.stream is None:
-            return {"state": "disconnected", "link": "idle"}
-        s = svc.stream.state()
+        s = self._published()
+        if s is None:
+            return self._no_process()
         safety = svc.safety_view(s["state"])
         s.update({k: v for k, v in safety.items() if k not in ("state", "link")})
         s["servo_process"] = "running"
