@@ -344,7 +344,10 @@ def test_jog_rate_limit_and_audit(rig: Rig) -> None:
     ok, limited = codes.count(200), codes.count(429)
     print(f"{n} jogs in {elapsed:.2f} s: {ok} ok, {limited} refused")
     assert ok + limited == n, set(codes)
-    assert limited > 0 and ok <= 100 * (int(elapsed) + 1)
+    # The limit is a token bucket (100/s, a burst of 25): a burst that arrives slower than it (a loaded
+    # machine's client) is rightly not limited.
+    assert ok <= 25 + 100 * elapsed + 1
+    assert limited > 0 or n / elapsed < 125, (n / elapsed, limited)
     rig.wait(lambda s: s["state"] == "stopped", 3.0)
     lines = [json.loads(x) for x in (rig.var_dir / "audit.log").read_text().splitlines()]
     jogs = [x for x in lines if x["action"] == "jog"]
