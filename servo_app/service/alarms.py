@@ -30,7 +30,7 @@ from servo_app.backends import RobotBackend
 
 HISTORY_LEN = 50
 FAULTS_KEPT = 100
-FAULT_GRACE_S = 0.5
+FAULT_GRACE_S = 1.0  # for the controller's alarm to name a fault we detected first (a 50 ms poll, under load)
 # A new stream starts from one of these modes; stopped -> streaming is a resume (the alarms stay).
 _IDLE_MODES = frozenset({None, "disconnected", "connected", "ready", "ended"})
 
