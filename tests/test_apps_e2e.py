@@ -331,6 +331,16 @@ def test_inputs_api_auth_lease_and_state_summary(cell: Cell) -> None:
     assert r.status_code == 422 and "linear" in r.text  # a NaN never reaches a slot
     assert next(s for s in cell.inputs()["sources"] if s["name"] == "jog")["errors"]["rejected"] == rejected + 1
     h = ready(cell, enable=False)
+    for path, body in (("/api/inputs/enable", {"enable": "1"}), ("/api/inputs/enable", {"enable": 1}),
+                       ("/api/inputs/tracking/zero", {"samples": True}), ("/api/inputs/owner", {"source": 5})):
+        r = rig.http.post(path, json=body, headers=h)  # types are strict: nothing is coerced
+        assert r.status_code == 422, (path, body, r.text)
+    assert not cell.inputs()["enabled"]
+    paths = rig.http.get("/openapi.json").json()["paths"]
+    for method, path in (("get", "/api/inputs"), ("post", "/api/inputs/enable"), ("post", "/api/inputs/owner"),
+                         ("post", "/api/inputs/{name}/zero")):
+        op = paths[path][method]  # /docs lists and explains them
+        assert op.get("summary") and len(op.get("description", "")) > 20, (method, path, op)
     assert rig.http.post("/api/inputs/nope/zero", headers=h).status_code == 404
     assert rig.http.post("/api/inputs/tracking/zero", headers=h).status_code == 422
     with pytest.raises(websockets.exceptions.InvalidStatus) as ei, \

@@ -27,18 +27,18 @@ from servo_app.inputs.feed.router import FeedPostFastPath, feed_post_handler, fe
 
 
 class EnableInputs(BaseModel):
-    model_config = {"extra": "forbid"}
+    model_config = {"extra": "forbid", "strict": True}
     enable: bool
 
 
 class InputsOwner(BaseModel):
-    model_config = {"extra": "forbid"}
+    model_config = {"extra": "forbid", "strict": True}
     source: str | None = Field(description="the one source that may command (an application or a direct "
                                            "source); null: every source, by priority")
 
 
 class ZeroRequest(BaseModel):
-    model_config = {"extra": "forbid"}
+    model_config = {"extra": "forbid", "strict": True}
     samples: int | None = Field(None, ge=1, le=1000, description="samples averaged into the bias (default: configured)")
 
 
@@ -81,12 +81,18 @@ def include_inputs(app: FastAPI, bridge: InputsBridge, *, token: str, controllin
     app.add_middleware(FeedPostFastPath, handler=feed_post_handler(bridge.feeds, auth))
     router = APIRouter(tags=["inputs"])
 
-    @router.get("/api/inputs", response_model=InputsView, response_model_exclude_unset=True)
+    @router.get("/api/inputs", response_model=InputsView, response_model_exclude_unset=True,
+                summary="Input sources, feeds and applications")
     def inputs() -> dict[str, Any]:
+        """Each source with its rate, age, staleness and errors, and a device that cannot be opened with
+        the reason and the fix; the applications and their tracking error; whether inputs command."""
         return bridge.describe()
 
-    @router.post("/api/inputs/enable")
+    @router.post("/api/inputs/enable", summary="Let the input sources move the arm (or stop them)")
     def enable(body: EnableInputs, client: Annotated[str, Depends(controlling)]) -> Ack:
+        """``{"enable": true}``: the servo process takes its commands from the input sources (by priority,
+        or the owner's); the answer lists configured sources that cannot be opened. Token and lease."""
+
         def run() -> dict[str, Any]:
             try:
                 return bridge.enable(body.enable)
@@ -94,14 +100,18 @@ def include_inputs(app: FastAPI, bridge: InputsBridge, *, token: str, controllin
                 raise TimeoutError(str(exc)) from None
         return call(client, "inputs.enable", run, {"enable": body.enable})
 
-    @router.post("/api/inputs/owner")
+    @router.post("/api/inputs/owner", summary="Give one input source exclusive control")
     def owner(body: InputsOwner, client: Annotated[str, Depends(controlling)]) -> Ack:
+        """``{"source": name}``: only that source commands; ``null``: every source, by priority. Token and
+        lease."""
         if body.source is not None and body.source not in bridge.specs:
             raise HTTPException(404, f"no input source {body.source!r}; sources: {sorted(bridge.specs)}")
         return call(client, "inputs.owner", lambda: bridge.set_owner(body.source), {"source": body.source})
 
-    @router.post("/api/inputs/{name}/zero")
+    @router.post("/api/inputs/{name}/zero", summary="Re-zero a force/torque application's bias")
     def zero(name: str, client: Annotated[str, Depends(controlling)], body: ZeroRequest | None = None) -> Ack:
+        """Average the next ``samples`` readings into the application's bias (hold the sensor unloaded).
+        Token and lease."""
         try:
             bridge.application(name)
         except KeyError as exc:

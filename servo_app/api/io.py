@@ -33,18 +33,20 @@ class IoRead(BaseModel):
     detail: int = Field(description="the same as `value` (the earlier answer's field)")
 
 
-@router.get("/api/io")
+@router.get("/api/io", summary="Read 16 I/O points")
 def io_read(type: str, index: int, client: Authed, service: Service, calls: Calls, mask: int = 0xFFFF) -> IoRead:
-    """Read 16 points from ``index`` through the command packets (only while streaming)."""
+    """Read 16 points from ``index`` through the command packets (only while streaming; the types and
+    indexes allowed are in GET /api/limits, ``io_allow``). Token only."""
     ack = calls.call(client, "io.read", lambda: service.io_read(type, index, mask),
                      {"type": type, "index": index, "mask": mask})
     value = int(ack.detail)
     return IoRead(type=type.upper(), index=index, mask=mask, value=value, detail=value)
 
 
-@router.post("/api/io")
+@router.post("/api/io", summary="Write I/O points")
 def io_write(body: IoWrite, client: Controlling, service: Service, calls: Calls) -> IoWritten:
-    """Write the masked points of the 16 from ``index`` with the next command packet."""
+    """Write the masked points of the 16 from ``index`` with the next command packet (only while
+    streaming; the types and indexes allowed are in GET /api/limits, ``io_allow``). Token and lease."""
     ack = calls.call(client, "io.write", lambda: service.io_write(body.type, body.index, body.mask, body.value),
                      body.model_dump())
     return IoWritten(type=str(ack.detail), index=body.index, mask=body.mask, value=body.value)

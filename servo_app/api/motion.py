@@ -14,8 +14,13 @@ from servo_app.api.models import REFUSALS, Ack, JogBody, JointJog, JointTarget, 
 router = APIRouter(tags=["motion"], responses=REFUSALS)
 
 
-@router.post("/api/jog", responses={429: {"model": Problem, "description": "too many jog requests"}})
+@router.post("/api/jog", summary="Jog: hold-to-run velocity, joint or Cartesian",
+             responses={429: {"model": Problem, "description": "too many jog requests"}})
 async def jog(body: JogBody, client: Controlling, request: Request) -> Ack:
+    """Move at a velocity for ``hold_ms``: keep sending (every 50-100 ms) to keep moving; when the
+    requests stop, the arm decelerates to rest by itself. ``{"joints": [...]}`` per axis (deg/s, or
+    mm/s for a linear axis) or ``{"linear": [x, y, z], "angular": [...], "frame": "base"|"tool"}`` (mm/s,
+    deg/s). Resumes a hold-to-run stop. Token and lease; limited per client (a token bucket: 429)."""
     # Async: the rate limit is checked on the event loop, before a worker thread is taken. The app's
     # objects straight from the request, not through one more dependency: this route is the one
     # clients hit 100 times a second, and each dependency costs the solver some tens of us.
@@ -39,8 +44,11 @@ async def jog(body: JogBody, client: Controlling, request: Request) -> Ack:
     return await run_in_threadpool(api.calls.forward, client, "jog", message, at=admitted)
 
 
-@router.post("/api/target")
+@router.post("/api/target", summary="Move to a joint or pose target")
 def target(body: JointTarget | PoseTargetBody, client: Controlling, calls: Calls) -> Ack:
+    """Go to ``{"joints": [...]}`` (deg, or mm for a linear axis) or ``{"xyzwpr": [X, Y, Z, W, P, R]}``
+    (mm, deg; world frame) along a jerk-limited path; a pose out of reach, or given in metres, is
+    refused up front (422). Resumes a hold-to-run stop. Token and lease."""
     if isinstance(body, PoseTargetBody):
         return calls.forward(client, "target", msg.PoseTarget(
             xyzwpr=tuple(body.xyzwpr), linear_speed=body.linear_speed, angular_speed=body.angular_speed))

@@ -97,7 +97,8 @@ def source_rows(src: Sources, active: str | None, now: float, rates: RateMeter) 
     for s in src.feeds.all_stats():
         cfg = src.feeds.config(s.source)
         row(s.source, "feed", cfg.kind, cfg.kind, src.feeds.slot(s.source), cfg.stale_after_s,
-            errors={k: v for k, v in (("rejected", s.rejected), ("out_of_order", s.out_of_order)) if v},
+            errors={k: v for k, v in (("rejected", s.rejected), ("out_of_order", s.out_of_order),
+                                       ("resyncs", s.resyncs)) if v},
             last_error=s.last_error, latency_ms={"last": finite_or_none(s.latency_ms_last),
                                                  "mean": finite_or_none(s.latency_ms_mean),
                                                  "max": finite_or_none(s.latency_ms_max)})
