@@ -9,27 +9,20 @@ with its embedded simulator, headless Chromium, checks through /api/state over H
 from __future__ import annotations
 
 import json
-import time
-import urllib.error
 import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from test_web_console import (  # noqa: F401 - fixtures are found by name
-    TOKEN,
-    Service,
-    _service,
-    at_rest_without_alarm,
-    browser,
-    fanuc,
-    janome,
-    page,
-    shot,
-    sign_in,
-    take_control_and_stream,
-)
+import test_web_console as console
+from test_web_console import TOKEN, Service, _service, at_rest_without_alarm, shot, sign_in, take_control_and_stream
+
+# The console tests' fixtures, found by pytest under these names: one browser and one service per module.
+browser = console.browser
+fanuc = console.fanuc
+janome = console.janome
+page = console.page
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -107,3 +100,219 @@ def test_continuous_jog_keeps_moving_on_every_press(page: Any, fanuc: Service, v
         moved.append((round(after["cart_servo"][0] - before["cart_servo"][0], 1), after["stop_reason"]))
         shot(page, f"console-jog-hold-{viewport['width']}-{i + 1}")
     assert all(d >= 40.0 for d, _ in moved), moved
+
+
+# --------------------------------------------------------------------------- 2. the header
+def test_header_never_shows_ready_beside_a_dead_link(page: Any, fanuc: Service) -> None:
+    page.goto(fanuc.url + "/")
+    page.wait_for_function("document.querySelector('#conn').textContent.includes('live')")
+    # The view as it renders a state whose link has failed (the controller's last word was READY).
+    shown = page.evaluate("""async () => {
+        const v = await import('/web/views.js');
+        v.renderStatus({state: 'ready', link: 'fault', link_error: 'no status for 1000 ms'});
+        return [document.querySelector('#mode').textContent, document.querySelector('#stop-reason').textContent];
+    }""")
+    assert shown[0].lower() != "ready" and "fault" in shown[0].lower(), shown
+    assert "no status for 1000 ms" in shown[1], shown
+    # And live: the telemetry goes, the last state heard is not shown as the present one.
+    live = fanuc.state()["state"]
+    page.wait_for_function(f"document.querySelector('#mode').textContent === '{live}'")
+    page.context.set_offline(True)
+    try:
+        page.wait_for_function("document.querySelector('#conn').textContent.includes('lost')")
+        mode = page.text_content("#mode") or ""
+        assert mode != live and "no telemetry" in mode, mode
+    finally:
+        page.context.set_offline(False)
+    page.wait_for_function("document.querySelector('#conn').textContent.includes('live')", timeout=15000)
+    page.wait_for_function("!document.querySelector('#mode').textContent.includes('telemetry')")
+
+
+# ----------------------------------------------------------------------------- 3. Janome R
+def test_janome_pose_row_shows_r_from_its_own_slot(page: Any, janome: Service) -> None:
+    sign_in(page, janome)
+    janome.wait(lambda s: s["state"] == "ready", "the simulated robot's point job connected", timeout=30)
+    take_control_and_stream(page, janome)
+    lease = page.evaluate("sessionStorage.getItem('servo.lease')")
+    q = janome.state()["q_servo"][:4]
+    call(janome, "POST", "/api/target", {"joints": [q[0], q[1], q[2], 45.0]}, lease)
+    s = janome.wait(lambda s: s["at_rest"] and abs(s["q_servo"][3] - 45.0) < 0.05, "R at 45°", timeout=30)
+    assert abs(s["cart_servo"][5] - 45.0) < 0.05, s["cart_servo"]  # R is the rotation about Z: slot 5
+    page.wait_for_function("Math.abs(Number(document.querySelector('#pose-R').textContent) - 45) < 0.1")
+    assert page.locator("#pose-head th").all_text_contents() == ["X", "Y", "Z", "R"]
+    shot(page, "console-janome-pose-r")
+
+
+# --------------------------------------------------------------------------------- 4. alarms
+def test_alarms_show_times_and_keep_active_apart_from_history(page: Any, fanuc: Service) -> None:
+    page.goto(fanuc.url + "/")
+    page.wait_for_function("document.querySelector('#conn').textContent.includes('live')")
+    # 2026-01-02 03:04:05.678 local time, as the service stamps it (time_unix) and the controller's stamp.
+    out = page.evaluate("""async () => {
+        const v = await import('/web/views.js');
+        const t = new Date(2026, 0, 2, 3, 4, 5, 678).getTime() / 1000;
+        const old = {code: 'SRVO-001', message: 'Operator panel E-stop', cause: 'c', remedy: 'r', warning: false,
+                     time_unix: t - 60, controller_time_ms: 1000};
+        const now = {code: 'MOTN-603', message: 'ONLINE: Stream start failed', cause: 'late packets',
+                     remedy: 'reset', warning: false, time_unix: t, controller_time_ms: 123456};
+        const text = (sel) => [...document.querySelectorAll(sel)].map((e) => e.textContent);
+        v.renderAlarms({state: 'stopped', alarms: [now], alarm_history: [old, now]});
+        const during = {active: text('#alarm-list li'), codes: text('#alarm-list li .code'),
+                        history: text('#alarm-history li .code'), count: text('#alarm-count')[0],
+                        when: text('#alarm-list li .when')};
+        v.renderAlarms({state: 'streaming', alarms: [], alarm_history: [old, now]});   // after a reset
+        const after = {active: text('#alarm-list li'), history: text('#alarm-history li .code'),
+                       count: text('#alarm-count')[0]};
+        return {during, after};
+    }""")
+    during, after = out["during"], out["after"]
+    assert during["codes"] == ["MOTN-603"] and during["count"] == "1", during
+    assert "03:04:05.678" in during["when"][0] and "controller 123456 ms" in during["when"][0], during
+    assert during["history"] == ["MOTN-603", "SRVO-001"], during  # newest first
+    assert after["active"] == ["no alarms"] and after["count"] == "0", after
+    assert after["history"] == ["MOTN-603", "SRVO-001"], after
+
+
+# -------------------------------------------------------------------------------- 5. layout
+def _overlap(a: dict[str, float], b: dict[str, float]) -> bool:
+    return (a["x"] < b["x"] + b["width"] and b["x"] < a["x"] + a["width"]
+            and a["y"] < b["y"] + b["height"] and b["y"] < a["y"] + a["height"])
+
+
+def _single_line(pg: Any, selector: str) -> bool:
+    return pg.eval_on_selector(selector, """e => { const cs = getComputedStyle(e);
+        const line = cs.lineHeight === 'normal' ? 1.25 * parseFloat(cs.fontSize) : parseFloat(cs.lineHeight);
+        return e.getBoundingClientRect().height < 1.6 * line; }""")
+
+
+@pytest.mark.parametrize("viewport", WIDTHS, ids=lambda v: f"{v['width']}px")
+def test_nothing_covers_anything(page: Any, fanuc: Service, viewport: dict[str, int]) -> None:
+    page.set_viewport_size(viewport)
+    sign_in(page, fanuc)
+    page.wait_for_selector("#message:not([hidden])")  # "signed in as pytest"
+    take_control_and_stream(page, fanuc)
+    page.wait_for_selector("#joint-rows tr")
+    page.wait_for_selector("#message:not([hidden])")  # "you have control"
+    height = page.evaluate("document.documentElement.scrollHeight")
+    for y in range(0, height, viewport["height"] // 2):
+        page.evaluate(f"window.scrollTo(0, {y})")
+        # Messages go after a few seconds: show the last one again wherever it sits.
+        page.evaluate("document.querySelector('#message').hidden = false")
+        toast = page.locator("#message").bounding_box()
+        stop = page.locator("#stop").bounding_box()
+        assert toast is not None and stop is not None
+        assert not _overlap(toast, stop)
+        for i, do in enumerate(page.locator("button.io").all()):
+            box = do.bounding_box()
+            assert box is not None and not _overlap(toast, box), (f"the message covers DO{i + 1}", y, toast, box)
+        # STOP covers no card (the session-log table among them), at any scroll position.
+        for card in page.locator("section.card:visible").all():
+            box = card.bounding_box()
+            assert box is not None and not _overlap(stop, box), (card.get_attribute("id"), y, stop, box)
+    page.evaluate("window.scrollTo(0, 0)")
+    # The speed label is one line, for Cartesian and joint jog.
+    for kind in ("cart", "joint"):
+        page.check(f"input[name=jog-kind][value={kind}]", force=True)
+        assert _single_line(page, "#speed-out"), kind
+        assert _single_line(page, "label.speed"), kind
+    # The joint-range marker never lies on its text.
+    for row in page.locator("#joint-rows tr").all():
+        marker = row.locator("td:nth-child(3) .marker, td:nth-child(3) .fill").first.bounding_box()
+        label = row.locator("td:nth-child(3) .label").first.bounding_box()
+        assert marker is not None and label is not None
+        assert not _overlap(marker, label), (row.get_attribute("data-joint"), marker, label)
+    shot(page, f"console-layout-{viewport['width']}", full_page=True)
+
+
+# ----------------------------------------------------------------------- 6. session-log plot
+def test_session_log_plot_has_a_time_axis_and_units(page: Any, fanuc: Service) -> None:
+    sign_in(page, fanuc)
+    take_control_and_stream(page, fanuc)
+    page.check("input[name=jog-kind][value=joint]", force=True)
+    mouse_hold(page, "[data-jog='+J1']", 0.6)
+    at_rest_without_alarm(fanuc)
+    page.click("#end")
+    fanuc.wait(lambda s: s["state"] == "ended", "ended")
+    newest = fanuc.get("/api/sessions")[0]["name"]
+    page.click("#log-refresh")
+    page.click(f"[data-log='{newest}']")
+    page.wait_for_selector("#log-summary tr[data-joint='J1']")
+    # A time axis: ticks in seconds from 0, and the axes named with their units.
+    ticks = [float(t) for t in (page.get_attribute("#log-plot", "data-ticks") or "").split()]
+    assert ticks and ticks[0] == 0.0 and len(ticks) >= 2 and ticks == sorted(ticks), ticks
+    axes = page.text_content("#log-axes") or ""
+    assert "time" in axes and "(s)" in axes and "% of each axis' limit" in axes, axes
+    # Every column of the summary says its unit.
+    heads = page.locator("#log-summary thead th").all_text_contents()
+    assert heads[0] == "axis" and heads[1] == "unit", heads
+    assert all("(" in h and ")" in h for h in heads[2:]), heads
+    units = page.locator("#log-summary tbody td.unit").all_text_contents()
+    assert units == ["°/s"] * 6, units
+    assert float(page.text_content("#log-summary tr[data-joint='J1'] td.peak")) > 0.0
+    page.locator("#logs-card").screenshot(path=str(console.ARTIFACTS / "console-log-plot.png"))
+
+
+# ----------------------------------------------------------------------------- 7. targets
+def test_target_entry_goes_and_shows_refusals(page: Any, fanuc: Service) -> None:
+    home(fanuc)
+    sign_in(page, fanuc)
+    take_control_and_stream(page, fanuc)
+    # A joint target: from the current position, J1 to 20°.
+    page.click("#target-fill")
+    page.fill("[data-target='J1']", "20")
+    page.click("#target-go")
+    s = fanuc.wait(lambda s: s["at_rest"] and abs(s["q_cmd"][0] - 20.0) < 0.01, "J1 at 20°", timeout=30)
+    assert abs(s["q_cmd"][4] - HOME[4]) < 0.01
+    page.wait_for_function("document.querySelector('#target-error').textContent.startsWith('going to')")
+    # A pose target: 30 mm lower than where the flange is.
+    page.check("input[name=target-kind][value=xyzwpr]", force=True)
+    page.click("#target-fill")
+    z0 = float(page.input_value("[data-target='Z']"))
+    page.fill("[data-target='Z']", str(z0 - 30.0))
+    page.click("#target-go")
+    s = fanuc.wait(lambda s: s["at_rest"] and abs(s["cart_servo"][2] - (z0 - 30.0)) < 0.5, "Z 30 mm lower", timeout=30)
+    # Refused: J1 beyond its range. The server's words are shown, and nothing moved.
+    page.check("input[name=target-kind][value=joints]", force=True)
+    page.click("#target-fill")
+    before = fanuc.state()["q_cmd"]
+    page.fill("[data-target='J1']", "500")
+    page.click("#target-go")
+    page.wait_for_function("document.querySelector('#target-error').textContent.startsWith('Target refused')")
+    text = page.text_content("#target-error") or ""
+    assert ("(422)" in text or "(409)" in text) and "500" in text, text
+    assert fanuc.state()["q_cmd"] == pytest.approx(before, abs=1e-6)
+    shot(page, "console-target-refused")
+
+
+# ------------------------------------------------------------------------------ 8. inputs
+@pytest.fixture(scope="module")
+def failing_inputs(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+    """Inputs with a serial distance sensor whose port does not exist here, and the HTTP feeds."""
+    configs = Path(__file__).resolve().parents[1] / "configs" / "inputs"
+    toml = tmp_path_factory.mktemp("inputs-cfg") / "inputs.toml"
+    toml.write_text((configs / "serial_distance.toml").read_text() + "\n" + (configs / "feeds.toml").read_text())
+    yield from _service(tmp_path_factory, "failing-inputs", "--inputs", str(toml))
+
+
+def test_inputs_card_enables_inputs_and_says_why_a_source_failed(page: Any, failing_inputs: Service) -> None:
+    svc = failing_inputs
+    sign_in(page, svc)
+    page.wait_for_selector("#signed:not([hidden])")
+    page.click("#take")
+    page.wait_for_selector("#release:not([hidden])")
+    # The sensor that cannot be opened: failed, with the port and the reason.
+    row = page.wait_for_selector("#inputs-failures li[data-source='distance']", timeout=15000)
+    why = row.text_content() or ""
+    assert "/dev/serial/by-id/usb-FTDI_FT232R_USB_UART-if00-port0" in why, why
+    page.wait_for_function("document.querySelectorAll(\"tr[data-source='distance'] td\")[2].textContent === 'failed'")
+    # The feeds that merely have not sent are stale, not failed.
+    assert page.locator("tr[data-source='vision'] td").all_text_contents()[2] == "stale"
+    assert page.locator("#inputs-failures li[data-source='vision']").count() == 0
+    # Enable and disable input control from the card.
+    assert not svc.state()["inputs"]["enabled"]
+    page.click("#inputs-enable")
+    svc.wait(lambda s: s["inputs"]["enabled"], "inputs enabled")
+    page.wait_for_function("document.querySelector('#inputs-enable').textContent === 'Disable inputs'")
+    page.locator("#inputs-card").screenshot(path=str(console.ARTIFACTS / "console-inputs-failed.png"))
+    page.click("#inputs-enable")
+    svc.wait(lambda s: not s["inputs"]["enabled"], "inputs disabled")
