@@ -399,6 +399,32 @@ def test_odd_session_log_names_are_not_found(rig: Rig) -> None:
 
 
 @pytest.mark.e2e
+@pytest.mark.parametrize("path", ["/api/jog", "/api/target", "/api/session/stop", "/api/lease", "/api/io"])
+def test_a_body_that_is_not_text_is_422_naming_it(rig: Rig, path: str) -> None:
+    h = rig.lease("bytes")
+    r = rig.http.post(path, content=b'{"joints": [1, \xff\xfe]}', headers={**h, "Content-Type": "application/json"})
+    assert r.status_code == 422, r.text  # FastAPI's own answer: 400 "There was an error parsing the body"
+    assert "not UTF-8" in r.json()["detail"][0]["msg"], r.text
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(90)
+def test_the_log_of_a_running_stream_downloads_whole_as_far_as_written(rig: Rig) -> None:
+    """A session log grows while it is sent (a record every few ms): each download is the file as it
+    was when asked, with a Content-Length that matches (a file response read on to the end)."""
+    h = streaming(rig, "downloader")
+    name = rig.http.get("/api/sessions").json()[0]["name"]
+    rig.wait(lambda s: rig.http.get("/api/sessions").json()[0]["bytes"] > 150_000, 60.0, "a log over 150 kB")
+    sizes = []
+    for _ in range(20):
+        r = rig.http.get(f"/api/sessions/{name}")  # raises on a broken response
+        assert r.status_code == 200 and len(r.content) == int(r.headers["content-length"]), r.headers
+        sizes.append(len(r.content))
+    assert sizes == sorted(sizes) and sizes[-1] > sizes[0], sizes  # it grew meanwhile, and each was whole
+    rig.post("/api/session/stop", h)
+
+
+@pytest.mark.e2e
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("hz", ["nan", "inf", "-inf", "0", "-5", "0.5", "1000", "1e308"])
 def test_telemetry_refuses_a_rate_outside_1_to_100(rig: Rig, hz: str) -> None:

@@ -27,10 +27,12 @@ from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
+from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.docs import get_swagger_ui_html, get_swagger_ui_oauth2_redirect_html
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
+from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import Scope
 
 from servo_app.api import io, lease, logs, motion, session, state, telemetry
@@ -78,6 +80,19 @@ async def _invalid_request(request: Request, exc: Exception) -> JSONResponse:
         api.audit.record(client_of(request), f"{request.method} {request.url.path}", False,
                          {"status": 422, "errors": [{"loc": e.get("loc"), "msg": e.get("msg")} for e in detail]})
     return JSONResponse(status_code=422, content={"detail": detail})
+
+
+async def _http_error(request: Request, exc: Exception) -> Any:
+    """A body that is not text (not UTF-8) is a bad request like any other: 422 naming it, not
+    FastAPI's 400 "There was an error parsing the body" (a JSON syntax error is a 422 already)."""
+    assert isinstance(exc, StarletteHTTPException)
+    if exc.status_code == 400 and isinstance(exc.__cause__, UnicodeDecodeError):
+        err = exc.__cause__
+        return await _invalid_request(request, RequestValidationError([{
+            "type": "json_invalid", "loc": ("body", err.start),
+            "msg": f"the body is not UTF-8 text (byte {err.object[err.start:err.start + 1]!r} at {err.start}): "
+                   "send JSON", "input": None}]))
+    return await http_exception_handler(request, exc)
 
 
 def _offline_docs(app: FastAPI) -> None:
@@ -130,6 +145,7 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
     app.state.api = api
     app.state.service, app.state.leases, app.state.metrics = service, api.leases, api.metrics
     app.add_exception_handler(RequestValidationError, _invalid_request)
+    app.add_exception_handler(StarletteHTTPException, _http_error)
 
     for module in (session, motion, lease, state, io, logs, telemetry):
         app.include_router(module.router)

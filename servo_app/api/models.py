@@ -278,7 +278,8 @@ class WarningView(BaseModel):
 
 
 class AlarmView(BaseModel):
-    """A controller alarm or warning (the embedded FANUC simulator's alarm history)."""
+    """A controller alarm or warning (the embedded simulator's alarm list, or a robot error reported over
+    the link), or a fault the service detected itself (its cause as ``code``)."""
 
     model_config = _OPEN
     code: str
@@ -289,6 +290,9 @@ class AlarmView(BaseModel):
     cause: str | None = None
     remedy: str | None = None
     warning: bool | None = Field(None, description="posted but does not stop the robot")
+    time_unix: float | None = Field(None, description="wall clock (Unix s) when the service saw it")
+    controller_time_ms: int | None = Field(None, description="the controller's own time stamp at the alarm "
+                                                             "(FANUC: the status packet clock); null if none")
 
 
 class CartesianView(BaseModel):
@@ -340,7 +344,13 @@ class StateView(BaseModel):
     published_unix: float | None = Field(None, description="when the servo process published this (Unix s)")
     session_time: float | None = Field(None, description="s since the servo process started")
     status_seq: int | None = Field(None, description="sequence number of the last status packet")
-    status_bits: int | None = Field(None, description="the last status packet's status bits")
+    status_bits: int | None = Field(None, description="the live status packets' status bits; null while "
+                                                      "status packets do not arrive")
+    status_live: bool | None = Field(None, description="status packets are arriving now")
+    status_age_s: float | None = Field(None, description="since the last status packet (null: none yet)")
+    status_bits_last: int | None = Field(None, description="the last status bits seen, stale while not live")
+    status_unix: float | None = Field(None, description="wall clock of the last status packet (0: none)")
+    status_time_ms: int | None = Field(None, description="the controller's time stamp in the last status")
     commands_sent: int | None = Field(None, description="command packets sent")
     status_received: int | None = Field(None, description="status packets received")
     status_lost: int | None = Field(None, description="status packets lost (gaps in the sequence)")
@@ -364,6 +374,7 @@ class StateView(BaseModel):
     latency_sum_us: float | None = Field(None, description="sum of all latencies (never reset)")
     latency_hist: list[int] | None = Field(None, description="commands per latency bucket (not cumulative)")
     at_rest: bool | None = Field(None, description="the commanded motion is at rest")
+    settled: bool | None = Field(None, description="at rest, and the controller's feedback has stopped moving")
     stopped: bool | None = Field(None, description="the motion is stopped")
     tables_from_controller: bool | None = Field(None, description="the limits come from the controller")
     q_cmd: list[float] | None = Field(None, description="commanded position: FANUC J1..J6 deg, Janome X Y Z R 0 0")
@@ -399,7 +410,10 @@ class StateView(BaseModel):
     cartesian: CartesianView | None = Field(None, description="why a Cartesian motion is held back (null: none)")
     robot: str | None = Field(None, description="the controller's (FANUC) or our listening (Janome) host:port")
     simulated: bool | None = Field(None, description="the robot is the embedded simulator")
-    alarms: list[AlarmView] | None = Field(None, description="the embedded simulator's recent alarms")
+    alarms: list[AlarmView] | None = Field(None, description="the active alarms and warnings, oldest first: "
+                                                             "since the last reset or new stream")
+    alarm_history: list[AlarmView] | None = Field(None, description="the last 50 alarms and warnings, oldest "
+                                                                    "first, kept across resets")
     faults: list[AlarmView] | None = Field(None, description="recent alarms that stopped the robot")
     inputs: InputsSummary | None = Field(None, description="the input sources (servo-app run --inputs)")
 

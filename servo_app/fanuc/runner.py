@@ -159,6 +159,10 @@ class _ServoProcess(ServoProcessHost):
         self.wake.close()
         self._close_log()
         self.sock.close()
+        # Break runner <-> cycle (late_command is a bound method of this runner): gc.freeze() in run()
+        # keeps that cycle from ever being collected, and its ruckig objects alive at exit printed
+        # nanobind's "leaked instances" dump.
+        self.cycle.late_command = None
 
     def _warm_up(self) -> None:
         """Run every per-cycle code path once before streaming: first calls pay for lazy set-up

@@ -89,8 +89,9 @@ class ServoService:
             self.sim = self.backend.start_simulator(replace(target, host=self.robot_address[0],
                                                             port=self.robot_address[1]),
                                                     self.cfg.sim_options, self.cfg.sim_realtime_priority)
-        if self.sim is not None:
-            self.alarm_forwarder.start()
+        # Also with an external robot (no alarm list to poll): the forwarder counts the faults the
+        # service detects itself, whether or not anyone reads /api/state.
+        self.alarm_forwarder.start()
         if self.inputs is not None:
             self.inputs.start(request=self.request, feedback=self.state_vector, act=self.io.on_action)
 
@@ -255,10 +256,12 @@ class ServoService:
             self._replace_servo_process()
             if self.sim is not None:
                 self.sim_call("reset")
+            self.alarm_forwarder.clear_active()
             return
         if self.sim is not None:
             self.sim_call("reset")
         self.request(msg.Reset())
+        self.alarm_forwarder.clear_active()  # a reset acknowledges warnings too, fault or not
 
     # ------------------------------------------------------------ simulator
     def sim_call(self, name: str, *args: Any) -> Any:
