@@ -159,16 +159,9 @@ class StreamSupervisor(SupervisorBase):
     def _check_joint_target(self, q: np.ndarray, speed_scale: float) -> None:
         check_count("joints", q, self.cycle.profile.dof, ", ".join(self._names()) + " in deg")
         try:
-            self.cycle._checked_position(q)  # the joint ranges, in the model convention
+            self.cycle.check_joint_target(q)
         except CommandRejected as exc:
             raise InvalidRequest(str(exc)) from None
-        c = self.cycle
-        if c.shaper is not None:  # while a stream is alive: the straight joint line must keep the configuration
-            reach = c._config_keeping_reach(c.shaper.state[0], q)
-            if reach < 1.0:
-                raise InvalidRequest(
-                    f"joints={[round(float(v), 3) for v in q]} leave the arm configuration {c.configuration} held "
-                    f"since the stream started (manual 61.5, MOTN-156): only {reach:.0%} of the way keeps it")
 
     def _on_twist(self, req: msg.Twist, now: float) -> None:
         try:

@@ -150,16 +150,23 @@ class ServoCycle:
         return self.shaper is None or self.shaper.at_rest
 
     # --------------------------------------------------------------- commands
-    def set_joint_target(self, q_fanuc_deg: np.ndarray, speed_scale: float = 1.0) -> None:
+    def check_joint_target(self, q_fanuc_deg: np.ndarray) -> np.ndarray:
+        """The target as an array if it is within the joint ranges (in the model convention) and, while a
+        stream is alive, the straight joint line to it keeps the arm configuration; else CommandRejected."""
         q = self._checked_position(q_fanuc_deg)
+        if self.shaper is not None:
+            reach = self._config_keeping_reach(self.shaper.state[0], q)
+            if reach < 1.0:
+                raise CommandRejected(
+                    f"joints={[round(float(v), 3) for v in q]} leave the arm configuration {self.configuration} "
+                    f"held since the stream started (manual 61.5, MOTN-156): only {reach:.0%} of the way keeps it")
+        return q
+
+    def set_joint_target(self, q_fanuc_deg: np.ndarray, speed_scale: float = 1.0) -> None:
+        shaper = self._require()
+        q = self.check_joint_target(q_fanuc_deg)
         if not (np.isfinite(speed_scale) and 0.0 < speed_scale <= 1.0):
             raise CommandRejected(f"speed_scale={speed_scale} must be in (0, 1]")
-        shaper = self._require()
-        reach = self._config_keeping_reach(shaper.state[0], q)
-        if reach < 1.0:
-            raise CommandRejected(
-                f"joints={[round(float(v), 3) for v in q]} leave the arm configuration {self.configuration} held "
-                f"since the stream started (manual 61.5, MOTN-156): only {reach:.0%} of the way keeps it")
         self._target, self._jog = (q, speed_scale), None
         self._finishing = None
         self._cart, self._cart_active = None, False
