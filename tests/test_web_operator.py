@@ -215,6 +215,12 @@ def test_nothing_covers_anything(page: Any, fanuc: Service, viewport: dict[str, 
         page.check(f"input[name=jog-kind][value={kind}]", force=True)
         assert _single_line(page, "#speed-out"), kind
         assert _single_line(page, "label.speed"), kind
+    # Every jog button lies inside its card.
+    card = page.locator("#jog-card").bounding_box()
+    assert card is not None
+    for b in page.locator("button.jog").all():
+        box = b.bounding_box()
+        assert box is not None and card["x"] <= box["x"] and box["x"] + box["width"] <= card["x"] + card["width"], box
     # The joint-range marker never lies on its text.
     for row in page.locator("#joint-rows tr").all():
         marker = row.locator("td:nth-child(3) .marker, td:nth-child(3) .fill").first.bounding_box()

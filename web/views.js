@@ -36,9 +36,9 @@ export function renderStatus(s, telemetryUp = true) {
   mode.title = m.title;
   setText($("#link"), `link ${s.link || "—"}`);
   $("#link").title = s.link_error || "";
-  const model = `${s.model || ""}${s.simulated ? " · simulator" : ""} ${s.robot ? `@ ${s.robot}` : ""}`;
-  setText($("#model"), model);
-  $("#model").title = model;
+  // Short in the one-line header (the stop reason needs the room); the address is in the tooltip.
+  setText($("#model"), `${s.model || ""}${s.simulated ? " · sim" : ""}`);
+  $("#model").title = `${s.model || ""}${s.simulated ? " · simulator" : ""} ${s.robot ? `@ ${s.robot}` : ""}`;
   const why = s.state === "fault" && s.fault ? `fault: ${s.fault.message}`
     : s.stop_reason && ["stopping", "stopped"].includes(s.state)
       ? `stopped: ${s.stop_reason}${s.resumable ? " (resumable)" : ""}`
