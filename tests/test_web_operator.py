@@ -309,7 +309,7 @@ def test_inputs_card_enables_inputs_and_says_why_a_source_failed(page: Any, fail
     # The sensor that cannot be opened: failed, with the port and the reason.
     row = page.wait_for_selector("#inputs-failures li[data-source='distance']", timeout=15000)
     why = row.text_content() or ""
-    assert "/dev/serial/by-id/usb-FTDI_FT232R_USB_UART-if00-port0" in why, why
+    assert "/dev/serial/by-id/usb-FTDI_FT232R_USB_UART-if00-port0" in why and "Fix:" in why, why
     page.wait_for_function("document.querySelectorAll(\"tr[data-source='distance'] td\")[2].textContent === 'failed'")
     # The feeds that merely have not sent are stale, not failed.
     assert page.locator("tr[data-source='vision'] td").all_text_contents()[2] == "stale"
@@ -318,6 +318,8 @@ def test_inputs_card_enables_inputs_and_says_why_a_source_failed(page: Any, fail
     assert not svc.state()["inputs"]["enabled"]
     page.click("#inputs-enable")
     svc.wait(lambda s: s["inputs"]["enabled"], "inputs enabled")
+    # The answer to enabling says the sensor cannot be used, naming its port.
+    page.wait_for_function("document.querySelector('#inputs-error').textContent.includes('usb-FTDI')")
     page.wait_for_function("document.querySelector('#inputs-enable').textContent === 'Disable inputs'")
     page.locator("#inputs-card").screenshot(path=str(console.ARTIFACTS / "console-inputs-failed.png"))
     page.click("#inputs-enable")

@@ -168,8 +168,7 @@ async function enableInputs() {
   try {
     const ack = await api.post("/api/inputs/enable", { enable: want });
     const d = ack && ack.detail;
-    const warn = d && (d.warning || d.message || (Array.isArray(d.failed) && d.failed.length
-      ? `failed sources: ${d.failed.join(", ")}` : ""));
+    const warn = d && (d.warning || d.message || "");
     if (warn) box.textContent = String(warn);
     say(want ? "inputs enabled" : "inputs disabled");
   } catch (exc) {

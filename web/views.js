@@ -231,16 +231,25 @@ function alarmItem(a, when) {
   a.remedy ? el("div", { class: "remedy" }, el("span", { class: "muted" }, "remedy: "), a.remedy) : null);
 }
 
-/** Why a source is down, from GET /api/inputs' full row (errors, last_error, connected), or "". */
+/** Why a source is down, or "": its ``failure`` (the device, the reason and the fix, when the service
+ * names them) else GET /api/inputs' errors and last_error. */
 export function sourceFailure(row) {
   if (!row) return "";
   const errors = row.errors && typeof row.errors === "object" ? Object.entries(row.errors).filter(([, n]) => n > 0) : [];
-  const down = row.connected === false || row.failed === true || row.state === "failed";
-  if (!down && !row.last_error && errors.length === 0) return "";
   const counts = errors.map(([k, n]) => `${k.replaceAll("_", " ")} ×${n}`).join(", ");
-  const reason = row.reason || row.last_error || row.error || (down ? "not connected" : "");
+  if (row.failure) {
+    const f = row.failure;
+    const text = typeof f === "string" ? f : f.message || [f.device, f.reason, f.fix && `Fix: ${f.fix}`].filter(Boolean).join(": ");
+    return [text, counts && `(${counts})`].filter(Boolean).join(" ");
+  }
+  const down = row.connected === false;
+  if (!down && !row.last_error && errors.length === 0) return "";
+  const reason = row.last_error || (down ? "not connected" : "");
   return [reason, counts && `(${counts})`].filter(Boolean).join(" ");
 }
+
+/** A source whose device cannot be used (not merely quiet: that is "stale"). */
+const isFailed = (row) => Boolean(row && (row.failure || row.connected === false));
 
 /** Input sources, when the service runs with --inputs. ``s.inputs`` (telemetry): {enabled, active,
  * owner, sources: [{name, kind, rate_hz, age_s, stale, active}]}; ``detail``: GET /api/inputs, whose
@@ -255,9 +264,11 @@ export function renderInputs(section, s, detail = null) {
   const enable = $("#inputs-enable", section);
   setText(enable, summary.enabled ? "Disable inputs" : "Enable inputs");
   enable.setAttribute("aria-pressed", String(Boolean(summary.enabled)));
+  // The telemetry's row, completed by GET /api/inputs' (connection, errors) where polled.
   const full = new Map(((detail && detail.sources) || []).map((r) => [r.name, r]));
-  const failures = sources.map((src) => [src.name, sourceFailure(full.get(src.name))]).filter(([, why]) => why);
-  const failed = new Set(failures.filter(([n]) => full.get(n).connected === false || full.get(n).failed).map(([n]) => n));
+  const merged = (src) => ({ ...(full.get(src.name) || {}), ...src, failure: src.failure || (full.get(src.name) || {}).failure });
+  const failures = sources.map((src) => [src.name, sourceFailure(merged(src))]).filter(([, why]) => why);
+  const failed = new Set(sources.filter((src) => isFailed(merged(src))).map((src) => src.name));
   const stateOf = (src) => (failed.has(src.name) ? "failed" : src.stale ? "stale" : "live");
   const rows = sources.map((src) => el("tr", {
     class: failed.has(src.name) ? "bad-row" : src.stale ? "warn-row" : "", dataset: { source: src.name } },
