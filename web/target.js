@@ -3,6 +3,8 @@
 
 import { $, $$, el, fmt } from "./dom.js";
 
+const plural = (w) => (w.endsWith("is") ? `${w.slice(0, -2)}es` : `${w}s`); // Axis -> Axes, Joint -> Joints
+
 export class TargetForm {
   /** api: Api; root: the form; telemetry(): the last state; robot(): /api/robot or null. */
   constructor({ api, root, telemetry, robot, onSent }) {
@@ -40,7 +42,7 @@ export class TargetForm {
     if (r && r.cartesian_jog === false && this.kind !== "joints") {
       $('input[name="target-kind"][value="joints"]', this.root).checked = true;
     }
-    if (r && r.axis_label) $("#target-joint-label", this.root).textContent = `${r.axis_label}s`;
+    if (r && r.axis_label) $("#target-joint-label", this.root).textContent = plural(r.axis_label);
     const names = this.names();
     const units = this.units();
     const sig = `${this.kind}:${names.join()}`;
