@@ -9,6 +9,9 @@ with its embedded simulator, headless Chromium, checks through /api/state over H
 from __future__ import annotations
 
 import json
+import os
+import re
+import signal
 import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
@@ -171,6 +174,54 @@ def test_alarms_show_times_and_keep_active_apart_from_history(page: Any, fanuc: 
     assert during["history"] == ["MOTN-603", "SRVO-001"], during  # newest first
     assert after["active"] == ["no alarms"] and after["count"] == "0", after
     assert after["history"] == ["MOTN-603", "SRVO-001"], after
+
+
+def _servo_process_pid(svc: Service) -> int:
+    """The service's servo process: the spawned child that does not hold the simulated controller's
+    UDP port (the embedded simulator does)."""
+    robot_port = int(svc.state()["robot"].rsplit(":", 1)[1])
+    inodes = set()
+    for line in Path("/proc/net/udp").read_text().splitlines()[1:]:
+        f = line.split()
+        if int(f[1].split(":")[1], 16) == robot_port:
+            inodes.add(f[9])
+    children = [int(c) for t in Path(f"/proc/{svc.proc.pid}/task").iterdir()
+                for c in (t / "children").read_text().split()]
+    spawned = [c for c in children if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
+
+    def holds_robot_port(pid: int) -> bool:
+        for fd in Path(f"/proc/{pid}/fd").iterdir():
+            try:
+                link = os.readlink(fd)
+            except OSError:
+                continue
+            if link.startswith("socket:[") and link[8:-1] in inodes:
+                return True
+        return False
+
+    servo = [c for c in spawned if not holds_robot_port(c)]
+    assert len(servo) == 1, (children, spawned, servo)
+    return servo[0]
+
+
+def test_a_real_alarm_is_listed_with_its_times_and_kept_in_history_after_reset(page: Any, fanuc: Service) -> None:
+    """The servo process dies mid-stream: the controller posts MOTN-603. The console lists it as
+    active with the wall clock and the controller's time stamp; Reset clears the active list, the
+    history keeps it."""
+    sign_in(page, fanuc)
+    take_control_and_stream(page, fanuc)
+    if "alarm_history" not in fanuc.state():
+        pytest.skip("this service has no alarm_history yet")
+    os.kill(_servo_process_pid(fanuc), signal.SIGKILL)
+    page.wait_for_selector("#alarm-list li[data-code='MOTN-603']", timeout=15000)
+    when = page.text_content("#alarm-list li[data-code='MOTN-603'] .when") or ""
+    assert re.search(r"\d\d:\d\d:\d\d\.\d{3}", when) and "controller" in when, when
+    shot(page, "console-alarm-active")
+    page.click("#reset")
+    page.wait_for_function("!document.querySelector(\"#alarm-list li[data-code='MOTN-603']\")", timeout=30000)
+    assert page.locator("#alarm-history li[data-code='MOTN-603']").count() >= 1
+    assert page.text_content("#alarm-count") == "0"
+    fanuc.wait(lambda s: s["state"] not in ("fault",), "the fault reset", timeout=30)
 
 
 # -------------------------------------------------------------------------------- 5. layout

@@ -205,7 +205,7 @@ export function renderAlarms(s) {
   for (const a of active) if (!firstSeen.has(alarmKey(a))) firstSeen.set(alarmKey(a), { a, seen: now });
   const when = (a) => alarmWhen(a, firstSeen.has(alarmKey(a)) ? firstSeen.get(alarmKey(a)).seen : undefined);
   const items = [];
-  if (s.state === "fault" && s.fault) items.push(alarmItem({ ...s.fault, kind: "fault" }, ""));
+  if (s.state === "fault" && s.fault) items.push(alarmItem({ ...s.fault, kind: "fault" }, alarmWhen(s.fault)));
   if (s.link_error) items.push(el("li", { class: "alarm warn" }, el("b", {}, "link "), s.link_error));
   for (const a of [...active].reverse()) items.push(alarmItem({ ...a, kind: a.warning ? "warning" : "alarm" }, when(a)));
   for (const w of [...(s.warnings || [])].reverse()) items.push(alarmItem({ ...w, kind: "warning" }, when(w)));
