@@ -1,6 +1,8 @@
 // The control lease: one client at a time may move the arm. While we hold it we renew it well
 // inside its TTL; losing it (expired, taken over) is reported at once, since jogs will be refused.
 
+import { ApiError } from "./api.js";
+
 export class Lease {
   constructor({ api, onChange }) {
     this.api = api;
@@ -30,6 +32,9 @@ export class Lease {
   async release() {
     try {
       if (this.api.leaseId) await this.api.del("/api/lease");
+    } catch (e) {
+      // 409: our lease id is no longer the current one (it expired or was taken over): nothing to release.
+      if (!(e instanceof ApiError && e.status === 409)) throw e;
     } finally {
       this.api.setLease("");
       this.set(false, "released");
