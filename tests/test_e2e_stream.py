@@ -166,7 +166,7 @@ def test_controller_alarm_mid_stream_is_a_fault_and_needs_reset(
     ev = sp.last_event(SafetyChanged)
     assert isinstance(ev, SafetyChanged)
     assert ev.view["fault"]["code"] == "MOTN-606" and "100% OVERRIDE" in ev.view["fault"]["cause"]
-    with pytest.raises(Exception, match="reset first"):
+    with pytest.raises(Exception, match="reset the fault"):
         sp.request(Start(), timeout=START_TIMEOUT)
     sim.set_override(100)
     sim.reset()
