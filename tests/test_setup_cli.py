@@ -55,7 +55,9 @@ def _exists(rel: str) -> bool:
     if glob.glob(pattern):
         return True
     # Made at run time (var/, tests/artifacts/): ignored by git on purpose, so it is named, not shipped.
-    return subprocess.run(["git", "check-ignore", "-q", str(target)], cwd=ROOT).returncode == 0
+    # A folder keeps its trailing "/": a "dir/" pattern matches a folder that is not there yet only so.
+    name = str(target) + ("/" if rel.endswith("/") else "")
+    return subprocess.run(["git", "check-ignore", "-q", name], cwd=ROOT).returncode == 0
 
 
 @pytest.mark.parametrize("doc", ["README.md", *sorted(str(p.relative_to(ROOT)) for p in (ROOT / "docs").glob("*.md"))])
