@@ -40,6 +40,7 @@ arm never freezes in a singular pose (a known failure of halting servo stacks).
 from __future__ import annotations
 
 import enum
+import itertools
 import math
 from dataclasses import dataclass, field
 
@@ -66,7 +67,36 @@ from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.model import FLANGE_SITE, JOINT_NAMES, TCP_SITE, load_model
 from servo_app.robots.profile import RobotProfile
 
+try:  # mink's own C kernels for SE3 (what FrameTask uses when present): the same numbers, no Python objects
+    from mink.lie import _lie_ops_c as _se3
+except ImportError:  # pragma: no cover - mink without its extension: the frame task's Python path
+    _se3 = None
+
+try:  # numpy's LAPACK gufuncs, called as np.linalg calls them (same routine, same numbers) without the
+    # wrapping (errstate context, type checks: ~5 us per call here, more than a 6x6 solve itself)
+    from numpy.linalg import _umath_linalg as _lapack
+except ImportError:  # pragma: no cover - another numpy layout: the public functions
+    _lapack = None
+
 N = 6
+
+
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(a, b)`` (b a vector or a matrix of columns); raises as it does if singular."""
+    if _lapack is not None:
+        x = _lapack.solve1(a, b, signature="dd->d") if b.ndim == 1 else _lapack.solve(a, b, signature="dd->d")
+        if np.isfinite(x).all():
+            return x
+    return np.linalg.solve(a, b)  # the error (singular matrix), or the result without the fast path
+
+
+def _singular_values(a: np.ndarray) -> np.ndarray:
+    """``np.linalg.svd(a, compute_uv=False)``: the same LAPACK routine (descending order)."""
+    if _lapack is not None:
+        sv = _lapack.svd(a, signature="d->d")
+        if np.isfinite(sv).all():
+            return sv
+    return np.linalg.svd(a, compute_uv=False)  # non-convergence raises there
 
 
 class IkFlag(enum.IntFlag):
@@ -264,6 +294,7 @@ class DifferentialIK:
         self._ref: np.ndarray | None = None  # integrated TCP reference pose (wxyz_xyz), Cartesian modes
         self._last_xi: np.ndarray | None = None  # last commanded twist: the line to brake along
         self._mode = ""
+        self._layout()
         # What the last step() started from, for step_again().
         self._before: tuple[np.ndarray, np.ndarray | None, np.ndarray | None, str] | None = None
 
@@ -307,7 +338,7 @@ class DifferentialIK:
             self._dq_prev = self._checked(dq_prev, "dq_prev")
         st, dt = self.settings, self.dt
         cfg = self.configuration
-        cfg.update(self._full_q(q))
+        self._kinematics(q)
         self.accel_limit.set_previous(self._dq_prev)
         kappa = self._condition(cfg.data)
         flags = IkFlag.NEAR_SINGULARITY if kappa > st.singularity_slow else IkFlag.NONE
@@ -316,6 +347,8 @@ class DifferentialIK:
         arrived = False
         moving = bool(self._dq_prev.any())
         cartesian_stop = command is None and self._last_xi is not None and moving
+        target: np.ndarray | None = None  # the frame task's target pose (Cartesian modes)
+        joint_goal = q  # the joint task's target (joint modes)
 
         if isinstance(command, Twist | PoseTarget) or cartesian_stop:
             tcp = self._site_pose(cfg.data, self._site_id)
@@ -343,9 +376,7 @@ class DifferentialIK:
                 xi, s_goal = self._last_xi, 0.0  # brake along the last commanded Cartesian line
             else:
                 s_goal, self._last_xi = 0.0, None
-            target = mink.SE3(_advance(self._ref, xi * dt))
-            self.frame_task.set_target(target)
-            tasks: list[mink.Task] = [self.frame_task, self.posture_task]
+            target = _advance(self._ref, xi * dt)
             asks_motion = bool(xi.any())
             state_mode = cartesian_mode
         else:
@@ -361,8 +392,7 @@ class DifferentialIK:
                 flags |= IkFlag.NO_COMMAND
             else:
                 raise TypeError(f"command={command!r} is not a motion command")
-            self.joint_task.set_target(self._full_q(q + d_des))
-            tasks = [self.joint_task]
+            joint_goal = q + d_des
             asks_motion = bool(d_des.any())
             s_goal = 1.0 if asks_motion else 0.0
             state_mode = mode
@@ -374,22 +404,23 @@ class DifferentialIK:
         # back onto the integrated reference (drift, linearisation): d_corr, the optimum for the
         # reference itself. It is added unscaled so that scaling the command (even below 0 while
         # reversing) never turns the correction into a push away from the line.
-        p, c, task_c = self._objective_terms(tasks)
+        if target is not None:
+            p, c, c_frame = self._cartesian_objective(target)
+        else:
+            p, c = self._joint_objective(q, joint_goal)
+            c_frame = np.zeros(N)
         if xi is not None and asks_motion and self._ref is not None:
             # Only the frame task's linear term depends on its target: swap that term alone.
-            self.frame_task.set_target(mink.SE3(self._ref))
-            c_ref = c - task_c[0] + self.frame_task.compute_qp_objective(cfg).c
-            self.frame_task.set_target(target)
-            d, d_corr = np.linalg.solve(p, -np.column_stack([c, c_ref])).T
+            c_ref = c - c_frame + self._frame_terms(self._ref, None)
+            d, d_corr = _solve(p, -np.column_stack([c, c_ref])).T
             d = d - d_corr * (1.0 - self._correction_gain)  # the line, plus this cycle's share of the pull-back
             d_corr = d_corr * self._correction_gain
         else:
-            d, d_corr = np.linalg.solve(p, -c), np.zeros(N)
+            d, d_corr = _solve(p, -c), np.zeros(N)
         # Keep the direction: the commanded one (s -> 1), or while braking the current line (s -> 0).
         direction = d - d_corr if asks_motion else self._dq_prev
         self.path_braking.set_direction(direction)
-        g, h = self.inequalities()
-        h_path = self._path_rows(h)
+        g, h, h_path = self._rows()
 
         solver_status = ""
         dq: np.ndarray | None = None
@@ -444,12 +475,8 @@ class DifferentialIK:
         return self.step(q_model_rad, command, dq_prev=dq_prev)
 
     def objective(self, tasks: list[mink.Task]) -> tuple[np.ndarray, np.ndarray]:
-        """mink's QP objective (P, c) for ``tasks`` at the current configuration, with our damping."""
-        p, c, _ = self._objective_terms(tasks)
-        return p, c
-
-    def _objective_terms(self, tasks: list[mink.Task]) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-        """(P, c) and each task's own linear term."""
+        """mink's QP objective (P, c) for ``tasks`` at the current configuration, with our damping
+        (built by the tasks themselves: for comparisons; step() assembles its own)."""
         objs = [task.compute_qp_objective(self.configuration) for task in tasks]
         p = objs[0].H.copy()
         c = objs[0].c.copy()
@@ -457,46 +484,171 @@ class DifferentialIK:
             p += obj.H
             c += obj.c
         p.flat[:: N + 1] += self.settings.damping
-        return p, c, [obj.c for obj in objs]
+        return p, c
 
     def inequalities(self) -> tuple[np.ndarray, np.ndarray]:
-        """All limits stacked as ``G dq <= h`` (fixed row layout) at the current configuration."""
-        cfg, dt = self.configuration, self.dt
-        rows = [limit.compute_qp_inequalities(cfg, dt) for limit in self.limits]
-        g = np.vstack([r.G for r in rows if r.G is not None])
-        h = np.concatenate([r.h for r in rows if r.h is not None])
-        self._ensure_rows(g.shape[0])
-        return g, h
+        """All limits stacked as ``G dq <= h`` (fixed row layout) at the current configuration: the
+        rows the limits' ``compute_qp_inequalities`` give, assembled in place (copies returned)."""
+        g, h, _ = self._rows()
+        return g.copy(), h.copy()
 
-    def _blend(self, d: np.ndarray, g: np.ndarray, h: np.ndarray) -> np.ndarray | None:
-        """From last cycle's increment straight toward ``sigma * d`` (``sigma``: the share of the
-        command the position and velocity rows allow; 0 brakes), as far as all rows allow. A straight
-        line in joint-velocity space is one in TCP-velocity space to first order: a ramp between the
-        old and the new direction with no joint clipped on its own."""
-        assert self._accel_rows is not None
-        h_vel = h.copy()
-        h_vel[self._accel_rows] = self.accel_limit.h_velocity
-        sigma = _path_scale(d, 1.0, g, h_vel) if d.any() else None
-        target = d * min(max(sigma, 0.0), 1.0) if sigma is not None else np.zeros(N)
-        base = self._dq_prev
-        interval = _scale_interval(target - base, g, h - g @ base)
-        if interval is None:
-            return None
-        lo, hi = max(interval[0], 0.0), min(interval[1], 1.0)
-        if lo > hi + 1e-9:  # rounding: a bound met exactly at t = 0 may read -1e-13
-            return None
-        return base + max(hi, lo) * (target - base)
+    # ------------------------------------------------------------------------- QP assembly
+    # The cycle's QP is assembled here from MuJoCo directly, into arrays allocated once: the same
+    # numbers mink's FrameTask / PostureTask and the limits' compute_qp_inequalities give (the
+    # reference, tests/diffik_reference.py; tests/test_diffik_equivalence.py), without building task,
+    # SE3 and Constraint objects or stacking rows every cycle (that was most of the cycle's cost).
 
-    def _path_rows(self, h: np.ndarray) -> np.ndarray:
-        """``h`` with the braking rows of the limits that brake the whole path together."""
-        out = h.copy()
-        start = 0
-        for limit, k in zip(self.limits, self._row_counts, strict=True):
-            hp = getattr(limit, "h_path", None)
-            if hp is not None:
-                out[start:start + k] = hp
-            start += k
-        return out
+    def _layout(self) -> None:
+        """The fixed row layout: constant coefficients written once, the flag each row raises."""
+        model = self.model
+        if not all(int(t) == int(mujoco.mjtJoint.mjJNT_HINGE) for t in model.jnt_type):
+            raise ValueError("the diff-IK expects an arm of hinge joints")
+        # Model order (JOINT_NAMES) is dof order is qpos order: increments and QP columns are the same.
+        if list(self._qadr) != list(range(N)) or list(self._cols) != list(range(N)):
+            raise ValueError("the diff-IK expects the arm's joints in JOINT_NAMES order")
+        cfg_lim, vel_lim = self.limits[0], self.limits[1]
+        assert isinstance(cfg_lim, mink.ConfigurationLimit) and isinstance(vel_lim, mink.VelocityLimit)
+        qpos_of_dof = np.zeros(model.nv, dtype=int)
+        for j in range(model.njnt):
+            qpos_of_dof[model.jnt_dofadr[j]] = model.jnt_qposadr[j]
+        n_cfg = 0 if cfg_lim.projection_matrix is None else len(cfg_lim.indices)
+        n_vel = 0 if vel_lim.projection_matrix is None else len(vel_lim.indices)
+        n_col = 0 if self.collision_limit is None else self.collision_limit.max_num_contacts
+        counts = [2 * n_cfg, 2 * n_vel, 12, 12, 1] + ([n_col] if self.collision_limit is not None else [])
+        m = sum(counts)
+        starts = np.concatenate([[0], np.cumsum(counts)]).astype(int)
+        sl = [slice(int(a), int(b)) for a, b in itertools.pairwise(starts)]
+        g = np.zeros((m, model.nv))
+        h = np.full(m, np.inf)
+        if n_cfg:
+            g[sl[0]] = np.vstack([cfg_lim.projection_matrix, -cfg_lim.projection_matrix])
+            idx = qpos_of_dof[cfg_lim.indices]
+            self._cfg_qpos = idx
+            self._cfg_upper, self._cfg_lower = cfg_lim.upper[idx].copy(), cfg_lim.lower[idx].copy()
+            self._cfg_gain = float(cfg_lim.gain)
+        if n_vel:
+            g[sl[1]] = np.vstack([vel_lim.projection_matrix, -vel_lim.projection_matrix])
+            h[sl[1]] = np.hstack([self.dt * vel_lim.limit, self.dt * vel_lim.limit])  # constant
+        g[sl[2]] = self.accel_limit._g
+        g[sl[3]] = self.braking_limit._g
+        self._g, self._h, self._hp = g, h, h.copy()
+        self._sl = sl
+        self._row_counts = counts
+        self._accel_rows, self._braking_rows = sl[2], sl[3]
+        flags = np.zeros(m, dtype=int)
+        flags[sl[0]] = int(IkFlag.JOINT_LIMIT)
+        flags[sl[1]] = int(IkFlag.VELOCITY_LIMIT)
+        flags[sl[2]] = int(IkFlag.ACCEL_LIMIT)
+        flags[sl[3]] = int(IkFlag.JOINT_LIMIT)  # joint ranges, or the configuration's joint intervals
+        flags[sl[4]] = int(IkFlag.CONFIGURATION)
+        if n_col:
+            flags[sl[5]] = int(IkFlag.COLLISION)
+        self._row_flags = flags
+        self._mark_configuration_rows()
+        self._cfg_h = np.zeros(2 * n_cfg)
+        # Scratch of the cycle (no allocation there): the TCP's world Jacobian and the flange's.
+        self._jac_world = np.zeros((6, model.nv))
+        self._jac_flange = np.zeros((6, model.nv))
+        self._frame_cost = np.asarray(self.frame_task.cost, dtype=float).copy()
+        self._posture_cost = np.asarray(self.posture_task.cost, dtype=float).copy()
+
+    def _rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(G, h, h_path)`` at the current configuration, in the arrays allocated by ``_layout``.
+
+        ``h_path``: ``h`` with the braking rows of the limits that brake the whole path together
+        (their ``h_path``). Reads the same state the limits' own rows read (the configuration's qpos,
+        ``accel_limit.dq_prev``, ``path_braking``), so both stay interchangeable."""
+        g, h, hp, sl, dt = self._g, self._h, self._hp, self._sl, self.dt
+        data = self.configuration.data
+        qpos = data.qpos
+        q = qpos[self._qadr]
+        if self._row_counts[0]:
+            n = self._row_counts[0] // 2
+            qc = qpos[self._cfg_qpos]
+            cfg_h = self._cfg_h
+            np.subtract(self._cfg_upper, qc, out=cfg_h[:n])
+            np.subtract(qc, self._cfg_lower, out=cfg_h[n:])
+            cfg_h *= self._cfg_gain
+            h[sl[0]] = cfg_h
+        self.accel_limit.fill(dt, h[sl[2]])
+        self.braking_limit.fill(q, dt, h[sl[3]], hp[sl[3]])
+        i = sl[4].start
+        h[i], hp[i] = self.config_guard.fill(q, dt, g[i])
+        # Rows without a path version: h_path = h.
+        hp[: sl[3].start] = h[: sl[3].start]
+        if self.collision_limit is not None:
+            c = sl[5]
+            self.collision_limit.fill(data, qpos, dt, g[c], h[c], hp[c])
+        return g, h, hp
+
+    def _kinematics(self, q: np.ndarray) -> None:
+        """The configuration at ``q``: what ``Configuration.update`` does, without copying qpos."""
+        data = self.configuration.data
+        data.qpos[self._qadr] = q
+        mujoco.mj_kinematics(self.model, data)
+        mujoco.mj_comPos(self.model, data)
+        if self.model.neq > 0:
+            mujoco.mj_makeConstraint(self.model, data)
+
+    def _frame_terms(self, target: np.ndarray, h_out: np.ndarray | None) -> np.ndarray:
+        """The frame task's linear term for the target pose ``target`` (wxyz_xyz), and its Hessian
+        written into ``h_out`` if given: mink's FrameTask objective from the same kernels."""
+        task = self.frame_task
+        if _se3 is None:  # pragma: no cover - mink's Python path
+            task.set_target(mink.SE3(target))
+            obj = task.compute_qp_objective(self.configuration)
+            if h_out is not None:
+                h_out[:] = obj.H
+            return obj.c
+        data = self.configuration.data
+        sid = self._site_id
+        xmat, xpos = data.site_xmat[sid], data.site_xpos[sid]
+        frame = _se3.xmat_xpos_to_wxyz_xyz(xmat, xpos)
+        jw = self._jac_world
+        mujoco.mj_jacSite(self.model, data, jw[:3], jw[3:], sid)
+        jac = _se3.se3_rotation_adjoint_from_xmat(xmat) @ jw  # body Jacobian, as get_frame_jacobian
+        error = _se3.se3_rminus(target, frame)
+        jacobian = -_se3.se3_jlog(_se3.se3_inverse_multiply(target, frame)) @ jac
+        cost = self._frame_cost
+        weighted_error = cost * (-task.gain * error)
+        weighted_jacobian = cost[:, None] * jacobian
+        if h_out is not None:
+            np.matmul(weighted_jacobian.T, weighted_jacobian, out=h_out)
+            mu = task.lm_damping * float(weighted_error @ weighted_error)
+            if mu > 0.0:
+                h_out.flat[:: N + 1] += mu
+        return -weighted_error @ weighted_jacobian
+
+    def _posture_terms(self, task: mink.PostureTask, cost: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """A posture task's linear term toward the joints ``goal`` (model order); its Hessian is
+        ``diag(cost**2)``. Hinge joints: mj_differentiatePos is ``q - goal``."""
+        error = self.configuration.data.qpos[self._qadr] - goal
+        weighted_error = cost * (-task.gain * error)
+        return -weighted_error * cost
+
+    def _cartesian_objective(self, target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(P, c) of the frame task toward ``target`` plus the posture task, with our damping, and the
+        frame task's own linear term."""
+        p = np.empty((N, N))
+        c_frame = self._frame_terms(target, p)
+        pt = self.posture_task
+        assert pt.target_q is not None
+        cost = self._posture_cost
+        p.flat[:: N + 1] += cost * cost
+        if pt.lm_damping > 0.0:  # pragma: no cover - ours is 0
+            e = cost * (-pt.gain * (self.configuration.data.qpos[self._qadr] - pt.target_q[self._qadr]))
+            p.flat[:: N + 1] += pt.lm_damping * float(e @ e)
+        c = c_frame + self._posture_terms(pt, cost, pt.target_q[self._qadr])
+        p.flat[:: N + 1] += self.settings.damping
+        return p, c, c_frame
+
+    def _joint_objective(self, q: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(P, c) of the joint task toward ``goal`` (cost 1, gain 1), with our damping."""
+        jt = self.joint_task
+        p = np.diag(np.asarray(jt.cost, dtype=float) ** 2)
+        c = self._posture_terms(jt, np.asarray(jt.cost, dtype=float), goal)
+        p.flat[:: N + 1] += self.settings.damping
+        return p, c
 
     def to_fanuc_deg(self, q_model_rad: ArrayLike) -> np.ndarray:
         """Model joints (rad) -> FANUC joints (deg), for the shaper."""
@@ -558,10 +710,10 @@ class DifferentialIK:
 
     # ---------------------------------------------------------------------------- singularity
     def _condition(self, data: mujoco.MjData) -> float:
-        jac = np.empty((6, N))
+        jac = self._jac_flange
         mujoco.mj_jacSite(self.model, data, jac[:3], jac[3:], self._flange_id)
         jac[:3] /= self._reach
-        sv = np.linalg.svd(jac, compute_uv=False)
+        sv = _singular_values(jac)
         return float(sv[0] / sv[-1]) if sv[-1] > 1e-12 * sv[0] else 1e12
 
     def _condition_at(self, q: np.ndarray) -> float:
@@ -606,38 +758,6 @@ class DifferentialIK:
         p = self.c @ self._dq_prev
         da = self.acc * self.dt * self.dt
         return self.c_inv @ (np.sign(p) * np.maximum(np.abs(p) - da, 0.0))
-
-    def _ensure_rows(self, m: int) -> None:
-        """Map each QP row to the flag it raises when binding (the limits' row counts are fixed)."""
-        if self._row_flags is not None and len(self._row_flags) == m:
-            return
-        cfg = self.configuration
-        flags: list[int] = []
-        self._row_counts = []
-        for limit in self.limits:
-            rows = limit.compute_qp_inequalities(cfg, self.dt)
-            k = 0 if rows.G is None else rows.G.shape[0]
-            self._row_counts.append(k)
-            if limit is self.accel_limit:
-                self._accel_rows = slice(len(flags), len(flags) + k)
-                flag = IkFlag.ACCEL_LIMIT
-            elif isinstance(limit, mink.VelocityLimit):
-                flag = IkFlag.VELOCITY_LIMIT
-            elif limit is self.braking_limit:  # joint ranges, or the configuration's joint intervals
-                self._braking_rows = slice(len(flags), len(flags) + k)
-                flag = IkFlag.JOINT_LIMIT
-            elif isinstance(limit, mink.ConfigurationLimit):
-                flag = IkFlag.JOINT_LIMIT
-            elif limit is self.config_guard:
-                flag = IkFlag.CONFIGURATION
-            else:
-                flag = IkFlag.COLLISION
-            flags.extend([int(flag)] * k)
-        if len(flags) != m:
-            raise RuntimeError(f"limit rows changed size ({len(flags)} != {m}); a persistent QP needs fixed rows")
-        self._row_flags = np.array(flags)
-        self._mark_configuration_rows()
-        self.qp = None
 
     def _mark_configuration_rows(self) -> None:
         """Braking rows whose bound is a configuration interval raise CONFIGURATION, not JOINT_LIMIT."""

@@ -56,6 +56,26 @@ def braking_speed(distance: np.ndarray | float, acc: np.ndarray | float, dt: flo
     return a * (np.sqrt(dt * dt + 2.0 * d / a) - dt)
 
 
+def _braking_into(distance: np.ndarray, acc: np.ndarray, horizon: float, dt: float, out: np.ndarray,
+                  scratch: np.ndarray) -> None:
+    """``out = dt * braking_speed(distance, acc, horizon)`` in place, with the same operations in the same
+    order (so the same rounding): ``dt * (a * (sqrt(t*t + 2 d / a) - t))``."""
+    np.maximum(distance, 0.0, out=scratch)
+    scratch *= 2.0
+    np.divide(scratch, acc, out=scratch)
+    scratch += horizon * horizon
+    np.sqrt(scratch, out=scratch)
+    scratch -= horizon
+    np.multiply(acc, scratch, out=out)
+    out *= dt
+
+
+def braking_speed_scalar(distance: float, acc: float, dt: float) -> float:
+    """:func:`braking_speed` of one value in float arithmetic (same operations, same rounding)."""
+    d = distance if distance > 0.0 else 0.0
+    return acc * (math.sqrt(dt * dt + 2.0 * d / acc) - dt)
+
+
 def _dof_columns(model: mujoco.MjModel) -> np.ndarray:
     return np.array([model.jnt_dofadr[model.joint(name).id] for name in JOINT_NAMES])
 
@@ -103,6 +123,19 @@ class PathBraking:
             return np.broadcast_to(caps, np.shape(grad_dot_u)).copy()
         return np.minimum(caps, np.maximum(self.rate * np.abs(grad_dot_u), self.floor * caps))
 
+    def decel_into(self, grad_dot_u: np.ndarray, caps: np.ndarray, out: np.ndarray) -> None:
+        """:meth:`decel` written into ``out`` (same numbers, no temporaries kept); needs a direction."""
+        np.abs(grad_dot_u, out=out)
+        out *= self.rate
+        np.maximum(out, self.floor * caps, out=out)
+        np.minimum(caps, out, out=out)
+
+    def decel_scalar(self, grad_dot_u: float, cap: float) -> float:
+        """:meth:`decel` of one row in float arithmetic (a numpy call costs more than the row)."""
+        if self.u is None:
+            return cap
+        return min(cap, max(self.rate * abs(grad_dot_u), self.floor * cap))
+
 
 class AccelerationLimit(Limit):
     """Velocity and acceleration of the six arm joints in the FANUC convention, per cycle:
@@ -128,6 +161,11 @@ class AccelerationLimit(Limit):
         self.dq_prev = np.zeros(6)
         self.velocity_bound = np.zeros(12, dtype=bool)  # rows whose bound came from vel (else acc)
         self.h_velocity = np.full(12, np.inf)  # the same rows with the velocity bound only
+        # fill(): C stacked over -C (the 12 rows' own coefficients in FANUC axes) and scratch rows.
+        self._c12 = np.vstack([self.c, -self.c])
+        self._dt = math.nan
+        self._vmax12, self._da12 = np.zeros(12), np.zeros(12)
+        self._lo12, self._hi12 = np.zeros(12), np.zeros(12)
 
     def set_previous(self, dq_prev: np.ndarray) -> None:
         self.dq_prev = np.asarray(dq_prev, dtype=float).copy()
@@ -143,6 +181,25 @@ class AccelerationLimit(Limit):
         self.velocity_bound[6:] = lower > p - da
         self.h_velocity = np.concatenate([vmax, vmax])
         return Constraint(G=self._g, h=np.concatenate([upper, -lower]))
+
+    def fill(self, dt: float, h: np.ndarray) -> None:
+        """``compute_qp_inequalities``' rows written into ``h`` (12), with no Constraint built.
+
+        Both halves in one pass over 12 rows: the lower bounds negated are the upper bounds of
+        ``-p`` (``-max(min(-v, p + a), p - a) == min(max(v, -p - a), -p + a)``, negation is exact),
+        so the numbers are the reference's to the bit."""
+        if self._dt != dt:
+            self._dt = dt
+            vmax = self.vel * dt
+            self._vmax12 = np.concatenate([vmax, vmax])
+            self._da12 = np.concatenate([self.acc, self.acc]) * dt * dt  # as the reference rounds it
+            self.h_velocity = self._vmax12.copy()
+        p = self._c12 @ self.dq_prev
+        np.subtract(p, self._da12, out=self._lo12)
+        np.add(p, self._da12, out=self._hi12)
+        np.maximum(self._vmax12, self._lo12, out=h)
+        np.minimum(h, self._hi12, out=h)
+        np.less(h, self._hi12, out=self.velocity_bound)
 
 
 class BrakingLimit(Limit):
@@ -177,6 +234,7 @@ class BrakingLimit(Limit):
         self._g = g
         self._bound = np.concatenate([self.range_upper, -self.range_lower])  # row i: g_i @ q <= bound_i
         self.restricted = np.zeros(12, dtype=bool)
+        self._dist, self._scratch, self._acc_path = np.zeros(12), np.zeros(12), np.zeros(12)  # fill()'s
 
     @property
     def lower(self) -> np.ndarray:
@@ -203,6 +261,22 @@ class BrakingLimit(Limit):
             acc = self.path.decel(self.path.u[self._cols], self.brake_acc)
             self.h_path = dt * braking_speed(distance, np.concatenate([acc, acc]), horizon)
         return Constraint(G=self._g, h=h)
+
+    def fill(self, q: np.ndarray, dt: float, h: np.ndarray, h_path: np.ndarray) -> None:
+        """``compute_qp_inequalities``' rows and ``h_path`` for the joints ``q`` (model order), written
+        into ``h`` and ``h_path`` (12 each) with no Constraint built."""
+        dist = self._dist
+        np.subtract(self._bound[:6], q, out=dist[:6])
+        np.add(self._bound[6:], q, out=dist[6:])  # bound - (-q)
+        horizon = dt + self.lag_s
+        _braking_into(dist, self._acc, horizon, dt, h, self._scratch)
+        if self.path is not None and self.path.u is not None:
+            acc = self._acc_path
+            self.path.decel_into(self.path.u[self._cols], self.brake_acc, acc[:6])
+            acc[6:] = acc[:6]
+            _braking_into(dist, acc, horizon, dt, h_path, self._scratch)
+        else:
+            h_path[:] = h
 
 
 @dataclass(frozen=True)
@@ -283,6 +357,35 @@ class ConfigurationGuard(Limit):
             self.h_path = np.array([dt * float(braking_speed(distance, acc, horizon))])
         return Constraint(G=self._g, h=h)
 
+    def fill(self, q: np.ndarray, dt: float, g: np.ndarray) -> tuple[float, float]:
+        """``compute_qp_inequalities``' row for the joints ``q`` (model order): its coefficients written
+        into ``g`` (one row, dof columns), its bound and path bound returned. Float arithmetic: the row
+        is a handful of scalars, where each numpy call would cost more than the arithmetic."""
+        if self.reference is None:
+            self.reset(q)
+        assert self.reference is not None
+        kin = self.kin
+        q2, q3 = float(q[1]), float(q[2])
+        phi = q2 - q3
+        cphi, sphi = math.cos(phi), math.sin(phi)
+        x = kin.a1 + kin.a2 * math.sin(q2) + kin.d4 * cphi + kin.a3 * sphi
+        dphi = -kin.d4 * sphi + kin.a3 * cphi
+        g1, g2 = kin.a2 * math.cos(q2) + dphi, -dphi  # the gradient's only non-zero entries (q2, q3)
+        sign = 1.0 if self.reference.top else -1.0
+        distance = sign * x - self.margins.shoulder_m
+        g[:] = 0.0
+        g[self._cols[1]] = -sign * g1
+        g[self._cols[2]] = -sign * g2
+        acc = self.margins.shoulder_brake_acc
+        horizon = dt + self.lag_s
+        h = dt * braking_speed_scalar(distance, acc, horizon)
+        h_path = h
+        if self.path is not None and self.path.u is not None:
+            u = self.path.u
+            acc = self.path.decel_scalar(g1 * float(u[self._cols[1]]) + g2 * float(u[self._cols[2]]), acc)
+            h_path = dt * braking_speed_scalar(distance, acc, horizon)
+        return h, h_path
+
 
 class CollisionLimit(CollisionAvoidanceLimit):
     """mink's collision avoidance with the per-step units fixed and a braking allowance.
@@ -299,13 +402,15 @@ class CollisionLimit(CollisionAvoidanceLimit):
 
     def __init__(self, model: mujoco.MjModel, geom_pairs: Sequence, *, brake_acc: float = 3.0,
                  gain: float = 0.85, minimum_distance_from_collisions: float = 0.01,
-                 collision_detection_distance: float = 0.2, path: PathBraking | None = None) -> None:
+                 collision_detection_distance: float = 0.2, path: PathBraking | None = None,
+                 cache_margin: float = 0.1) -> None:
         super().__init__(model, geom_pairs, gain=gain,
                          minimum_distance_from_collisions=minimum_distance_from_collisions,
                          collision_detection_distance=collision_detection_distance)
         self.brake_acc = brake_acc
         self.path = path
         self.h_path = np.full(self.max_num_contacts, np.inf)
+        self._init_near_cache(model, cache_margin)
 
     def compute_qp_inequalities(self, configuration: Configuration, dt: float) -> Constraint:
         c = super().compute_qp_inequalities(configuration, 1.0)
@@ -320,6 +425,129 @@ class CollisionLimit(CollisionAvoidanceLimit):
             self.h_path[active] = np.minimum(h[active], dt * braking_speed(gap, acc, dt + self.lag_s) + relax)
         h[active] = np.minimum(h[active], dt * braking_speed(gap, self.brake_acc, dt + self.lag_s) + relax)
         return Constraint(G=c.G, h=h)
+
+    # ------------------------------------------------------------------ fast rows (the servo cycle)
+    # compute_qp_inequalities() runs the narrow phase (mj_geomDistance) on every pair that survives a
+    # bounding-sphere test, each cycle. fill() gives the same rows from the narrow phase of the pairs
+    # that were within detection distance + cache_margin at the last refresh only: a pair's distance
+    # changes by at most (R1 + R2) * sum|q - q_refresh| (R: a bound on the distance from any joint axis
+    # upstream of the geom to any point of it), so while that stays below cache_margin no other pair
+    # can come within detection distance, and the rows are the reference's exactly.
+
+    def _init_near_cache(self, model: mujoco.MjModel, margin: float) -> None:
+        pairs = np.array(self.geom_id_pairs, dtype=int).reshape(-1, 2)
+        self._pair_g1: list[int] = [int(g) for g in pairs[:, 0]]
+        self._pair_g2: list[int] = [int(g) for g in pairs[:, 1]]
+        self._pair_b1: list[int] = [int(model.geom_bodyid[g]) for g in self._pair_g1]
+        self._pair_b2: list[int] = [int(model.geom_bodyid[g]) for g in self._pair_g2]
+        reach = _geom_motion_bounds(model)
+        pair_reach = reach[pairs[:, 0]] + reach[pairs[:, 1]] if len(pairs) else np.zeros(0)
+        # Unbounded geoms (rbound 0 on a moving body, e.g. a height field carried by the arm) cannot be
+        # bounded: then every pair is checked every cycle (margin 0: refresh each call).
+        self._pair_reach_max = float(np.max(pair_reach)) if len(pairs) else 0.0
+        self._cache_ok = bool(np.all(np.isfinite(pair_reach))) and margin > 0.0
+        self.cache_margin = margin
+        self._q_refresh: np.ndarray | None = None
+        self._near: list[int] = []  # pairs within detection distance + margin at the last refresh
+        self._rows_set: list[int] = []  # rows fill() made active last time (reset to inactive next time)
+        self._qpos_scratch = np.zeros(model.nq)
+        self.refreshes = 0
+
+    def _refresh_near(self, data: mujoco.MjData, q: np.ndarray) -> None:
+        """Narrow phase of every pair (after a bounding-sphere test) with the margin added."""
+        model = self.model
+        distmax = self.collision_detection_distance + (self.cache_margin if self._cache_ok else 0.0)
+        fromto = self._fromto
+        near: list[int] = []
+        if self.max_num_contacts:
+            candidates: Sequence[int] = range(self.max_num_contacts)
+            if self.broadphase and self.max_num_contacts >= self.broadphase_min_pairs:
+                saved = self.collision_detection_distance
+                self.collision_detection_distance = distmax  # mink's sphere test, with the wider margin
+                try:
+                    candidates = self._broadphase_survivors(data).tolist()
+                finally:
+                    self.collision_detection_distance = saved
+            for idx in sorted(int(i) for i in candidates):
+                dist = mujoco.mj_geomDistance(model, data, self._pair_g1[idx], self._pair_g2[idx], distmax, fromto)
+                if abs(dist - distmax) >= 1e-12:
+                    near.append(idx)
+        self._near = near
+        self._q_refresh = q.copy()
+        self.refreshes += 1
+
+    def fill(self, data: mujoco.MjData, q: np.ndarray, dt: float, g: np.ndarray, h: np.ndarray,
+             h_path: np.ndarray) -> None:
+        """``compute_qp_inequalities``' rows and ``h_path`` written into ``g`` (pairs x nv), ``h`` and
+        ``h_path`` (kinematics of ``data`` at the joints ``q`` must be current)."""
+        for idx in self._rows_set:  # last cycle's rows back to inactive (G = 0, h = inf)
+            g[idx] = 0.0
+            h[idx] = math.inf
+            h_path[idx] = math.inf
+        self._rows_set = []
+        if not self.max_num_contacts:
+            return
+        qr = self._q_refresh
+        if qr is None or qr.shape != q.shape or not self._cache_ok:
+            self._refresh_near(data, q)
+        else:
+            moved = self._qpos_scratch[: len(q)]
+            np.subtract(q, qr, out=moved)
+            np.abs(moved, out=moved)
+            if float(moved.sum()) * self._pair_reach_max > self.cache_margin:
+                self._refresh_near(data, q)
+        model = self.model
+        distmax = self.collision_detection_distance
+        min_dist = self.minimum_distance_from_collisions
+        gain, relax = self.gain, self.bound_relaxation
+        fromto, normal, jac1, jac2 = self._fromto, self._normal, self._jac1, self._jac2
+        horizon = dt + self.lag_s
+        u = self.path.u if self.path is not None else None
+        for idx in self._near:
+            dist = mujoco.mj_geomDistance(model, data, self._pair_g1[idx], self._pair_g2[idx], distmax, fromto)
+            if abs(dist - distmax) < 1e-12:
+                continue
+            normal[:] = fromto[3:] - fromto[:3]
+            mujoco.mju_normalize3(normal)
+            mujoco.mj_jac(model, data, jac2, None, fromto[3:], self._pair_b2[idx])
+            mujoco.mj_jac(model, data, jac1, None, fromto[:3], self._pair_b1[idx])
+            jac2 -= jac1
+            row = g[idx]
+            np.matmul(normal, jac2, out=row)
+            if dist >= 0.0:  # mink's sign: the distance must not shrink (penetrating: must grow)
+                np.negative(row, out=row)
+            h0 = (gain * (dist - min_dist) / 1.0) + relax if dist > min_dist else relax
+            gap = (h0 - relax) / gain
+            h[idx] = min(h0, dt * braking_speed_scalar(gap, self.brake_acc, horizon) + relax)
+            if u is not None and self.path is not None:
+                acc = self.path.decel_scalar(float(row @ u), self.brake_acc)
+                h_path[idx] = min(h0, dt * braking_speed_scalar(gap, acc, horizon) + relax)
+            else:
+                h_path[idx] = h0
+            self._rows_set.append(idx)
+
+
+def _geom_motion_bounds(model: mujoco.MjModel) -> np.ndarray:
+    """Per geom, a bound ``R`` on how far any of its points moves per radian of any one joint: the
+    largest distance from an upstream joint's anchor to the geom (body offsets along the chain, the
+    geom's offset and bounding radius; configuration-independent). 0 for geoms fixed to the world,
+    inf for an unbounded geom (rbound 0) that moves."""
+    out = np.zeros(model.ngeom)
+    for k in range(model.ngeom):
+        body = int(model.geom_bodyid[k])
+        tail = float(np.linalg.norm(model.geom_pos[k])) + float(model.geom_rbound[k])  # body origin -> geom
+        best = 0.0
+        moving = False
+        while body > 0:
+            for j in range(int(model.body_jntadr[body]), int(model.body_jntadr[body]) + int(model.body_jntnum[body])):
+                moving = True
+                best = max(best, float(np.linalg.norm(model.jnt_pos[j])) + tail)
+            tail += float(np.linalg.norm(model.body_pos[body]))  # this body's origin from its parent's
+            body = int(model.body_parentid[body])
+        if moving and float(model.geom_rbound[k]) <= 0.0:
+            best = math.inf
+        out[k] = best
+    return out
 
 
 def default_collision_pairs(model: mujoco.MjModel) -> list[tuple[list[str], list[str]]]:
