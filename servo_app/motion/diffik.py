@@ -294,6 +294,7 @@ class DifferentialIK:
         self._ref: np.ndarray | None = None  # integrated TCP reference pose (wxyz_xyz), Cartesian modes
         self._last_xi: np.ndarray | None = None  # last commanded twist: the line to brake along
         self._mode = ""
+        self.frame_target: np.ndarray | None = None  # the last Cartesian cycle's frame target (wxyz_xyz)
         self._layout()
         # What the last step() started from, for step_again().
         self._before: tuple[np.ndarray, np.ndarray | None, np.ndarray | None, str] | None = None
@@ -377,6 +378,7 @@ class DifferentialIK:
             else:
                 s_goal, self._last_xi = 0.0, None
             target = _advance(self._ref, xi * dt)
+            self.frame_target = target
             asks_motion = bool(xi.any())
             state_mode = cartesian_mode
         else:
@@ -404,14 +406,15 @@ class DifferentialIK:
         # back onto the integrated reference (drift, linearisation): d_corr, the optimum for the
         # reference itself. It is added unscaled so that scaling the command (even below 0 while
         # reversing) never turns the correction into a push away from the line.
+        frame_state = self._frame_state() if target is not None and _se3 is not None else None
         if target is not None:
-            p, c, c_frame = self._cartesian_objective(target)
+            p, c, c_frame = self._cartesian_objective(target, frame_state)
         else:
             p, c = self._joint_objective(q, joint_goal)
             c_frame = np.zeros(N)
         if xi is not None and asks_motion and self._ref is not None:
             # Only the frame task's linear term depends on its target: swap that term alone.
-            c_ref = c - c_frame + self._frame_terms(self._ref, None)
+            c_ref = c - c_frame + self._frame_terms(self._ref, None, frame_state)
             d, d_corr = _solve(p, -np.column_stack([c, c_ref])).T
             d = d - d_corr * (1.0 - self._correction_gain)  # the line, plus this cycle's share of the pull-back
             d_corr = d_corr * self._correction_gain
@@ -485,6 +488,15 @@ class DifferentialIK:
             c += obj.c
         p.flat[:: N + 1] += self.settings.damping
         return p, c
+
+    def qp_problem(self, target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(P, c, G, h)`` of the Cartesian cycle at the current configuration, as step() builds it:
+        the frame task toward the pose ``target`` (wxyz_xyz) plus the posture task, and every limit
+        row (G and h are the in-place arrays: valid until the next build)."""
+        state = self._frame_state() if _se3 is not None else None
+        p, c, _ = self._cartesian_objective(np.asarray(target, dtype=float), state)
+        g, h, _ = self._rows()
+        return p, c, g, h
 
     def inequalities(self) -> tuple[np.ndarray, np.ndarray]:
         """All limits stacked as ``G dq <= h`` (fixed row layout) at the current configuration: the
@@ -590,9 +602,23 @@ class DifferentialIK:
         if self.model.neq > 0:
             mujoco.mj_makeConstraint(self.model, data)
 
-    def _frame_terms(self, target: np.ndarray, h_out: np.ndarray | None) -> np.ndarray:
+    def _frame_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The TCP frame's pose (wxyz_xyz) and body Jacobian at the current configuration, as mink's
+        FrameTask reads them (``_get_transform_frame_to_world_wxyz_xyz``, ``get_frame_jacobian``)."""
+        assert _se3 is not None
+        data = self.configuration.data
+        sid = self._site_id
+        xmat = data.site_xmat[sid]
+        frame = _se3.xmat_xpos_to_wxyz_xyz(xmat, data.site_xpos[sid])
+        jw = self._jac_world
+        mujoco.mj_jacSite(self.model, data, jw[:3], jw[3:], sid)
+        return frame, _se3.se3_rotation_adjoint_from_xmat(xmat) @ jw
+
+    def _frame_terms(self, target: np.ndarray, h_out: np.ndarray | None,
+                     state: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """The frame task's linear term for the target pose ``target`` (wxyz_xyz), and its Hessian
-        written into ``h_out`` if given: mink's FrameTask objective from the same kernels."""
+        written into ``h_out`` if given: mink's FrameTask objective, from the same kernels in the same
+        order (``state``: :meth:`_frame_state`, when already computed this cycle)."""
         task = self.frame_task
         if _se3 is None:  # pragma: no cover - mink's Python path
             task.set_target(mink.SE3(target))
@@ -600,13 +626,7 @@ class DifferentialIK:
             if h_out is not None:
                 h_out[:] = obj.H
             return obj.c
-        data = self.configuration.data
-        sid = self._site_id
-        xmat, xpos = data.site_xmat[sid], data.site_xpos[sid]
-        frame = _se3.xmat_xpos_to_wxyz_xyz(xmat, xpos)
-        jw = self._jac_world
-        mujoco.mj_jacSite(self.model, data, jw[:3], jw[3:], sid)
-        jac = _se3.se3_rotation_adjoint_from_xmat(xmat) @ jw  # body Jacobian, as get_frame_jacobian
+        frame, jac = state if state is not None else self._frame_state()
         error = _se3.se3_rminus(target, frame)
         jacobian = -_se3.se3_jlog(_se3.se3_inverse_multiply(target, frame)) @ jac
         cost = self._frame_cost
@@ -614,9 +634,10 @@ class DifferentialIK:
         weighted_jacobian = cost[:, None] * jacobian
         if h_out is not None:
             np.matmul(weighted_jacobian.T, weighted_jacobian, out=h_out)
-            mu = task.lm_damping * float(weighted_error @ weighted_error)
-            if mu > 0.0:
-                h_out.flat[:: N + 1] += mu
+            if task.lm_damping > 0.0:  # mink adds mu = lm_damping * |e|^2 (0 with ours: skipped)
+                mu = task.lm_damping * float(weighted_error @ weighted_error)
+                if mu > 0.0:
+                    h_out.flat[:: N + 1] += mu
         return -weighted_error @ weighted_jacobian
 
     def _posture_terms(self, task: mink.PostureTask, cost: np.ndarray, goal: np.ndarray) -> np.ndarray:
@@ -626,11 +647,12 @@ class DifferentialIK:
         weighted_error = cost * (-task.gain * error)
         return -weighted_error * cost
 
-    def _cartesian_objective(self, target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _cartesian_objective(self, target: np.ndarray, state: tuple[np.ndarray, np.ndarray] | None
+                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(P, c) of the frame task toward ``target`` plus the posture task, with our damping, and the
         frame task's own linear term."""
         p = np.empty((N, N))
-        c_frame = self._frame_terms(target, p)
+        c_frame = self._frame_terms(target, p, state)
         pt = self.posture_task
         assert pt.target_q is not None
         cost = self._posture_cost
@@ -664,9 +686,9 @@ class DifferentialIK:
 
     # -------------------------------------------------------------------------- desired motion
     def _twist_base(self, cmd: Twist, tcp: np.ndarray) -> np.ndarray:
-        v = np.array(cmd.linear) / 1000.0
-        w = np.radians(cmd.angular)
-        xi = np.concatenate([v, w])
+        xi = np.array((*cmd.linear, *cmd.angular), dtype=float)  # one array, converted in place
+        xi[:3] /= 1000.0
+        np.radians(xi[3:], out=xi[3:])
         if cmd.frame == "tool":
             for part in (xi[:3], xi[3:]):
                 mujoco.mju_rotVecQuat(part, part.copy(), tcp[:4])
@@ -766,18 +788,24 @@ class DifferentialIK:
                                                            int(IkFlag.JOINT_LIMIT))
 
     def _binding_flags(self, g: np.ndarray, h: np.ndarray, dq: np.ndarray) -> IkFlag:
-        assert self._row_flags is not None
-        slack = h - g @ dq
-        tol = self.settings.binding_tol + 1e-6 * np.abs(h)
-        binding = np.isfinite(h) & (slack <= tol)
-        out = IkFlag(int(np.bitwise_or.reduce(self._row_flags[binding]))) if binding.any() else IkFlag.NONE
-        if self._accel_rows is not None:
-            vel_rows = self.accel_limit.velocity_bound & binding[self._accel_rows]
-            if vel_rows.any():
-                out |= IkFlag.VELOCITY_LIMIT
-            if not (binding[self._accel_rows] & ~self.accel_limit.velocity_bound).any():
-                out &= ~IkFlag.ACCEL_LIMIT
-        return out
+        assert self._row_flags is not None and self._accel_rows is not None
+        slack = g @ dq
+        np.subtract(h, slack, out=slack)
+        tol = np.abs(h)
+        tol *= 1e-6
+        tol += self.settings.binding_tol
+        binding = slack <= tol
+        binding &= np.isfinite(h)  # inactive rows (h = inf) never bind
+        if not binding.any():
+            return IkFlag.NONE
+        out = int(np.bitwise_or.reduce(self._row_flags[binding]))
+        acc_binding = binding[self._accel_rows]
+        vel_bound = self.accel_limit.velocity_bound
+        if (vel_bound & acc_binding).any():
+            out |= IkFlag.VELOCITY_LIMIT
+        if not (acc_binding & ~vel_bound).any():
+            out &= ~IkFlag.ACCEL_LIMIT
+        return IkFlag(out)
 
     def _site_pose(self, data: mujoco.MjData, site_id: int) -> np.ndarray:
         """The site's pose as mink stores an SE3: quaternion (w x y z), then position."""
@@ -826,11 +854,13 @@ def _scale_interval(direction: np.ndarray, g: np.ndarray, h: np.ndarray) -> tupl
     """The interval of ``s`` with ``g @ (s * direction) <= h`` (the rows are linear), or None."""
     a = g @ direction
     tiny = 1e-15
-    pos, neg, zero = a > tiny, a < -tiny, np.abs(a) <= tiny
-    if (h[zero] < -1e-12).any():
+    pos, neg = a > tiny, a < -tiny
+    moving = pos | neg  # the rest: |a| <= tiny (a is finite)
+    if not moving.all() and (h[~moving] < -1e-12).any():
         return None
-    s_hi = float(np.min(h[pos] / a[pos])) if pos.any() else math.inf
-    s_lo = float(np.max(h[neg] / a[neg])) if neg.any() else -math.inf
+    # ndarray methods: the same reductions as np.min / np.max with less dispatch per call.
+    s_hi = float((h[pos] / a[pos]).min()) if pos.any() else math.inf
+    s_lo = float((h[neg] / a[neg]).max()) if neg.any() else -math.inf
     return (s_lo, s_hi) if s_lo <= s_hi else None
 
 
