@@ -12,8 +12,10 @@ actually sent, so the request must already be deliverable:
    ``PostureTask`` toward the start posture, damping; limits ``ConfigurationLimit``,
    ``VelocityLimit`` and ours (:mod:`servo_app.motion.ik_limits`): joint rates in the FANUC
    convention with an acceleration bound, braking distance to every joint bound, the arm
-   configuration, optionally collisions. Assembled from the tasks' and limits' own
-   ``compute_qp_objective`` / ``compute_qp_inequalities`` (mink's QP, fixed row layout).
+   configuration, optionally collisions. mink's QP (fixed row layout), but assembled here each
+   cycle straight from MuJoCo into arrays allocated once (the same numbers the tasks'
+   ``compute_qp_objective`` and the limits' ``compute_qp_inequalities`` give; those stay for
+   comparisons and ``mink.solve_ik``): building the objects was most of the cycle's cost.
 3. **On the line**: ``d`` = the unconstrained optimum of that objective (the increment the command
    asks for). All limits are linear in the increment, so the scalars ``s`` with ``G (s d) <= h``
    form an interval: we take the ``s`` nearest 1 in it and send ``s d``. The WHOLE increment is
@@ -671,6 +673,25 @@ class DifferentialIK:
         c = self._posture_terms(jt, np.asarray(jt.cost, dtype=float), goal)
         p.flat[:: N + 1] += self.settings.damping
         return p, c
+
+    def _blend(self, d: np.ndarray, g: np.ndarray, h: np.ndarray) -> np.ndarray | None:
+        """From last cycle's increment straight toward ``sigma * d`` (``sigma``: the share of the
+        command the position and velocity rows allow; 0 brakes), as far as all rows allow. A straight
+        line in joint-velocity space is one in TCP-velocity space to first order: a ramp between the
+        old and the new direction with no joint clipped on its own."""
+        assert self._accel_rows is not None
+        h_vel = h.copy()
+        h_vel[self._accel_rows] = self.accel_limit.h_velocity
+        sigma = _path_scale(d, 1.0, g, h_vel) if d.any() else None
+        target = d * min(max(sigma, 0.0), 1.0) if sigma is not None else np.zeros(N)
+        base = self._dq_prev
+        interval = _scale_interval(target - base, g, h - g @ base)
+        if interval is None:
+            return None
+        lo, hi = max(interval[0], 0.0), min(interval[1], 1.0)
+        if lo > hi + 1e-9:  # rounding: a bound met exactly at t = 0 may read -1e-13
+            return None
+        return base + max(hi, lo) * (target - base)
 
     def to_fanuc_deg(self, q_model_rad: ArrayLike) -> np.ndarray:
         """Model joints (rad) -> FANUC joints (deg), for the shaper."""

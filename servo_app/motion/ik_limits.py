@@ -403,7 +403,7 @@ class CollisionLimit(CollisionAvoidanceLimit):
     def __init__(self, model: mujoco.MjModel, geom_pairs: Sequence, *, brake_acc: float = 3.0,
                  gain: float = 0.85, minimum_distance_from_collisions: float = 0.01,
                  collision_detection_distance: float = 0.2, path: PathBraking | None = None,
-                 cache_margin: float = 0.1) -> None:
+                 cache_margin: float = 0.3) -> None:
         super().__init__(model, geom_pairs, gain=gain,
                          minimum_distance_from_collisions=minimum_distance_from_collisions,
                          collision_detection_distance=collision_detection_distance)
@@ -444,35 +444,56 @@ class CollisionLimit(CollisionAvoidanceLimit):
         pair_reach = reach[pairs[:, 0]] + reach[pairs[:, 1]] if len(pairs) else np.zeros(0)
         # Unbounded geoms (rbound 0 on a moving body, e.g. a height field carried by the arm) cannot be
         # bounded: then every pair is checked every cycle (margin 0: refresh each call).
-        self._pair_reach_max = float(np.max(pair_reach)) if len(pairs) else 0.0
+        self._pair_reach: list[float] = [float(r) for r in pair_reach]
         self._cache_ok = bool(np.all(np.isfinite(pair_reach))) and margin > 0.0
         self.cache_margin = margin
         self._q_refresh: np.ndarray | None = None
+        self._moved_limit = -1.0  # rad of sum |q - q_refresh| before a far pair could be within detection
         self._near: list[int] = []  # pairs within detection distance + margin at the last refresh
+        self._near_dist: list[float] = []  # ... and their distance then
         self._rows_set: list[int] = []  # rows fill() made active last time (reset to inactive next time)
         self._qpos_scratch = np.zeros(model.nq)
         self.refreshes = 0
 
     def _refresh_near(self, data: mujoco.MjData, q: np.ndarray) -> None:
-        """Narrow phase of every pair (after a bounding-sphere test) with the margin added."""
+        """Classify every pair at the joints ``q``: near (within detection distance + margin: its
+        narrow phase runs each cycle, unless it is still provably beyond detection distance) or far,
+        with a lower bound on its distance (bounding spheres, or the narrow phase's cap). The next
+        refresh is due when the joints have moved enough for the closest far pair to reach
+        detection distance."""
         model = self.model
-        distmax = self.collision_detection_distance + (self.cache_margin if self._cache_ok else 0.0)
+        detect = self.collision_detection_distance
+        distmax = detect + (self.cache_margin if self._cache_ok else 0.0)
         fromto = self._fromto
+        n = self.max_num_contacts
+        bound = np.full(n, -np.inf)  # lower bound on each pair's distance now (-inf: none known)
+        xpos = data.geom_xpos
+        # mink's bounding-sphere partition (CollisionAvoidanceLimit._init_broadphase; older mink has none:
+        # then every pair gets the narrow phase at a refresh).
+        if len(getattr(self, "_ss_idx", ())):
+            diff = xpos[self._ss_g1] - xpos[self._ss_g2]
+            bound[self._ss_idx] = np.sqrt(np.einsum("ij,ij->i", diff, diff)) - self._ss_rsum
+        if len(getattr(self, "_pg_idx", ())):
+            normal = data.geom_xmat[self._pg_plane][:, [2, 5, 8]]
+            diff = xpos[self._pg_other] - xpos[self._pg_plane]
+            bound[self._pg_idx] = np.einsum("ij,ij->i", normal, diff) - self._pg_rother
         near: list[int] = []
-        if self.max_num_contacts:
-            candidates: Sequence[int] = range(self.max_num_contacts)
-            if self.broadphase and self.max_num_contacts >= self.broadphase_min_pairs:
-                saved = self.collision_detection_distance
-                self.collision_detection_distance = distmax  # mink's sphere test, with the wider margin
-                try:
-                    candidates = self._broadphase_survivors(data).tolist()
-                finally:
-                    self.collision_detection_distance = saved
-            for idx in sorted(int(i) for i in candidates):
+        near_dist: list[float] = []
+        moved_limit = math.inf
+        reach = self._pair_reach
+        for idx in range(n):
+            lb = float(bound[idx])
+            if lb <= distmax:
                 dist = mujoco.mj_geomDistance(model, data, self._pair_g1[idx], self._pair_g2[idx], distmax, fromto)
                 if abs(dist - distmax) >= 1e-12:
                     near.append(idx)
-        self._near = near
+                    near_dist.append(dist)
+                    continue
+                lb = distmax
+            if reach[idx] > 0.0:
+                moved_limit = min(moved_limit, (lb - detect) / reach[idx])
+        self._near, self._near_dist = near, near_dist
+        self._moved_limit = moved_limit if self._cache_ok else -1.0
         self._q_refresh = q.copy()
         self.refreshes += 1
 
@@ -488,14 +509,17 @@ class CollisionLimit(CollisionAvoidanceLimit):
         if not self.max_num_contacts:
             return
         qr = self._q_refresh
+        moved_rad = 0.0  # sum |q - q_refresh|
         if qr is None or qr.shape != q.shape or not self._cache_ok:
             self._refresh_near(data, q)
         else:
             moved = self._qpos_scratch[: len(q)]
             np.subtract(q, qr, out=moved)
             np.abs(moved, out=moved)
-            if float(moved.sum()) * self._pair_reach_max > self.cache_margin:
+            moved_rad = float(moved.sum())
+            if moved_rad >= self._moved_limit:
                 self._refresh_near(data, q)
+                moved_rad = 0.0
         model = self.model
         distmax = self.collision_detection_distance
         min_dist = self.minimum_distance_from_collisions
@@ -503,7 +527,10 @@ class CollisionLimit(CollisionAvoidanceLimit):
         fromto, normal, jac1, jac2 = self._fromto, self._normal, self._jac1, self._jac2
         horizon = dt + self.lag_s
         u = self.path.u if self.path is not None else None
-        for idx in self._near:
+        reach = self._pair_reach
+        for idx, dist_then in zip(self._near, self._near_dist, strict=True):
+            if dist_then - reach[idx] * moved_rad > distmax:
+                continue  # still beyond detection distance: no row, as the narrow phase would find
             dist = mujoco.mj_geomDistance(model, data, self._pair_g1[idx], self._pair_g2[idx], distmax, fromto)
             if abs(dist - distmax) < 1e-12:
                 continue
