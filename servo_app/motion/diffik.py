@@ -44,6 +44,7 @@ from __future__ import annotations
 import enum
 import itertools
 import math
+import types
 from dataclasses import dataclass, field
 
 import mink
@@ -116,6 +117,9 @@ class IkFlag(enum.IntFlag):
     NO_COMMAND = enum.auto()  # no live command: stopping along the current motion
     ARRIVED = enum.auto()  # pose / joint target reached
 
+
+# The flags as plain ints for the cycle: IntFlag's operators run Python code (several us each here).
+_B = types.SimpleNamespace(**{f.name: int(f) for f in IkFlag if f.name})
 
 LIMIT_FLAGS = IkFlag.JOINT_LIMIT | IkFlag.VELOCITY_LIMIT | IkFlag.ACCEL_LIMIT
 
@@ -344,7 +348,7 @@ class DifferentialIK:
         self._kinematics(q)
         self.accel_limit.set_previous(self._dq_prev)
         kappa = self._condition(cfg.data)
-        flags = IkFlag.NEAR_SINGULARITY if kappa > st.singularity_slow else IkFlag.NONE
+        flags = _B.NEAR_SINGULARITY if kappa > st.singularity_slow else 0  # int bits: IntFlag | costs us
         s_sing = 1.0
         xi: np.ndarray | None = None  # base-frame twist the frame task follows (Cartesian modes)
         arrived = False
@@ -362,7 +366,7 @@ class DifferentialIK:
                 xi, arrived = self._pose_twist(command, tcp)
             else:
                 mode, xi = "stop", np.zeros(6)
-                flags |= IkFlag.NO_COMMAND
+                flags |= _B.NO_COMMAND
             cartesian_mode = mode if mode != "stop" else self._mode
             if self._mode != cartesian_mode or self._ref is None or not self._near(self._ref, tcp):
                 self._ref = tcp
@@ -371,7 +375,7 @@ class DifferentialIK:
             if xi.any():
                 s_sing = self._singularity_factor(q, xi, kappa)
                 if s_sing < 1.0:
-                    flags |= IkFlag.SINGULARITY_SLOWDOWN
+                    flags |= _B.SINGULARITY_SLOWDOWN
                 xi = xi * s_sing
                 s_goal = 1.0
                 self._last_xi = xi
@@ -393,7 +397,7 @@ class DifferentialIK:
                 d_des, arrived = self._target_increment(command, q)
             elif command is None:
                 mode, d_des = "stop", np.zeros(N)
-                flags |= IkFlag.NO_COMMAND
+                flags |= _B.NO_COMMAND
             else:
                 raise TypeError(f"command={command!r} is not a motion command")
             joint_goal = q + d_des
@@ -401,7 +405,7 @@ class DifferentialIK:
             s_goal = 1.0 if asks_motion else 0.0
             state_mode = mode
         if arrived:
-            flags |= IkFlag.ARRIVED
+            flags |= _B.ARRIVED
         self._mode = state_mode  # a Cartesian stop keeps its mode: the reference pose stays valid
 
         # d: the increment the command asks for (P is positive definite). Part of d only pulls the TCP
@@ -449,24 +453,24 @@ class DifferentialIK:
                 if dq is None:
                     dq = self._blend(goal, g, h)
                 if dq is not None:
-                    flags |= IkFlag.PATH_BLEND
+                    flags |= _B.PATH_BLEND
         if dq is None:  # 3. the QP's best tracking within every limit; 4. every joint brakes
             sol = self._qp_solve(p, c, g, h)
             solver_status = sol.status
             if sol.ok:
                 dq = sol.x
-                flags |= IkFlag.QP_FALLBACK
+                flags |= _B.QP_FALLBACK
             else:
                 dq = self._decelerate()
-                flags |= IkFlag.SOLVER_FAILED
+                flags |= _B.SOLVER_FAILED
         dd = float(d @ d)
         scale = min(max(float(dq @ d) / dd, 0.0), 1.0) * s_sing if s_goal == 1.0 and dd > 0.0 else 0.0
         flags |= self._binding_flags(g, h, dq)
         if not np.isfinite(dq).all():  # defensive: every branch above is finite by construction
             dq = np.zeros(N)
-            flags |= IkFlag.SOLVER_FAILED
+            flags |= _B.SOLVER_FAILED
         self._dq_prev = dq.copy()
-        return IkResult(dq=dq, q_next=q + dq, velocity=dq / dt, scale=float(scale), flags=flags,
+        return IkResult(dq=dq, q_next=q + dq, velocity=dq / dt, scale=float(scale), flags=IkFlag(flags),
                         condition=kappa, mode=mode, solver_status=solver_status)
 
     def step_again(self, q_model_rad: ArrayLike, command: Command | None, *, dq_prev: ArrayLike | None = None
@@ -808,7 +812,7 @@ class DifferentialIK:
             self._row_flags[self._braking_rows] = np.where(self.braking_limit.restricted, int(IkFlag.CONFIGURATION),
                                                            int(IkFlag.JOINT_LIMIT))
 
-    def _binding_flags(self, g: np.ndarray, h: np.ndarray, dq: np.ndarray) -> IkFlag:
+    def _binding_flags(self, g: np.ndarray, h: np.ndarray, dq: np.ndarray) -> int:
         assert self._row_flags is not None and self._accel_rows is not None
         slack = g @ dq
         np.subtract(h, slack, out=slack)
@@ -818,15 +822,15 @@ class DifferentialIK:
         binding = slack <= tol
         binding &= np.isfinite(h)  # inactive rows (h = inf) never bind
         if not binding.any():
-            return IkFlag.NONE
+            return 0
         out = int(np.bitwise_or.reduce(self._row_flags[binding]))
         acc_binding = binding[self._accel_rows]
         vel_bound = self.accel_limit.velocity_bound
         if (vel_bound & acc_binding).any():
-            out |= IkFlag.VELOCITY_LIMIT
+            out |= _B.VELOCITY_LIMIT
         if not (acc_binding & ~vel_bound).any():
-            out &= ~IkFlag.ACCEL_LIMIT
-        return IkFlag(out)
+            out &= ~_B.ACCEL_LIMIT
+        return out
 
     def _site_pose(self, data: mujoco.MjData, site_id: int) -> np.ndarray:
         """The site's pose as mink stores an SE3: quaternion (w x y z), then position."""
@@ -843,16 +847,17 @@ class DifferentialIK:
         (+20 %) and swung back: only the error across the line is the IK's to correct."""
         w = self._track_weights
         err = np.concatenate([tcp[4:] - ref[4:], _rotation_between(tcp, ref)])
-        norm = float(xi @ (w * xi))
+        wxi = w * xi
+        norm = float(xi @ wxi)
         if norm <= 0.0:
             return ref
-        return _advance(ref, (float(err @ (w * xi)) / norm) * xi)
+        return _advance(ref, (float(err @ wxi) / norm) * xi)
 
     def _near(self, a: np.ndarray, b: np.ndarray) -> bool:
         tol = self.settings.reference_tolerance_m
-        if float(np.linalg.norm(a[4:] - b[4:])) > tol:
+        if _norm(a[4:] - b[4:]) > tol:
             return False
-        return float(np.linalg.norm(_rotation_between(a, b))) * self._reach <= tol
+        return _norm(_rotation_between(a, b)) * self._reach <= tol
 
     def _full_q(self, q: np.ndarray) -> np.ndarray:
         full = self.configuration.data.qpos.copy()
@@ -871,6 +876,11 @@ class DifferentialIK:
 
 
 # ------------------------------------------------------------------------------ pure functions
+def _norm(v: np.ndarray) -> float:
+    """``np.linalg.norm`` of a vector (it is ``sqrt(v . v)``), without its dispatch."""
+    return math.sqrt(float(v @ v))
+
+
 def _scale_interval(direction: np.ndarray, g: np.ndarray, h: np.ndarray) -> tuple[float, float] | None:
     """The interval of ``s`` with ``g @ (s * direction) <= h`` (the rows are linear), or None."""
     a = g @ direction

@@ -109,12 +109,12 @@ class PathBraking:
             self.u, self.rate = None, math.inf
             return
         uf = np.abs(self.c @ u)
-        moving = uf > 1e-12 * max(float(np.max(uf)), 1e-300)
+        moving = uf > 1e-12 * max(float(uf.max()), 1e-300)
         if not moving.any():
             self.u, self.rate = None, math.inf
             return
         self.u = np.asarray(u, dtype=float).copy()
-        self.rate = float(np.min(self.brake[moving] / uf[moving]))
+        self.rate = float((self.brake[moving] / uf[moving]).min())
 
     def decel(self, grad_dot_u: np.ndarray, caps: np.ndarray | float) -> np.ndarray:
         """Deceleration for rows whose closing rate along ``u`` is ``grad_dot_u`` (per unit of s)."""
