@@ -86,14 +86,14 @@ class PersistentQP:
         qs = q / s
         hs = np.minimum(h / s, INF)
         self.solves += 1
-        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(qs)) and np.all(np.isfinite(g))
-                and not np.any(np.isnan(hs))):
+        # ndarray methods rather than np.all / np.any: the same checks with less dispatch (per cycle).
+        if not (np.isfinite(p).all() and np.isfinite(qs).all() and np.isfinite(g).all() and not np.isnan(hs).any()):
             return self._fail("non-finite data")
         if self.solver == "osqp":
             xs, status, iters, exact = self._solve_osqp(p, qs, g, hs)
         else:
             xs, status, iters, exact = self._solve_daqp(p, qs, g, hs)
-        if xs is None or not np.all(np.isfinite(xs)):
+        if xs is None or not np.isfinite(xs).all():
             return self._fail(status, iters)
         if not exact and m and float(np.max(g @ xs - hs)) > self.settings.feasibility_tol / s:
             return self._fail(status, iters)
