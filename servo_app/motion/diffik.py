@@ -544,6 +544,9 @@ class DifferentialIK:
             self._cfg_qpos = idx
             self._cfg_upper, self._cfg_lower = cfg_lim.upper[idx].copy(), cfg_lim.lower[idx].copy()
             self._cfg_gain = float(cfg_lim.gain)
+            self._cfg_qpos_l = [int(i) for i in idx]
+            self._cfg_upper_l, self._cfg_lower_l = self._cfg_upper.tolist(), self._cfg_lower.tolist()
+        self._qadr_l = [int(i) for i in self._qadr]
         if n_vel:
             g[sl[1]] = np.vstack([vel_lim.projection_matrix, -vel_lim.projection_matrix])
             h[sl[1]] = np.hstack([self.dt * vel_lim.limit, self.dt * vel_lim.limit])  # constant
@@ -578,16 +581,13 @@ class DifferentialIK:
         ``accel_limit.dq_prev``, ``path_braking``), so both stay interchangeable."""
         g, h, hp, sl, dt = self._g, self._h, self._hp, self._sl, self.dt
         data = self.configuration.data
-        qpos = data.qpos
-        q = qpos[self._qadr]
-        if self._row_counts[0]:
-            n = self._row_counts[0] // 2
-            qc = qpos[self._cfg_qpos]
-            cfg_h = self._cfg_h
-            np.subtract(self._cfg_upper, qc, out=cfg_h[:n])
-            np.subtract(qc, self._cfg_lower, out=cfg_h[n:])
-            cfg_h *= self._cfg_gain
-            h[sl[0]] = cfg_h
+        qpos = data.qpos.tolist()  # floats: the small row blocks cost less in float arithmetic
+        q = [qpos[i] for i in self._qadr_l]
+        if self._row_counts[0]:  # mink's ConfigurationLimit: gain * (upper - q), gain * (q - lower)
+            gain = self._cfg_gain
+            qc = [qpos[i] for i in self._cfg_qpos_l]
+            h[sl[0]] = ([gain * (u - x) for u, x in zip(self._cfg_upper_l, qc, strict=True)]
+                        + [gain * (x - lo) for x, lo in zip(qc, self._cfg_lower_l, strict=True)])
         self.accel_limit.fill(dt, h[sl[2]])
         self.braking_limit.fill(q, dt, h[sl[3]], hp[sl[3]])
         i = sl[4].start
@@ -811,24 +811,28 @@ class DifferentialIK:
         if self._row_flags is not None and self._braking_rows is not None:
             self._row_flags[self._braking_rows] = np.where(self.braking_limit.restricted, int(IkFlag.CONFIGURATION),
                                                            int(IkFlag.JOINT_LIMIT))
+            self._row_flags_l: list[int] = self._row_flags.tolist()
 
     def _binding_flags(self, g: np.ndarray, h: np.ndarray, dq: np.ndarray) -> int:
         assert self._row_flags is not None and self._accel_rows is not None
-        slack = g @ dq
-        np.subtract(h, slack, out=slack)
-        tol = np.abs(h)
-        tol *= 1e-6
-        tol += self.settings.binding_tol
-        binding = slack <= tol
-        binding &= np.isfinite(h)  # inactive rows (h = inf) never bind
-        if not binding.any():
-            return 0
-        out = int(np.bitwise_or.reduce(self._row_flags[binding]))
-        acc_binding = binding[self._accel_rows]
+        # One pass in float arithmetic: slack = h - G dq, binding within binding_tol + 1e-6 |h|,
+        # inactive rows (h = inf) never bind; an acceleration row whose bound is the velocity one
+        # raises VELOCITY_LIMIT, and ACCEL_LIMIT stays only if a row bound by acceleration binds.
+        tol0 = self.settings.binding_tol
+        flags = self._row_flags_l
+        lo, hi_row = self._accel_rows.start, self._accel_rows.stop
         vel_bound = self.accel_limit.velocity_bound
-        if (vel_bound & acc_binding).any():
-            out |= _B.VELOCITY_LIMIT
-        if not (acc_binding & ~vel_bound).any():
+        out = 0
+        accel_binds = False
+        for i, (a, hv) in enumerate(zip((g @ dq).tolist(), h.tolist(), strict=True)):
+            if hv - a <= tol0 + 1e-6 * abs(hv) and math.isfinite(hv):
+                out |= flags[i]
+                if lo <= i < hi_row:
+                    if vel_bound[i - lo]:
+                        out |= _B.VELOCITY_LIMIT
+                    else:
+                        accel_binds = True
+        if not accel_binds:
             out &= ~_B.ACCEL_LIMIT
         return out
 
@@ -883,15 +887,21 @@ def _norm(v: np.ndarray) -> float:
 
 def _scale_interval(direction: np.ndarray, g: np.ndarray, h: np.ndarray) -> tuple[float, float] | None:
     """The interval of ``s`` with ``g @ (s * direction) <= h`` (the rows are linear), or None."""
-    a = g @ direction
+    # One pass over the rows in float arithmetic: the same divisions, minimum and maximum as masks
+    # and reductions over numpy arrays would give, for a fraction of the calls (~2 us each here).
     tiny = 1e-15
-    pos, neg = a > tiny, a < -tiny
-    moving = pos | neg  # the rest: |a| <= tiny (a is finite)
-    if not moving.all() and (h[~moving] < -1e-12).any():
-        return None
-    # ndarray methods: the same reductions as np.min / np.max with less dispatch per call.
-    s_hi = float((h[pos] / a[pos]).min()) if pos.any() else math.inf
-    s_lo = float((h[neg] / a[neg]).max()) if neg.any() else -math.inf
+    s_hi, s_lo = math.inf, -math.inf
+    for ai, hi in zip((g @ direction).tolist(), h.tolist(), strict=True):
+        if ai > tiny:
+            r = hi / ai
+            if r < s_hi:
+                s_hi = r
+        elif ai < -tiny:
+            r = hi / ai
+            if r > s_lo:
+                s_lo = r
+        elif hi < -1e-12:  # a row the direction does not move is violated already
+            return None
     return (s_lo, s_hi) if s_lo <= s_hi else None
 
 

@@ -101,20 +101,33 @@ class PathBraking:
         self.brake = np.asarray(brake_fanuc, dtype=float)
         self.floor = floor
         self.u: np.ndarray | None = None
+        self.u_list: list[float] = []  # u as floats (the rows of the cycle are computed in float arithmetic)
         self.rate = math.inf
+        # C's non-zero entries per row, and the caps, as floats: a 6-vector costs less in float
+        # arithmetic than in numpy calls (~2 us each here).
+        self._c_rows = [[(k, float(v)) for k, v in enumerate(row) if v != 0.0] for row in self.c]
+        self._brake_l = [float(b) for b in self.brake]
 
     def set_direction(self, u: np.ndarray | None) -> None:
         """The joint-space direction (model convention, any scale) the arm moves or will move along."""
         if u is None:
-            self.u, self.rate = None, math.inf
+            self.u, self.u_list, self.rate = None, [], math.inf
             return
-        uf = np.abs(self.c @ u)
-        moving = uf > 1e-12 * max(float(uf.max()), 1e-300)
-        if not moving.any():
-            self.u, self.rate = None, math.inf
+        ul = np.asarray(u, dtype=float).tolist()
+        uf = []
+        for row in self._c_rows:  # |C u|, the products summed in column order as the matrix product does
+            acc = 0.0
+            for k, v in row:
+                acc += v * ul[k]
+            uf.append(abs(acc))
+        tiny = 1e-12 * max(max(uf), 1e-300)
+        rates = [b / f for b, f in zip(self._brake_l, uf, strict=True) if f > tiny]
+        if not rates:
+            self.u, self.u_list, self.rate = None, [], math.inf
             return
-        self.u = np.asarray(u, dtype=float).copy()
-        self.rate = float((self.brake[moving] / uf[moving]).min())
+        self.u = np.array(ul)
+        self.u_list = ul
+        self.rate = min(rates)
 
     def decel(self, grad_dot_u: np.ndarray, caps: np.ndarray | float) -> np.ndarray:
         """Deceleration for rows whose closing rate along ``u`` is ``grad_dot_u`` (per unit of s)."""
@@ -161,11 +174,11 @@ class AccelerationLimit(Limit):
         self.dq_prev = np.zeros(6)
         self.velocity_bound = np.zeros(12, dtype=bool)  # rows whose bound came from vel (else acc)
         self.h_velocity = np.full(12, np.inf)  # the same rows with the velocity bound only
-        # fill(): C stacked over -C (the 12 rows' own coefficients in FANUC axes) and scratch rows.
-        self._c12 = np.vstack([self.c, -self.c])
+        # fill(): C's non-zero entries per row, and the per-cycle bounds, as floats (set per dt).
+        self._c_rows = [[(k, float(v)) for k, v in enumerate(row) if v != 0.0] for row in self.c]
         self._dt = math.nan
-        self._vmax12, self._da12 = np.zeros(12), np.zeros(12)
-        self._lo12, self._hi12 = np.zeros(12), np.zeros(12)
+        self._vmax_l: list[float] = []
+        self._da_l: list[float] = []
 
     def set_previous(self, dq_prev: np.ndarray) -> None:
         self.dq_prev = np.asarray(dq_prev, dtype=float).copy()
@@ -183,24 +196,33 @@ class AccelerationLimit(Limit):
         return Constraint(G=self._g, h=np.concatenate([upper, -lower]))
 
     def fill(self, dt: float, h: np.ndarray) -> None:
-        """``compute_qp_inequalities``' rows written into ``h`` (12), with no Constraint built.
+        """``compute_qp_inequalities``' rows written into ``h`` (12), with no Constraint built, in
+        float arithmetic (the same operations in the same order as the reference's numpy ones).
 
-        Both halves in one pass over 12 rows: the lower bounds negated are the upper bounds of
-        ``-p`` (``-max(min(-v, p + a), p - a) == min(max(v, -p - a), -p + a)``, negation is exact),
-        so the numbers are the reference's to the bit."""
+        The lower bounds negated are the upper bounds of ``-p``: ``-max(min(-v, p + a), p - a) ==
+        min(max(v, -p - a), -p + a)`` (negation is exact)."""
         if self._dt != dt:
             self._dt = dt
             vmax = self.vel * dt
-            self._vmax12 = np.concatenate([vmax, vmax])
-            self._da12 = np.concatenate([self.acc, self.acc]) * dt * dt  # as the reference rounds it
-            self.h_velocity = self._vmax12.copy()
-        p = self._c12 @ self.dq_prev
-        np.subtract(p, self._da12, out=self._lo12)
-        np.add(p, self._da12, out=self._hi12)
-        np.maximum(self._vmax12, self._lo12, out=h)
-        np.minimum(h, self._hi12, out=h)
-        np.less(h, self._hi12, out=self.velocity_bound)
-
+            self._vmax_l = vmax.tolist()
+            self._da_l = (self.acc * dt * dt).tolist()  # as the reference rounds it
+            self.h_velocity = np.concatenate([vmax, vmax])
+        prev = self.dq_prev.tolist()
+        out: list[float] = []
+        bound: list[bool] = []
+        for sign in (1.0, -1.0):
+            for row, v, a in zip(self._c_rows, self._vmax_l, self._da_l, strict=True):
+                p = 0.0
+                for k, c in row:
+                    p += c * prev[k]
+                p = sign * p
+                hi = p + a
+                x = max(v, p - a)
+                x = hi if hi < x else x
+                out.append(x)
+                bound.append(x < hi)
+        h[:] = out
+        self.velocity_bound[:] = bound
 
 class BrakingLimit(Limit):
     """Each joint stays within ``[lower, upper]`` (model convention, rad) and can always stop before
@@ -234,7 +256,11 @@ class BrakingLimit(Limit):
         self._g = g
         self._bound = np.concatenate([self.range_upper, -self.range_lower])  # row i: g_i @ q <= bound_i
         self.restricted = np.zeros(12, dtype=bool)
-        self._dist, self._scratch, self._acc_path = np.zeros(12), np.zeros(12), np.zeros(12)  # fill()'s
+        # fill()'s floats: bounds, braking decelerations, dof columns.
+        self._bound_l: list[float] = self._bound.tolist()
+        self._acc_l: list[float] = self._acc.tolist()
+        self._brake_l: list[float] = self.brake_acc.tolist()
+        self._cols_l: list[int] = [int(c) for c in cols]
 
     @property
     def lower(self) -> np.ndarray:
@@ -250,6 +276,7 @@ class BrakingLimit(Limit):
         hi = np.minimum(self.range_upper, upper)
         self.restricted = np.concatenate([hi < self.range_upper, lo > self.range_lower])
         self._bound = np.concatenate([hi, -lo])
+        self._bound_l = self._bound.tolist()
 
     def compute_qp_inequalities(self, configuration: Configuration, dt: float) -> Constraint:
         q = configuration.data.qpos[self._qadr]
@@ -262,22 +289,37 @@ class BrakingLimit(Limit):
             self.h_path = dt * braking_speed(distance, np.concatenate([acc, acc]), horizon)
         return Constraint(G=self._g, h=h)
 
-    def fill(self, q: np.ndarray, dt: float, h: np.ndarray, h_path: np.ndarray) -> None:
-        """``compute_qp_inequalities``' rows and ``h_path`` for the joints ``q`` (model order), written
-        into ``h`` and ``h_path`` (12 each) with no Constraint built."""
-        dist = self._dist
-        np.subtract(self._bound[:6], q, out=dist[:6])
-        np.add(self._bound[6:], q, out=dist[6:])  # bound - (-q)
+    def fill(self, q: list[float], dt: float, h: np.ndarray, h_path: np.ndarray) -> None:
+        """``compute_qp_inequalities``' rows and ``h_path`` for the joints ``q`` (model order, floats),
+        written into ``h`` and ``h_path`` (12 each) with no Constraint built: float arithmetic, the
+        reference's operations in its order (``dt * braking_speed(...)``)."""
+        bound = self._bound_l
+        acc = self._acc_l
         horizon = dt + self.lag_s
-        _braking_into(dist, self._acc, horizon, dt, h, self._scratch)
-        if self.path is not None and self.path.u is not None:
-            acc = self._acc_path
-            self.path.decel_into(self.path.u[self._cols], self.brake_acc, acc[:6])
-            acc[6:] = acc[:6]
-            _braking_into(dist, acc, horizon, dt, h_path, self._scratch)
+        t2 = horizon * horizon
+        dist = [b - x for b, x in zip(bound[:6], q, strict=True)] + [b + x for b, x in zip(bound[6:], q, strict=True)]
+        out = []
+        for d, a in zip(dist, acc, strict=True):
+            d = d if d > 0.0 else 0.0
+            out.append(dt * (a * (math.sqrt(t2 + 2.0 * d / a) - horizon)))
+        h[:] = out
+        path = self.path
+        if path is not None and path.u is not None:
+            u, rate, floor = path.u_list, path.rate, path.floor
+            cols = self._cols_l
+            acc6 = []
+            for cap, i in zip(self._brake_l, cols, strict=True):
+                x = rate * abs(u[i])
+                fc = floor * cap
+                x = fc if fc > x else x
+                acc6.append(cap if cap < x else x)
+            out = []
+            for d, a in zip(dist, acc6 + acc6, strict=True):
+                d = d if d > 0.0 else 0.0
+                out.append(dt * (a * (math.sqrt(t2 + 2.0 * d / a) - horizon)))
+            h_path[:] = out
         else:
             h_path[:] = h
-
 
 @dataclass(frozen=True)
 class ConfigurationMargins:
@@ -381,8 +423,8 @@ class ConfigurationGuard(Limit):
         h = dt * braking_speed_scalar(distance, acc, horizon)
         h_path = h
         if self.path is not None and self.path.u is not None:
-            u = self.path.u
-            acc = self.path.decel_scalar(g1 * float(u[self._cols[1]]) + g2 * float(u[self._cols[2]]), acc)
+            u = self.path.u_list
+            acc = self.path.decel_scalar(g1 * u[self._cols[1]] + g2 * u[self._cols[2]], acc)
             h_path = dt * braking_speed_scalar(distance, acc, horizon)
         return h, h_path
 
@@ -447,15 +489,17 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self._pair_reach: list[float] = [float(r) for r in pair_reach]
         self._cache_ok = bool(np.all(np.isfinite(pair_reach))) and margin > 0.0
         self.cache_margin = margin
-        self._q_refresh: np.ndarray | None = None
+        self._q_refresh: list[float] | None = None
         self._moved_limit = -1.0  # rad of sum |q - q_refresh| before a far pair could be within detection
         self._near: list[int] = []  # pairs within detection distance + margin at the last refresh
         self._near_dist: list[float] = []  # ... and their distance then
         self._rows_set: list[int] = []  # rows fill() made active last time (reset to inactive next time)
-        self._qpos_scratch = np.zeros(model.nq)
+        # Views made once for the MuJoCo kernels (the arrays are mink's scratch, kept for the limit's life).
+        self._from_pt, self._to_pt = self._fromto[:3], self._fromto[3:]
+        self._jac1_flat, self._jac2_flat = self._jac1.reshape(-1), self._jac2.reshape(-1)
         self.refreshes = 0
 
-    def _refresh_near(self, data: mujoco.MjData, q: np.ndarray) -> None:
+    def _refresh_near(self, data: mujoco.MjData, q: list[float]) -> None:
         """Classify every pair at the joints ``q``: near (within detection distance + margin: its
         narrow phase runs each cycle, unless it is still provably beyond detection distance) or far,
         with a lower bound on its distance (bounding spheres, or the narrow phase's cap). The next
@@ -494,10 +538,10 @@ class CollisionLimit(CollisionAvoidanceLimit):
                 moved_limit = min(moved_limit, (lb - detect) / reach[idx])
         self._near, self._near_dist = near, near_dist
         self._moved_limit = moved_limit if self._cache_ok else -1.0
-        self._q_refresh = q.copy()
+        self._q_refresh = list(q)
         self.refreshes += 1
 
-    def fill(self, data: mujoco.MjData, q: np.ndarray, dt: float, g: np.ndarray, h: np.ndarray,
+    def fill(self, data: mujoco.MjData, q: list[float], dt: float, g: np.ndarray, h: np.ndarray,
              h_path: np.ndarray) -> None:
         """``compute_qp_inequalities``' rows and ``h_path`` written into ``g`` (pairs x nv), ``h`` and
         ``h_path`` (kinematics of ``data`` at the joints ``q`` must be current)."""
@@ -510,13 +554,11 @@ class CollisionLimit(CollisionAvoidanceLimit):
             return
         qr = self._q_refresh
         moved_rad = 0.0  # sum |q - q_refresh|
-        if qr is None or qr.shape != q.shape or not self._cache_ok:
+        if qr is None or len(qr) != len(q) or not self._cache_ok:
             self._refresh_near(data, q)
         else:
-            moved = self._qpos_scratch[: len(q)]
-            np.subtract(q, qr, out=moved)
-            np.abs(moved, out=moved)
-            moved_rad = float(moved.sum())
+            for a, b in zip(q, qr, strict=True):
+                moved_rad += abs(a - b)
             if moved_rad >= self._moved_limit:
                 self._refresh_near(data, q)
                 moved_rad = 0.0
@@ -524,7 +566,9 @@ class CollisionLimit(CollisionAvoidanceLimit):
         distmax = self.collision_detection_distance
         min_dist = self.minimum_distance_from_collisions
         gain, relax = self.gain, self.bound_relaxation
-        fromto, normal, jac1, jac2 = self._fromto, self._normal, self._jac1, self._jac2
+        normal, jac1, jac2 = self._normal, self._jac1, self._jac2
+        fromto, from_pt, to_pt = self._fromto, self._from_pt, self._to_pt
+        jac1_flat, jac2_flat = self._jac1_flat, self._jac2_flat
         horizon = dt + self.lag_s
         u = self.path.u if self.path is not None else None
         reach = self._pair_reach
@@ -534,20 +578,21 @@ class CollisionLimit(CollisionAvoidanceLimit):
             dist = mujoco.mj_geomDistance(model, data, self._pair_g1[idx], self._pair_g2[idx], distmax, fromto)
             if abs(dist - distmax) < 1e-12:
                 continue
-            normal[:] = fromto[3:] - fromto[:3]
+            # mink's compute_contact_normal_jacobian, with MuJoCo's vector kernels on views made once
+            mujoco.mju_sub3(normal, to_pt, from_pt)
             mujoco.mju_normalize3(normal)
-            mujoco.mj_jac(model, data, jac2, None, fromto[3:], self._pair_b2[idx])
-            mujoco.mj_jac(model, data, jac1, None, fromto[:3], self._pair_b1[idx])
-            jac2 -= jac1
+            mujoco.mj_jac(model, data, jac2, None, to_pt, self._pair_b2[idx])
+            mujoco.mj_jac(model, data, jac1, None, from_pt, self._pair_b1[idx])
+            mujoco.mju_subFrom(jac2_flat, jac1_flat)
             row = g[idx]
-            np.matmul(normal, jac2, out=row)
+            mujoco.mju_mulMatTVec(row, jac2, normal)
             if dist >= 0.0:  # mink's sign: the distance must not shrink (penetrating: must grow)
-                np.negative(row, out=row)
+                mujoco.mju_scl(row, row, -1.0)
             h0 = (gain * (dist - min_dist) / 1.0) + relax if dist > min_dist else relax
             gap = (h0 - relax) / gain
             h[idx] = min(h0, dt * braking_speed_scalar(gap, self.brake_acc, horizon) + relax)
             if u is not None and self.path is not None:
-                acc = self.path.decel_scalar(float(row @ u), self.brake_acc)
+                acc = self.path.decel_scalar(mujoco.mju_dot(row, u), self.brake_acc)
                 h_path[idx] = min(h0, dt * braking_speed_scalar(gap, acc, horizon) + relax)
             else:
                 h_path[idx] = h0
