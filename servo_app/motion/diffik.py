@@ -571,7 +571,13 @@ class DifferentialIK:
         self._jac_world = np.zeros((6, model.nv))
         self._jac_flange = np.zeros((6, model.nv))
         self._frame_cost = np.asarray(self.frame_task.cost, dtype=float).copy()
+        self._frame_cost_col = self._frame_cost[:, None].copy()
         self._posture_cost = np.asarray(self.posture_task.cost, dtype=float).copy()
+        self._posture_h = self._posture_cost * self._posture_cost
+        self._posture_goal = np.zeros(N)  # the posture task's target in model order ...
+        self._posture_src: np.ndarray | None = None  # ... taken from this array of the task's
+        self._p = np.zeros((N, N))
+        self._p_diag = self._p.reshape(-1)[:: N + 1]
 
     def _rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(G, h, h_path)`` at the current configuration, in the arrays allocated by ``_layout``.
@@ -637,7 +643,7 @@ class DifferentialIK:
         jacobian = -_se3.se3_jlog(_se3.se3_inverse_multiply(target, frame)) @ jac
         cost = self._frame_cost
         weighted_error = cost * (-task.gain * error)
-        weighted_jacobian = cost[:, None] * jacobian
+        weighted_jacobian = self._frame_cost_col * jacobian
         if h_out is not None:
             np.matmul(weighted_jacobian.T, weighted_jacobian, out=h_out)
             if task.lm_damping > 0.0:  # mink adds mu = lm_damping * |e|^2 (0 with ours: skipped)
@@ -653,21 +659,32 @@ class DifferentialIK:
         weighted_error = cost * (-task.gain * error)
         return -weighted_error * cost
 
+    def _posture_linear(self, q: np.ndarray) -> np.ndarray:
+        """:meth:`_posture_terms` of the posture task at the joints ``q`` (the configuration's)."""
+        pt = self.posture_task
+        if pt.target_q is not self._posture_src:  # set_target stores a new array: model order, once
+            assert pt.target_q is not None
+            self._posture_src = pt.target_q
+            self._posture_goal = pt.target_q[self._qadr]
+        weighted_error = self._posture_cost * (-pt.gain * (q - self._posture_goal))
+        return -weighted_error * self._posture_cost
+
     def _cartesian_objective(self, target: np.ndarray, state: tuple[np.ndarray, np.ndarray] | None
                              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(P, c) of the frame task toward ``target`` plus the posture task, with our damping, and the
         frame task's own linear term."""
-        p = np.empty((N, N))
+        p = self._p  # written in place (consumed within the cycle)
         c_frame = self._frame_terms(target, p, state)
         pt = self.posture_task
         assert pt.target_q is not None
-        cost = self._posture_cost
-        p.flat[:: N + 1] += cost * cost
+        diag = self._p_diag  # a view of p's diagonal
+        diag += self._posture_h  # the posture task's Hessian, cost**2 on the diagonal (mink adds all of it)
+        q = self.configuration.data.qpos[self._qadr]
+        c = c_frame + self._posture_linear(q)
         if pt.lm_damping > 0.0:  # pragma: no cover - ours is 0
-            e = cost * (-pt.gain * (self.configuration.data.qpos[self._qadr] - pt.target_q[self._qadr]))
-            p.flat[:: N + 1] += pt.lm_damping * float(e @ e)
-        c = c_frame + self._posture_terms(pt, cost, pt.target_q[self._qadr])
-        p.flat[:: N + 1] += self.settings.damping
+            e = self._posture_cost * (-pt.gain * (q - self._posture_goal))
+            diag += pt.lm_damping * float(e @ e)
+        diag += self.settings.damping
         return p, c, c_frame
 
     def _joint_objective(self, q: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
