@@ -484,15 +484,27 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self._pair_b2: list[int] = [int(model.geom_bodyid[g]) for g in self._pair_g2]
         reach = _geom_motion_bounds(model)
         pair_reach = reach[pairs[:, 0]] + reach[pairs[:, 1]] if len(pairs) else np.zeros(0)
+        # Per pair and joint: how fast the pair's distance can change with that joint. A joint
+        # upstream of both geoms turns them together (no change): only the joints between them count.
+        per_joint = _geom_joint_bounds(model)
+        weights = np.zeros((len(pairs), model.nv))
+        for i, (g1, g2) in enumerate(pairs):
+            r1, r2 = per_joint[g1], per_joint[g2]
+            both = (r1 > 0.0) & (r2 > 0.0)
+            weights[i] = np.where(both, 0.0, r1 + r2)
+        self._pair_weights = weights
         # Unbounded geoms (rbound 0 on a moving body, e.g. a height field carried by the arm) cannot be
         # bounded: then every pair is checked every cycle (margin 0: refresh each call).
         self._pair_reach: list[float] = [float(r) for r in pair_reach]
         self._cache_ok = bool(np.all(np.isfinite(pair_reach))) and margin > 0.0
         self.cache_margin = margin
         self._q_refresh: list[float] | None = None
-        self._moved_limit = -1.0  # rad of sum |q - q_refresh| before a far pair could be within detection
+        self._q_refresh_arr = np.zeros(0)
+        self._near_weights = self._far_weights = np.zeros((0, model.nv))
+        self._far_slack = np.zeros(0)
         self._near: list[int] = []  # pairs within detection distance + margin at the last refresh
         self._near_dist: list[float] = []  # ... and their distance then
+        self._near_q = np.zeros((0, model.nv))
         self._rows_set: list[int] = []  # rows fill() made active last time (reset to inactive next time)
         # Views made once for the MuJoCo kernels (the arrays are mink's scratch, kept for the limit's life).
         self._from_pt, self._to_pt = self._fromto[:3], self._fromto[3:]
@@ -523,8 +535,8 @@ class CollisionLimit(CollisionAvoidanceLimit):
             bound[self._pg_idx] = np.einsum("ij,ij->i", normal, diff) - self._pg_rother
         near: list[int] = []
         near_dist: list[float] = []
-        moved_limit = math.inf
-        reach = self._pair_reach
+        far: list[int] = []
+        far_lb: list[float] = []
         for idx in range(n):
             lb = float(bound[idx])
             if lb <= distmax:
@@ -534,11 +546,15 @@ class CollisionLimit(CollisionAvoidanceLimit):
                     near_dist.append(dist)
                     continue
                 lb = distmax
-            if reach[idx] > 0.0:
-                moved_limit = min(moved_limit, (lb - detect) / reach[idx])
+            far.append(idx)
+            far_lb.append(lb)
         self._near, self._near_dist = near, near_dist
-        self._moved_limit = moved_limit if self._cache_ok else -1.0
+        self._near_q = np.tile(np.asarray(q, dtype=float), (len(near), 1))  # joints when each was measured
+        self._near_weights = self._pair_weights[near]
+        self._far_weights = self._pair_weights[far]
+        self._far_slack = np.array(far_lb) - detect  # how far each far pair may drift before it matters
         self._q_refresh = list(q)
+        self._q_refresh_arr = np.array(q)
         self.refreshes += 1
 
     def fill(self, data: mujoco.MjData, q: list[float], dt: float, g: np.ndarray, h: np.ndarray,
@@ -553,15 +569,19 @@ class CollisionLimit(CollisionAvoidanceLimit):
         if not self.max_num_contacts:
             return
         qr = self._q_refresh
-        moved_rad = 0.0  # sum |q - q_refresh|
-        if qr is None or len(qr) != len(q) or not self._cache_ok:
+        # Per pair, a bound on how much its distance can have changed since q_refresh: the joints
+        # between its two geoms, each turned by |q - q_refresh| (weights: _geom_joint_bounds).
+        refresh = qr is None or len(qr) != len(q) or not self._cache_ok
+        qa = np.array(q)
+        if not refresh:
+            moved = np.abs(qa - self._q_refresh_arr)
+            if len(self._far_slack) and (self._far_slack - self._far_weights @ moved).min() <= 0.0:
+                refresh = True  # a far pair could be within detection distance now
+        if refresh:
             self._refresh_near(data, q)
-        else:
-            for a, b in zip(q, qr, strict=True):
-                moved_rad += abs(a - b)
-            if moved_rad >= self._moved_limit:
-                self._refresh_near(data, q)
-                moved_rad = 0.0
+            drift = [0.0] * len(self._near)
+        else:  # each near pair since its own last measurement
+            drift = (np.abs(qa - self._near_q) * self._near_weights).sum(axis=1).tolist()
         model = self.model
         distmax = self.collision_detection_distance
         min_dist = self.minimum_distance_from_collisions
@@ -571,13 +591,22 @@ class CollisionLimit(CollisionAvoidanceLimit):
         jac1_flat, jac2_flat = self._jac1_flat, self._jac2_flat
         horizon = dt + self.lag_s
         u = self.path.u if self.path is not None else None
-        reach = self._pair_reach
-        for idx, dist_then in zip(self._near, self._near_dist, strict=True):
-            if dist_then - reach[idx] * moved_rad > distmax:
+        near_dist, near_q = self._near_dist, self._near_q
+        wide = distmax + (self.cache_margin if self._cache_ok else 0.0)
+        for k, idx in enumerate(self._near):
+            # The pair was at near_dist[k] at the joints near_q[k]: it has changed by at most drift[k].
+            if near_dist[k] - drift[k] > distmax:
                 continue  # still beyond detection distance: no row, as the narrow phase would find
-            dist = mujoco.mj_geomDistance(model, data, self._pair_g1[idx], self._pair_g2[idx], distmax, fromto)
-            if abs(dist - distmax) < 1e-12:
+            g1, g2 = self._pair_g1[idx], self._pair_g2[idx]
+            dist = mujoco.mj_geomDistance(model, data, g1, g2, wide, fromto)
+            if dist >= distmax:  # no row; remember how far it is, to skip it while it cannot be near
+                near_dist[k] = dist
+                near_q[k] = qa
                 continue
+            if wide != distmax:  # the row from the reference's own call (the cut-off may matter to it)
+                dist = mujoco.mj_geomDistance(model, data, g1, g2, distmax, fromto)
+                if abs(dist - distmax) < 1e-12:
+                    continue
             # mink's compute_contact_normal_jacobian, with MuJoCo's vector kernels on views made once
             mujoco.mju_sub3(normal, to_pt, from_pt)
             mujoco.mju_normalize3(normal)
@@ -597,6 +626,25 @@ class CollisionLimit(CollisionAvoidanceLimit):
             else:
                 h_path[idx] = h0
             self._rows_set.append(idx)
+
+
+def _geom_joint_bounds(model: mujoco.MjModel) -> np.ndarray:
+    """``r[k, dof]``: a bound on the distance from joint ``dof``'s axis to any point of geom ``k`` (so
+    its points move at most ``r * |dq|`` when that joint turns by ``dq``); 0 for joints not upstream
+    of the geom, inf for an unbounded geom (rbound 0) that moves. Configuration-independent: the
+    joint anchor's offset, the body offsets along the chain, the geom's offset and bounding radius."""
+    out = np.zeros((model.ngeom, model.nv))
+    for k in range(model.ngeom):
+        body = int(model.geom_bodyid[k])
+        tail = float(np.linalg.norm(model.geom_pos[k])) + float(model.geom_rbound[k])  # body origin -> geom
+        unbounded = float(model.geom_rbound[k]) <= 0.0
+        while body > 0:
+            for j in range(int(model.body_jntadr[body]), int(model.body_jntadr[body]) + int(model.body_jntnum[body])):
+                dof = int(model.jnt_dofadr[j])
+                out[k, dof] = math.inf if unbounded else float(np.linalg.norm(model.jnt_pos[j])) + tail
+            tail += float(np.linalg.norm(model.body_pos[body]))  # this body's origin from its parent's
+            body = int(model.body_parentid[body])
+    return out
 
 
 def _geom_motion_bounds(model: mujoco.MjModel) -> np.ndarray:
