@@ -165,14 +165,14 @@ def table(results: dict[str, dict[str, dict[str, float]]]) -> str:
     return "\n".join(lines)
 
 
-def write_results(text: str, command: str) -> Path:
+def write_results(text: str, command: str, section: str = SECTION.removeprefix("## ")) -> Path:
     body = ("Diff-IK QP (LR Mate 200iD, 6 variables, collisions on).\n\n"
             f"{text}\n\n"
             "Every row includes building the problem: mink's `solve_ik` builds its tasks and limits each call; "
             "ours is `DifferentialIK.qp_problem` (what the servo cycle builds), also on its own row. "
             "\"failed\": no solution accepted (infeasible states are "
             "counted for every solver). Reference for the differences: DAQP through `mink.solve_ik`.")
-    return write_section(SECTION.removeprefix("## "), command, body)
+    return write_section(section, command, body)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -180,13 +180,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--states", type=int, default=2000, help="states per kind (stream and random)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-write", action="store_true", help="print only, leave bench/RESULTS.md alone")
+    ap.add_argument("--section", default=SECTION.removeprefix("## "), help="bench/RESULTS.md section to write")
     args = ap.parse_args(argv)
     results = {kind: run(kind, args.states, args.seed) for kind in ("stream", "random")}
     text = table(results)
     print(text)
     if not args.no_write:
         command = ".venv/bin/python bench/ik_solvers.py " + " ".join(argv if argv is not None else sys.argv[1:])
-        print(f"written to {write_results(text, command.strip())}")
+        print(f"written to {write_results(text, command.strip(), args.section)}")
     return 0
 
 
