@@ -151,9 +151,9 @@ def table(results: dict[str, dict[str, dict[str, float]]]) -> str:
              "|---|---|---|---|---|---|"]
     for kind, rows in results.items():
         for name, r in rows.items():
-            diff = ("-" if name.startswith("build") or name == "mink.solve_ik daqp"
+            diff = ("-" if name == "build (ours)" or name == "mink.solve_ik daqp"
                     else f"{r['p99diff']:.1e} / {r['maxdiff']:.1e}")
-            fails = "-" if name.startswith("build") else str(r["fails"])
+            fails = "-" if name == "build (ours)" else str(r["fails"])
             lines.append(f"| {kind} ({r['n']}, {r['m']} rows) | {name} | {r['p50']:.0f} | {r['p99']:.0f} "
                          f"| {diff} | {fails} |")
     lines.append("")
