@@ -542,10 +542,9 @@ class DifferentialIK:
             g[sl[0]] = np.vstack([cfg_lim.projection_matrix, -cfg_lim.projection_matrix])
             idx = qpos_of_dof[cfg_lim.indices]
             self._cfg_qpos = idx
-            self._cfg_upper, self._cfg_lower = cfg_lim.upper[idx].copy(), cfg_lim.lower[idx].copy()
             self._cfg_gain = float(cfg_lim.gain)
             self._cfg_qpos_l = [int(i) for i in idx]
-            self._cfg_upper_l, self._cfg_lower_l = self._cfg_upper.tolist(), self._cfg_lower.tolist()
+            self._cfg_upper_l, self._cfg_lower_l = cfg_lim.upper[idx].tolist(), cfg_lim.lower[idx].tolist()
         self._qadr_l = [int(i) for i in self._qadr]
         if n_vel:
             g[sl[1]] = np.vstack([vel_lim.projection_matrix, -vel_lim.projection_matrix])
@@ -566,7 +565,6 @@ class DifferentialIK:
             flags[sl[5]] = int(IkFlag.COLLISION)
         self._row_flags = flags
         self._mark_configuration_rows()
-        self._cfg_h = np.zeros(2 * n_cfg)
         # Scratch of the cycle (no allocation there): the TCP's world Jacobian and the flange's.
         self._jac_world = np.zeros((6, model.nv))
         self._jac_flange = np.zeros((6, model.nv))

@@ -56,20 +56,6 @@ def braking_speed(distance: np.ndarray | float, acc: np.ndarray | float, dt: flo
     return a * (np.sqrt(dt * dt + 2.0 * d / a) - dt)
 
 
-def _braking_into(distance: np.ndarray, acc: np.ndarray, horizon: float, dt: float, out: np.ndarray,
-                  scratch: np.ndarray) -> None:
-    """``out = dt * braking_speed(distance, acc, horizon)`` in place, with the same operations in the same
-    order (so the same rounding): ``dt * (a * (sqrt(t*t + 2 d / a) - t))``."""
-    np.maximum(distance, 0.0, out=scratch)
-    scratch *= 2.0
-    np.divide(scratch, acc, out=scratch)
-    scratch += horizon * horizon
-    np.sqrt(scratch, out=scratch)
-    scratch -= horizon
-    np.multiply(acc, scratch, out=out)
-    out *= dt
-
-
 def braking_speed_scalar(distance: float, acc: float, dt: float) -> float:
     """:func:`braking_speed` of one value in float arithmetic (same operations, same rounding)."""
     d = distance if distance > 0.0 else 0.0
@@ -135,13 +121,6 @@ class PathBraking:
         if self.u is None:
             return np.broadcast_to(caps, np.shape(grad_dot_u)).copy()
         return np.minimum(caps, np.maximum(self.rate * np.abs(grad_dot_u), self.floor * caps))
-
-    def decel_into(self, grad_dot_u: np.ndarray, caps: np.ndarray, out: np.ndarray) -> None:
-        """:meth:`decel` written into ``out`` (same numbers, no temporaries kept); needs a direction."""
-        np.abs(grad_dot_u, out=out)
-        out *= self.rate
-        np.maximum(out, self.floor * caps, out=out)
-        np.minimum(caps, out, out=out)
 
     def decel_scalar(self, grad_dot_u: float, cap: float) -> float:
         """:meth:`decel` of one row in float arithmetic (a numpy call costs more than the row)."""
@@ -470,11 +449,14 @@ class CollisionLimit(CollisionAvoidanceLimit):
 
     # ------------------------------------------------------------------ fast rows (the servo cycle)
     # compute_qp_inequalities() runs the narrow phase (mj_geomDistance) on every pair that survives a
-    # bounding-sphere test, each cycle. fill() gives the same rows from the narrow phase of the pairs
-    # that were within detection distance + cache_margin at the last refresh only: a pair's distance
-    # changes by at most (R1 + R2) * sum|q - q_refresh| (R: a bound on the distance from any joint axis
-    # upstream of the geom to any point of it), so while that stays below cache_margin no other pair
-    # can come within detection distance, and the rows are the reference's exactly.
+    # bounding-sphere test, each cycle. fill() gives the same rows from far fewer narrow phases. A
+    # pair's distance changes by at most sum_j w_j |dq_j| when the joints move by dq (w_j: how far
+    # joint j's axis is from the geom it turns, 0 for joints upstream of both geoms, which turn the
+    # pair together; see _geom_joint_bounds). So a pair known to be at distance d at joints q0 cannot
+    # be within detection distance while d - sum_j w_j |q_j - q0_j| exceeds it, and needs no narrow
+    # phase: its row is inactive, as the reference's narrow phase would find. A refresh classifies all
+    # pairs (near: within detection distance + cache_margin, measured again whenever they could be
+    # within detection distance; far: a lower bound kept) and is due when a far pair could come near.
 
     def _init_near_cache(self, model: mujoco.MjModel, margin: float) -> None:
         pairs = np.array(self.geom_id_pairs, dtype=int).reshape(-1, 2)
@@ -482,8 +464,6 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self._pair_g2: list[int] = [int(g) for g in pairs[:, 1]]
         self._pair_b1: list[int] = [int(model.geom_bodyid[g]) for g in self._pair_g1]
         self._pair_b2: list[int] = [int(model.geom_bodyid[g]) for g in self._pair_g2]
-        reach = _geom_motion_bounds(model)
-        pair_reach = reach[pairs[:, 0]] + reach[pairs[:, 1]] if len(pairs) else np.zeros(0)
         # Per pair and joint: how fast the pair's distance can change with that joint. A joint
         # upstream of both geoms turns them together (no change): only the joints between them count.
         per_joint = _geom_joint_bounds(model)
@@ -495,8 +475,7 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self._pair_weights = weights
         # Unbounded geoms (rbound 0 on a moving body, e.g. a height field carried by the arm) cannot be
         # bounded: then every pair is checked every cycle (margin 0: refresh each call).
-        self._pair_reach: list[float] = [float(r) for r in pair_reach]
-        self._cache_ok = bool(np.all(np.isfinite(pair_reach))) and margin > 0.0
+        self._cache_ok = bool(np.all(np.isfinite(weights))) and margin > 0.0
         self.cache_margin = margin
         self._q_refresh: list[float] | None = None
         self._q_refresh_arr = np.zeros(0)
@@ -644,29 +623,6 @@ def _geom_joint_bounds(model: mujoco.MjModel) -> np.ndarray:
                 out[k, dof] = math.inf if unbounded else float(np.linalg.norm(model.jnt_pos[j])) + tail
             tail += float(np.linalg.norm(model.body_pos[body]))  # this body's origin from its parent's
             body = int(model.body_parentid[body])
-    return out
-
-
-def _geom_motion_bounds(model: mujoco.MjModel) -> np.ndarray:
-    """Per geom, a bound ``R`` on how far any of its points moves per radian of any one joint: the
-    largest distance from an upstream joint's anchor to the geom (body offsets along the chain, the
-    geom's offset and bounding radius; configuration-independent). 0 for geoms fixed to the world,
-    inf for an unbounded geom (rbound 0) that moves."""
-    out = np.zeros(model.ngeom)
-    for k in range(model.ngeom):
-        body = int(model.geom_bodyid[k])
-        tail = float(np.linalg.norm(model.geom_pos[k])) + float(model.geom_rbound[k])  # body origin -> geom
-        best = 0.0
-        moving = False
-        while body > 0:
-            for j in range(int(model.body_jntadr[body]), int(model.body_jntadr[body]) + int(model.body_jntnum[body])):
-                moving = True
-                best = max(best, float(np.linalg.norm(model.jnt_pos[j])) + tail)
-            tail += float(np.linalg.norm(model.body_pos[body]))  # this body's origin from its parent's
-            body = int(model.body_parentid[body])
-        if moving and float(model.geom_rbound[k]) <= 0.0:
-            best = math.inf
-        out[k] = best
     return out
 
 
