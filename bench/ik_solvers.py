@@ -13,7 +13,7 @@ reference (DAQP through mink) in rad/s (p99 and max). The last lines give the sp
 plus solve over ``mink.solve_ik`` (ratio of the p50s). The table is printed and written to
 bench/RESULTS.md under "## ik_solvers" (other sections are kept).
 
-    .venv/bin/python bench/ik_solvers.py [--states 2000] [--seed 0] [--no-write]
+    .venv/bin/python bench/ik_solvers.py [--states 2000] [--seed 0] [--no-write] [--section NAME]
 """
 
 from __future__ import annotations
