@@ -5,6 +5,10 @@
 2. Stop from full speed: cycles until the commanded position stops changing, divided by the
    time-optimal stop time from the same state (ruckig's profile at the same limits).
 
+Cycles are also reported by the kind of the live command (twist, pose target, joint jog, stop), with
+the diff-IK's own share (``DifferentialIK.step``, timed inside the same cycles): twist cycles are what
+a Cartesian jog costs, joint cycles mostly skip the IK.
+
 Prints a table and writes its section of bench/RESULTS.md with the command line.
 """
 
@@ -30,13 +34,33 @@ from results import write_section
 HOME = np.array([0.0, 10.0, -10.0, 0.0, -70.0, 0.0])
 
 
-def pipeline(cycles: int, interval_ms: int, solver: str, seed: int) -> np.ndarray:
+KINDS = ("twist", "pose", "jog", "stop")
+
+
+def pipeline(cycles: int, interval_ms: int, solver: str, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per cycle: wall time (us), the kind of live command (index into KINDS) and the time spent in
+    the diff-IK's step (us; 0 when the cycle did not call it)."""
     profile = load_profile("lrmate200id")
     dt = interval_ms / 1000
     cycle = ServoCycle(profile, dt, ServoSettings(ik_solver=solver))
+    ik_us = 0.0
+    step = cycle.ik.step
+
+    def timed_step(*args, **kwargs):  # the IK's share of the cycle, measured inside it
+        nonlocal ik_us
+        t = time.perf_counter()
+        try:
+            return step(*args, **kwargs)
+        finally:
+            ik_us += time.perf_counter() - t
+
+    cycle.ik.step = timed_step  # type: ignore[method-assign]
     rng = np.random.default_rng(seed)
     status = Status(seq=1, status=7)
     times = np.empty(cycles)
+    kinds = np.zeros(cycles, dtype=int)
+    ik_times = np.zeros(cycles)
+    kind_now = 0
     cycle.begin(HOME, None)
     # As the servo process does: the first calls (lazy set-up) happen before streaming, and start-up
     # objects are frozen out of the garbage collector's scans.
@@ -49,10 +73,12 @@ def pipeline(cycles: int, interval_ms: int, solver: str, seed: int) -> np.ndarra
     next_change = 0
     seq = 1
     for k in range(cycles):
+        ik_us = 0.0
         t0 = time.perf_counter()
         if k >= next_change:
             next_change = k + int(rng.integers(int(0.05 / dt), int(0.5 / dt)))
             kind = rng.random()
+            kind_now = 0 if kind < 0.55 else 1 if kind < 0.7 else 2 if kind < 0.9 else 3
             if kind < 0.55:
                 cycle.twist(Twist(source="bench", stamp=k * dt, frame=str(rng.choice(["base", "tool"])),
                                   linear=tuple(rng.uniform(-150, 150, 3)), angular=tuple(rng.uniform(-20, 20, 3))))
@@ -69,7 +95,9 @@ def pipeline(cycles: int, interval_ms: int, solver: str, seed: int) -> np.ndarra
         Command(seq=seq, values=tuple(float(v) for v in q)).encode()
         seq += 1
         times[k] = time.perf_counter() - t0
-    return times * 1e6
+        kinds[k] = kind_now
+        ik_times[k] = ik_us
+    return times * 1e6, kinds, ik_times * 1e6
 
 
 def stop_ratio(interval_ms: int, fast: bool) -> tuple[float, float]:
@@ -104,14 +132,24 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
-    us = pipeline(args.cycles, args.interval_ms, args.solver, args.seed)
-    p50, p99, p999 = np.percentile(us, [50, 99, 99.9])
+    us, kinds, ik_us = pipeline(args.cycles, args.interval_ms, args.solver, args.seed)
     lines = [
         f"Pipeline (command -> IK ({args.solver}) -> shaper -> packet), {args.cycles} cycles at {args.interval_ms} ms:",
         "",
-        "| p50 us | p99 us | p99.9 us | max us | cycles over 1 ms |",
-        "|---|---|---|---|---|",
-        f"| {p50:.0f} | {p99:.0f} | {p999:.0f} | {us.max():.0f} | {int(np.sum(us > 1000))} |",
+        "| cycles | n | p50 us | p99 us | p99.9 us | max us | over 1 ms | IK step p50 us | IK step p99 us |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    groups = [("all", np.ones(len(us), dtype=bool))] + [(name, kinds == i) for i, name in enumerate(KINDS)]
+    for name, sel in groups:
+        if not sel.any():
+            continue
+        t, ik = us[sel], ik_us[sel]
+        p50, p99, p999 = np.percentile(t, [50, 99, 99.9])
+        stepped = ik[ik > 0.0]
+        ik50, ik99 = np.percentile(stepped, [50, 99]) if len(stepped) else (float("nan"), float("nan"))
+        lines.append(f"| {name} | {int(sel.sum())} | {p50:.0f} | {p99:.0f} | {p999:.0f} | {t.max():.0f} "
+                     f"| {int(np.sum(t > 1000))} | {ik50:.0f} | {ik99:.0f} |")
+    lines += [
         "",
         "Stop from full J1 speed (joint jog), stop time / time-optimal stop time at the same limits:",
         "",

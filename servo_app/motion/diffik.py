@@ -12,8 +12,10 @@ actually sent, so the request must already be deliverable:
    ``PostureTask`` toward the start posture, damping; limits ``ConfigurationLimit``,
    ``VelocityLimit`` and ours (:mod:`servo_app.motion.ik_limits`): joint rates in the FANUC
    convention with an acceleration bound, braking distance to every joint bound, the arm
-   configuration, optionally collisions. Assembled from the tasks' and limits' own
-   ``compute_qp_objective`` / ``compute_qp_inequalities`` (mink's QP, fixed row layout).
+   configuration, optionally collisions. mink's QP (fixed row layout), but assembled here each
+   cycle straight from MuJoCo into arrays allocated once (the same numbers the tasks'
+   ``compute_qp_objective`` and the limits' ``compute_qp_inequalities`` give; those stay for
+   comparisons and ``mink.solve_ik``): building the objects was most of the cycle's cost.
 3. **On the line**: ``d`` = the unconstrained optimum of that objective (the increment the command
    asks for). All limits are linear in the increment, so the scalars ``s`` with ``G (s d) <= h``
    form an interval: we take the ``s`` nearest 1 in it and send ``s d``. The WHOLE increment is
@@ -40,7 +42,9 @@ arm never freezes in a singular pose (a known failure of halting servo stacks).
 from __future__ import annotations
 
 import enum
+import itertools
 import math
+import types
 from dataclasses import dataclass, field
 
 import mink
@@ -66,7 +70,36 @@ from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.model import FLANGE_SITE, JOINT_NAMES, TCP_SITE, load_model
 from servo_app.robots.profile import RobotProfile
 
+try:  # mink's own C kernels for SE3 (what FrameTask uses when present): the same numbers, no Python objects
+    from mink.lie import _lie_ops_c as _se3
+except ImportError:  # pragma: no cover - mink without its extension: the frame task's Python path
+    _se3 = None
+
+try:  # numpy's LAPACK gufuncs, called as np.linalg calls them (same routine, same numbers) without the
+    # wrapping (errstate context, type checks: ~5 us per call here, more than a 6x6 solve itself)
+    from numpy.linalg import _umath_linalg as _lapack
+except ImportError:  # pragma: no cover - another numpy layout: the public functions
+    _lapack = None
+
 N = 6
+
+
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(a, b)`` (b a vector or a matrix of columns); raises as it does if singular."""
+    if _lapack is not None:
+        x = _lapack.solve1(a, b, signature="dd->d") if b.ndim == 1 else _lapack.solve(a, b, signature="dd->d")
+        if np.isfinite(x).all():
+            return x
+    return np.linalg.solve(a, b)  # the error (singular matrix), or the result without the fast path
+
+
+def _singular_values(a: np.ndarray) -> np.ndarray:
+    """``np.linalg.svd(a, compute_uv=False)``: the same LAPACK routine (descending order)."""
+    if _lapack is not None:
+        sv = _lapack.svd(a, signature="d->d")
+        if np.isfinite(sv).all():
+            return sv
+    return np.linalg.svd(a, compute_uv=False)  # non-convergence raises there
 
 
 class IkFlag(enum.IntFlag):
@@ -84,6 +117,9 @@ class IkFlag(enum.IntFlag):
     NO_COMMAND = enum.auto()  # no live command: stopping along the current motion
     ARRIVED = enum.auto()  # pose / joint target reached
 
+
+# The flags as plain ints for the cycle: IntFlag's operators run Python code (several us each here).
+_B = types.SimpleNamespace(**{f.name: int(f) for f in IkFlag if f.name})
 
 LIMIT_FLAGS = IkFlag.JOINT_LIMIT | IkFlag.VELOCITY_LIMIT | IkFlag.ACCEL_LIMIT
 
@@ -264,6 +300,8 @@ class DifferentialIK:
         self._ref: np.ndarray | None = None  # integrated TCP reference pose (wxyz_xyz), Cartesian modes
         self._last_xi: np.ndarray | None = None  # last commanded twist: the line to brake along
         self._mode = ""
+        self.frame_target: np.ndarray | None = None  # the last Cartesian cycle's frame target (wxyz_xyz)
+        self._layout()
         # What the last step() started from, for step_again().
         self._before: tuple[np.ndarray, np.ndarray | None, np.ndarray | None, str] | None = None
 
@@ -307,15 +345,17 @@ class DifferentialIK:
             self._dq_prev = self._checked(dq_prev, "dq_prev")
         st, dt = self.settings, self.dt
         cfg = self.configuration
-        cfg.update(self._full_q(q))
+        self._kinematics(q)
         self.accel_limit.set_previous(self._dq_prev)
         kappa = self._condition(cfg.data)
-        flags = IkFlag.NEAR_SINGULARITY if kappa > st.singularity_slow else IkFlag.NONE
+        flags = _B.NEAR_SINGULARITY if kappa > st.singularity_slow else 0  # int bits: IntFlag | costs us
         s_sing = 1.0
         xi: np.ndarray | None = None  # base-frame twist the frame task follows (Cartesian modes)
         arrived = False
         moving = bool(self._dq_prev.any())
         cartesian_stop = command is None and self._last_xi is not None and moving
+        target: np.ndarray | None = None  # the frame task's target pose (Cartesian modes)
+        joint_goal = q  # the joint task's target (joint modes)
 
         if isinstance(command, Twist | PoseTarget) or cartesian_stop:
             tcp = self._site_pose(cfg.data, self._site_id)
@@ -326,7 +366,7 @@ class DifferentialIK:
                 xi, arrived = self._pose_twist(command, tcp)
             else:
                 mode, xi = "stop", np.zeros(6)
-                flags |= IkFlag.NO_COMMAND
+                flags |= _B.NO_COMMAND
             cartesian_mode = mode if mode != "stop" else self._mode
             if self._mode != cartesian_mode or self._ref is None or not self._near(self._ref, tcp):
                 self._ref = tcp
@@ -335,7 +375,7 @@ class DifferentialIK:
             if xi.any():
                 s_sing = self._singularity_factor(q, xi, kappa)
                 if s_sing < 1.0:
-                    flags |= IkFlag.SINGULARITY_SLOWDOWN
+                    flags |= _B.SINGULARITY_SLOWDOWN
                 xi = xi * s_sing
                 s_goal = 1.0
                 self._last_xi = xi
@@ -343,9 +383,8 @@ class DifferentialIK:
                 xi, s_goal = self._last_xi, 0.0  # brake along the last commanded Cartesian line
             else:
                 s_goal, self._last_xi = 0.0, None
-            target = mink.SE3(_advance(self._ref, xi * dt))
-            self.frame_task.set_target(target)
-            tasks: list[mink.Task] = [self.frame_task, self.posture_task]
+            target = _advance(self._ref, xi * dt)
+            self.frame_target = target
             asks_motion = bool(xi.any())
             state_mode = cartesian_mode
         else:
@@ -358,38 +397,39 @@ class DifferentialIK:
                 d_des, arrived = self._target_increment(command, q)
             elif command is None:
                 mode, d_des = "stop", np.zeros(N)
-                flags |= IkFlag.NO_COMMAND
+                flags |= _B.NO_COMMAND
             else:
                 raise TypeError(f"command={command!r} is not a motion command")
-            self.joint_task.set_target(self._full_q(q + d_des))
-            tasks = [self.joint_task]
+            joint_goal = q + d_des
             asks_motion = bool(d_des.any())
             s_goal = 1.0 if asks_motion else 0.0
             state_mode = mode
         if arrived:
-            flags |= IkFlag.ARRIVED
+            flags |= _B.ARRIVED
         self._mode = state_mode  # a Cartesian stop keeps its mode: the reference pose stays valid
 
         # d: the increment the command asks for (P is positive definite). Part of d only pulls the TCP
         # back onto the integrated reference (drift, linearisation): d_corr, the optimum for the
         # reference itself. It is added unscaled so that scaling the command (even below 0 while
         # reversing) never turns the correction into a push away from the line.
-        p, c, task_c = self._objective_terms(tasks)
+        frame_state = self._frame_state() if target is not None and _se3 is not None else None
+        if target is not None:
+            p, c, c_frame = self._cartesian_objective(target, frame_state)
+        else:
+            p, c = self._joint_objective(q, joint_goal)
+            c_frame = np.zeros(N)
         if xi is not None and asks_motion and self._ref is not None:
             # Only the frame task's linear term depends on its target: swap that term alone.
-            self.frame_task.set_target(mink.SE3(self._ref))
-            c_ref = c - task_c[0] + self.frame_task.compute_qp_objective(cfg).c
-            self.frame_task.set_target(target)
-            d, d_corr = np.linalg.solve(p, -np.column_stack([c, c_ref])).T
+            c_ref = c - c_frame + self._frame_terms(self._ref, None, frame_state)
+            d, d_corr = _solve(p, -np.column_stack([c, c_ref])).T
             d = d - d_corr * (1.0 - self._correction_gain)  # the line, plus this cycle's share of the pull-back
             d_corr = d_corr * self._correction_gain
         else:
-            d, d_corr = np.linalg.solve(p, -c), np.zeros(N)
+            d, d_corr = _solve(p, -c), np.zeros(N)
         # Keep the direction: the commanded one (s -> 1), or while braking the current line (s -> 0).
         direction = d - d_corr if asks_motion else self._dq_prev
         self.path_braking.set_direction(direction)
-        g, h = self.inequalities()
-        h_path = self._path_rows(h)
+        g, h, h_path = self._rows()
 
         solver_status = ""
         dq: np.ndarray | None = None
@@ -413,24 +453,24 @@ class DifferentialIK:
                 if dq is None:
                     dq = self._blend(goal, g, h)
                 if dq is not None:
-                    flags |= IkFlag.PATH_BLEND
+                    flags |= _B.PATH_BLEND
         if dq is None:  # 3. the QP's best tracking within every limit; 4. every joint brakes
             sol = self._qp_solve(p, c, g, h)
             solver_status = sol.status
             if sol.ok:
                 dq = sol.x
-                flags |= IkFlag.QP_FALLBACK
+                flags |= _B.QP_FALLBACK
             else:
                 dq = self._decelerate()
-                flags |= IkFlag.SOLVER_FAILED
+                flags |= _B.SOLVER_FAILED
         dd = float(d @ d)
         scale = min(max(float(dq @ d) / dd, 0.0), 1.0) * s_sing if s_goal == 1.0 and dd > 0.0 else 0.0
         flags |= self._binding_flags(g, h, dq)
         if not np.isfinite(dq).all():  # defensive: every branch above is finite by construction
             dq = np.zeros(N)
-            flags |= IkFlag.SOLVER_FAILED
+            flags |= _B.SOLVER_FAILED
         self._dq_prev = dq.copy()
-        return IkResult(dq=dq, q_next=q + dq, velocity=dq / dt, scale=float(scale), flags=flags,
+        return IkResult(dq=dq, q_next=q + dq, velocity=dq / dt, scale=float(scale), flags=IkFlag(flags),
                         condition=kappa, mode=mode, solver_status=solver_status)
 
     def step_again(self, q_model_rad: ArrayLike, command: Command | None, *, dq_prev: ArrayLike | None = None
@@ -444,12 +484,8 @@ class DifferentialIK:
         return self.step(q_model_rad, command, dq_prev=dq_prev)
 
     def objective(self, tasks: list[mink.Task]) -> tuple[np.ndarray, np.ndarray]:
-        """mink's QP objective (P, c) for ``tasks`` at the current configuration, with our damping."""
-        p, c, _ = self._objective_terms(tasks)
-        return p, c
-
-    def _objective_terms(self, tasks: list[mink.Task]) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-        """(P, c) and each task's own linear term."""
+        """mink's QP objective (P, c) for ``tasks`` at the current configuration, with our damping
+        (built by the tasks themselves: for comparisons; step() assembles its own)."""
         objs = [task.compute_qp_objective(self.configuration) for task in tasks]
         p = objs[0].H.copy()
         c = objs[0].c.copy()
@@ -457,16 +493,205 @@ class DifferentialIK:
             p += obj.H
             c += obj.c
         p.flat[:: N + 1] += self.settings.damping
-        return p, c, [obj.c for obj in objs]
+        return p, c
+
+    def qp_problem(self, target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(P, c, G, h)`` of the Cartesian cycle at the current configuration, as step() builds it:
+        the frame task toward the pose ``target`` (wxyz_xyz) plus the posture task, and every limit
+        row (G and h are the in-place arrays: valid until the next build)."""
+        state = self._frame_state() if _se3 is not None else None
+        p, c, _ = self._cartesian_objective(np.asarray(target, dtype=float), state)
+        g, h, _ = self._rows()
+        return p, c, g, h
 
     def inequalities(self) -> tuple[np.ndarray, np.ndarray]:
-        """All limits stacked as ``G dq <= h`` (fixed row layout) at the current configuration."""
-        cfg, dt = self.configuration, self.dt
-        rows = [limit.compute_qp_inequalities(cfg, dt) for limit in self.limits]
-        g = np.vstack([r.G for r in rows if r.G is not None])
-        h = np.concatenate([r.h for r in rows if r.h is not None])
-        self._ensure_rows(g.shape[0])
-        return g, h
+        """All limits stacked as ``G dq <= h`` (fixed row layout) at the current configuration: the
+        rows the limits' ``compute_qp_inequalities`` give, assembled in place (copies returned)."""
+        g, h, _ = self._rows()
+        return g.copy(), h.copy()
+
+    # ------------------------------------------------------------------------- QP assembly
+    # The cycle's QP is assembled here from MuJoCo directly, into arrays allocated once: the same
+    # numbers mink's FrameTask / PostureTask and the limits' compute_qp_inequalities give (the
+    # reference, tests/diffik_reference.py; tests/test_diffik_equivalence.py), without building task,
+    # SE3 and Constraint objects or stacking rows every cycle (that was most of the cycle's cost).
+
+    def _layout(self) -> None:
+        """The fixed row layout: constant coefficients written once, the flag each row raises."""
+        model = self.model
+        if not all(int(t) == int(mujoco.mjtJoint.mjJNT_HINGE) for t in model.jnt_type):
+            raise ValueError("the diff-IK expects an arm of hinge joints")
+        # Model order (JOINT_NAMES) is dof order is qpos order: increments and QP columns are the same.
+        if list(self._qadr) != list(range(N)) or list(self._cols) != list(range(N)):
+            raise ValueError("the diff-IK expects the arm's joints in JOINT_NAMES order")
+        cfg_lim, vel_lim = self.limits[0], self.limits[1]
+        assert isinstance(cfg_lim, mink.ConfigurationLimit) and isinstance(vel_lim, mink.VelocityLimit)
+        qpos_of_dof = np.zeros(model.nv, dtype=int)
+        for j in range(model.njnt):
+            qpos_of_dof[model.jnt_dofadr[j]] = model.jnt_qposadr[j]
+        n_cfg = 0 if cfg_lim.projection_matrix is None else len(cfg_lim.indices)
+        n_vel = 0 if vel_lim.projection_matrix is None else len(vel_lim.indices)
+        n_col = 0 if self.collision_limit is None else self.collision_limit.max_num_contacts
+        counts = [2 * n_cfg, 2 * n_vel, 12, 12, 1] + ([n_col] if self.collision_limit is not None else [])
+        m = sum(counts)
+        starts = np.concatenate([[0], np.cumsum(counts)]).astype(int)
+        sl = [slice(int(a), int(b)) for a, b in itertools.pairwise(starts)]
+        g = np.zeros((m, model.nv))
+        h = np.full(m, np.inf)
+        if n_cfg:
+            g[sl[0]] = np.vstack([cfg_lim.projection_matrix, -cfg_lim.projection_matrix])
+            idx = qpos_of_dof[cfg_lim.indices]
+            self._cfg_qpos = idx
+            self._cfg_gain = float(cfg_lim.gain)
+            self._cfg_qpos_l = [int(i) for i in idx]
+            self._cfg_upper_l, self._cfg_lower_l = cfg_lim.upper[idx].tolist(), cfg_lim.lower[idx].tolist()
+        self._qadr_l = [int(i) for i in self._qadr]
+        if n_vel:
+            g[sl[1]] = np.vstack([vel_lim.projection_matrix, -vel_lim.projection_matrix])
+            h[sl[1]] = np.hstack([self.dt * vel_lim.limit, self.dt * vel_lim.limit])  # constant
+        g[sl[2]] = self.accel_limit._g
+        g[sl[3]] = self.braking_limit._g
+        self._g, self._h, self._hp = g, h, h.copy()
+        self._sl = sl
+        self._row_counts = counts
+        self._accel_rows, self._braking_rows = sl[2], sl[3]
+        flags = np.zeros(m, dtype=int)
+        flags[sl[0]] = int(IkFlag.JOINT_LIMIT)
+        flags[sl[1]] = int(IkFlag.VELOCITY_LIMIT)
+        flags[sl[2]] = int(IkFlag.ACCEL_LIMIT)
+        flags[sl[3]] = int(IkFlag.JOINT_LIMIT)  # joint ranges, or the configuration's joint intervals
+        flags[sl[4]] = int(IkFlag.CONFIGURATION)
+        if n_col:
+            flags[sl[5]] = int(IkFlag.COLLISION)
+        self._row_flags = flags
+        self._mark_configuration_rows()
+        # Scratch of the cycle (no allocation there): the TCP's world Jacobian and the flange's.
+        self._jac_world = np.zeros((6, model.nv))
+        self._jac_flange = np.zeros((6, model.nv))
+        self._frame_cost = np.asarray(self.frame_task.cost, dtype=float).copy()
+        self._frame_cost_col = self._frame_cost[:, None].copy()
+        self._posture_cost = np.asarray(self.posture_task.cost, dtype=float).copy()
+        self._posture_h = self._posture_cost * self._posture_cost
+        self._posture_goal = np.zeros(N)  # the posture task's target in model order ...
+        self._posture_src: np.ndarray | None = None  # ... taken from this array of the task's
+        self._p = np.zeros((N, N))
+        self._p_diag = self._p.reshape(-1)[:: N + 1]
+
+    def _rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(G, h, h_path)`` at the current configuration, in the arrays allocated by ``_layout``.
+
+        ``h_path``: ``h`` with the braking rows of the limits that brake the whole path together
+        (their ``h_path``). Reads the same state the limits' own rows read (the configuration's qpos,
+        ``accel_limit.dq_prev``, ``path_braking``), so both stay interchangeable."""
+        g, h, hp, sl, dt = self._g, self._h, self._hp, self._sl, self.dt
+        data = self.configuration.data
+        qpos = data.qpos.tolist()  # floats: the small row blocks cost less in float arithmetic
+        q = [qpos[i] for i in self._qadr_l]
+        if self._row_counts[0]:  # mink's ConfigurationLimit: gain * (upper - q), gain * (q - lower)
+            gain = self._cfg_gain
+            qc = [qpos[i] for i in self._cfg_qpos_l]
+            h[sl[0]] = ([gain * (u - x) for u, x in zip(self._cfg_upper_l, qc, strict=True)]
+                        + [gain * (x - lo) for x, lo in zip(qc, self._cfg_lower_l, strict=True)])
+        self.accel_limit.fill(dt, h[sl[2]])
+        self.braking_limit.fill(q, dt, h[sl[3]], hp[sl[3]])
+        i = sl[4].start
+        h[i], hp[i] = self.config_guard.fill(q, dt, g[i])
+        # Rows without a path version: h_path = h.
+        hp[: sl[3].start] = h[: sl[3].start]
+        if self.collision_limit is not None:
+            c = sl[5]
+            self.collision_limit.fill(data, qpos, dt, g[c], h[c], hp[c])
+        return g, h, hp
+
+    def _kinematics(self, q: np.ndarray) -> None:
+        """The configuration at ``q``: what ``Configuration.update`` does, without copying qpos."""
+        data = self.configuration.data
+        data.qpos[self._qadr] = q
+        mujoco.mj_kinematics(self.model, data)
+        mujoco.mj_comPos(self.model, data)
+        if self.model.neq > 0:
+            mujoco.mj_makeConstraint(self.model, data)
+
+    def _frame_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The TCP frame's pose (wxyz_xyz) and body Jacobian at the current configuration, as mink's
+        FrameTask reads them (``_get_transform_frame_to_world_wxyz_xyz``, ``get_frame_jacobian``)."""
+        assert _se3 is not None
+        data = self.configuration.data
+        sid = self._site_id
+        xmat = data.site_xmat[sid]
+        frame = _se3.xmat_xpos_to_wxyz_xyz(xmat, data.site_xpos[sid])
+        jw = self._jac_world
+        mujoco.mj_jacSite(self.model, data, jw[:3], jw[3:], sid)
+        return frame, _se3.se3_rotation_adjoint_from_xmat(xmat) @ jw
+
+    def _frame_terms(self, target: np.ndarray, h_out: np.ndarray | None,
+                     state: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """The frame task's linear term for the target pose ``target`` (wxyz_xyz), and its Hessian
+        written into ``h_out`` if given: mink's FrameTask objective, from the same kernels in the same
+        order (``state``: :meth:`_frame_state`, when already computed this cycle)."""
+        task = self.frame_task
+        if _se3 is None:  # pragma: no cover - mink's Python path
+            task.set_target(mink.SE3(target))
+            obj = task.compute_qp_objective(self.configuration)
+            if h_out is not None:
+                h_out[:] = obj.H
+            return obj.c
+        frame, jac = state if state is not None else self._frame_state()
+        error = _se3.se3_rminus(target, frame)
+        jacobian = -_se3.se3_jlog(_se3.se3_inverse_multiply(target, frame)) @ jac
+        cost = self._frame_cost
+        weighted_error = cost * (-task.gain * error)
+        weighted_jacobian = self._frame_cost_col * jacobian
+        if h_out is not None:
+            np.matmul(weighted_jacobian.T, weighted_jacobian, out=h_out)
+            if task.lm_damping > 0.0:  # mink adds mu = lm_damping * |e|^2 (0 with ours: skipped)
+                mu = task.lm_damping * float(weighted_error @ weighted_error)
+                if mu > 0.0:
+                    h_out.flat[:: N + 1] += mu
+        return -weighted_error @ weighted_jacobian
+
+    def _posture_terms(self, task: mink.PostureTask, cost: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """A posture task's linear term toward the joints ``goal`` (model order); its Hessian is
+        ``diag(cost**2)``. Hinge joints: mj_differentiatePos is ``q - goal``."""
+        error = self.configuration.data.qpos[self._qadr] - goal
+        weighted_error = cost * (-task.gain * error)
+        return -weighted_error * cost
+
+    def _posture_linear(self, q: np.ndarray) -> np.ndarray:
+        """:meth:`_posture_terms` of the posture task at the joints ``q`` (the configuration's)."""
+        pt = self.posture_task
+        if pt.target_q is not self._posture_src:  # set_target stores a new array: model order, once
+            assert pt.target_q is not None
+            self._posture_src = pt.target_q
+            self._posture_goal = pt.target_q[self._qadr]
+        weighted_error = self._posture_cost * (-pt.gain * (q - self._posture_goal))
+        return -weighted_error * self._posture_cost
+
+    def _cartesian_objective(self, target: np.ndarray, state: tuple[np.ndarray, np.ndarray] | None
+                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(P, c) of the frame task toward ``target`` plus the posture task, with our damping, and the
+        frame task's own linear term."""
+        p = self._p  # written in place (consumed within the cycle)
+        c_frame = self._frame_terms(target, p, state)
+        pt = self.posture_task
+        assert pt.target_q is not None
+        diag = self._p_diag  # a view of p's diagonal
+        diag += self._posture_h  # the posture task's Hessian, cost**2 on the diagonal (mink adds all of it)
+        q = self.configuration.data.qpos[self._qadr]
+        c = c_frame + self._posture_linear(q)
+        if pt.lm_damping > 0.0:  # pragma: no cover - ours is 0
+            e = self._posture_cost * (-pt.gain * (q - self._posture_goal))
+            diag += pt.lm_damping * float(e @ e)
+        diag += self.settings.damping
+        return p, c, c_frame
+
+    def _joint_objective(self, q: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(P, c) of the joint task toward ``goal`` (cost 1, gain 1), with our damping."""
+        jt = self.joint_task
+        p = np.diag(np.asarray(jt.cost, dtype=float) ** 2)
+        c = self._posture_terms(jt, np.asarray(jt.cost, dtype=float), goal)
+        p.flat[:: N + 1] += self.settings.damping
+        return p, c
 
     def _blend(self, d: np.ndarray, g: np.ndarray, h: np.ndarray) -> np.ndarray | None:
         """From last cycle's increment straight toward ``sigma * d`` (``sigma``: the share of the
@@ -487,17 +712,6 @@ class DifferentialIK:
             return None
         return base + max(hi, lo) * (target - base)
 
-    def _path_rows(self, h: np.ndarray) -> np.ndarray:
-        """``h`` with the braking rows of the limits that brake the whole path together."""
-        out = h.copy()
-        start = 0
-        for limit, k in zip(self.limits, self._row_counts, strict=True):
-            hp = getattr(limit, "h_path", None)
-            if hp is not None:
-                out[start:start + k] = hp
-            start += k
-        return out
-
     def to_fanuc_deg(self, q_model_rad: ArrayLike) -> np.ndarray:
         """Model joints (rad) -> FANUC joints (deg), for the shaper."""
         return model_rad_to_fanuc_deg(np.asarray(q_model_rad, dtype=float), self.profile.j23_factor)
@@ -512,9 +726,9 @@ class DifferentialIK:
 
     # -------------------------------------------------------------------------- desired motion
     def _twist_base(self, cmd: Twist, tcp: np.ndarray) -> np.ndarray:
-        v = np.array(cmd.linear) / 1000.0
-        w = np.radians(cmd.angular)
-        xi = np.concatenate([v, w])
+        xi = np.array((*cmd.linear, *cmd.angular), dtype=float)  # one array, converted in place
+        xi[:3] /= 1000.0
+        np.radians(xi[3:], out=xi[3:])
         if cmd.frame == "tool":
             for part in (xi[:3], xi[3:]):
                 mujoco.mju_rotVecQuat(part, part.copy(), tcp[:4])
@@ -558,10 +772,10 @@ class DifferentialIK:
 
     # ---------------------------------------------------------------------------- singularity
     def _condition(self, data: mujoco.MjData) -> float:
-        jac = np.empty((6, N))
+        jac = self._jac_flange
         mujoco.mj_jacSite(self.model, data, jac[:3], jac[3:], self._flange_id)
         jac[:3] /= self._reach
-        sv = np.linalg.svd(jac, compute_uv=False)
+        sv = _singular_values(jac)
         return float(sv[0] / sv[-1]) if sv[-1] > 1e-12 * sv[0] else 1e12
 
     def _condition_at(self, q: np.ndarray) -> float:
@@ -607,56 +821,34 @@ class DifferentialIK:
         da = self.acc * self.dt * self.dt
         return self.c_inv @ (np.sign(p) * np.maximum(np.abs(p) - da, 0.0))
 
-    def _ensure_rows(self, m: int) -> None:
-        """Map each QP row to the flag it raises when binding (the limits' row counts are fixed)."""
-        if self._row_flags is not None and len(self._row_flags) == m:
-            return
-        cfg = self.configuration
-        flags: list[int] = []
-        self._row_counts = []
-        for limit in self.limits:
-            rows = limit.compute_qp_inequalities(cfg, self.dt)
-            k = 0 if rows.G is None else rows.G.shape[0]
-            self._row_counts.append(k)
-            if limit is self.accel_limit:
-                self._accel_rows = slice(len(flags), len(flags) + k)
-                flag = IkFlag.ACCEL_LIMIT
-            elif isinstance(limit, mink.VelocityLimit):
-                flag = IkFlag.VELOCITY_LIMIT
-            elif limit is self.braking_limit:  # joint ranges, or the configuration's joint intervals
-                self._braking_rows = slice(len(flags), len(flags) + k)
-                flag = IkFlag.JOINT_LIMIT
-            elif isinstance(limit, mink.ConfigurationLimit):
-                flag = IkFlag.JOINT_LIMIT
-            elif limit is self.config_guard:
-                flag = IkFlag.CONFIGURATION
-            else:
-                flag = IkFlag.COLLISION
-            flags.extend([int(flag)] * k)
-        if len(flags) != m:
-            raise RuntimeError(f"limit rows changed size ({len(flags)} != {m}); a persistent QP needs fixed rows")
-        self._row_flags = np.array(flags)
-        self._mark_configuration_rows()
-        self.qp = None
-
     def _mark_configuration_rows(self) -> None:
         """Braking rows whose bound is a configuration interval raise CONFIGURATION, not JOINT_LIMIT."""
         if self._row_flags is not None and self._braking_rows is not None:
             self._row_flags[self._braking_rows] = np.where(self.braking_limit.restricted, int(IkFlag.CONFIGURATION),
                                                            int(IkFlag.JOINT_LIMIT))
+            self._row_flags_l: list[int] = self._row_flags.tolist()
 
-    def _binding_flags(self, g: np.ndarray, h: np.ndarray, dq: np.ndarray) -> IkFlag:
-        assert self._row_flags is not None
-        slack = h - g @ dq
-        tol = self.settings.binding_tol + 1e-6 * np.abs(h)
-        binding = np.isfinite(h) & (slack <= tol)
-        out = IkFlag(int(np.bitwise_or.reduce(self._row_flags[binding]))) if binding.any() else IkFlag.NONE
-        if self._accel_rows is not None:
-            vel_rows = self.accel_limit.velocity_bound & binding[self._accel_rows]
-            if vel_rows.any():
-                out |= IkFlag.VELOCITY_LIMIT
-            if not (binding[self._accel_rows] & ~self.accel_limit.velocity_bound).any():
-                out &= ~IkFlag.ACCEL_LIMIT
+    def _binding_flags(self, g: np.ndarray, h: np.ndarray, dq: np.ndarray) -> int:
+        assert self._row_flags is not None and self._accel_rows is not None
+        # One pass in float arithmetic: slack = h - G dq, binding within binding_tol + 1e-6 |h|,
+        # inactive rows (h = inf) never bind; an acceleration row whose bound is the velocity one
+        # raises VELOCITY_LIMIT, and ACCEL_LIMIT stays only if a row bound by acceleration binds.
+        tol0 = self.settings.binding_tol
+        flags = self._row_flags_l
+        lo, hi_row = self._accel_rows.start, self._accel_rows.stop
+        vel_bound = self.accel_limit.velocity_bound
+        out = 0
+        accel_binds = False
+        for i, (a, hv) in enumerate(zip((g @ dq).tolist(), h.tolist(), strict=True)):
+            if hv - a <= tol0 + 1e-6 * abs(hv) and math.isfinite(hv):
+                out |= flags[i]
+                if lo <= i < hi_row:
+                    if vel_bound[i - lo]:
+                        out |= _B.VELOCITY_LIMIT
+                    else:
+                        accel_binds = True
+        if not accel_binds:
+            out &= ~_B.ACCEL_LIMIT
         return out
 
     def _site_pose(self, data: mujoco.MjData, site_id: int) -> np.ndarray:
@@ -674,16 +866,17 @@ class DifferentialIK:
         (+20 %) and swung back: only the error across the line is the IK's to correct."""
         w = self._track_weights
         err = np.concatenate([tcp[4:] - ref[4:], _rotation_between(tcp, ref)])
-        norm = float(xi @ (w * xi))
+        wxi = w * xi
+        norm = float(xi @ wxi)
         if norm <= 0.0:
             return ref
-        return _advance(ref, (float(err @ (w * xi)) / norm) * xi)
+        return _advance(ref, (float(err @ wxi) / norm) * xi)
 
     def _near(self, a: np.ndarray, b: np.ndarray) -> bool:
         tol = self.settings.reference_tolerance_m
-        if float(np.linalg.norm(a[4:] - b[4:])) > tol:
+        if _norm(a[4:] - b[4:]) > tol:
             return False
-        return float(np.linalg.norm(_rotation_between(a, b))) * self._reach <= tol
+        return _norm(_rotation_between(a, b)) * self._reach <= tol
 
     def _full_q(self, q: np.ndarray) -> np.ndarray:
         full = self.configuration.data.qpos.copy()
@@ -702,15 +895,28 @@ class DifferentialIK:
 
 
 # ------------------------------------------------------------------------------ pure functions
+def _norm(v: np.ndarray) -> float:
+    """``np.linalg.norm`` of a vector (it is ``sqrt(v . v)``), without its dispatch."""
+    return math.sqrt(float(v @ v))
+
+
 def _scale_interval(direction: np.ndarray, g: np.ndarray, h: np.ndarray) -> tuple[float, float] | None:
     """The interval of ``s`` with ``g @ (s * direction) <= h`` (the rows are linear), or None."""
-    a = g @ direction
+    # One pass over the rows in float arithmetic: the same divisions, minimum and maximum as masks
+    # and reductions over numpy arrays would give, for a fraction of the calls (~2 us each here).
     tiny = 1e-15
-    pos, neg, zero = a > tiny, a < -tiny, np.abs(a) <= tiny
-    if (h[zero] < -1e-12).any():
-        return None
-    s_hi = float(np.min(h[pos] / a[pos])) if pos.any() else math.inf
-    s_lo = float(np.max(h[neg] / a[neg])) if neg.any() else -math.inf
+    s_hi, s_lo = math.inf, -math.inf
+    for ai, hi in zip((g @ direction).tolist(), h.tolist(), strict=True):
+        if ai > tiny:
+            r = hi / ai
+            if r < s_hi:
+                s_hi = r
+        elif ai < -tiny:
+            r = hi / ai
+            if r > s_lo:
+                s_lo = r
+        elif hi < -1e-12:  # a row the direction does not move is violated already
+            return None
     return (s_lo, s_hi) if s_lo <= s_hi else None
 
 

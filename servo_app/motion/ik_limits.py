@@ -56,6 +56,12 @@ def braking_speed(distance: np.ndarray | float, acc: np.ndarray | float, dt: flo
     return a * (np.sqrt(dt * dt + 2.0 * d / a) - dt)
 
 
+def braking_speed_scalar(distance: float, acc: float, dt: float) -> float:
+    """:func:`braking_speed` of one value in float arithmetic (same operations, same rounding)."""
+    d = distance if distance > 0.0 else 0.0
+    return acc * (math.sqrt(dt * dt + 2.0 * d / acc) - dt)
+
+
 def _dof_columns(model: mujoco.MjModel) -> np.ndarray:
     return np.array([model.jnt_dofadr[model.joint(name).id] for name in JOINT_NAMES])
 
@@ -81,20 +87,33 @@ class PathBraking:
         self.brake = np.asarray(brake_fanuc, dtype=float)
         self.floor = floor
         self.u: np.ndarray | None = None
+        self.u_list: list[float] = []  # u as floats (the rows of the cycle are computed in float arithmetic)
         self.rate = math.inf
+        # C's non-zero entries per row, and the caps, as floats: a 6-vector costs less in float
+        # arithmetic than in numpy calls (~2 us each here).
+        self._c_rows = [[(k, float(v)) for k, v in enumerate(row) if v != 0.0] for row in self.c]
+        self._brake_l = [float(b) for b in self.brake]
 
     def set_direction(self, u: np.ndarray | None) -> None:
         """The joint-space direction (model convention, any scale) the arm moves or will move along."""
         if u is None:
-            self.u, self.rate = None, math.inf
+            self.u, self.u_list, self.rate = None, [], math.inf
             return
-        uf = np.abs(self.c @ u)
-        moving = uf > 1e-12 * max(float(np.max(uf)), 1e-300)
-        if not moving.any():
-            self.u, self.rate = None, math.inf
+        ul = np.asarray(u, dtype=float).tolist()
+        uf = []
+        for row in self._c_rows:  # |C u|, the products summed in column order as the matrix product does
+            acc = 0.0
+            for k, v in row:
+                acc += v * ul[k]
+            uf.append(abs(acc))
+        tiny = 1e-12 * max(max(uf), 1e-300)
+        rates = [b / f for b, f in zip(self._brake_l, uf, strict=True) if f > tiny]
+        if not rates:
+            self.u, self.u_list, self.rate = None, [], math.inf
             return
-        self.u = np.asarray(u, dtype=float).copy()
-        self.rate = float(np.min(self.brake[moving] / uf[moving]))
+        self.u = np.array(ul)
+        self.u_list = ul
+        self.rate = min(rates)
 
     def decel(self, grad_dot_u: np.ndarray, caps: np.ndarray | float) -> np.ndarray:
         """Deceleration for rows whose closing rate along ``u`` is ``grad_dot_u`` (per unit of s)."""
@@ -102,6 +121,12 @@ class PathBraking:
         if self.u is None:
             return np.broadcast_to(caps, np.shape(grad_dot_u)).copy()
         return np.minimum(caps, np.maximum(self.rate * np.abs(grad_dot_u), self.floor * caps))
+
+    def decel_scalar(self, grad_dot_u: float, cap: float) -> float:
+        """:meth:`decel` of one row in float arithmetic (a numpy call costs more than the row)."""
+        if self.u is None:
+            return cap
+        return min(cap, max(self.rate * abs(grad_dot_u), self.floor * cap))
 
 
 class AccelerationLimit(Limit):
@@ -128,6 +153,11 @@ class AccelerationLimit(Limit):
         self.dq_prev = np.zeros(6)
         self.velocity_bound = np.zeros(12, dtype=bool)  # rows whose bound came from vel (else acc)
         self.h_velocity = np.full(12, np.inf)  # the same rows with the velocity bound only
+        # fill(): C's non-zero entries per row, and the per-cycle bounds, as floats (set per dt).
+        self._c_rows = [[(k, float(v)) for k, v in enumerate(row) if v != 0.0] for row in self.c]
+        self._dt = math.nan
+        self._vmax_l: list[float] = []
+        self._da_l: list[float] = []
 
     def set_previous(self, dq_prev: np.ndarray) -> None:
         self.dq_prev = np.asarray(dq_prev, dtype=float).copy()
@@ -144,6 +174,34 @@ class AccelerationLimit(Limit):
         self.h_velocity = np.concatenate([vmax, vmax])
         return Constraint(G=self._g, h=np.concatenate([upper, -lower]))
 
+    def fill(self, dt: float, h: np.ndarray) -> None:
+        """``compute_qp_inequalities``' rows written into ``h`` (12), with no Constraint built, in
+        float arithmetic (the same operations in the same order as the reference's numpy ones).
+
+        The lower bounds negated are the upper bounds of ``-p``: ``-max(min(-v, p + a), p - a) ==
+        min(max(v, -p - a), -p + a)`` (negation is exact)."""
+        if self._dt != dt:
+            self._dt = dt
+            vmax = self.vel * dt
+            self._vmax_l = vmax.tolist()
+            self._da_l = (self.acc * dt * dt).tolist()  # as the reference rounds it
+            self.h_velocity = np.concatenate([vmax, vmax])
+        prev = self.dq_prev.tolist()
+        out: list[float] = []
+        bound: list[bool] = []
+        for sign in (1.0, -1.0):
+            for row, v, a in zip(self._c_rows, self._vmax_l, self._da_l, strict=True):
+                p = 0.0
+                for k, c in row:
+                    p += c * prev[k]
+                p = sign * p
+                hi = p + a
+                x = max(v, p - a)
+                x = hi if hi < x else x
+                out.append(x)
+                bound.append(x < hi)
+        h[:] = out
+        self.velocity_bound[:] = bound
 
 class BrakingLimit(Limit):
     """Each joint stays within ``[lower, upper]`` (model convention, rad) and can always stop before
@@ -177,6 +235,11 @@ class BrakingLimit(Limit):
         self._g = g
         self._bound = np.concatenate([self.range_upper, -self.range_lower])  # row i: g_i @ q <= bound_i
         self.restricted = np.zeros(12, dtype=bool)
+        # fill()'s floats: bounds, braking decelerations, dof columns.
+        self._bound_l: list[float] = self._bound.tolist()
+        self._acc_l: list[float] = self._acc.tolist()
+        self._brake_l: list[float] = self.brake_acc.tolist()
+        self._cols_l: list[int] = [int(c) for c in cols]
 
     @property
     def lower(self) -> np.ndarray:
@@ -192,6 +255,7 @@ class BrakingLimit(Limit):
         hi = np.minimum(self.range_upper, upper)
         self.restricted = np.concatenate([hi < self.range_upper, lo > self.range_lower])
         self._bound = np.concatenate([hi, -lo])
+        self._bound_l = self._bound.tolist()
 
     def compute_qp_inequalities(self, configuration: Configuration, dt: float) -> Constraint:
         q = configuration.data.qpos[self._qadr]
@@ -204,6 +268,37 @@ class BrakingLimit(Limit):
             self.h_path = dt * braking_speed(distance, np.concatenate([acc, acc]), horizon)
         return Constraint(G=self._g, h=h)
 
+    def fill(self, q: list[float], dt: float, h: np.ndarray, h_path: np.ndarray) -> None:
+        """``compute_qp_inequalities``' rows and ``h_path`` for the joints ``q`` (model order, floats),
+        written into ``h`` and ``h_path`` (12 each) with no Constraint built: float arithmetic, the
+        reference's operations in its order (``dt * braking_speed(...)``)."""
+        bound = self._bound_l
+        acc = self._acc_l
+        horizon = dt + self.lag_s
+        t2 = horizon * horizon
+        dist = [b - x for b, x in zip(bound[:6], q, strict=True)] + [b + x for b, x in zip(bound[6:], q, strict=True)]
+        out = []
+        for d, a in zip(dist, acc, strict=True):
+            d = d if d > 0.0 else 0.0
+            out.append(dt * (a * (math.sqrt(t2 + 2.0 * d / a) - horizon)))
+        h[:] = out
+        path = self.path
+        if path is not None and path.u is not None:
+            u, rate, floor = path.u_list, path.rate, path.floor
+            cols = self._cols_l
+            acc6 = []
+            for cap, i in zip(self._brake_l, cols, strict=True):
+                x = rate * abs(u[i])
+                fc = floor * cap
+                x = fc if fc > x else x
+                acc6.append(cap if cap < x else x)
+            out = []
+            for d, a in zip(dist, acc6 + acc6, strict=True):
+                d = d if d > 0.0 else 0.0
+                out.append(dt * (a * (math.sqrt(t2 + 2.0 * d / a) - horizon)))
+            h_path[:] = out
+        else:
+            h_path[:] = h
 
 @dataclass(frozen=True)
 class ConfigurationMargins:
@@ -283,6 +378,35 @@ class ConfigurationGuard(Limit):
             self.h_path = np.array([dt * float(braking_speed(distance, acc, horizon))])
         return Constraint(G=self._g, h=h)
 
+    def fill(self, q: np.ndarray, dt: float, g: np.ndarray) -> tuple[float, float]:
+        """``compute_qp_inequalities``' row for the joints ``q`` (model order): its coefficients written
+        into ``g`` (one row, dof columns), its bound and path bound returned. Float arithmetic: the row
+        is a handful of scalars, where each numpy call would cost more than the arithmetic."""
+        if self.reference is None:
+            self.reset(q)
+        assert self.reference is not None
+        kin = self.kin
+        q2, q3 = float(q[1]), float(q[2])
+        phi = q2 - q3
+        cphi, sphi = math.cos(phi), math.sin(phi)
+        x = kin.a1 + kin.a2 * math.sin(q2) + kin.d4 * cphi + kin.a3 * sphi
+        dphi = -kin.d4 * sphi + kin.a3 * cphi
+        g1, g2 = kin.a2 * math.cos(q2) + dphi, -dphi  # the gradient's only non-zero entries (q2, q3)
+        sign = 1.0 if self.reference.top else -1.0
+        distance = sign * x - self.margins.shoulder_m
+        g[:] = 0.0
+        g[self._cols[1]] = -sign * g1
+        g[self._cols[2]] = -sign * g2
+        acc = self.margins.shoulder_brake_acc
+        horizon = dt + self.lag_s
+        h = dt * braking_speed_scalar(distance, acc, horizon)
+        h_path = h
+        if self.path is not None and self.path.u is not None:
+            u = self.path.u_list
+            acc = self.path.decel_scalar(g1 * u[self._cols[1]] + g2 * u[self._cols[2]], acc)
+            h_path = dt * braking_speed_scalar(distance, acc, horizon)
+        return h, h_path
+
 
 class CollisionLimit(CollisionAvoidanceLimit):
     """mink's collision avoidance with the per-step units fixed and a braking allowance.
@@ -299,13 +423,15 @@ class CollisionLimit(CollisionAvoidanceLimit):
 
     def __init__(self, model: mujoco.MjModel, geom_pairs: Sequence, *, brake_acc: float = 3.0,
                  gain: float = 0.85, minimum_distance_from_collisions: float = 0.01,
-                 collision_detection_distance: float = 0.2, path: PathBraking | None = None) -> None:
+                 collision_detection_distance: float = 0.2, path: PathBraking | None = None,
+                 cache_margin: float = 0.3) -> None:
         super().__init__(model, geom_pairs, gain=gain,
                          minimum_distance_from_collisions=minimum_distance_from_collisions,
                          collision_detection_distance=collision_detection_distance)
         self.brake_acc = brake_acc
         self.path = path
         self.h_path = np.full(self.max_num_contacts, np.inf)
+        self._init_near_cache(model, cache_margin)
 
     def compute_qp_inequalities(self, configuration: Configuration, dt: float) -> Constraint:
         c = super().compute_qp_inequalities(configuration, 1.0)
@@ -320,6 +446,184 @@ class CollisionLimit(CollisionAvoidanceLimit):
             self.h_path[active] = np.minimum(h[active], dt * braking_speed(gap, acc, dt + self.lag_s) + relax)
         h[active] = np.minimum(h[active], dt * braking_speed(gap, self.brake_acc, dt + self.lag_s) + relax)
         return Constraint(G=c.G, h=h)
+
+    # ------------------------------------------------------------------ fast rows (the servo cycle)
+    # compute_qp_inequalities() runs the narrow phase (mj_geomDistance) on every pair that survives a
+    # bounding-sphere test, each cycle. fill() gives the same rows from far fewer narrow phases. A
+    # pair's distance changes by at most sum_j w_j |dq_j| when the joints move by dq (w_j: how far
+    # joint j's axis is from the geom it turns, 0 for joints upstream of both geoms, which turn the
+    # pair together; see _geom_joint_bounds). So a pair known to be at distance d at joints q0 cannot
+    # be within detection distance while d - sum_j w_j |q_j - q0_j| exceeds it, and needs no narrow
+    # phase: its row is inactive, as the reference's narrow phase would find. A refresh classifies all
+    # pairs (near: within detection distance + cache_margin, measured again whenever they could be
+    # within detection distance; far: a lower bound kept) and is due when a far pair could come near.
+
+    def _init_near_cache(self, model: mujoco.MjModel, margin: float) -> None:
+        pairs = np.array(self.geom_id_pairs, dtype=int).reshape(-1, 2)
+        self._pair_g1: list[int] = [int(g) for g in pairs[:, 0]]
+        self._pair_g2: list[int] = [int(g) for g in pairs[:, 1]]
+        self._pair_b1: list[int] = [int(model.geom_bodyid[g]) for g in self._pair_g1]
+        self._pair_b2: list[int] = [int(model.geom_bodyid[g]) for g in self._pair_g2]
+        # Per pair and joint: how fast the pair's distance can change with that joint. A joint
+        # upstream of both geoms turns them together (no change): only the joints between them count.
+        per_joint = _geom_joint_bounds(model)
+        weights = np.zeros((len(pairs), model.nv))
+        for i, (g1, g2) in enumerate(pairs):
+            r1, r2 = per_joint[g1], per_joint[g2]
+            both = (r1 > 0.0) & (r2 > 0.0)
+            weights[i] = np.where(both, 0.0, r1 + r2)
+        self._pair_weights = weights
+        # Unbounded geoms (rbound 0 on a moving body, e.g. a height field carried by the arm) cannot be
+        # bounded: then every pair is checked every cycle (margin 0: refresh each call).
+        self._cache_ok = bool(np.all(np.isfinite(weights))) and margin > 0.0
+        self.cache_margin = margin
+        self._q_refresh: list[float] | None = None
+        self._q_refresh_arr = np.zeros(0)
+        self._near_weights = self._far_weights = np.zeros((0, model.nv))
+        self._far_slack = np.zeros(0)
+        self._near: list[int] = []  # pairs within detection distance + margin at the last refresh
+        self._near_dist: list[float] = []  # ... and their distance then
+        self._near_q = np.zeros((0, model.nv))
+        self._rows_set: list[int] = []  # rows fill() made active last time (reset to inactive next time)
+        # Views made once for the MuJoCo kernels (the arrays are mink's scratch, kept for the limit's life).
+        self._from_pt, self._to_pt = self._fromto[:3], self._fromto[3:]
+        self._jac1_flat, self._jac2_flat = self._jac1.reshape(-1), self._jac2.reshape(-1)
+        self.refreshes = 0
+
+    def _refresh_near(self, data: mujoco.MjData, q: list[float]) -> None:
+        """Classify every pair at the joints ``q``: near (within detection distance + margin: its
+        narrow phase runs each cycle, unless it is still provably beyond detection distance) or far,
+        with a lower bound on its distance (bounding spheres, or the narrow phase's cap). The next
+        refresh is due when the joints have moved enough for the closest far pair to reach
+        detection distance."""
+        model = self.model
+        detect = self.collision_detection_distance
+        distmax = detect + (self.cache_margin if self._cache_ok else 0.0)
+        fromto = self._fromto
+        n = self.max_num_contacts
+        bound = np.full(n, -np.inf)  # lower bound on each pair's distance now (-inf: none known)
+        xpos = data.geom_xpos
+        # mink's bounding-sphere partition (CollisionAvoidanceLimit._init_broadphase; older mink has none:
+        # then every pair gets the narrow phase at a refresh).
+        if len(getattr(self, "_ss_idx", ())):
+            diff = xpos[self._ss_g1] - xpos[self._ss_g2]
+            bound[self._ss_idx] = np.sqrt(np.einsum("ij,ij->i", diff, diff)) - self._ss_rsum
+        if len(getattr(self, "_pg_idx", ())):
+            normal = data.geom_xmat[self._pg_plane][:, [2, 5, 8]]
+            diff = xpos[self._pg_other] - xpos[self._pg_plane]
+            bound[self._pg_idx] = np.einsum("ij,ij->i", normal, diff) - self._pg_rother
+        near: list[int] = []
+        near_dist: list[float] = []
+        far: list[int] = []
+        far_lb: list[float] = []
+        for idx in range(n):
+            lb = float(bound[idx])
+            if lb <= distmax:
+                dist = mujoco.mj_geomDistance(model, data, self._pair_g1[idx], self._pair_g2[idx], distmax, fromto)
+                if abs(dist - distmax) >= 1e-12:
+                    near.append(idx)
+                    near_dist.append(dist)
+                    continue
+                lb = distmax
+            far.append(idx)
+            far_lb.append(lb)
+        self._near, self._near_dist = near, near_dist
+        self._near_q = np.tile(np.asarray(q, dtype=float), (len(near), 1))  # joints when each was measured
+        self._near_weights = self._pair_weights[near]
+        self._far_weights = self._pair_weights[far]
+        self._far_slack = np.array(far_lb) - detect  # how far each far pair may drift before it matters
+        self._q_refresh = list(q)
+        self._q_refresh_arr = np.array(q)
+        self.refreshes += 1
+
+    def fill(self, data: mujoco.MjData, q: list[float], dt: float, g: np.ndarray, h: np.ndarray,
+             h_path: np.ndarray) -> None:
+        """``compute_qp_inequalities``' rows and ``h_path`` written into ``g`` (pairs x nv), ``h`` and
+        ``h_path`` (kinematics of ``data`` at the joints ``q`` must be current)."""
+        for idx in self._rows_set:  # last cycle's rows back to inactive (G = 0, h = inf)
+            g[idx] = 0.0
+            h[idx] = math.inf
+            h_path[idx] = math.inf
+        self._rows_set = []
+        if not self.max_num_contacts:
+            return
+        qr = self._q_refresh
+        # Per pair, a bound on how much its distance can have changed since q_refresh: the joints
+        # between its two geoms, each turned by |q - q_refresh| (weights: _geom_joint_bounds).
+        refresh = qr is None or len(qr) != len(q) or not self._cache_ok
+        qa = np.array(q)
+        if not refresh:
+            moved = np.abs(qa - self._q_refresh_arr)
+            if len(self._far_slack) and (self._far_slack - self._far_weights @ moved).min() <= 0.0:
+                refresh = True  # a far pair could be within detection distance now
+        if refresh:
+            self._refresh_near(data, q)
+            drift = [0.0] * len(self._near)
+        else:  # each near pair since its own last measurement
+            drift = (np.abs(qa - self._near_q) * self._near_weights).sum(axis=1).tolist()
+        model = self.model
+        distmax = self.collision_detection_distance
+        min_dist = self.minimum_distance_from_collisions
+        gain, relax = self.gain, self.bound_relaxation
+        normal, jac1, jac2 = self._normal, self._jac1, self._jac2
+        fromto, from_pt, to_pt = self._fromto, self._from_pt, self._to_pt
+        jac1_flat, jac2_flat = self._jac1_flat, self._jac2_flat
+        horizon = dt + self.lag_s
+        u = self.path.u if self.path is not None else None
+        near_dist, near_q = self._near_dist, self._near_q
+        wide = distmax + (self.cache_margin if self._cache_ok else 0.0)
+        for k, idx in enumerate(self._near):
+            # The pair was at near_dist[k] at the joints near_q[k]: it has changed by at most drift[k].
+            if near_dist[k] - drift[k] > distmax:
+                continue  # still beyond detection distance: no row, as the narrow phase would find
+            g1, g2 = self._pair_g1[idx], self._pair_g2[idx]
+            dist = mujoco.mj_geomDistance(model, data, g1, g2, wide, fromto)
+            if dist >= distmax:  # no row; remember how far it is, to skip it while it cannot be near
+                near_dist[k] = dist
+                near_q[k] = qa
+                continue
+            if wide != distmax:  # the row from the reference's own call (the cut-off may matter to it)
+                dist = mujoco.mj_geomDistance(model, data, g1, g2, distmax, fromto)
+                if abs(dist - distmax) < 1e-12:
+                    continue
+            # mink's compute_contact_normal_jacobian, with MuJoCo's vector kernels on views made once
+            mujoco.mju_sub3(normal, to_pt, from_pt)
+            mujoco.mju_normalize3(normal)
+            mujoco.mj_jac(model, data, jac2, None, to_pt, self._pair_b2[idx])
+            mujoco.mj_jac(model, data, jac1, None, from_pt, self._pair_b1[idx])
+            mujoco.mju_subFrom(jac2_flat, jac1_flat)
+            row = g[idx]
+            mujoco.mju_mulMatTVec(row, jac2, normal)
+            if dist >= 0.0:  # mink's sign: the distance must not shrink (penetrating: must grow)
+                mujoco.mju_scl(row, row, -1.0)
+            h0 = (gain * (dist - min_dist) / 1.0) + relax if dist > min_dist else relax
+            gap = (h0 - relax) / gain
+            h[idx] = min(h0, dt * braking_speed_scalar(gap, self.brake_acc, horizon) + relax)
+            if u is not None and self.path is not None:
+                acc = self.path.decel_scalar(mujoco.mju_dot(row, u), self.brake_acc)
+                h_path[idx] = min(h0, dt * braking_speed_scalar(gap, acc, horizon) + relax)
+            else:
+                h_path[idx] = h0
+            self._rows_set.append(idx)
+
+
+def _geom_joint_bounds(model: mujoco.MjModel) -> np.ndarray:
+    """``r[k, dof]``: a bound on the distance from joint ``dof``'s axis to any point of geom ``k`` (so
+    its points move at most ``r * |dq|`` when that joint turns by ``dq``); 0 for joints not upstream
+    of the geom, inf for an unbounded geom (rbound 0) that moves. Configuration-independent: the
+    joint anchor's offset, the body offsets along the chain, the geom's offset and bounding radius."""
+    out = np.zeros((model.ngeom, model.nv))
+    for k in range(model.ngeom):
+        body = int(model.geom_bodyid[k])
+        tail = float(np.linalg.norm(model.geom_pos[k])) + float(model.geom_rbound[k])  # body origin -> geom
+        unbounded = float(model.geom_rbound[k]) <= 0.0
+        while body > 0:
+            for j in range(int(model.body_jntadr[body]), int(model.body_jntadr[body]) + int(model.body_jntnum[body])):
+                dof = int(model.jnt_dofadr[j])
+                out[k, dof] = math.inf if unbounded else float(np.linalg.norm(model.jnt_pos[j])) + tail
+            tail += float(np.linalg.norm(model.body_pos[body]))  # this body's origin from its parent's
+            body = int(model.body_parentid[body])
+    return out
 
 
 def default_collision_pairs(model: mujoco.MjModel) -> list[tuple[list[str], list[str]]]:

@@ -69,6 +69,9 @@ class PersistentQP:
         self._p_rows, self._p_cols = self._triu[0][order], self._triu[1][order]
         self._osqp: osqp.OSQP | None = None
         self._l = np.full(m, -INF)
+        self._sense = np.zeros(m, dtype=np.intc)  # all rows inequalities, no warm start (written by DAQP)
+        self._daqp = None  # daqp.Model: the workspace allocated once (daqp.solve sets one up per call)
+        self._daqp_data: tuple = ()  # the arrays the workspace was last given, kept alive with it
         self.solves = 0
         self.failures = 0
 
@@ -83,14 +86,14 @@ class PersistentQP:
         qs = q / s
         hs = np.minimum(h / s, INF)
         self.solves += 1
-        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(qs)) and np.all(np.isfinite(g))
-                and not np.any(np.isnan(hs))):
+        # ndarray methods rather than np.all / np.any: the same checks with less dispatch (per cycle).
+        if not (np.isfinite(p).all() and np.isfinite(qs).all() and np.isfinite(g).all() and not np.isnan(hs).any()):
             return self._fail("non-finite data")
         if self.solver == "osqp":
             xs, status, iters, exact = self._solve_osqp(p, qs, g, hs)
         else:
             xs, status, iters, exact = self._solve_daqp(p, qs, g, hs)
-        if xs is None or not np.all(np.isfinite(xs)):
+        if xs is None or not np.isfinite(xs).all():
             return self._fail(status, iters)
         if not exact and m and float(np.max(g @ xs - hs)) > self.settings.feasibility_tol / s:
             return self._fail(status, iters)
@@ -142,8 +145,22 @@ class PersistentQP:
                     ) -> tuple[np.ndarray | None, str, int, bool]:
         import daqp  # local: optional backend, keeps import time down for OSQP users
 
-        x, _fval, exitflag, info = daqp.solve(np.ascontiguousarray(p), q, np.ascontiguousarray(g), h, self._l,
-                                              np.zeros(self.m, dtype=np.intc))
+        p, g = np.ascontiguousarray(p), np.ascontiguousarray(g)
+        self._sense[:] = 0  # cold start every solve, as daqp.solve: the same iterations, the same answer
+        model = self._daqp
+        if model is None and hasattr(daqp, "Model"):
+            model = daqp.Model()
+            flag = model.setup(p, q, g, h, self._l, self._sense)
+            if isinstance(flag, tuple):
+                flag = flag[0]
+            model = self._daqp = model if flag >= 0 else None
+        elif model is not None and model.update(H=p, f=q, A=g, bupper=h, blower=self._l, sense=self._sense) < 0:
+            model = self._daqp = None
+        if model is None:
+            x, _fval, exitflag, info = daqp.solve(p, q, g, h, self._l, self._sense)
+        else:
+            self._daqp_data = (p, q, g, h)  # the workspace may point at them until the next update
+            x, _fval, exitflag, info = model.solve()
         iters = int(info.get("iterations", 0)) if isinstance(info, dict) else 0
         if exitflag >= 1:
             return np.array(x), f"daqp:{exitflag}", iters, True
