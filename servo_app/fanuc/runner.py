@@ -196,6 +196,14 @@ class _ServoProcess(ServoProcessHost):
         now = time.monotonic()
         if data:
             self._t_recv = now
+            # A stream's first command (the hold position) leaves before anything else happens on its
+            # ready status: the packet was made while waiting (prepare_first_command), only the status's
+            # sequence number and joints go in now.
+            first = self.sup.first_command_early(data)
+            t_first = 0.0
+            if first is not None:
+                self.sock.send(first)
+                t_first = time.monotonic()
             if self.inputs is not None:  # the newest input before this status packet's command
                 cmd = self.inputs.poll()
                 if cmd is not None:
@@ -204,9 +212,15 @@ class _ServoProcess(ServoProcessHost):
             self._send(out)
             t_sent = time.monotonic()
             self.sup.session.begin_motion()  # a stream's first commands (the hold) left first
-            self._after_datagram(now, t_sent)
+            self._after_datagram(now, t_sent, t_first)
         else:
             self._send(self.sup.on_idle(now))
+
+    def _housekeeping(self) -> None:
+        super()._housekeeping()
+        # Last, once requests and signals are in: the next status finds the first command ready if it
+        # starts the stream.
+        self.sup.prepare_first_command()
 
     def _deliver_signal(self, sig: int, now: float) -> None:
         self._send(self.sup.signal(sig, now))
@@ -236,9 +250,10 @@ class _ServoProcess(ServoProcessHost):
         if self.sup.on_late_input(cmd, now):
             self.inputs.consume()
 
-    def _after_datagram(self, t_recv: float, t_sent: float) -> None:
+    def _after_datagram(self, t_recv: float, t_sent: float, t_first: float = 0.0) -> None:
         """Log what really crossed the wire: the status just received (once per sequence number) and
-        the commands just sent for it. A malformed datagram leaves ``session.sent`` empty."""
+        the commands just sent for it (``t_first``: when the one sent ahead left). A malformed datagram
+        leaves ``session.sent`` empty."""
         s = self.sup.session
         st = s.last_status
         if st is None or self.log is None:
@@ -250,10 +265,11 @@ class _ServoProcess(ServoProcessHost):
             if self.last_status_t:
                 self.state.set("status_interval_last_ms", (t_recv - self.last_status_t) * 1000)
             self.last_status_t = t_recv
-        lat_us = (t_sent - t_recv) * 1e6
         for sent in s.sent:
             c = sent.command
-            self.log.command(t_sent - self.t0, c.seq, c.last_data, c.data_format, c.write_io_value, lat_us, c.values)
+            t = t_first if sent.early else t_sent
+            lat_us = (t - t_recv) * 1e6
+            self.log.command(t - self.t0, c.seq, c.last_data, c.data_format, c.write_io_value, lat_us, c.values)
             self.latency.add(lat_us, self.late_us)
             self.lat_hist[bisect.bisect_left(LATENCY_BUCKETS_US, lat_us)] += 1  # le semantics
             self.lat_sum_us += lat_us
