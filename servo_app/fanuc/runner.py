@@ -174,7 +174,7 @@ class _ServoProcess(ServoProcessHost):
         self.lat_hist = np.zeros(len(LATENCY_BUCKETS_US) + 1)
         self.lat_sum_us = 0.0
         self.late_us = (cfg.late_threshold_ms or self.dt * 1000 / 2) * 1000
-        self.hist = _CommandHistory(self.profile.dof, self.dt)  # for the commanded velocity, acceleration, jerk
+        self.hist = _CommandHistory(6, self.dt)  # J1..J6 (the state's 6 slots): commanded velocity, acc., jerk
         self._limits_published: object = None  # the limits last written to the state (they change per stream)
         self._status_published: Status | None = None
         self.last_status_t = 0.0
