@@ -27,8 +27,14 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def run_in(tree: Path, command: list[str], timeout: float) -> tuple[list[str], str]:
-    """The table rows the benchmark printed, and its last line (its verdict), run inside ``tree``."""
+    """The table rows the benchmark printed, and its last line (its verdict), run inside ``tree``.
+
+    A benchmark the base revision does not have yet runs from this tree, on the base's code (its
+    ``servo_app`` comes from ``PYTHONPATH``): a new benchmark measures the code before its change too."""
     env = {**os.environ, "PYTHONPATH": str(tree)}
+    script = Path(command[0])
+    if not script.is_absolute() and not (tree / script).exists() and (ROOT / script).exists():
+        command = [str(ROOT / script), *command[1:]]
     r = subprocess.run([sys.executable, *command], cwd=tree, env=env, capture_output=True, text=True,
                        timeout=timeout)
     lines = [line for line in r.stdout.splitlines() if line.strip()]

@@ -39,7 +39,7 @@ from servo_app.ipc import LatestValueSlot
 from servo_app.realtime import single_threaded_blas
 from servo_app.safety import Mode
 from servo_app.session_log import SessionLogWriter
-from servo_app.state import MODES, PHASES, STATE_SIZE, StateVector, decode_state
+from servo_app.state import MODES, OFFSET, PHASES, STATE_SIZE, StateVector, decode_state
 
 # ------------------------------------------------------------------------------------- child side
 
@@ -237,12 +237,13 @@ class ServoProcessHost:
             self.sup.changed = False
             self._event(msg.SafetyChanged(view=self.sup.describe()))
         sv = self.state
-        sv.set("published_unix", time.time())
-        sv.set("phase", PHASES.index(self.sup.link_phase()[0]))
-        sv.set("mode", MODES.index(self.sup.state.mode.value))
-        sv.set("session_time", time.monotonic() - self.t0)
+        d = sv.data
+        d[OFFSET["published_unix"]] = time.time()
+        d[OFFSET["phase"]] = PHASES.index(self.sup.link_phase()[0])
+        d[OFFSET["mode"]] = MODES.index(self.sup.state.mode.value)
+        d[OFFSET["session_time"]] = time.monotonic() - self.t0
         self._publish_backend(sv)
-        self.slot.write(sv.data)
+        self.slot.write(d)  # the one write a reader sees
 
 
 # ------------------------------------------------------------------------------------ parent side

@@ -92,6 +92,14 @@ LIMIT_RESPONSE_SIZE = _LIMIT_RESPONSE.size  # 184
 
 _U8, _U16, _U32 = 0xFF, 0xFFFF, 0xFFFFFFFF
 
+# Byte offsets within the packets, for code that answers a status without decoding it (the first
+# command of a stream: StreamSession.first_command_early).
+STATUS_HEADER = _HEADER.pack(PacketType.STATUS, PROTOCOL_VERSION)  # type and version of a status
+SEQ_OFFSET = _HEADER.size  # u32, status and command alike
+STATUS_BITS_OFFSET = struct.calcsize(">III")  # u8
+STATUS_JOINTS_OFFSET = struct.calcsize(">IIIBBHHHI9f")  # 9 x f32, J1..J9
+COMMAND_VALUES_OFFSET = struct.calcsize(">IIIBBHHBBHHHH")  # 9 x f32
+
 
 def _check_uint(name: str, value: int, top: int) -> None:
     if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value <= top:

@@ -19,6 +19,7 @@ position, and it integrates nothing from the servo position.
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -27,6 +28,12 @@ from typing import Protocol
 import numpy as np
 
 from servo_app.fanuc.packets import (
+    COMMAND_VALUES_OFFSET,
+    SEQ_OFFSET,
+    STATUS_BITS_OFFSET,
+    STATUS_HEADER,
+    STATUS_JOINTS_OFFSET,
+    STATUS_SIZE,
     Command,
     DataFormat,
     LimitTableRequest,
@@ -34,6 +41,7 @@ from servo_app.fanuc.packets import (
     LimitType,
     PacketError,
     Status,
+    StatusBit,
     StatusStart,
     StatusStop,
     decode_from_robot,
@@ -43,6 +51,12 @@ from servo_app.fanuc.packets import (
 from servo_app.motion.limit_tables import LimitTables, tables_from_rows
 
 MAX_PKT_STACK = 10  # $PKT_STACK default and maximum (61.6): at most 9 unprocessed commands
+# The status bits of a ready status, of those the session looks at: waiting for commands, SYSRDY, and
+# neither a command received yet nor moving (see _maybe_start).
+_READY_MASK = (StatusBit.WAITING_FOR_COMMAND | StatusBit.COMMAND_RECEIVED | StatusBit.SYSRDY
+               | StatusBit.MOVING)
+_READY_BITS = StatusBit.WAITING_FOR_COMMAND | StatusBit.SYSRDY
+_JOINTS = struct.Struct(">9f")  # a status packet's J1..J9
 
 
 class Phase(StrEnum):
@@ -116,6 +130,7 @@ class SentCommand:
 
     command: Command
     data: bytes
+    early: bool = False  # sent by the runner ahead of the rest (first_command_early)
 
 
 @dataclass
@@ -151,6 +166,12 @@ class StreamSession:
         # Streaming began and the motion source is still to be set up from this (start joints, tables).
         self._begin_with: tuple[np.ndarray, LimitTables | None] | None = None
         self.sent: list[SentCommand] = []  # filled per call, for the runner's log
+        # The first command's packet, ready before its status arrives (prepare_first_command), and the
+        # one that went out ahead of on_datagram: (sequence number, bytes).
+        self._early: bytearray | None = None
+        self._early_key: tuple[object, ...] | None = None
+        self._early_joints: bytes | None = None  # Cartesian format: the status joints it was made for
+        self._early_sent: tuple[int, bytes] | None = None
 
     # ----------------------------------------------------------------- requests
     def open(self, now: float) -> list[bytes]:
@@ -191,6 +212,67 @@ class StreamSession:
             q0, tables = self._begin_with
             self._begin_with = None
             self.motion.begin(q0, tables)
+
+    # ----------------------------------------------------------- the first command, ahead
+    def prepare_first_command(self, starts: bool) -> None:
+        """Off the cycle (while waiting for bit 0): the packet of the stream's first command, all but
+        what comes from the ready status itself. ``starts``: the caller's word that the next ready
+        status starts the stream (the supervisor's state machine would accept the start).
+
+        At the ready status the hold position must leave at once: a command later than one interval
+        answers a status that is no longer the latest, and a strict controller posts MOTN-600 (issue 15:
+        0.35-1.2 ms from status to first command while the status was decoded, the safety transitions
+        run and three commands encoded first)."""
+        if (not starts or self.phase not in (Phase.CONNECTED, Phase.WAITING_READY) or self._io_writes
+                or (self.phase == Phase.WAITING_READY and self._end_requested)):  # (arm() clears it)
+            self._early = None
+            return
+        read = self.io_read
+        # Cartesian format: the pose of the joints last reported, good while the arm reports them still.
+        joints = self.last_status.joints if self.to_cartesian is not None and self.last_status else None
+        key = (read, joints)
+        if self._early is not None and key == self._early_key:
+            return
+        values: tuple[float, ...] = (0.0,) * self.config.n_axes  # joint format: copied from the status
+        self._early_joints = None
+        if joints is not None:
+            values = self._pose(joints)
+            self._early_joints = _JOINTS.pack(*joints)
+        cmd = Command(seq=0, values=values,
+                      data_format=DataFormat.JOINT if self.to_cartesian is None else DataFormat.CARTESIAN,
+                      read_io_type=read.io_type if read else 0, read_io_index=read.index if read else 0,
+                      read_io_mask=read.mask if read else 0)
+        self._early, self._early_key = bytearray(cmd.encode()), key
+
+    def _pose(self, joints: tuple[float, ...]) -> tuple[float, ...]:
+        assert self.to_cartesian is not None
+        return tuple(float(v) for v in self.to_cartesian(np.array(joints[: self.config.n_axes], dtype=float)))
+
+    def first_command_early(self, data: bytes) -> bytes | None:
+        """The stream's first command for datagram ``data`` if it is the ready status the prepared
+        packet waits for, else None. The caller sends it at once, then hands ``data`` to
+        ``on_datagram`` as usual: the session goes on as if it had sent it there (and does not send
+        it again)."""
+        p = self._early
+        if (p is None or len(data) != STATUS_SIZE or data[:SEQ_OFFSET] != STATUS_HEADER
+                or data[STATUS_BITS_OFFSET] & _READY_MASK != _READY_BITS):
+            return None
+        seq = int.from_bytes(data[SEQ_OFFSET: SEQ_OFFSET + 4], "big")
+        last = self.last_status
+        if last is not None and (seq == last.seq or (seq_diff(seq, last.seq) <= 0 and seq != 1)):
+            return None  # a duplicate or reordered status is not answered (_on_status)
+        joints = data[STATUS_JOINTS_OFFSET: STATUS_JOINTS_OFFSET + _JOINTS.size]
+        if self.to_cartesian is None:  # J519 floats both ways: the hold position is the status's joints
+            n = 4 * self.config.n_axes
+            p[COMMAND_VALUES_OFFSET: COMMAND_VALUES_OFFSET + n] = joints[:n]
+        elif joints != self._early_joints:  # not the joints the pose was made for (or none yet): now
+            pose = self._pose(_JOINTS.unpack(joints))
+            p[COMMAND_VALUES_OFFSET: COMMAND_VALUES_OFFSET + 4 * len(pose)] = struct.pack(f">{len(pose)}f", *pose)
+        p[SEQ_OFFSET: SEQ_OFFSET + 4] = data[SEQ_OFFSET: SEQ_OFFSET + 4]  # the first command carries its seq
+        out = bytes(p)
+        self._early = None
+        self._early_sent = (seq, out)
+        return out
 
     def request_end(self) -> None:
         """Decelerate, send last data, then stop the status output."""
@@ -245,7 +327,13 @@ class StreamSession:
         if isinstance(packet, LimitTableResponse):
             self._on_table(packet)
             return []
-        return self._on_status(packet, now)
+        out = self._on_status(packet, now)
+        if self._early_sent is not None:
+            # A first command went out ahead for this status, but no stream started on it: the
+            # controller now waits for the next commands, which will not come. A bug: stop here.
+            self._early_sent = None
+            self._fault("a first command was sent ahead, but the stream did not start", now)
+        return out
 
     def on_idle(self, now: float) -> list[bytes]:
         """Call when no datagram arrived for a while: time-outs live here."""
@@ -381,10 +469,13 @@ class StreamSession:
         for _ in range(max(due, 0)):
             if self._last_data_sent:
                 break
-            out.append(self._command(st))
+            data = self._command(st)
+            if data is not None:
+                out.append(data)
         return out
 
-    def _command(self, st: Status) -> bytes:
+    def _command(self, st: Status) -> bytes | None:
+        """Make the next command; its bytes to send, or None when it went out ahead already."""
         last = 0
         if self._begin_with is not None:  # the stream's first commands: the hold position itself
             q = self._begin_with[0]
@@ -410,11 +501,17 @@ class StreamSession:
             write_io_value=write.value if write else 0,
         )
         data = cmd.encode()
-        self.sent.append(SentCommand(cmd, data))
+        early = self._early_sent
+        ahead = early is not None and early[0] == cmd.seq
+        if early is not None and ahead:  # it went out before this status was decoded: not again
+            self._early_sent = None
+            self.sent.append(SentCommand(cmd, early[1], early=True))
+        else:
+            self.sent.append(SentCommand(cmd, data))
         self._next_cmd_seq = next_seq(self._next_cmd_seq)
         self._sent_since_start += 1
         self.stats.commands_sent += 1
         if last:
             self._last_data_sent = True
             self.phase = Phase.ENDING
-        return data
+        return None if ahead else data

@@ -34,12 +34,15 @@ from servo_app.motion.limit_tables import default_tables
 from servo_app.motion.servo import ServoCycle
 from servo_app.robots.profile import RobotProfile
 from servo_app.safety import (
+    SEND_FIRST_COMMAND,
     ControllerAlarm,
     Mode,
     ShaperAtRest,
     Signal,
+    StartRequested,
     StatusLost,
     StatusReceived,
+    transition,
 )
 from servo_app.supervision import SupervisorBase, check_count, check_speeds, next_step
 
@@ -234,6 +237,29 @@ class StreamSupervisor(SupervisorBase):
         return self._take()
 
     # ------------------------------------------------------------------ cycle
+    def prepare_first_command(self) -> None:
+        """Off the cycle, after each datagram and request: if the next ready status would start the
+        stream, the session gets the first command's packet ready (``first_command_early``)."""
+        self.session.prepare_first_command(self._starts_on_ready())
+
+    def first_command_early(self, data: bytes) -> bytes | None:
+        """The first command for ``data`` if it is the ready status a start waits for: the runner sends
+        it before anything else, then calls ``on_datagram`` as usual."""
+        return self.session.first_command_early(data)
+
+    def _starts_on_ready(self) -> bool:
+        """Would a ready status (bit 0, SYSRDY, no command received) start the stream now? What
+        ``on_datagram`` would do with it, as a dry run of the same pure transitions."""
+        s = self.session
+        if s.phase == Phase.WAITING_READY:  # armed: the session starts on it by itself
+            return True
+        if s.phase != Phase.CONNECTED or not self.start_pending:
+            return False
+        t = transition(self.state, StatusReceived(bit0=True, bit1=False, sysrdy=True))  # _on_status_before
+        st = t.state
+        ready = st.mode == Mode.READY or (st.mode == Mode.ENDED and st.status is not None and st.status.waiting)
+        return ready and SEND_FIRST_COMMAND in transition(st, StartRequested()).actions  # _start_when_ready
+
     def on_datagram(self, data: bytes, now: float) -> list[bytes]:
         self._out = []
         self.session.sent = []  # a malformed datagram sends nothing: nothing of an earlier one may be logged
