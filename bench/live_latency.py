@@ -43,6 +43,7 @@ import httpx
 import numpy as np
 
 import servo_app
+from servo_app.fanuc.packets import StatusBit
 from servo_app.session_log import SessionLog, read_session_log
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -56,7 +57,7 @@ HEADER = ("| run | interval ms | commands | p50 us | p99 us | p99.9 us | max us 
           "| first command us | solve us p50 / max | servo CPU % |")
 # /api/state keys that carry a per-cycle compute time, whatever the servo process calls them.
 TIMING_KEY = re.compile(r"(solve|cycle|compute).*(_us|_ms|_s)$")
-BIT0, BIT1 = 0x01, 0x02
+BIT0, BIT1 = StatusBit.WAITING_FOR_COMMAND, StatusBit.COMMAND_RECEIVED
 
 
 @dataclass

@@ -19,7 +19,7 @@ import httpx
 import numpy as np
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
-from test_api_harness import TOKEN, LiveServer, Rig, running_rig
+from test_api_harness import TOKEN, LiveServer, Rig, running_janome_rig, running_rig
 
 from servo_app.api.app import create_app
 from servo_app.fanuc.packets import StatusStop
@@ -190,18 +190,8 @@ def test_fanuc_settled_only_once_the_reported_joints_stop(tmp_path: Path) -> Non
 
 @pytest.fixture
 def janome(tmp_path: Path) -> Iterator[tuple[Rig, JanomeSimulator]]:
-    service = ServoService(ServiceConfig(robot="janome:127.0.0.1:0", model="jr3000", var_dir=tmp_path))
-    service.open()
-    server = LiveServer(create_app(service, TOKEN)).start()
-    rig = Rig(service, server, tmp_path)
-    assert service.robot_address is not None
-    sim = JanomeSimulator(service.robot_address, "jr3000").start()
-    try:
-        yield rig, sim
-    finally:
-        sim.stop()
-        server.stop()
-        service.close()
+    with running_janome_rig(tmp_path) as rig_and_robot:
+        yield rig_and_robot
 
 
 def test_janome_settled_only_once_the_robot_reports_its_last_move_done(janome: tuple[Rig, JanomeSimulator]) -> None:

@@ -23,6 +23,7 @@ from servo_app.api.app import create_app
 from servo_app.messages import LogClosed, LogOpened
 from servo_app.service import ServiceConfig, ServoService
 from servo_app.session_log import SessionLog, read_session_log
+from servo_app.sim.janome_sim import JanomeSimulator
 
 TOKEN = "test-token-0123456789"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -186,6 +187,31 @@ def running_rig(tmp: Path, jog_rate_per_s: int = 100, cors_origins: list[str] | 
         finally:
             rig.http.close()
     finally:
+        if server is not None:
+            server.stop()
+        service.close()
+
+
+@contextlib.contextmanager
+def running_janome_rig(tmp: Path, model: str = "jr3000") -> Iterator[tuple[Rig, JanomeSimulator]]:
+    """The service listening for a Janome robot on a free port, and the robot's point job (the
+    simulator) connected to it."""
+    service = ServoService(ServiceConfig(robot="janome:127.0.0.1:0", model=model, var_dir=tmp))
+    service.open()
+    server = None
+    sim = None
+    try:
+        server = LiveServer(create_app(service, TOKEN)).start()
+        rig = Rig(service, server, tmp)
+        assert service.robot_address is not None
+        sim = JanomeSimulator(service.robot_address, model).start()
+        try:
+            yield rig, sim
+        finally:
+            rig.http.close()
+    finally:
+        if sim is not None:
+            sim.stop()
         if server is not None:
             server.stop()
         service.close()

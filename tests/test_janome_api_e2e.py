@@ -11,10 +11,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from test_api_harness import TOKEN, LiveServer, Rig
+from test_api_harness import TOKEN, Rig, running_janome_rig
 
-from servo_app.api.app import create_app
-from servo_app.service import ServiceConfig, ServoService
 from servo_app.sim.janome_sim import JanomeSimulator
 
 pytestmark = pytest.mark.e2e
@@ -22,18 +20,8 @@ pytestmark = pytest.mark.e2e
 
 @pytest.fixture
 def janome(tmp_path: Path) -> Iterator[tuple[Rig, JanomeSimulator]]:
-    service = ServoService(ServiceConfig(robot="janome:127.0.0.1:0", model="jr3000", var_dir=tmp_path))
-    service.open()
-    server = LiveServer(create_app(service, TOKEN)).start()
-    rig = Rig(service, server, tmp_path)
-    assert service.robot_address is not None
-    sim = JanomeSimulator(service.robot_address, "jr3000").start()
-    try:
-        yield rig, sim
-    finally:
-        sim.stop()
-        server.stop()
-        service.close()
+    with running_janome_rig(tmp_path) as rig_and_robot:
+        yield rig_and_robot
 
 
 def jog_x(rig: Rig, headers: dict[str, str], seconds: float) -> None:
