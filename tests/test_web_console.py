@@ -182,6 +182,17 @@ def page(browser: Any) -> Iterator[Any]:
     assert errors == [], f"uncaught errors in the page: {errors}"
 
 
+def call(svc: Service, method: str, path: str, body: Any = None, lease: str | None = None) -> Any:
+    """An API request with the token (and a lease), as another client beside the console would send it."""
+    headers = {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"}
+    if lease:
+        headers["X-Lease-Id"] = lease
+    req = urllib.request.Request(svc.url + path, data=json.dumps(body).encode() if body is not None else None,
+                                 method=method, headers=headers)
+    with urllib.request.urlopen(req, timeout=10) as r:
+        return json.load(r)
+
+
 def shot(pg: Any, name: str, full_page: bool = False) -> Path:
     ARTIFACTS.mkdir(exist_ok=True)
     path = ARTIFACTS / f"{name}.png"
@@ -482,26 +493,17 @@ def test_input_sources_show_rate_and_staleness(page: Any, with_inputs: Service) 
         cells = page.locator("tr[data-source='vision'] td").all_text_contents()
         assert cells[:3] == ["vision", "pose", "stale"]
 
-        def call(method: str, path: str, body: Any = None, lease: str | None = None) -> Any:
-            headers = {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"}
-            if lease:
-                headers["X-Lease-Id"] = lease
-            req = urllib.request.Request(svc.url + path, data=json.dumps(body).encode() if body is not None else None,
-                                         method=method, headers=headers)
-            with urllib.request.urlopen(req, timeout=5) as r:
-                return json.load(r)
-
         # The lease holder gives one source exclusive control: the console says so, and when it ends.
-        lease = call("POST", "/api/lease", {"client": "pytest-owner", "force": True})["lease_id"]
+        lease = call(svc, "POST", "/api/lease", {"client": "pytest-owner", "force": True})["lease_id"]
         try:
-            call("POST", "/api/inputs/owner", {"source": "remote_jog"}, lease)
+            call(svc, "POST", "/api/inputs/owner", {"source": "remote_jog"}, lease)
             page.wait_for_function("document.querySelector('#inputs-status').textContent"
                                    ".includes('only remote_jog may command')", timeout=15000)
-            call("POST", "/api/inputs/owner", {"source": None}, lease)
+            call(svc, "POST", "/api/inputs/owner", {"source": None}, lease)
             page.wait_for_function("!document.querySelector('#inputs-status').textContent.includes('only')",
                                    timeout=15000)
         finally:
-            call("DELETE", "/api/lease", lease=lease)
+            call(svc, "DELETE", "/api/lease", lease=lease)
         ARTIFACTS.mkdir(exist_ok=True)
         page.locator("#inputs-card").screenshot(path=str(ARTIFACTS / "console-inputs.png"))
     finally:

@@ -8,18 +8,24 @@ with its embedded simulator, headless Chromium, checks through /api/state over H
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import signal
-import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 import test_web_console as console
-from test_web_console import TOKEN, Service, _service, at_rest_without_alarm, shot, sign_in, take_control_and_stream
+from test_web_console import (
+    Service,
+    _service,
+    at_rest_without_alarm,
+    call,
+    shot,
+    sign_in,
+    take_control_and_stream,
+)
 
 # The console tests' fixtures, found by pytest under these names: one browser and one service per module.
 browser = console.browser
@@ -33,16 +39,6 @@ pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 # from the stretched arm.
 HOME = [0.0, -30.0, 0.0, 0.0, -90.0, 0.0]
 WIDTHS = [{"width": 1280, "height": 800}, {"width": 1440, "height": 900}]
-
-
-def call(svc: Service, method: str, path: str, body: Any = None, lease: str | None = None) -> Any:
-    headers = {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"}
-    if lease:
-        headers["X-Lease-Id"] = lease
-    req = urllib.request.Request(svc.url + path, data=json.dumps(body).encode() if body is not None else None,
-                                 method=method, headers=headers)
-    with urllib.request.urlopen(req, timeout=10) as r:
-        return json.load(r)
 
 
 def mouse_hold(pg: Any, selector: str, seconds: float) -> None:
