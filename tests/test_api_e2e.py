@@ -30,23 +30,6 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
         assert r.sim_alarms() == [], r.sim_alarms()
 
 
-def streaming(rig: Rig, client: str = "tester", ttl_s: float | None = None) -> dict[str, str]:
-    """Hold the lease and have a stream running (starting a new one if the last has ended)."""
-    h = rig.lease(client, ttl_s=ttl_s)
-    time.sleep(0.12)  # a new holder stops a streaming arm: let the lease watcher do that first
-    s = rig.wait(lambda s: s["state"] != "stopping", 5.0, "not stopping")
-    if s["state"] == "fault":  # an earlier test's fault (that test fails on its own): recover, as an operator would
-        rig.post("/api/reset", h)
-        s = rig.wait_state("disconnected", "connected", "ready", "ended")
-    if s["state"] == "stopped":
-        if s["stop_fast"]:
-            rig.post("/api/reset", h)
-        rig.post("/api/session/resume", h)
-    elif s["state"] != "streaming":
-        rig.start_streaming(h)
-    return h
-
-
 # ------------------------------------------------------------------------------------------- auth
 
 
@@ -98,7 +81,7 @@ def test_lease_acquire_renew_release_force_and_expiry(rig: Rig) -> None:
 
 
 def test_an_expiring_lease_stops_a_moving_arm(rig: Rig) -> None:
-    h = streaming(rig, "shortlived", ttl_s=0.6)
+    h = rig.streaming("shortlived", ttl_s=0.6)
     s = rig.state()
     goal = [q + (40.0 if i == 0 else 0.0) for i, q in enumerate(s["q_cmd"])]
     rig.post("/api/target", h, {"joints": goal, "speed_scale": 0.05})  # takes longer than the lease
@@ -117,7 +100,7 @@ def test_an_expiring_lease_stops_a_moving_arm(rig: Rig) -> None:
 
 
 def test_start_jog_hold_to_run_target_stop_resume_end(rig: Rig) -> None:
-    h = streaming(rig)
+    h = rig.streaming()
     s = rig.state()
     assert s["link"] == "streaming" and s["at_rest"]
     q0 = s["q_cmd"][0]
@@ -161,7 +144,7 @@ def test_start_jog_hold_to_run_target_stop_resume_end(rig: Rig) -> None:
 def test_a_pose_target_out_of_reach_stops_short_and_the_state_says_why(rig: Rig) -> None:
     """The arm goes as far as its held configuration allows, then rests there; the state names what
     holds the Cartesian motion back. A reachable target afterwards arrives and the reason clears."""
-    h = streaming(rig)
+    h = rig.streaming()
     home = [0.0, 0.0, 0.0, 0.0, -90.0, 0.0]  # from where an earlier test left it: the X below is then in reach
     rig.post("/api/target", h, {"joints": home})
     s = rig.wait(lambda s: s["at_rest"] and np.allclose(s["q_cmd"], home, atol=1e-3), 10.0, "home")
@@ -204,7 +187,7 @@ def test_limits(rig: Rig) -> None:
 
 
 def test_io_write_then_read_back_through_the_command_packets(rig: Rig) -> None:
-    h = streaming(rig)
+    h = rig.streaming()
     r = rig.post("/api/io", h, {"type": "DO", "index": 17, "mask": 0x00FF, "value": 0x5AA5})
     assert r.json() == {"ok": True, "type": "DO", "index": 17, "mask": 0x00FF, "value": 0x5AA5}
     r = rig.http.get("/api/io", params={"type": "DO", "index": 17}, headers=AUTH)
@@ -228,7 +211,7 @@ def test_io_write_then_read_back_through_the_command_packets(rig: Rig) -> None:
 ])
 def test_io_outside_the_allow_list_is_refused_before_the_controller(rig: Rig, body: dict[str, Any],
                                                                     words: list[str]) -> None:
-    h = streaming(rig)
+    h = rig.streaming()
     r = rig.http.post("/api/io", json=body, headers=h)
     assert r.status_code == 422, r.text
     for w in words:
@@ -244,7 +227,7 @@ def test_io_outside_the_allow_list_is_refused_before_the_controller(rig: Rig, bo
 
 
 def test_session_log_download_is_complete(rig: Rig) -> None:
-    h = streaming(rig)
+    h = rig.streaming()
     rig.jog_for(h, [0, 0, 0, 30.0, 0, 0], 0.4)
     rig.end_and_wait(h)
     log = rig.latest_log()
@@ -257,7 +240,7 @@ def test_session_log_download_is_complete(rig: Rig) -> None:
 
 
 def test_telemetry_websocket_rate(rig: Rig) -> None:
-    streaming(rig)
+    rig.streaming()
     with websockets.sync.client.connect(f"{rig.ws_url}/ws/telemetry") as ws:
         first = json.loads(ws.recv(timeout=5))
         t0, n = time.monotonic(), 1
@@ -272,7 +255,7 @@ def test_telemetry_websocket_rate(rig: Rig) -> None:
 
 
 def test_metrics_in_prometheus_format(rig: Rig) -> None:
-    h = streaming(rig)
+    h = rig.streaming()
     rig.jog_for(h, [0, 0, 0, 0, 0, 20.0], 0.3)
     rig.wait(lambda s: s["state"] == "stopped", 3.0)
     r = rig.http.get("/metrics")
@@ -330,7 +313,7 @@ print(json.dumps({"codes": [r.status_code for r in rs], "elapsed": time.monotoni
 
 
 def test_jog_rate_limit_and_audit(rig: Rig) -> None:
-    h = streaming(rig, client="burst")
+    h = rig.streaming(client="burst")
     n = 200
 
     # The burst comes from a process of its own, as a client would: from this one, the client shared

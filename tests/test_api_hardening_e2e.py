@@ -129,24 +129,6 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
         assert r.sim_alarms() == [], r.sim_alarms()
 
 
-def streaming(rig: Rig, client: str = "tester") -> dict[str, str]:
-    """Hold the lease (taking it over) and have a stream running; the take-over's stop is done by
-    the time the lease is granted."""
-    h = rig.lease(client)
-    s = rig.wait(lambda s: s["state"] != "stopping", 5.0, "not stopping")
-    if s["state"] == "fault":
-        rig.post("/api/reset", h)
-        s = rig.wait_state("disconnected", "connected", "ready", "ended")
-    if s["state"] == "stopped":
-        if s["stop_fast"]:
-            rig.post("/api/reset", h)
-        rig.post("/api/session/resume", h)
-        rig.wait_state("streaming")
-    elif s["state"] != "streaming":
-        rig.start_streaming(h)
-    return h
-
-
 def audit_lines(rig: Rig) -> list[dict[str, Any]]:
     return [json.loads(x) for x in (rig.var_dir / "audit.log").read_text().splitlines()]
 
@@ -158,7 +140,7 @@ def lease_lost_stops(s: dict[str, Any]) -> int:
 @pytest.mark.e2e
 @pytest.mark.timeout(120)
 def test_request_types_are_strict_and_a_refusal_changes_nothing(rig: Rig) -> None:
-    h = streaming(rig, "strict")
+    h = rig.streaming("strict")
     stops = dict(rig.state()["stops_by_reason"])
     refused = [
         ("/api/session/stop", {"fast": "1"}, "fast"),  # once made a fast stop
@@ -195,7 +177,7 @@ def test_request_types_are_strict_and_a_refusal_changes_nothing(rig: Rig) -> Non
 @pytest.mark.e2e
 @pytest.mark.timeout(120)
 def test_ending_the_session_needs_the_lease_and_stopping_does_not(rig: Rig) -> None:
-    h = streaming(rig, "owner")
+    h = rig.streaming("owner")
     for headers in (AUTH, {**AUTH, "X-Lease-Id": "forged"}):
         r = rig.http.post("/api/session/end", headers=headers)
         assert r.status_code == 409, r.text
@@ -231,7 +213,7 @@ def test_releasing_someone_elses_lease_is_refused(rig: Rig) -> None:
 @pytest.mark.e2e
 @pytest.mark.timeout(120)
 def test_a_take_over_stops_the_old_motion_before_the_new_holders_first_jog(rig: Rig) -> None:
-    a = streaming(rig, "alice")
+    a = rig.streaming("alice")
     s = rig.state()
     goal = list(s["q_cmd"])
     goal[0] += -30.0 if goal[0] > 0 else 30.0
@@ -311,7 +293,7 @@ asyncio.run(main())
 @pytest.mark.e2e
 @pytest.mark.timeout(120)
 def test_holding_a_jog_at_500_requests_per_s_never_stops_the_arm(rig: Rig) -> None:
-    h = streaming(rig, "holder")
+    h = rig.streaming("holder")
     before = rig.state()["stops_by_reason"].get("hold-to-run expired", 0)
     run = subprocess.run([sys.executable, "-c", BURST, rig.base_url, json.dumps(h), "2.0", "500"],
                          capture_output=True, text=True, timeout=90)
@@ -349,7 +331,7 @@ print(json.dumps(codes))
 @pytest.mark.e2e
 @pytest.mark.timeout(120)
 def test_big_bodies_are_refused_before_authentication_and_parsing(rig: Rig) -> None:
-    h = streaming(rig, "bodies")
+    h = rig.streaming("bodies")
     big = b'{"joints": [' + b"0," * 100_000 + b"0]}"  # 200 KB: the 2-million-element array's little sibling
     assert len(big) > MAX_BODY_BYTES
     for headers in (h, {}, {"Authorization": "Bearer wrong"}):
@@ -412,7 +394,7 @@ def test_a_body_that_is_not_text_is_422_naming_it(rig: Rig, path: str) -> None:
 def test_the_log_of_a_running_stream_downloads_whole_as_far_as_written(rig: Rig) -> None:
     """A session log grows while it is sent (a record every few ms): each download is the file as it
     was when asked, with a Content-Length that matches (a file response read on to the end)."""
-    h = streaming(rig, "downloader")
+    h = rig.streaming("downloader")
     name = rig.http.get("/api/sessions").json()[0]["name"]
     rig.wait(lambda s: rig.http.get("/api/sessions").json()[0]["bytes"] > 150_000, 60.0, "a log over 150 kB")
     sizes = []

@@ -123,6 +123,24 @@ class Rig:
             time.sleep(period)
         return ok
 
+    def streaming(self, client: str = "tester", ttl_s: float | None = None) -> dict[str, str]:
+        """Hold the lease (taking it over: the old holder's motion is stopped by the time it is
+        granted) and have a stream running, starting a new one if the last has ended; returns the
+        headers."""
+        h = self.lease(client, ttl_s=ttl_s)
+        s = self.wait(lambda s: s["state"] != "stopping", 5.0, "not stopping")
+        if s["state"] == "fault":  # an earlier test's fault (that test fails on its own): recover, as an operator would
+            self.post("/api/reset", h)
+            s = self.wait_state("disconnected", "connected", "ready", "ended")
+        if s["state"] == "stopped":
+            if s["stop_fast"]:
+                self.post("/api/reset", h)
+            self.post("/api/session/resume", h)
+            self.wait_state("streaming")
+        elif s["state"] != "streaming":
+            self.start_streaming(h)
+        return h
+
     def end_and_wait(self, headers: dict[str, str]) -> dict[str, Any]:
         self.post("/api/session/end", headers)
         return self.wait_state("ended", timeout=15.0)

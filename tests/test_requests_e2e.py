@@ -10,7 +10,6 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
-from test_api_e2e import streaming
 from test_api_harness import AUTH, Rig, running_rig
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(120)]
@@ -46,7 +45,7 @@ def refused(rig: Rig, path: str, body: object, headers: dict[str, str], code: in
 
 
 def test_a_jog_with_the_wrong_count_is_422_and_changes_nothing(rig: Rig) -> None:
-    h = streaming(rig)
+    h = rig.streaming()
     s0 = hold_to_run_stop(rig, h)
     detail = refused(rig, "/api/jog", {"joints": [10.0]}, h, 422)
     assert "joints has 1 values, expected 6" in detail, detail
@@ -76,7 +75,7 @@ def test_a_jog_with_the_wrong_count_is_422_and_changes_nothing(rig: Rig) -> None
 ])
 def test_bad_values_are_422_and_change_nothing(rig: Rig, path: str, body: dict[str, object],
                                                words: list[str]) -> None:
-    h = streaming(rig)
+    h = rig.streaming()
     s0 = rig.wait(lambda s: s["at_rest"], 10.0, "rest")
     detail = refused(rig, path, body, h, 422)
     for w in words:
@@ -86,7 +85,7 @@ def test_bad_values_are_422_and_change_nothing(rig: Rig, path: str, body: dict[s
 
 
 def test_refusals_by_the_state_are_409_and_end_with_the_next_step(rig: Rig) -> None:
-    h = streaming(rig)
+    h = rig.streaming()
     # Stopped by request: motion says resume.
     rig.post("/api/session/stop", h)
     rig.wait_state("stopped")
@@ -128,7 +127,7 @@ def test_refusals_by_the_state_are_409_and_end_with_the_next_step(rig: Rig) -> N
 
 
 def test_a_pose_target_after_a_hold_to_run_stop_resumes(rig: Rig) -> None:
-    h = streaming(rig)
+    h = rig.streaming()
     s = hold_to_run_stop(rig, h)
     goal = list(s["cart_servo"])
     goal[2] += 20.0
@@ -143,7 +142,7 @@ def test_a_pose_target_after_a_hold_to_run_stop_resumes(rig: Rig) -> None:
 
 
 def test_a_joint_jog_faster_than_the_axis_limit_is_refused_naming_the_limit(rig: Rig) -> None:
-    h = streaming(rig)
+    h = rig.streaming()
     s0 = rig.wait(lambda s: s["at_rest"], 10.0, "rest")
     vel = rig.http.get("/api/limits").json()["vel_deg_s"]
     for v in (5000.0, 1e308, -(vel[0] + 1.0)):
@@ -163,7 +162,7 @@ def test_a_joint_jog_faster_than_the_axis_limit_is_refused_naming_the_limit(rig:
 ])
 def test_a_pose_target_out_of_reach_or_in_metres_is_refused_up_front(rig: Rig, xyz: list[float],
                                                                      words: list[str]) -> None:
-    h = streaming(rig)
+    h = rig.streaming()
     s0 = rig.wait(lambda s: s["at_rest"], 10.0, "rest")
     detail = refused(rig, "/api/target", {"xyzwpr": [*xyz, 180.0, 0.0, 0.0]}, h, 422)
     for w in words:
@@ -177,7 +176,7 @@ def test_a_pose_target_out_of_reach_or_in_metres_is_refused_up_front(rig: Rig, x
 
 
 def test_every_io_type_the_limits_allow_can_be_written_and_read(rig: Rig) -> None:
-    h = streaming(rig)
+    h = rig.streaming()
     allow = rig.http.get("/api/limits").json()["io_allow"]
     assert allow, allow
     for io_type, (first, _last) in allow.items():
