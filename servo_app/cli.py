@@ -4,6 +4,7 @@ Subcommands:
   run                      the service (REST/WS API, console) against the embedded simulator or a robot
   sim fanuc|janome         a controller simulator, standalone
   check FILE [--model M]   validate a trajectory or session log as the controller would
+  export FILE --mcap OUT   a session log as MCAP with ROS 2 types (Foxglove)
   profiles                 list the robot profiles found (FANUC and Janome)
 """
 
@@ -36,6 +37,12 @@ def _cmd_profiles(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_export(args: argparse.Namespace) -> int:
+    from servo_app.mcap_export import run_export  # mcap and rosbags load in 0.2 s: only when asked
+
+    return run_export(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="servo-app", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -52,6 +59,12 @@ def build_parser() -> argparse.ArgumentParser:
     from servo_app.check_cli import add_check_parser
 
     add_check_parser(sub)
+
+    p = sub.add_parser("export", help="convert a session log (.srvlog) to MCAP with ROS 2 types (Foxglove)")
+    p.add_argument("file", help="a session log written by `servo-app run` (var/sessions/*.srvlog)")
+    p.add_argument("--mcap", required=True, metavar="OUT", help="the MCAP file to write")
+    p.add_argument("--model", help="robot model (default: the log header's)")
+    p.set_defaults(handler=_cmd_export)
 
     p = sub.add_parser("profiles", help="list robot profiles")
     p.set_defaults(handler=_cmd_profiles)

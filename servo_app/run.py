@@ -33,6 +33,8 @@ def add_run_parser(sub: Any) -> None:
     p.add_argument("--cors-origin", action="append", default=[], help="allow this origin (CORS closed by default)")
     p.add_argument("--inputs", type=Path, default=None, metavar="FILE",
                    help="inputs TOML: adapters, feeds and [[applications]] (examples in configs/inputs/)")
+    p.add_argument("--mcap", action="store_true",
+                   help="also write each session log as MCAP (ROS 2 types, for Foxglove) beside it, live")
     p.add_argument("--api-priority", type=int, default=5,
                    help="SCHED_FIFO priority of the HTTP/WebSocket event loop, below the servo process (20) and the "
                         "embedded simulator (10), so feed samples are handled as they arrive; 0: normal priority")
@@ -64,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         signal.signal(sig, on_signal)
     service = ServoService(ServiceConfig(robot=args.robot, model=args.model, interval_ms=args.interval_ms,
                                          lead=args.lead, var_dir=args.var_dir, payload_kg=args.payload_kg,
-                                         inputs_config=args.inputs))
+                                         inputs_config=args.inputs, mcap_live=args.mcap))
     try:
         service.open()
     except ConfigError as exc:  # nothing is started yet: the inputs file is read first

@@ -38,6 +38,7 @@ class ServiceConfig:
     # A start waits for the stream to run (status output, limit tables, the controller's waiting bit):
     # given up after this, with the reason (the request then answers 409).
     start_timeout_s: float = 5.0
+    mcap_live: bool = False  # write NAME.mcap beside each session log as it is written (servo-app run --mcap)
     inputs_config: Path | None = None  # inputs TOML (servo-app run --inputs): adapters, feeds, applications
 
     @property

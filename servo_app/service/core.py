@@ -45,6 +45,7 @@ class ServoService:
         self.stops_by_reason: Counter[str] = Counter()
         self.robot_address: tuple[str, int] | None = None
         self.events: deque[msg.Event] = deque(maxlen=2000)
+        self.recorders: list[Any] = []  # LiveMcapRecorder per session log, with cfg.mcap_live
         self._safety: dict[str, Any] = {}  # the servo process's last SafetyChanged view
         self._safety_cv = threading.Condition()
         self._lifecycle = threading.Lock()  # one open / replace / close at a time
@@ -127,6 +128,7 @@ class ServoService:
             "during": self._safety.get("state"),
         }
         self.alarm_forwarder.record_fault("SERVO", self.servo_fault["message"])
+        self._close_recorders()  # no LogClosed will come: what the process wrote is all there is
         with self._safety_cv:
             self._safety_cv.notify_all()
 
@@ -171,16 +173,31 @@ class ServoService:
         if self.inputs is not None:
             self.inputs.close()
             self.inputs = None
+        self._close_recorders()
+        for rec in self.recorders:
+            rec.join(10.0)
         return summary
 
     # ------------------------------------------------------------ the pipe
     def _on_event(self, ev: msg.Event) -> None:
         """Called on the handle's reader thread for every event."""
         self.events.append(ev)
+        if self.cfg.mcap_live and isinstance(ev, msg.LogOpened):
+            self._close_recorders()
+            from servo_app.service.mcap_live import LiveMcapRecorder  # mcap and rosbags: only when asked
+
+            self.recorders.append(LiveMcapRecorder(Path(ev.path)).start())
+        elif isinstance(ev, msg.LogClosed):
+            self._close_recorders()
         if isinstance(ev, msg.SafetyChanged):
             with self._safety_cv:
                 self._safety = ev.view
                 self._safety_cv.notify_all()
+
+    def _close_recorders(self) -> None:
+        for rec in self.recorders:
+            rec.close()
+        self.recorders = [rec for rec in self.recorders if not rec.done]
 
     def last_event(self, kind: type[msg.Event]) -> msg.Event | None:
         for ev in reversed(self.events):

@@ -1,0 +1,277 @@
+"""``servo-app export FILE.srvlog --mcap OUT.mcap``: a session log as ROS 2-typed MCAP for Foxglove.
+
+Every record of the session log becomes messages at its own time (the header's ``opened_unix`` plus
+the record's monotonic offset), CDR-encoded with the ``ros2msg`` schemas embedded, so Foxglove and
+``ros2 bag`` read the file without our code:
+
+========================== ======================================== ===================================
+topic                      type                                     from
+========================== ======================================== ===================================
+``/joint_states``          sensor_msgs/msg/JointState               status: the servo position (FANUC)
+``/joint_commands``        sensor_msgs/msg/JointState               command: the commanded position,
+                                                                    velocity by finite difference
+``/tcp_pose``              geometry_msgs/msg/PoseStamped            status: flange pose (FANUC: forward
+                                                                    kinematics; Janome: X Y Z R)
+``/tcp_pose/commanded``    geometry_msgs/msg/PoseStamped            command, likewise
+``/limit_usage``           servo_app_msgs/msg/LimitUsage            command: |v|, |a|, |j| in % of the
+                                                                    controller's limits (FANUC)
+``/status_bits``           servo_app_msgs/msg/StatusBits            status: the bits as received
+``/diagnostics``           diagnostic_msgs/msg/DiagnosticArray      the alarms and warnings the
+                                                                    controller's checks raise on the
+                                                                    commands, and stream stops
+========================== ======================================== ===================================
+
+Limit usage and alarms come from :class:`ControllerLimitChecker`, the check the controller runs
+(finite differences at the fixed interval, Appendix B limits at the flange speed), as
+``servo-app check`` reports them; each stream in the log (ended by ``last_data``) is checked afresh.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+from mcap.writer import Writer
+
+from servo_app.ros import messages as ros
+from servo_app.session_log import KIND_COMMAND, KIND_STATUS, SessionLogError, read_session_log
+
+TOPICS: dict[str, str] = {
+    "/joint_states": ros.JOINT_STATE,
+    "/joint_commands": ros.JOINT_STATE,
+    "/tcp_pose": ros.POSE_STAMPED,
+    "/tcp_pose/commanded": ros.POSE_STAMPED,
+    "/limit_usage": ros.LIMIT_USAGE,
+    "/status_bits": ros.STATUS_BITS,
+    "/diagnostics": ros.DIAGNOSTIC_ARRAY,
+}
+DIAGNOSTIC_NAME = "servo_app/controller"
+FANUC_BITS = ((0x01, "waiting_for_command"), (0x02, "command_received"), (0x04, "sysrdy"), (0x08, "moving"))
+
+
+class ExportError(ValueError):
+    """A log that cannot be exported; the message names the file and the reason."""
+
+
+@dataclass
+class Message:
+    topic: str
+    t_ns: int  # nanoseconds since the Unix epoch
+    message: Any
+
+
+@dataclass
+class ExportSummary:
+    messages: dict[str, int] = field(default_factory=dict)
+    alarms: list[str] = field(default_factory=list)
+
+
+def _janome_pose(values: np.ndarray) -> np.ndarray:
+    """X Y Z (mm) and R (deg, about Z) as a 4x4 transform in metres."""
+    t = np.eye(4)
+    r = math.radians(float(values[3]))
+    t[:2, :2] = [[math.cos(r), -math.sin(r)], [math.sin(r), math.cos(r)]]
+    t[:3, 3] = np.asarray(values[:3], float) / 1000.0
+    return t
+
+
+class LogConverter:
+    """One session log's records -> messages, a record at a time (an export, or a log being written).
+
+    Pure: no I/O. The limit checker and the Cartesian conversion keep their state from record to
+    record, as the controller's do over a stream."""
+
+    def __init__(self, header: dict[str, Any], model: str | None = None) -> None:
+        self.header = header
+        self.opened_ns = round(float(header.get("opened_unix", 0.0)) * 1e9)
+        self.janome = str(header.get("protocol", "")).startswith("janome")
+        if not self.janome:
+            self._fanuc_setup(model)
+
+    def feed(self, rec: np.void) -> list[Message]:
+        t = self.opened_ns + round(float(rec["t"]) * 1e9)
+        values = rec["values"].astype(float)
+        if self.janome:
+            return self._janome(rec, t, values)
+        if rec["kind"] == KIND_STATUS:
+            return self._fanuc_status(rec, t, values)
+        if rec["kind"] == KIND_COMMAND:
+            return self._fanuc_command(rec, t, values)
+        return []
+
+    # ---- Janome: X Y Z R, no joints (the point job reports none) ---------------------------------
+
+    @staticmethod
+    def _janome(rec: np.void, t: int, values: np.ndarray) -> list[Message]:
+        if rec["kind"] == KIND_STATUS:
+            return [Message("/tcp_pose", t, ros.pose_stamped(t, _janome_pose(values))),
+                    Message("/status_bits", t, ros.status_bits(t, int(rec["seq"]), int(rec["flags"]), int(rec["io"]),
+                                                               [f"state={int(rec['flags'])}"]))]
+        if rec["kind"] == KIND_COMMAND:
+            return [Message("/tcp_pose/commanded", t, ros.pose_stamped(t, _janome_pose(values)))]
+        return []
+
+    # ---- FANUC J519 --------------------------------------------------------------------------------
+
+    def _fanuc_setup(self, model: str | None) -> None:
+        from servo_app.motion.cartesian import CartesianConverter
+        from servo_app.motion.checker import ControllerLimitChecker
+        from servo_app.robots.kinematics import ArmKinematics
+        from servo_app.robots.profile import ProfileError, load_profile
+
+        name = model or self.header.get("model")
+        if not isinstance(name, str) or not name:
+            raise ExportError("the session log's header names no model: give one with --model")
+        try:
+            profile = load_profile(name)
+        except ProfileError as exc:
+            raise ExportError(str(exc)) from exc
+        self.kin = ArmKinematics(profile)
+        self.n = profile.dof
+        self.j23 = profile.j23_factor
+        dt = float(self.header.get("interval_ms") or profile.interval_ms) / 1000.0
+        self.checker = ControllerLimitChecker.for_profile(profile, self.kin.flange_xyz_mm_fanuc_deg, interval_s=dt)
+        # X Y Z W P R commands: the controller checks the joints its IK makes of them, converted as
+        # `servo-app check` and the simulator do (the first stream from the all-zero posture).
+        self.cartesian = CartesianConverter.for_profile(profile)
+        self.q_prev = np.zeros(self.n)
+        self.names = ros.joint_names(self.n)
+        self.hardware = f"{profile.name} ({self.header.get('protocol', 'fanuc-j519')})"
+        self.streaming = False
+        self.new_stream = True
+        self.streams = 0
+
+    def _fanuc_status(self, rec: np.void, t: int, values: np.ndarray) -> list[Message]:
+        from servo_app.robots.conventions import fanuc_deg_to_model_rad
+
+        q_model = fanuc_deg_to_model_rad(values[: self.n], self.j23)
+        bits = int(rec["flags"])
+        out = [Message("/joint_states", t, ros.joint_state(t, q_model)),
+               Message("/tcp_pose", t, ros.pose_stamped(t, self.kin.fk(q_model))),
+               Message("/status_bits", t, ros.status_bits(t, int(rec["seq"]), bits, int(rec["io"]),
+                                                          [label for bit, label in FANUC_BITS if bits & bit]))]
+        if self.streaming and not bits & 0x01:
+            self.streaming = False
+            out.append(Message("/diagnostics", t, ros.diagnostics(t, DIAGNOSTIC_NAME, self.hardware, [(
+                ros.ERROR, "the controller stopped the stream (status bit 0 cleared): see its alarm history",
+                {"seq": str(int(rec["seq"]))})])))
+        return out
+
+    def _fanuc_command(self, rec: np.void, t: int, values: np.ndarray) -> list[Message]:
+        from servo_app.fanuc.alarms import format_violation
+        from servo_app.robots.conventions import fanuc_deg_to_model_rad, xyzwpr_to_matrix
+
+        seq, flags = int(rec["seq"]), int(rec["flags"])  # flags = last_data | data_format << 1
+        cartesian = not (flags >> 1) & 1
+        if self.new_stream:
+            self.checker.reset()
+            if self.streams and cartesian:
+                self.cartesian.reset(self.q_prev)
+            self.new_stream = False
+            self.streams += 1
+        if cartesian:
+            res = self.cartesian.convert(values[:6], self.q_prev)
+            if res.joints_deg is None:
+                raise ExportError(f"command Sq.{seq} (X Y Z W P R {values[:6].round(3).tolist()}) has no joint "
+                                  f"solution in the held configuration: {res.code}")
+            q_deg = np.asarray(res.joints_deg, float)
+        else:
+            q_deg = values[: self.n]
+        self.q_prev = q_deg
+        self.streaming = True
+        checker = self.checker
+        found = checker.step(q_deg, seq)
+        if flags & 1:  # last_data: the stream ends (bit 0 clears next); judge a window still open
+            found += checker.finish(seq)
+            self.new_stream, self.streaming = True, False
+        q_model = fanuc_deg_to_model_rad(q_deg, self.j23)
+        v_model = np.radians(checker.velocity)
+        v_model[2] += self.j23 * v_model[1]  # the model's J3 rate (q3 = J3 + j23 * J2)
+        if cartesian:  # the commanded pose itself (mm -> m)
+            pose = xyzwpr_to_matrix(values[:6])
+            pose[:3, 3] /= 1000.0
+        else:
+            pose = self.kin.fk(q_model)
+        vel, acc, jerk = checker.limits_at(checker.flange_speed)
+        out = [Message("/joint_commands", t, ros.joint_state(t, q_model, v_model)),
+               Message("/tcp_pose/commanded", t, ros.pose_stamped(t, pose)),
+               Message("/limit_usage", t, ros.limit_usage(
+                   t, self.names, 100.0 * np.abs(checker.velocity) / vel, 100.0 * np.abs(checker.acceleration) / acc,
+                   100.0 * np.abs(checker.jerk) / jerk, checker.flange_speed))]
+        if found:
+            out.append(Message("/diagnostics", t, ros.diagnostics(t, DIAGNOSTIC_NAME, self.hardware, [
+                (ros.WARN if v.warning else ros.ERROR, format_violation(v),
+                 {"code": v.code, "kind": v.kind, "axis": "" if v.axis is None else f"J{v.axis}",
+                  "seq": str(v.seq), "value": f"{v.value:.6g}", "limit": f"{v.limit:.6g}"})
+                for v in found])))
+        return out
+
+
+class McapSink:
+    """An MCAP file with the export's channels registered (ROS 2 profile, ``ros2msg`` schemas, CDR)."""
+
+    def __init__(self, f: IO[bytes], header: dict[str, Any], chunk_size: int = 1024 * 1024) -> None:
+        self.writer = Writer(f, chunk_size=chunk_size)
+        self.writer.start(profile="ros2", library="servo_app")
+        schemas: dict[str, int] = {}
+        self.channels: dict[str, int] = {}
+        for topic, typename in TOPICS.items():
+            if typename not in schemas:
+                schemas[typename] = self.writer.register_schema(name=typename, encoding="ros2msg",
+                                                                data=ros.msgdef(typename).encode())
+            self.channels[topic] = self.writer.register_channel(topic=topic, message_encoding="cdr",
+                                                                schema_id=schemas[typename])
+        self.writer.add_metadata("servo_app", {str(k): str(v) for k, v in header.items()})
+        self.summary = ExportSummary()
+        self._sequence = 0
+
+    def write(self, messages: list[Message]) -> None:
+        for m in messages:
+            self.writer.add_message(channel_id=self.channels[m.topic], log_time=m.t_ns, publish_time=m.t_ns,
+                                    sequence=self._sequence, data=ros.serialize(m.message, TOPICS[m.topic]))
+            self._sequence += 1
+            self.summary.messages[m.topic] = self.summary.messages.get(m.topic, 0) + 1
+            if m.topic == "/diagnostics":
+                self.summary.alarms += [s.message for s in m.message.status if s.level == ros.ERROR]
+
+    def finish(self) -> None:
+        self.writer.finish()
+
+
+def export_mcap(src: Path, out: Path, model: str | None = None) -> ExportSummary:
+    """Write ``src`` (a session log) as MCAP to ``out`` (whole, or not at all); what was written."""
+    try:
+        log = read_session_log(src)
+    except (SessionLogError, OSError) as exc:
+        raise ExportError(str(exc)) from exc
+    converter = LogConverter(log.header, model)
+    tmp = out.with_name(out.name + ".partial")
+    try:
+        with open(tmp, "wb") as f:
+            sink = McapSink(f, log.header)
+            for rec in log.records:
+                sink.write(converter.feed(rec))
+            sink.finish()
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    tmp.replace(out)
+    return sink.summary
+
+
+def run_export(args: argparse.Namespace) -> int:
+    try:
+        summary = export_mcap(Path(args.file), Path(args.mcap), args.model)
+    except ExportError as exc:
+        print(f"servo-app export: {args.file}: {exc}", file=sys.stderr)
+        return 2
+    counts = ", ".join(f"{topic} {n}" for topic, n in summary.messages.items())
+    print(f"{args.mcap}: {sum(summary.messages.values())} messages ({counts})")
+    if summary.alarms:
+        print(f"alarms: {len(summary.alarms)} (on /diagnostics), first: {summary.alarms[0]}")
+    return 0

@@ -1,0 +1,98 @@
+"""MCAP written live beside each session log (``servo-app run --mcap``).
+
+The servo process writes only its ``.srvlog`` (one unbuffered 56-byte write per datagram): the cycle
+never waits on a serializer. This follower runs in the API process, in a thread of its own, reads
+the records the servo process has written so far every ``poll_s`` and appends their messages (the
+same conversion as ``servo-app export``) to ``NAME.mcap``. Small chunks: a process killed mid-session
+leaves an MCAP readable up to its last chunk, and the ``.srvlog`` complete.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import struct
+import threading
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import numpy as np
+
+from servo_app.mcap_export import ExportError, LogConverter, McapSink
+from servo_app.session_log import MAGIC, RECORD_DTYPE, RECORD_SIZE
+
+log = logging.getLogger(__name__)
+
+
+class LiveMcapRecorder:
+    def __init__(self, srvlog: Path, poll_s: float = 0.2, chunk_size: int = 64 * 1024) -> None:
+        self.srvlog = Path(srvlog)
+        self.path = self.srvlog.with_suffix(".mcap")
+        self.poll_s = poll_s
+        self.chunk_size = chunk_size
+        self.error: str | None = None
+        self.records = 0
+        self._closed = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"mcap {self.srvlog.name}", daemon=True)
+
+    def start(self) -> LiveMcapRecorder:
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        """The session log is complete: write what is left and finish the file (without waiting)."""
+        self._closed.set()
+
+    def join(self, timeout: float | None = None) -> None:
+        self._thread.join(timeout)
+
+    @property
+    def done(self) -> bool:
+        return not self._thread.is_alive()
+
+    def _run(self) -> None:
+        try:
+            with open(self.srvlog, "rb") as src:
+                header, offset = self._header(src)
+                if header is None:
+                    return
+                converter = LogConverter(header)
+                with open(self.path, "wb") as out:
+                    sink = McapSink(out, header, chunk_size=self.chunk_size)
+                    while True:
+                        closed = self._closed.is_set()  # read before the data: the last records are in
+                        offset = self._drain(src, offset, converter, sink)
+                        if closed:
+                            break
+                        self._closed.wait(self.poll_s)
+                    sink.finish()
+        except (OSError, ExportError, ValueError) as exc:
+            self.error = f"{self.path}: {exc}"
+            log.warning("live MCAP stopped: %s (the session log is complete; `servo-app export` converts it)",
+                        self.error)
+
+    def _header(self, src: BinaryIO) -> tuple[dict[str, Any] | None, int]:
+        """Wait for the header (written before the first record), then parse it."""
+        while True:
+            closed = self._closed.is_set()
+            src.seek(0)
+            head = src.read(len(MAGIC) + 4)
+            if len(head) == len(MAGIC) + 4:
+                if head[: len(MAGIC)] != MAGIC:
+                    raise ValueError(f"{self.srvlog} is not a session log")
+                (n,) = struct.unpack_from("<I", head, len(MAGIC))
+                blob = src.read(n)
+                if len(blob) == n:
+                    return json.loads(blob), len(MAGIC) + 4 + n
+            if closed:
+                return None, 0
+            self._closed.wait(self.poll_s)
+
+    def _drain(self, src: BinaryIO, offset: int, converter: LogConverter, sink: McapSink) -> int:
+        src.seek(offset)
+        data = src.read()
+        usable = len(data) - len(data) % RECORD_SIZE
+        for rec in np.frombuffer(data[:usable], dtype=RECORD_DTYPE):
+            sink.write(converter.feed(rec))
+            self.records += 1
+        return offset + usable
