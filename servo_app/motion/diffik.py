@@ -99,6 +99,16 @@ class IkFlag(enum.IntFlag):
 # The flags as plain ints for the cycle: IntFlag's operators run Python code (several us each here).
 _B = types.SimpleNamespace(**{f.name: int(f) for f in IkFlag if f.name})
 
+_FLAG_OF: dict[int, IkFlag] = {}  # IkFlag(bits) by bits: the enum's constructor costs microseconds
+
+
+def _ik_flag(bits: int) -> IkFlag:
+    flag = _FLAG_OF.get(bits)
+    if flag is None:
+        flag = _FLAG_OF[bits] = IkFlag(bits)
+    return flag
+
+
 LIMIT_FLAGS = IkFlag.JOINT_LIMIT | IkFlag.VELOCITY_LIMIT | IkFlag.ACCEL_LIMIT
 
 # What holds a Cartesian motion back, in an operator's words (the flags that explain a slow-down).
@@ -330,7 +340,7 @@ class DifferentialIK:
         s_sing = 1.0
         xi: np.ndarray | None = None  # base-frame twist the frame task follows (Cartesian modes)
         arrived = False
-        moving = bool(self._dq_prev.any())
+        moving = kernels.any_nonzero(self._dq_prev)
         cartesian_stop = command is None and self._last_xi is not None and moving
         target: np.ndarray | None = None  # the frame task's target pose (Cartesian modes)
         joint_goal = q  # the joint task's target (joint modes)
@@ -350,7 +360,7 @@ class DifferentialIK:
                 self._ref = tcp
             elif cartesian_mode == "twist" and self._last_xi is not None:
                 self._ref = self._along_track(self._ref, tcp, self._last_xi)
-            if xi.any():
+            if kernels.any_nonzero(xi):
                 s_sing = self._singularity_factor(q, xi, kappa)
                 if s_sing < 1.0:
                     flags |= _B.SINGULARITY_SLOWDOWN
@@ -363,7 +373,7 @@ class DifferentialIK:
                 s_goal, self._last_xi = 0.0, None
             target = _advance(self._ref, xi, 1.0, dt)
             self.frame_target = target
-            asks_motion = bool(xi.any())
+            asks_motion = kernels.any_nonzero(xi)
             state_mode = cartesian_mode
         else:
             self._ref = None
@@ -379,7 +389,7 @@ class DifferentialIK:
             else:
                 raise TypeError(f"command={command!r} is not a motion command")
             joint_goal = q + d_des
-            asks_motion = bool(d_des.any())
+            asks_motion = kernels.any_nonzero(d_des)
             s_goal = 1.0 if asks_motion else 0.0
             state_mode = mode
         if arrived:
@@ -411,7 +421,7 @@ class DifferentialIK:
         solver_status = ""
         dq: np.ndarray | None = None
         s = _path_scale(direction, s_goal, g, h_path, d_corr)
-        if s is None and d_corr.any():
+        if s is None and kernels.any_nonzero(d_corr):
             d_corr = np.zeros(N)  # the correction does not fit this cycle: the line alone
             s = _path_scale(direction, s_goal, g, h_path)
         if s is not None:  # 1. on the line
@@ -443,11 +453,11 @@ class DifferentialIK:
         dd = float(d @ d)
         scale = min(max(float(dq @ d) / dd, 0.0), 1.0) * s_sing if s_goal == 1.0 and dd > 0.0 else 0.0
         flags |= self._binding_flags(g, h, dq)
-        if not np.isfinite(dq).all():  # defensive: every branch above is finite by construction
+        if not kernels.all_finite(dq):  # defensive: every branch above is finite by construction
             dq = np.zeros(N)
             flags |= _B.SOLVER_FAILED
         self._dq_prev = dq.copy()
-        return IkResult(dq=dq, q_next=q + dq, velocity=dq / dt, scale=float(scale), flags=IkFlag(flags),
+        return IkResult(dq=dq, q_next=q + dq, velocity=dq / dt, scale=float(scale), flags=_ik_flag(flags),
                         condition=kappa, mode=mode, solver_status=solver_status)
 
     def step_again(self, q_model_rad: ArrayLike, command: Command | None, *, dq_prev: ArrayLike | None = None
@@ -594,7 +604,7 @@ class DifferentialIK:
     def _kinematics(self, q: np.ndarray) -> None:
         """The configuration at ``q``: what ``Configuration.update`` does, without copying qpos."""
         data = self.configuration.data
-        data.qpos[self._qadr] = q
+        data.qpos[:] = q  # the arm's joints are the whole qpos, in model order (checked by _layout)
         mujoco.mj_kinematics(self.model, data)
         mujoco.mj_comPos(self.model, data)
         if self.model.neq > 0:
@@ -802,13 +812,13 @@ class DifferentialIK:
 
     @staticmethod
     def _checked(v: ArrayLike, name: str) -> np.ndarray:
-        a = np.asarray(v, dtype=float)
+        a = np.array(v, dtype=float)  # a copy
         if a.shape != (N,):
             raise ValueError(f"{name} has shape {a.shape}, expected ({N},)")
-        if not np.isfinite(a).all():
+        if not kernels.all_finite(a):
             i = int(np.flatnonzero(~np.isfinite(a))[0])
             raise ValueError(f"{name}[{i}]={a[i]} is not a finite number")
-        return a.copy()
+        return a
 
 
 # ------------------------------------------------------------------------------ pure functions

@@ -612,3 +612,49 @@ def collision_drift(q: np.ndarray, q_refresh: np.ndarray, far_weights: np.ndarra
             acc += abs(q[j] - near_q[k, j]) * near_weights[k, j]
         drift[k] = acc
     return False
+
+
+@kernel("boolean(float64[::1])")
+def any_nonzero(v: np.ndarray) -> bool:
+    """``v.any()`` for a float vector (a kernel call costs a third of numpy's reduction here)."""
+    for x in v:  # noqa: SIM110 - a loop numba compiles (no generator expression)
+        if x != 0.0:
+            return True
+    return False
+
+
+@kernel("boolean(float64[::1])")
+def all_finite(v: np.ndarray) -> bool:
+    """``np.isfinite(v).all()`` for a float vector."""
+    for x in v:  # noqa: SIM110 - a loop numba compiles (no generator expression)
+        if not math.isfinite(x):
+            return False
+    return True
+
+
+@kernel("UniTuple(float64, 4)(float64[::1], float64, float64, float64, float64, float64, float64, boolean, "
+        "float64, float64, int64, int64, float64[::1])")
+def shoulder_row(q: np.ndarray, a1: float, a2: float, a3: float, d4: float, shoulder_m: float, brake_acc: float,
+                 top: bool, dt: float, lag: float, col2: int, col3: int, g: np.ndarray
+                 ) -> tuple[float, float, float, float]:
+    """:class:`~servo_app.motion.ik_limits.ConfigurationGuard`'s row (the wrist centre stays on its side
+    of the J1 axis, braking at ``brake_acc``): its coefficients into ``g`` (columns ``col2``, ``col3``
+    for q2, q3), and ``(h, distance, grad2, grad3)``: the bound, the distance to the boundary and the
+    gradient's two entries (for the path's deceleration). The reference's float operations in its
+    order (equal to the bit)."""
+    q2, q3 = q[1], q[2]
+    phi = q2 - q3
+    cphi, sphi = math.cos(phi), math.sin(phi)
+    x = a1 + a2 * math.sin(q2) + d4 * cphi + a3 * sphi
+    dphi = -d4 * sphi + a3 * cphi
+    g1, g2 = a2 * math.cos(q2) + dphi, -dphi
+    sign = 1.0 if top else -1.0
+    distance = sign * x - shoulder_m
+    for i in range(len(g)):
+        g[i] = 0.0
+    g[col2] = -sign * g1
+    g[col3] = -sign * g2
+    horizon = dt + lag
+    d = distance if distance > 0.0 else 0.0
+    h = dt * (brake_acc * (math.sqrt(horizon * horizon + 2.0 * d / brake_acc) - horizon))
+    return h, distance, g1, g2

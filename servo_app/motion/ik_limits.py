@@ -328,30 +328,19 @@ class ConfigurationGuard(Limit):
     def fill(self, q: np.ndarray, dt: float, g: np.ndarray) -> tuple[float, float]:
         """``compute_qp_inequalities``' row for the joints ``q`` (model order): its coefficients written
         into ``g`` (one row, dof columns), its bound and path bound returned. Float arithmetic: the row
-        is a handful of scalars, where each numpy call would cost more than the arithmetic."""
+        is a handful of scalars: one kernel, the reference's operations in its order."""
         if self.reference is None:
             self.reset(q)
         assert self.reference is not None
-        kin = self.kin
-        q2, q3 = float(q[1]), float(q[2])
-        phi = q2 - q3
-        cphi, sphi = math.cos(phi), math.sin(phi)
-        x = kin.a1 + kin.a2 * math.sin(q2) + kin.d4 * cphi + kin.a3 * sphi
-        dphi = -kin.d4 * sphi + kin.a3 * cphi
-        g1, g2 = kin.a2 * math.cos(q2) + dphi, -dphi  # the gradient's only non-zero entries (q2, q3)
-        sign = 1.0 if self.reference.top else -1.0
-        distance = sign * x - self.margins.shoulder_m
-        g[:] = 0.0
-        g[self._cols[1]] = -sign * g1
-        g[self._cols[2]] = -sign * g2
-        acc = self.margins.shoulder_brake_acc
-        horizon = dt + self.lag_s
-        h = dt * braking_speed_scalar(distance, acc, horizon)
+        kin, acc = self.kin, self.margins.shoulder_brake_acc
+        h, distance, g1, g2 = kernels.shoulder_row(q, kin.a1, kin.a2, kin.a3, kin.d4, self.margins.shoulder_m, acc,
+                                                   self.reference.top, dt, self.lag_s, int(self._cols[1]),
+                                                   int(self._cols[2]), g)
         h_path = h
         if self.path is not None and self.path.u is not None:
             u = self.path.u
             acc = self.path.decel_scalar(g1 * float(u[self._cols[1]]) + g2 * float(u[self._cols[2]]), acc)
-            h_path = dt * braking_speed_scalar(distance, acc, horizon)
+            h_path = dt * braking_speed_scalar(distance, acc, dt + self.lag_s)
         return h, h_path
 
 
@@ -508,8 +497,9 @@ class CollisionLimit(CollisionAvoidanceLimit):
                                               self._near_weights, self._far_slack, drift)
         if refresh:
             self._refresh_near(data, q)
-            drift = self._drift
-            drift[:] = 0.0
+            drift = [0.0] * len(self._near)
+        else:
+            drift = drift.tolist()  # floats: read once per near pair below
         model = self.model
         distmax = self.collision_detection_distance
         min_dist = self.minimum_distance_from_collisions
