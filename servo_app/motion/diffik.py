@@ -51,6 +51,7 @@ import mink
 import mujoco
 import numpy as np
 
+from servo_app.motion import ik_kernels as kernels
 from servo_app.motion.commands import Command, JointJog, JointTarget, PoseTarget, Twist
 from servo_app.motion.ik_limits import (
     AccelerationLimit,
@@ -70,36 +71,13 @@ from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.model import FLANGE_SITE, JOINT_NAMES, TCP_SITE, load_model
 from servo_app.robots.profile import RobotProfile
 
-try:  # mink's own C kernels for SE3 (what FrameTask uses when present): the same numbers, no Python objects
-    from mink.lie import _lie_ops_c as _se3
-except ImportError:  # pragma: no cover - mink without its extension: the frame task's Python path
-    _se3 = None
-
-try:  # numpy's LAPACK gufuncs, called as np.linalg calls them (same routine, same numbers) without the
-    # wrapping (errstate context, type checks: ~5 us per call here, more than a 6x6 solve itself)
-    from numpy.linalg import _umath_linalg as _lapack
-except ImportError:  # pragma: no cover - another numpy layout: the public functions
-    _lapack = None
-
 N = 6
 
 
-def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``np.linalg.solve(a, b)`` (b a vector or a matrix of columns); raises as it does if singular."""
-    if _lapack is not None:
-        x = _lapack.solve1(a, b, signature="dd->d") if b.ndim == 1 else _lapack.solve(a, b, signature="dd->d")
-        if np.isfinite(x).all():
-            return x
-    return np.linalg.solve(a, b)  # the error (singular matrix), or the result without the fast path
-
-
-def _singular_values(a: np.ndarray) -> np.ndarray:
-    """``np.linalg.svd(a, compute_uv=False)``: the same LAPACK routine (descending order)."""
-    if _lapack is not None:
-        sv = _lapack.svd(a, signature="d->d")
-        if np.isfinite(sv).all():
-            return sv
-    return np.linalg.svd(a, compute_uv=False)  # non-convergence raises there
+def _solve(p: np.ndarray, rhs: np.ndarray) -> None:
+    """``rhs <- p^-1 rhs`` in place (columns) for the positive definite objective Hessian ``p``."""
+    if not kernels.cholesky_solve(p, rhs):
+        raise np.linalg.LinAlgError("the IK objective's Hessian is not positive definite")
 
 
 class IkFlag(enum.IntFlag):
@@ -120,6 +98,16 @@ class IkFlag(enum.IntFlag):
 
 # The flags as plain ints for the cycle: IntFlag's operators run Python code (several us each here).
 _B = types.SimpleNamespace(**{f.name: int(f) for f in IkFlag if f.name})
+
+_FLAG_OF: dict[int, IkFlag] = {}  # IkFlag(bits) by bits: the enum's constructor costs microseconds
+
+
+def _ik_flag(bits: int) -> IkFlag:
+    flag = _FLAG_OF.get(bits)
+    if flag is None:
+        flag = _FLAG_OF[bits] = IkFlag(bits)
+    return flag
+
 
 LIMIT_FLAGS = IkFlag.JOINT_LIMIT | IkFlag.VELOCITY_LIMIT | IkFlag.ACCEL_LIMIT
 
@@ -352,7 +340,7 @@ class DifferentialIK:
         s_sing = 1.0
         xi: np.ndarray | None = None  # base-frame twist the frame task follows (Cartesian modes)
         arrived = False
-        moving = bool(self._dq_prev.any())
+        moving = kernels.any_nonzero(self._dq_prev)
         cartesian_stop = command is None and self._last_xi is not None and moving
         target: np.ndarray | None = None  # the frame task's target pose (Cartesian modes)
         joint_goal = q  # the joint task's target (joint modes)
@@ -372,7 +360,7 @@ class DifferentialIK:
                 self._ref = tcp
             elif cartesian_mode == "twist" and self._last_xi is not None:
                 self._ref = self._along_track(self._ref, tcp, self._last_xi)
-            if xi.any():
+            if kernels.any_nonzero(xi):
                 s_sing = self._singularity_factor(q, xi, kappa)
                 if s_sing < 1.0:
                     flags |= _B.SINGULARITY_SLOWDOWN
@@ -383,9 +371,9 @@ class DifferentialIK:
                 xi, s_goal = self._last_xi, 0.0  # brake along the last commanded Cartesian line
             else:
                 s_goal, self._last_xi = 0.0, None
-            target = _advance(self._ref, xi * dt)
+            target = _advance(self._ref, xi, 1.0, dt)
             self.frame_target = target
-            asks_motion = bool(xi.any())
+            asks_motion = kernels.any_nonzero(xi)
             state_mode = cartesian_mode
         else:
             self._ref = None
@@ -401,7 +389,7 @@ class DifferentialIK:
             else:
                 raise TypeError(f"command={command!r} is not a motion command")
             joint_goal = q + d_des
-            asks_motion = bool(d_des.any())
+            asks_motion = kernels.any_nonzero(d_des)
             s_goal = 1.0 if asks_motion else 0.0
             state_mode = mode
         if arrived:
@@ -412,20 +400,19 @@ class DifferentialIK:
         # back onto the integrated reference (drift, linearisation): d_corr, the optimum for the
         # reference itself. It is added unscaled so that scaling the command (even below 0 while
         # reversing) never turns the correction into a push away from the line.
-        frame_state = self._frame_state() if target is not None and _se3 is not None else None
         if target is not None:
-            p, c, c_frame = self._cartesian_objective(target, frame_state)
+            # With a reference: the optimum toward it too (only the frame task's linear term depends
+            # on its target); d = the line plus this cycle's share of the pull-back d_corr.
+            with_ref = xi is not None and asks_motion and self._ref is not None
+            p, c = self._cartesian_objective(target, self._ref if with_ref else None)
+            d, d_corr = self._d[0].copy(), self._d[1].copy()
         else:
             p, c = self._joint_objective(q, joint_goal)
-            c_frame = np.zeros(N)
-        if xi is not None and asks_motion and self._ref is not None:
-            # Only the frame task's linear term depends on its target: swap that term alone.
-            c_ref = c - c_frame + self._frame_terms(self._ref, None, frame_state)
-            d, d_corr = _solve(p, -np.column_stack([c, c_ref])).T
-            d = d - d_corr * (1.0 - self._correction_gain)  # the line, plus this cycle's share of the pull-back
-            d_corr = d_corr * self._correction_gain
-        else:
-            d, d_corr = _solve(p, -c), np.zeros(N)
+            rhs = self._rhs
+            rhs[:, 0] = -c
+            rhs[:, 1] = 0.0
+            _solve(p, rhs)
+            d, d_corr = rhs[:, 0].copy(), np.zeros(N)
         # Keep the direction: the commanded one (s -> 1), or while braking the current line (s -> 0).
         direction = d - d_corr if asks_motion else self._dq_prev
         self.path_braking.set_direction(direction)
@@ -433,14 +420,14 @@ class DifferentialIK:
 
         solver_status = ""
         dq: np.ndarray | None = None
-        s = _path_scale(direction, s_goal, g, h_path - g @ d_corr)
-        if s is None and d_corr.any():
+        s = _path_scale(direction, s_goal, g, h_path, d_corr)
+        if s is None and kernels.any_nonzero(d_corr):
             d_corr = np.zeros(N)  # the correction does not fit this cycle: the line alone
             s = _path_scale(direction, s_goal, g, h_path)
         if s is not None:  # 1. on the line
             dq = s * direction + d_corr
             if xi is not None and self._ref is not None and asks_motion:
-                self._ref = _advance(self._ref, s * xi * dt)  # the reference follows what was achieved
+                self._ref = _advance(self._ref, xi, s, dt)  # the reference follows what was achieved
             if s_goal == 0.0 and s == 0.0:
                 self._last_xi = None  # at rest
         else:
@@ -466,11 +453,11 @@ class DifferentialIK:
         dd = float(d @ d)
         scale = min(max(float(dq @ d) / dd, 0.0), 1.0) * s_sing if s_goal == 1.0 and dd > 0.0 else 0.0
         flags |= self._binding_flags(g, h, dq)
-        if not np.isfinite(dq).all():  # defensive: every branch above is finite by construction
+        if not kernels.all_finite(dq):  # defensive: every branch above is finite by construction
             dq = np.zeros(N)
             flags |= _B.SOLVER_FAILED
         self._dq_prev = dq.copy()
-        return IkResult(dq=dq, q_next=q + dq, velocity=dq / dt, scale=float(scale), flags=IkFlag(flags),
+        return IkResult(dq=dq, q_next=q + dq, velocity=dq / dt, scale=float(scale), flags=_ik_flag(flags),
                         condition=kappa, mode=mode, solver_status=solver_status)
 
     def step_again(self, q_model_rad: ArrayLike, command: Command | None, *, dq_prev: ArrayLike | None = None
@@ -499,8 +486,7 @@ class DifferentialIK:
         """``(P, c, G, h)`` of the Cartesian cycle at the current configuration, as step() builds it:
         the frame task toward the pose ``target`` (wxyz_xyz) plus the posture task, and every limit
         row (G and h are the in-place arrays: valid until the next build)."""
-        state = self._frame_state() if _se3 is not None else None
-        p, c, _ = self._cartesian_objective(np.asarray(target, dtype=float), state)
+        p, c = self._cartesian_objective(np.ascontiguousarray(target, dtype=float), None)
         g, h, _ = self._rows()
         return p, c, g, h
 
@@ -541,11 +527,10 @@ class DifferentialIK:
         if n_cfg:
             g[sl[0]] = np.vstack([cfg_lim.projection_matrix, -cfg_lim.projection_matrix])
             idx = qpos_of_dof[cfg_lim.indices]
-            self._cfg_qpos = idx
+            self._cfg_qpos = np.ascontiguousarray(idx, dtype=np.int64)
             self._cfg_gain = float(cfg_lim.gain)
-            self._cfg_qpos_l = [int(i) for i in idx]
-            self._cfg_upper_l, self._cfg_lower_l = cfg_lim.upper[idx].tolist(), cfg_lim.lower[idx].tolist()
-        self._qadr_l = [int(i) for i in self._qadr]
+            self._cfg_upper = np.ascontiguousarray(cfg_lim.upper[idx], dtype=float)
+            self._cfg_lower = np.ascontiguousarray(cfg_lim.lower[idx], dtype=float)
         if n_vel:
             g[sl[1]] = np.vstack([vel_lim.projection_matrix, -vel_lim.projection_matrix])
             h[sl[1]] = np.hstack([self.dt * vel_lim.limit, self.dt * vel_lim.limit])  # constant
@@ -555,7 +540,7 @@ class DifferentialIK:
         self._sl = sl
         self._row_counts = counts
         self._accel_rows, self._braking_rows = sl[2], sl[3]
-        flags = np.zeros(m, dtype=int)
+        flags = np.zeros(m, dtype=np.int64)
         flags[sl[0]] = int(IkFlag.JOINT_LIMIT)
         flags[sl[1]] = int(IkFlag.VELOCITY_LIMIT)
         flags[sl[2]] = int(IkFlag.ACCEL_LIMIT)
@@ -565,17 +550,35 @@ class DifferentialIK:
             flags[sl[5]] = int(IkFlag.COLLISION)
         self._row_flags = flags
         self._mark_configuration_rows()
-        # Scratch of the cycle (no allocation there): the TCP's world Jacobian and the flange's.
+        # Scratch of the cycle (no allocation there): the TCP's world Jacobian (and views of its
+        # linear and angular rows for mj_jacSite), the flange's, the objective and its optimum.
         self._jac_world = np.zeros((6, model.nv))
+        self._jac_world_lin, self._jac_world_ang = self._jac_world[:3], self._jac_world[3:]
         self._jac_flange = np.zeros((6, model.nv))
+        self._jac_flange_lin, self._jac_flange_ang = self._jac_flange[:3], self._jac_flange[3:]
+        self._cond_work = np.zeros((6, model.nv))
+        if self.frame_task.lm_damping != 0.0 or self.posture_task.lm_damping != 0.0:
+            raise ValueError("the assembled objective has no Levenberg-Marquardt damping (tasks' lm_damping = 0)")
         self._frame_cost = np.asarray(self.frame_task.cost, dtype=float).copy()
-        self._frame_cost_col = self._frame_cost[:, None].copy()
+        self._frame_gain = float(self.frame_task.gain)
         self._posture_cost = np.asarray(self.posture_task.cost, dtype=float).copy()
-        self._posture_h = self._posture_cost * self._posture_cost
+        self._posture_gain = float(self.posture_task.gain)
         self._posture_goal = np.zeros(N)  # the posture task's target in model order ...
         self._posture_src: np.ndarray | None = None  # ... taken from this array of the task's
         self._p = np.zeros((N, N))
-        self._p_diag = self._p.reshape(-1)[:: N + 1]
+        self._c = np.zeros(N)
+        self._c_frame = np.zeros(N)
+        self._weighted_jac = np.zeros((6, N))
+        self._d = np.zeros((2, N))  # the optimum toward the target, and the pull-back (see step)
+        self._rhs = np.zeros((N, 2))
+        self._zero = np.zeros(N)
+        # The row blocks' views, for the kernels that fill them.
+        self._h_cfg = h[sl[0]]
+        self._h_acc = h[sl[2]]
+        self._h_brk, self._hp_brk = h[sl[3]], self._hp[sl[3]]
+        self._h_head, self._hp_head = h[: sl[3].start], self._hp[: sl[3].start]
+        if n_col:
+            self._g_col, self._h_col, self._hp_col = g[sl[5]], h[sl[5]], self._hp[sl[5]]
 
     def _rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(G, h, h_path)`` at the current configuration, in the arrays allocated by ``_layout``.
@@ -585,70 +588,27 @@ class DifferentialIK:
         ``accel_limit.dq_prev``, ``path_braking``), so both stay interchangeable."""
         g, h, hp, sl, dt = self._g, self._h, self._hp, self._sl, self.dt
         data = self.configuration.data
-        qpos = data.qpos.tolist()  # floats: the small row blocks cost less in float arithmetic
-        q = [qpos[i] for i in self._qadr_l]
+        qpos = data.qpos  # model order is qpos order (checked by _layout)
         if self._row_counts[0]:  # mink's ConfigurationLimit: gain * (upper - q), gain * (q - lower)
-            gain = self._cfg_gain
-            qc = [qpos[i] for i in self._cfg_qpos_l]
-            h[sl[0]] = ([gain * (u - x) for u, x in zip(self._cfg_upper_l, qc, strict=True)]
-                        + [gain * (x - lo) for x, lo in zip(qc, self._cfg_lower_l, strict=True)])
-        self.accel_limit.fill(dt, h[sl[2]])
-        self.braking_limit.fill(q, dt, h[sl[3]], hp[sl[3]])
+            kernels.configuration_limit_rows(self._cfg_gain, self._cfg_upper, self._cfg_lower, self._cfg_qpos,
+                                             qpos, self._h_cfg)
+        self.accel_limit.fill(dt, self._h_acc)
+        self.braking_limit.fill(qpos, dt, self._h_brk, self._hp_brk)
         i = sl[4].start
-        h[i], hp[i] = self.config_guard.fill(q, dt, g[i])
-        # Rows without a path version: h_path = h.
-        hp[: sl[3].start] = h[: sl[3].start]
+        h[i], hp[i] = self.config_guard.fill(qpos, dt, g[i])
+        self._hp_head[:] = self._h_head  # rows without a path version: h_path = h
         if self.collision_limit is not None:
-            c = sl[5]
-            self.collision_limit.fill(data, qpos, dt, g[c], h[c], hp[c])
+            self.collision_limit.fill(data, qpos, dt, self._g_col, self._h_col, self._hp_col)
         return g, h, hp
 
     def _kinematics(self, q: np.ndarray) -> None:
         """The configuration at ``q``: what ``Configuration.update`` does, without copying qpos."""
         data = self.configuration.data
-        data.qpos[self._qadr] = q
+        data.qpos[:] = q  # the arm's joints are the whole qpos, in model order (checked by _layout)
         mujoco.mj_kinematics(self.model, data)
         mujoco.mj_comPos(self.model, data)
         if self.model.neq > 0:
             mujoco.mj_makeConstraint(self.model, data)
-
-    def _frame_state(self) -> tuple[np.ndarray, np.ndarray]:
-        """The TCP frame's pose (wxyz_xyz) and body Jacobian at the current configuration, as mink's
-        FrameTask reads them (``_get_transform_frame_to_world_wxyz_xyz``, ``get_frame_jacobian``)."""
-        assert _se3 is not None
-        data = self.configuration.data
-        sid = self._site_id
-        xmat = data.site_xmat[sid]
-        frame = _se3.xmat_xpos_to_wxyz_xyz(xmat, data.site_xpos[sid])
-        jw = self._jac_world
-        mujoco.mj_jacSite(self.model, data, jw[:3], jw[3:], sid)
-        return frame, _se3.se3_rotation_adjoint_from_xmat(xmat) @ jw
-
-    def _frame_terms(self, target: np.ndarray, h_out: np.ndarray | None,
-                     state: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-        """The frame task's linear term for the target pose ``target`` (wxyz_xyz), and its Hessian
-        written into ``h_out`` if given: mink's FrameTask objective, from the same kernels in the same
-        order (``state``: :meth:`_frame_state`, when already computed this cycle)."""
-        task = self.frame_task
-        if _se3 is None:  # pragma: no cover - mink's Python path
-            task.set_target(mink.SE3(target))
-            obj = task.compute_qp_objective(self.configuration)
-            if h_out is not None:
-                h_out[:] = obj.H
-            return obj.c
-        frame, jac = state if state is not None else self._frame_state()
-        error = _se3.se3_rminus(target, frame)
-        jacobian = -_se3.se3_jlog(_se3.se3_inverse_multiply(target, frame)) @ jac
-        cost = self._frame_cost
-        weighted_error = cost * (-task.gain * error)
-        weighted_jacobian = self._frame_cost_col * jacobian
-        if h_out is not None:
-            np.matmul(weighted_jacobian.T, weighted_jacobian, out=h_out)
-            if task.lm_damping > 0.0:  # mink adds mu = lm_damping * |e|^2 (0 with ours: skipped)
-                mu = task.lm_damping * float(weighted_error @ weighted_error)
-                if mu > 0.0:
-                    h_out.flat[:: N + 1] += mu
-        return -weighted_error @ weighted_jacobian
 
     def _posture_terms(self, task: mink.PostureTask, cost: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """A posture task's linear term toward the joints ``goal`` (model order); its Hessian is
@@ -657,33 +617,26 @@ class DifferentialIK:
         weighted_error = cost * (-task.gain * error)
         return -weighted_error * cost
 
-    def _posture_linear(self, q: np.ndarray) -> np.ndarray:
-        """:meth:`_posture_terms` of the posture task at the joints ``q`` (the configuration's)."""
+    def _cartesian_objective(self, target: np.ndarray, ref: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """(P, c) of mink's frame task toward ``target`` plus the posture task, with our damping, at
+        the current configuration, in one kernel; its optimum is left in ``self._d`` (row 0), and
+        with a reference pose ``ref`` the pull-back toward it (row 1; see ``step``)."""
+        data = self.configuration.data
+        sid = self._site_id
+        mujoco.mj_jacSite(self.model, data, self._jac_world_lin, self._jac_world_ang, sid)
         pt = self.posture_task
         if pt.target_q is not self._posture_src:  # set_target stores a new array: model order, once
             assert pt.target_q is not None
             self._posture_src = pt.target_q
-            self._posture_goal = pt.target_q[self._qadr]
-        weighted_error = self._posture_cost * (-pt.gain * (q - self._posture_goal))
-        return -weighted_error * self._posture_cost
-
-    def _cartesian_objective(self, target: np.ndarray, state: tuple[np.ndarray, np.ndarray] | None
-                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(P, c) of the frame task toward ``target`` plus the posture task, with our damping, and the
-        frame task's own linear term."""
-        p = self._p  # written in place (consumed within the cycle)
-        c_frame = self._frame_terms(target, p, state)
-        pt = self.posture_task
-        assert pt.target_q is not None
-        diag = self._p_diag  # a view of p's diagonal
-        diag += self._posture_h  # the posture task's Hessian, cost**2 on the diagonal (mink adds all of it)
-        q = self.configuration.data.qpos[self._qadr]
-        c = c_frame + self._posture_linear(q)
-        if pt.lm_damping > 0.0:  # pragma: no cover - ours is 0
-            e = self._posture_cost * (-pt.gain * (q - self._posture_goal))
-            diag += pt.lm_damping * float(e @ e)
-        diag += self.settings.damping
-        return p, c, c_frame
+            self._posture_goal = np.ascontiguousarray(pt.target_q[self._qadr], dtype=float)
+        ok = kernels.cartesian_objective(
+            data.site_xmat[sid], data.site_xpos[sid], self._jac_world, target, ref if ref is not None else target,
+            ref is not None, self._frame_cost, self._frame_gain, self._posture_cost, self._posture_gain,
+            self._posture_goal, data.qpos, self.settings.damping, self._correction_gain, self._p, self._c,
+            self._c_frame, self._weighted_jac, self._d)
+        if not ok:
+            raise np.linalg.LinAlgError("the IK objective's Hessian is not positive definite")
+        return self._p, self._c
 
     def _joint_objective(self, q: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(P, c) of the joint task toward ``goal`` (cost 1, gain 1), with our damping."""
@@ -704,7 +657,7 @@ class DifferentialIK:
         sigma = _path_scale(d, 1.0, g, h_vel) if d.any() else None
         target = d * min(max(sigma, 0.0), 1.0) if sigma is not None else np.zeros(N)
         base = self._dq_prev
-        interval = _scale_interval(target - base, g, h - g @ base)
+        interval = _scale_interval(target - base, g, h, base)
         if interval is None:
             return None
         lo, hi = max(interval[0], 0.0), min(interval[1], 1.0)
@@ -772,11 +725,8 @@ class DifferentialIK:
 
     # ---------------------------------------------------------------------------- singularity
     def _condition(self, data: mujoco.MjData) -> float:
-        jac = self._jac_flange
-        mujoco.mj_jacSite(self.model, data, jac[:3], jac[3:], self._flange_id)
-        jac[:3] /= self._reach
-        sv = _singular_values(jac)
-        return float(sv[0] / sv[-1]) if sv[-1] > 1e-12 * sv[0] else 1e12
+        mujoco.mj_jacSite(self.model, data, self._jac_flange_lin, self._jac_flange_ang, self._flange_id)
+        return kernels.condition_number(self._jac_flange, self._reach, self._cond_work)
 
     def _condition_at(self, q: np.ndarray) -> float:
         self._probe.qpos[:] = self._full_q(q)
@@ -826,30 +776,15 @@ class DifferentialIK:
         if self._row_flags is not None and self._braking_rows is not None:
             self._row_flags[self._braking_rows] = np.where(self.braking_limit.restricted, int(IkFlag.CONFIGURATION),
                                                            int(IkFlag.JOINT_LIMIT))
-            self._row_flags_l: list[int] = self._row_flags.tolist()
 
     def _binding_flags(self, g: np.ndarray, h: np.ndarray, dq: np.ndarray) -> int:
         assert self._row_flags is not None and self._accel_rows is not None
-        # One pass in float arithmetic: slack = h - G dq, binding within binding_tol + 1e-6 |h|,
-        # inactive rows (h = inf) never bind; an acceleration row whose bound is the velocity one
-        # raises VELOCITY_LIMIT, and ACCEL_LIMIT stays only if a row bound by acceleration binds.
-        tol0 = self.settings.binding_tol
-        flags = self._row_flags_l
-        lo, hi_row = self._accel_rows.start, self._accel_rows.stop
-        vel_bound = self.accel_limit.velocity_bound
-        out = 0
-        accel_binds = False
-        for i, (a, hv) in enumerate(zip((g @ dq).tolist(), h.tolist(), strict=True)):
-            if hv - a <= tol0 + 1e-6 * abs(hv) and math.isfinite(hv):
-                out |= flags[i]
-                if lo <= i < hi_row:
-                    if vel_bound[i - lo]:
-                        out |= _B.VELOCITY_LIMIT
-                    else:
-                        accel_binds = True
-        if not accel_binds:
-            out &= ~_B.ACCEL_LIMIT
-        return out
+        # Binding within binding_tol + 1e-6 |h|; inactive rows (h = inf) never bind. An acceleration
+        # row whose bound is the velocity one raises VELOCITY_LIMIT, and ACCEL_LIMIT stays only if a
+        # row bound by acceleration binds.
+        return int(kernels.binding_flags(g, h, dq, self._row_flags, self._accel_rows.start, self._accel_rows.stop,
+                                         self.accel_limit.velocity_bound, self.settings.binding_tol,
+                                         _B.VELOCITY_LIMIT, _B.ACCEL_LIMIT))
 
     def _site_pose(self, data: mujoco.MjData, site_id: int) -> np.ndarray:
         """The site's pose as mink stores an SE3: quaternion (w x y z), then position."""
@@ -864,19 +799,11 @@ class DifferentialIK:
         The reference advances by what each cycle asked for; the jerk-limited shaper delivers it a
         little later. Pulling the TCP forward to the reference then overshot the commanded speed
         (+20 %) and swung back: only the error across the line is the IK's to correct."""
-        w = self._track_weights
-        err = np.concatenate([tcp[4:] - ref[4:], _rotation_between(tcp, ref)])
-        wxi = w * xi
-        norm = float(xi @ wxi)
-        if norm <= 0.0:
-            return ref
-        return _advance(ref, (float(err @ wxi) / norm) * xi)
+        out = np.empty(7)
+        return out if kernels.along_track(out, ref, tcp, xi, self._track_weights) else ref
 
     def _near(self, a: np.ndarray, b: np.ndarray) -> bool:
-        tol = self.settings.reference_tolerance_m
-        if _norm(a[4:] - b[4:]) > tol:
-            return False
-        return _norm(_rotation_between(a, b)) * self._reach <= tol
+        return bool(kernels.poses_near(a, b, self.settings.reference_tolerance_m, self._reach))
 
     def _full_q(self, q: np.ndarray) -> np.ndarray:
         full = self.configuration.data.qpos.copy()
@@ -885,44 +812,30 @@ class DifferentialIK:
 
     @staticmethod
     def _checked(v: ArrayLike, name: str) -> np.ndarray:
-        a = np.asarray(v, dtype=float)
+        a = np.array(v, dtype=float)  # a copy
         if a.shape != (N,):
             raise ValueError(f"{name} has shape {a.shape}, expected ({N},)")
-        if not np.isfinite(a).all():
+        if not kernels.all_finite(a):
             i = int(np.flatnonzero(~np.isfinite(a))[0])
             raise ValueError(f"{name}[{i}]={a[i]} is not a finite number")
-        return a.copy()
+        return a
 
 
 # ------------------------------------------------------------------------------ pure functions
-def _norm(v: np.ndarray) -> float:
-    """``np.linalg.norm`` of a vector (it is ``sqrt(v . v)``), without its dispatch."""
-    return math.sqrt(float(v @ v))
+def _scale_interval(direction: np.ndarray, g: np.ndarray, h: np.ndarray, shift: np.ndarray | None = None
+                    ) -> tuple[float, float] | None:
+    """The interval of ``s`` with ``g @ (s * direction + shift) <= h`` (the rows are linear), or None."""
+    if shift is None:
+        lo, hi = kernels.scale_interval(direction, g, h, direction, 0.0)
+    else:
+        lo, hi = kernels.scale_interval(direction, g, h, shift, 1.0)
+    return None if math.isnan(lo) else (lo, hi)
 
 
-def _scale_interval(direction: np.ndarray, g: np.ndarray, h: np.ndarray) -> tuple[float, float] | None:
-    """The interval of ``s`` with ``g @ (s * direction) <= h`` (the rows are linear), or None."""
-    # One pass over the rows in float arithmetic: the same divisions, minimum and maximum as masks
-    # and reductions over numpy arrays would give, for a fraction of the calls (~2 us each here).
-    tiny = 1e-15
-    s_hi, s_lo = math.inf, -math.inf
-    for ai, hi in zip((g @ direction).tolist(), h.tolist(), strict=True):
-        if ai > tiny:
-            r = hi / ai
-            if r < s_hi:
-                s_hi = r
-        elif ai < -tiny:
-            r = hi / ai
-            if r > s_lo:
-                s_lo = r
-        elif hi < -1e-12:  # a row the direction does not move is violated already
-            return None
-    return (s_lo, s_hi) if s_lo <= s_hi else None
-
-
-def _path_scale(direction: np.ndarray, s_goal: float, g: np.ndarray, h: np.ndarray) -> float | None:
-    """The ``s`` nearest ``s_goal`` with ``g @ (s * direction) <= h``, or None if there is none."""
-    interval = _scale_interval(direction, g, h)
+def _path_scale(direction: np.ndarray, s_goal: float, g: np.ndarray, h: np.ndarray,
+                shift: np.ndarray | None = None) -> float | None:
+    """The ``s`` nearest ``s_goal`` with ``g @ (s * direction + shift) <= h``, or None if there is none."""
+    interval = _scale_interval(direction, g, h, shift)
     if interval is None:
         return None
     s = min(max(s_goal, interval[0]), interval[1])
@@ -937,22 +850,16 @@ def _pose_of_matrix(t: np.ndarray) -> np.ndarray:
     return pose
 
 
-def _advance(pose: np.ndarray, xi_dt: np.ndarray) -> np.ndarray:
-    """Pose moved by a base-frame displacement (translation of the TCP, rotation about the TCP)."""
-    turn = np.array([1.0, 0.0, 0.0, 0.0])
-    mujoco.mju_quatIntegrate(turn, xi_dt[3:], 1.0)  # exp of the rotation vector
+def _advance(pose: np.ndarray, xi: np.ndarray, s: float, dt: float) -> np.ndarray:
+    """Pose moved by the base-frame displacement ``s * xi * dt`` (translation of the TCP, rotation
+    about the TCP): a new array (poses are kept by step_again, never changed in place)."""
     out = np.empty(7)
-    mujoco.mju_mulQuat(out[:4], turn, pose[:4])  # base frame: applied on the left
-    out[4:] = pose[4:] + xi_dt[:3]
+    kernels.advance(out, pose, xi, s, dt)
     return out
 
 
 def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Base-frame rotation vector taking pose ``b``'s orientation to ``a``'s (the shorter way)."""
-    b_inv = np.empty(4)
-    mujoco.mju_negQuat(b_inv, b[:4])
-    diff = np.empty(4)
-    mujoco.mju_mulQuat(diff, a[:4], b_inv)
     w = np.empty(3)
-    mujoco.mju_quat2Vel(w, diff, 1.0)
+    kernels.rotation_between(w, a, b)
     return w

@@ -29,6 +29,7 @@ import numpy as np
 from mink import Configuration
 from mink.limits import CollisionAvoidanceLimit, Constraint, Limit
 
+from servo_app.motion import ik_kernels as kernels
 from servo_app.robots.configuration import ArmConfiguration, ConfigurationRegion
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.model import JOINT_NAMES
@@ -87,33 +88,19 @@ class PathBraking:
         self.brake = np.asarray(brake_fanuc, dtype=float)
         self.floor = floor
         self.u: np.ndarray | None = None
-        self.u_list: list[float] = []  # u as floats (the rows of the cycle are computed in float arithmetic)
         self.rate = math.inf
-        # C's non-zero entries per row, and the caps, as floats: a 6-vector costs less in float
-        # arithmetic than in numpy calls (~2 us each here).
-        self._c_rows = [[(k, float(v)) for k, v in enumerate(row) if v != 0.0] for row in self.c]
-        self._brake_l = [float(b) for b in self.brake]
+        self._u = np.zeros(len(self.brake))  # u's storage (set_direction copies into it: no allocation)
 
     def set_direction(self, u: np.ndarray | None) -> None:
         """The joint-space direction (model convention, any scale) the arm moves or will move along."""
         if u is None:
-            self.u, self.u_list, self.rate = None, [], math.inf
+            self.u, self.rate = None, math.inf
             return
-        ul = np.asarray(u, dtype=float).tolist()
-        uf = []
-        for row in self._c_rows:  # |C u|, the products summed in column order as the matrix product does
-            acc = 0.0
-            for k, v in row:
-                acc += v * ul[k]
-            uf.append(abs(acc))
-        tiny = 1e-12 * max(max(uf), 1e-300)
-        rates = [b / f for b, f in zip(self._brake_l, uf, strict=True) if f > tiny]
-        if not rates:
-            self.u, self.u_list, self.rate = None, [], math.inf
+        rate = kernels.path_rate(self.c, self.brake, np.ascontiguousarray(u, dtype=float), self._u)
+        if math.isinf(rate):  # the direction moves no joint
+            self.u, self.rate = None, math.inf
             return
-        self.u = np.array(ul)
-        self.u_list = ul
-        self.rate = min(rates)
+        self.u, self.rate = self._u, rate
 
     def decel(self, grad_dot_u: np.ndarray, caps: np.ndarray | float) -> np.ndarray:
         """Deceleration for rows whose closing rate along ``u`` is ``grad_dot_u`` (per unit of s)."""
@@ -153,11 +140,10 @@ class AccelerationLimit(Limit):
         self.dq_prev = np.zeros(6)
         self.velocity_bound = np.zeros(12, dtype=bool)  # rows whose bound came from vel (else acc)
         self.h_velocity = np.full(12, np.inf)  # the same rows with the velocity bound only
-        # fill(): C's non-zero entries per row, and the per-cycle bounds, as floats (set per dt).
-        self._c_rows = [[(k, float(v)) for k, v in enumerate(row) if v != 0.0] for row in self.c]
+        # fill()'s per-cycle bounds (set per dt).
         self._dt = math.nan
-        self._vmax_l: list[float] = []
-        self._da_l: list[float] = []
+        self._vmax = np.zeros(6)
+        self._da = np.zeros(6)
 
     def set_previous(self, dq_prev: np.ndarray) -> None:
         self.dq_prev = np.asarray(dq_prev, dtype=float).copy()
@@ -175,33 +161,18 @@ class AccelerationLimit(Limit):
         return Constraint(G=self._g, h=np.concatenate([upper, -lower]))
 
     def fill(self, dt: float, h: np.ndarray) -> None:
-        """``compute_qp_inequalities``' rows written into ``h`` (12), with no Constraint built, in
-        float arithmetic (the same operations in the same order as the reference's numpy ones).
+        """``compute_qp_inequalities``' rows written into ``h`` (12), with no Constraint built: one
+        kernel, the same operations in the same order as the reference's numpy ones.
 
         The lower bounds negated are the upper bounds of ``-p``: ``-max(min(-v, p + a), p - a) ==
         min(max(v, -p - a), -p + a)`` (negation is exact)."""
         if self._dt != dt:
             self._dt = dt
-            vmax = self.vel * dt
-            self._vmax_l = vmax.tolist()
-            self._da_l = (self.acc * dt * dt).tolist()  # as the reference rounds it
-            self.h_velocity = np.concatenate([vmax, vmax])
-        prev = self.dq_prev.tolist()
-        out: list[float] = []
-        bound: list[bool] = []
-        for sign in (1.0, -1.0):
-            for row, v, a in zip(self._c_rows, self._vmax_l, self._da_l, strict=True):
-                p = 0.0
-                for k, c in row:
-                    p += c * prev[k]
-                p = sign * p
-                hi = p + a
-                x = max(v, p - a)
-                x = hi if hi < x else x
-                out.append(x)
-                bound.append(x < hi)
-        h[:] = out
-        self.velocity_bound[:] = bound
+            self._vmax = self.vel * dt
+            self._da = self.acc * dt * dt  # as the reference rounds it
+            self.h_velocity = np.concatenate([self._vmax, self._vmax])
+        kernels.acceleration_rows(self.c, self.dq_prev, self._vmax, self._da, h, self.velocity_bound)
+
 
 class BrakingLimit(Limit):
     """Each joint stays within ``[lower, upper]`` (model convention, rad) and can always stop before
@@ -235,11 +206,7 @@ class BrakingLimit(Limit):
         self._g = g
         self._bound = np.concatenate([self.range_upper, -self.range_lower])  # row i: g_i @ q <= bound_i
         self.restricted = np.zeros(12, dtype=bool)
-        # fill()'s floats: bounds, braking decelerations, dof columns.
-        self._bound_l: list[float] = self._bound.tolist()
-        self._acc_l: list[float] = self._acc.tolist()
-        self._brake_l: list[float] = self.brake_acc.tolist()
-        self._cols_l: list[int] = [int(c) for c in cols]
+        self._cols_i64 = np.ascontiguousarray(cols, dtype=np.int64)
 
     @property
     def lower(self) -> np.ndarray:
@@ -255,7 +222,6 @@ class BrakingLimit(Limit):
         hi = np.minimum(self.range_upper, upper)
         self.restricted = np.concatenate([hi < self.range_upper, lo > self.range_lower])
         self._bound = np.concatenate([hi, -lo])
-        self._bound_l = self._bound.tolist()
 
     def compute_qp_inequalities(self, configuration: Configuration, dt: float) -> Constraint:
         q = configuration.data.qpos[self._qadr]
@@ -268,37 +234,18 @@ class BrakingLimit(Limit):
             self.h_path = dt * braking_speed(distance, np.concatenate([acc, acc]), horizon)
         return Constraint(G=self._g, h=h)
 
-    def fill(self, q: list[float], dt: float, h: np.ndarray, h_path: np.ndarray) -> None:
-        """``compute_qp_inequalities``' rows and ``h_path`` for the joints ``q`` (model order, floats),
-        written into ``h`` and ``h_path`` (12 each) with no Constraint built: float arithmetic, the
-        reference's operations in its order (``dt * braking_speed(...)``)."""
-        bound = self._bound_l
-        acc = self._acc_l
-        horizon = dt + self.lag_s
-        t2 = horizon * horizon
-        dist = [b - x for b, x in zip(bound[:6], q, strict=True)] + [b + x for b, x in zip(bound[6:], q, strict=True)]
-        out = []
-        for d, a in zip(dist, acc, strict=True):
-            d = d if d > 0.0 else 0.0
-            out.append(dt * (a * (math.sqrt(t2 + 2.0 * d / a) - horizon)))
-        h[:] = out
+    def fill(self, q: np.ndarray, dt: float, h: np.ndarray, h_path: np.ndarray) -> None:
+        """``compute_qp_inequalities``' rows and ``h_path`` for the joints ``q`` (model order), written
+        into ``h`` and ``h_path`` (12 each) with no Constraint built: one kernel, the reference's
+        operations in its order (``dt * braking_speed(...)``)."""
         path = self.path
-        if path is not None and path.u is not None:
-            u, rate, floor = path.u_list, path.rate, path.floor
-            cols = self._cols_l
-            acc6 = []
-            for cap, i in zip(self._brake_l, cols, strict=True):
-                x = rate * abs(u[i])
-                fc = floor * cap
-                x = fc if fc > x else x
-                acc6.append(cap if cap < x else x)
-            out = []
-            for d, a in zip(dist, acc6 + acc6, strict=True):
-                d = d if d > 0.0 else 0.0
-                out.append(dt * (a * (math.sqrt(t2 + 2.0 * d / a) - horizon)))
-            h_path[:] = out
-        else:
-            h_path[:] = h
+        with_path = path is not None and path.u is not None
+        u = path.u if with_path and path is not None and path.u is not None else q
+        rate = path.rate if with_path and path is not None else 0.0
+        floor = path.floor if path is not None else 0.0
+        kernels.braking_rows(self._bound, self._acc, self.brake_acc, self._cols_i64, q, dt, self.lag_s, with_path,
+                             u, rate, floor, h, h_path)
+
 
 @dataclass(frozen=True)
 class ConfigurationMargins:
@@ -381,30 +328,19 @@ class ConfigurationGuard(Limit):
     def fill(self, q: np.ndarray, dt: float, g: np.ndarray) -> tuple[float, float]:
         """``compute_qp_inequalities``' row for the joints ``q`` (model order): its coefficients written
         into ``g`` (one row, dof columns), its bound and path bound returned. Float arithmetic: the row
-        is a handful of scalars, where each numpy call would cost more than the arithmetic."""
+        is a handful of scalars: one kernel, the reference's operations in its order."""
         if self.reference is None:
             self.reset(q)
         assert self.reference is not None
-        kin = self.kin
-        q2, q3 = float(q[1]), float(q[2])
-        phi = q2 - q3
-        cphi, sphi = math.cos(phi), math.sin(phi)
-        x = kin.a1 + kin.a2 * math.sin(q2) + kin.d4 * cphi + kin.a3 * sphi
-        dphi = -kin.d4 * sphi + kin.a3 * cphi
-        g1, g2 = kin.a2 * math.cos(q2) + dphi, -dphi  # the gradient's only non-zero entries (q2, q3)
-        sign = 1.0 if self.reference.top else -1.0
-        distance = sign * x - self.margins.shoulder_m
-        g[:] = 0.0
-        g[self._cols[1]] = -sign * g1
-        g[self._cols[2]] = -sign * g2
-        acc = self.margins.shoulder_brake_acc
-        horizon = dt + self.lag_s
-        h = dt * braking_speed_scalar(distance, acc, horizon)
+        kin, acc = self.kin, self.margins.shoulder_brake_acc
+        h, distance, g1, g2 = kernels.shoulder_row(q, kin.a1, kin.a2, kin.a3, kin.d4, self.margins.shoulder_m, acc,
+                                                   self.reference.top, dt, self.lag_s, int(self._cols[1]),
+                                                   int(self._cols[2]), g)
         h_path = h
         if self.path is not None and self.path.u is not None:
-            u = self.path.u_list
-            acc = self.path.decel_scalar(g1 * u[self._cols[1]] + g2 * u[self._cols[2]], acc)
-            h_path = dt * braking_speed_scalar(distance, acc, horizon)
+            u = self.path.u
+            acc = self.path.decel_scalar(g1 * float(u[self._cols[1]]) + g2 * float(u[self._cols[2]]), acc)
+            h_path = dt * braking_speed_scalar(distance, acc, dt + self.lag_s)
         return h, h_path
 
 
@@ -481,6 +417,7 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self._q_refresh_arr = np.zeros(0)
         self._near_weights = self._far_weights = np.zeros((0, model.nv))
         self._far_slack = np.zeros(0)
+        self._drift = np.zeros(0)
         self._near: list[int] = []  # pairs within detection distance + margin at the last refresh
         self._near_dist: list[float] = []  # ... and their distance then
         self._near_q = np.zeros((0, model.nv))
@@ -490,7 +427,7 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self._jac1_flat, self._jac2_flat = self._jac1.reshape(-1), self._jac2.reshape(-1)
         self.refreshes = 0
 
-    def _refresh_near(self, data: mujoco.MjData, q: list[float]) -> None:
+    def _refresh_near(self, data: mujoco.MjData, q: np.ndarray) -> None:
         """Classify every pair at the joints ``q``: near (within detection distance + margin: its
         narrow phase runs each cycle, unless it is still provably beyond detection distance) or far,
         with a lower bound on its distance (bounding spheres, or the narrow phase's cap). The next
@@ -529,14 +466,15 @@ class CollisionLimit(CollisionAvoidanceLimit):
             far_lb.append(lb)
         self._near, self._near_dist = near, near_dist
         self._near_q = np.tile(np.asarray(q, dtype=float), (len(near), 1))  # joints when each was measured
-        self._near_weights = self._pair_weights[near]
-        self._far_weights = self._pair_weights[far]
-        self._far_slack = np.array(far_lb) - detect  # how far each far pair may drift before it matters
+        self._near_weights = np.ascontiguousarray(self._pair_weights[near])
+        self._far_weights = np.ascontiguousarray(self._pair_weights[far])
+        self._far_slack = np.array(far_lb, dtype=float) - detect  # how far each far pair may drift before it matters
+        self._drift = np.zeros(len(near))  # each near pair's drift since its last measurement (fill())
         self._q_refresh = list(q)
-        self._q_refresh_arr = np.array(q)
+        self._q_refresh_arr = np.array(q, dtype=float)
         self.refreshes += 1
 
-    def fill(self, data: mujoco.MjData, q: list[float], dt: float, g: np.ndarray, h: np.ndarray,
+    def fill(self, data: mujoco.MjData, q: np.ndarray, dt: float, g: np.ndarray, h: np.ndarray,
              h_path: np.ndarray) -> None:
         """``compute_qp_inequalities``' rows and ``h_path`` written into ``g`` (pairs x nv), ``h`` and
         ``h_path`` (kinematics of ``data`` at the joints ``q`` must be current)."""
@@ -549,18 +487,19 @@ class CollisionLimit(CollisionAvoidanceLimit):
             return
         qr = self._q_refresh
         # Per pair, a bound on how much its distance can have changed since q_refresh: the joints
-        # between its two geoms, each turned by |q - q_refresh| (weights: _geom_joint_bounds).
+        # between its two geoms, each turned by |q - q_refresh| (weights: _geom_joint_bounds); a far
+        # pair that could be within detection distance now calls for a refresh.
         refresh = qr is None or len(qr) != len(q) or not self._cache_ok
-        qa = np.array(q)
+        qa = np.array(q, dtype=float)
+        drift = self._drift
         if not refresh:
-            moved = np.abs(qa - self._q_refresh_arr)
-            if len(self._far_slack) and (self._far_slack - self._far_weights @ moved).min() <= 0.0:
-                refresh = True  # a far pair could be within detection distance now
+            refresh = kernels.collision_drift(qa, self._q_refresh_arr, self._far_weights, self._near_q,
+                                              self._near_weights, self._far_slack, drift)
         if refresh:
             self._refresh_near(data, q)
             drift = [0.0] * len(self._near)
-        else:  # each near pair since its own last measurement
-            drift = (np.abs(qa - self._near_q) * self._near_weights).sum(axis=1).tolist()
+        else:
+            drift = drift.tolist()  # floats: read once per near pair below
         model = self.model
         distmax = self.collision_detection_distance
         min_dist = self.minimum_distance_from_collisions

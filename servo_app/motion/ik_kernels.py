@@ -1,0 +1,660 @@
+"""Compiled kernels of the differential IK cycle (:mod:`servo_app.motion.diffik`, :mod:`.ik_limits`).
+
+Why: between its MuJoCo calls and the solve, the IK cycle was hundreds of numpy calls on 6-vectors
+(1-2 us each here); each kernel below replaces a group of them with one call (~0.5 us). Pure math,
+no I/O, every output written into arrays the caller allocated once.
+
+Numbers: the limit rows (:func:`acceleration_rows`, :func:`braking_rows`, :func:`configuration_limit_rows`)
+repeat the reference's float operations in its order, so they equal mink's / the limits'
+``compute_qp_inequalities`` to the bit (``tests/test_diffik_equivalence.py``). The rest (objective,
+solve, condition number, poses) equals the numpy / MuJoCo / mink code it replaces within rounding
+(``tests/test_ik_kernels.py`` compares each with a numpy oracle).
+
+Poses are 7-vectors as mink's SE3 stores them: unit quaternion (w x y z), then position (m).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from servo_app.jit import kernel
+
+_MINVAL = 1e-15  # MuJoCo's mjMINVAL: its vector normalisations treat shorter vectors as zero
+_LIE_EPS = 1e-10  # mink's _lie_ops_c EPS: small-angle series below it
+
+
+# ------------------------------------------------------------------------------------ quaternions
+@kernel("void(float64[::1], float64[::1], float64[::1])")
+def quat_mul(out: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
+    """``out = a * b`` (Hamilton product, as ``mju_mulQuat``); ``out`` may not alias ``a`` or ``b``."""
+    out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3]
+    out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2]
+    out[2] = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1]
+    out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]
+
+
+@kernel("void(float64[::1], float64[::1], float64[::1])")
+def rotation_between(out: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
+    """Base-frame rotation vector taking pose ``b``'s orientation to ``a``'s, the shorter way
+    (``mju_quat2Vel(a * conj(b), 1)``), written into ``out`` (3)."""
+    bw, bx, by, bz = b[0], -b[1], -b[2], -b[3]
+    w = a[0] * bw - a[1] * bx - a[2] * by - a[3] * bz
+    x = a[0] * bx + a[1] * bw + a[2] * bz - a[3] * by
+    y = a[0] * by - a[1] * bz + a[2] * bw + a[3] * bx
+    z = a[0] * bz + a[1] * by - a[2] * bx + a[3] * bw
+    sin_half = math.sqrt(x * x + y * y + z * z)
+    if sin_half < _MINVAL:
+        x, y, z = 1.0, 0.0, 0.0
+    else:
+        inv = 1.0 / sin_half
+        x, y, z = x * inv, y * inv, z * inv
+    speed = 2.0 * math.atan2(sin_half, w)
+    if speed > math.pi:  # the angle beyond pi: the other way round
+        speed -= 2.0 * math.pi
+    out[0], out[1], out[2] = x * speed, y * speed, z * speed
+
+
+@kernel("void(float64[::1], float64[::1], float64[::1], float64, float64)")
+def advance(out: np.ndarray, pose: np.ndarray, xi: np.ndarray, s: float, dt: float) -> None:
+    """``pose`` moved by the base-frame displacement ``(s * xi) * dt`` (translation of the TCP,
+    rotation about it: ``mju_quatIntegrate`` of the identity, applied on the left), into ``out`` (7)."""
+    vx, vy, vz = (s * xi[3]) * dt, (s * xi[4]) * dt, (s * xi[5]) * dt
+    angle = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if angle < _MINVAL:
+        ax, ay, az = 1.0, 0.0, 0.0
+    else:
+        inv = 1.0 / angle
+        ax, ay, az = vx * inv, vy * inv, vz * inv
+    if angle == 0.0:
+        tw, tx, ty, tz = 1.0, 0.0, 0.0, 0.0
+    else:
+        half = math.sin(0.5 * angle)
+        tw, tx, ty, tz = math.cos(0.5 * angle), ax * half, ay * half, az * half
+    pw, px, py, pz = pose[0], pose[1], pose[2], pose[3]
+    out[0] = tw * pw - tx * px - ty * py - tz * pz
+    out[1] = tw * px + tx * pw + ty * pz - tz * py
+    out[2] = tw * py - tx * pz + ty * pw + tz * px
+    out[3] = tw * pz + tx * py - ty * px + tz * pw
+    for i in range(3):
+        out[4 + i] = pose[4 + i] + (s * xi[i]) * dt
+
+
+@kernel("boolean(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1])")
+def along_track(out: np.ndarray, ref: np.ndarray, tcp: np.ndarray, xi: np.ndarray, weights: np.ndarray) -> bool:
+    """The reference ``ref`` moved along the line ``xi`` to where ``tcp`` is along it (the error's
+    share along ``xi`` in the ``weights`` metric), into ``out``; False (``out`` untouched) when
+    ``xi`` is zero in that metric."""
+    rot = np.empty(3)
+    rotation_between(rot, tcp, ref)
+    norm = 0.0
+    along = 0.0
+    for i in range(6):
+        wxi = weights[i] * xi[i]
+        norm += xi[i] * wxi
+        along += (tcp[4 + i] - ref[4 + i] if i < 3 else rot[i - 3]) * wxi
+    if norm <= 0.0:
+        return False
+    advance(out, ref, xi, along / norm, 1.0)
+    return True
+
+
+@kernel("boolean(float64[::1], float64[::1], float64, float64)")
+def poses_near(a: np.ndarray, b: np.ndarray, tol: float, reach: float) -> bool:
+    """``a`` within ``tol`` of ``b``: position (m), and rotation times ``reach`` (m)."""
+    dx, dy, dz = a[4] - b[4], a[5] - b[5], a[6] - b[6]
+    if math.sqrt(dx * dx + dy * dy + dz * dz) > tol:
+        return False
+    rot = np.empty(3)
+    rotation_between(rot, a, b)
+    return math.sqrt(rot[0] * rot[0] + rot[1] * rot[1] + rot[2] * rot[2]) * reach <= tol
+
+
+# ----------------------------------------------------------------------- singular values (condition)
+@kernel("float64(float64[:, ::1], float64, float64[:, ::1])")
+def condition_number(jac: np.ndarray, reach: float, work: np.ndarray) -> float:
+    """Condition number of ``jac`` (6 x n) with its first three rows divided by ``reach``: largest
+    over smallest singular value, 1e12 when the smallest is below 1e-12 of the largest.
+
+    One-sided Jacobi (Hestenes) on the columns instead of LAPACK's SVD: plane rotations until the
+    columns are orthogonal to working precision; the singular values are then the column norms, to
+    high relative accuracy (the same values as ``np.linalg.svd`` within rounding). ``work``: scratch
+    of ``jac``'s shape."""
+    m, n = jac.shape
+    for i in range(m):
+        for j in range(n):
+            work[i, j] = jac[i, j] / reach if i < 3 else jac[i, j]
+    for _sweep in range(60):
+        rotated = False
+        for p in range(n - 1):
+            for q in range(p + 1, n):
+                alpha = 0.0
+                beta = 0.0
+                gamma = 0.0
+                for i in range(m):
+                    alpha += work[i, p] * work[i, p]
+                    beta += work[i, q] * work[i, q]
+                    gamma += work[i, p] * work[i, q]
+                if gamma == 0.0 or abs(gamma) <= 1e-15 * math.sqrt(alpha * beta):
+                    continue
+                rotated = True
+                zeta = (beta - alpha) / (2.0 * gamma)
+                t = math.copysign(1.0, zeta) / (abs(zeta) + math.sqrt(1.0 + zeta * zeta))
+                c = 1.0 / math.sqrt(1.0 + t * t)
+                s = c * t
+                for i in range(m):
+                    wp, wq = work[i, p], work[i, q]
+                    work[i, p] = c * wp - s * wq
+                    work[i, q] = s * wp + c * wq
+        if not rotated:
+            break
+    smax = 0.0
+    smin = math.inf
+    for j in range(n):
+        acc = 0.0
+        for i in range(m):
+            acc += work[i, j] * work[i, j]
+        sv = math.sqrt(acc)
+        smax = max(smax, sv)
+        smin = min(smin, sv)
+    return smax / smin if smin > 1e-12 * smax else 1e12
+
+
+# --------------------------------------------------------------------- mink's SE3 (frame task terms)
+@kernel("void(float64[::1], float64[::1], float64[::1], int64)")
+def _quat_rotate(out: np.ndarray, v: np.ndarray, q: np.ndarray, v_at: int) -> None:
+    """``out[:3]`` = ``v[v_at:v_at + 3]`` rotated by ``q`` (mink's ``quat_rotate``)."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    v0, v1, v2 = v[v_at], v[v_at + 1], v[v_at + 2]
+    tx = 2.0 * (y * v2 - z * v1)
+    ty = 2.0 * (z * v0 - x * v2)
+    tz = 2.0 * (x * v1 - y * v0)
+    out[0] = v0 + w * tx + (y * tz - z * ty)
+    out[1] = v1 + w * ty + (z * tx - x * tz)
+    out[2] = v2 + w * tz + (x * ty - y * tx)
+
+
+@kernel("void(float64[::1], float64[::1], float64[::1])")
+def _se3_inverse_multiply(out: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
+    """``a^-1 @ b`` (mink's ``_se3_inverse_multiply``)."""
+    iq = np.array([a[0], -a[1], -a[2], -a[3]])
+    neg_t = np.array([-a[4], -a[5], -a[6]])
+    inv_t = np.empty(3)
+    _quat_rotate(inv_t, neg_t, iq, 0)
+    quat = np.empty(4)
+    quat_mul(quat, iq, b)
+    rotated = np.empty(3)
+    _quat_rotate(rotated, b, iq, 4)
+    for i in range(4):
+        out[i] = quat[i]
+    for i in range(3):
+        out[4 + i] = rotated[i] + inv_t[i]
+
+
+@kernel("void(float64[:, ::1], float64[:, ::1], float64[:, ::1])")
+def _mat33_mul(out: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
+    """``out = a @ b`` (3 x 3, mink's ``mat33_mul`` order); ``out`` may not alias ``a`` or ``b``."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
+
+
+@kernel("void(float64[:, ::1], float64, float64, float64)")
+def _skew(out: np.ndarray, x: float, y: float, z: float) -> None:
+    out[0, 0], out[0, 1], out[0, 2] = 0.0, -z, y
+    out[1, 0], out[1, 1], out[1, 2] = z, 0.0, -x
+    out[2, 0], out[2, 1], out[2, 2] = -y, x, 0.0
+
+
+@kernel("void(float64[::1], float64[::1])")
+def _se3_log(tangent: np.ndarray, t: np.ndarray) -> None:
+    """mink's ``_se3_log`` (tangent ``[v; omega]``)."""
+    qw, qx, qy, qz = t[0], t[1], t[2], t[3]
+    if qw < 0.0:
+        qw, qx, qy, qz = -qw, -qx, -qy, -qz
+    norm = math.sqrt(qx * qx + qy * qy + qz * qz)
+    if norm > 0.0:
+        inv = 1.0 / norm
+        qx, qy, qz = qx * inv, qy * inv, qz * inv
+    if norm < _LIE_EPS:
+        wx, wy, wz = 0.0, 0.0, 0.0
+    else:
+        angle = 2.0 * math.atan2(norm, qw)
+        wx, wy, wz = angle * qx, angle * qy, angle * qz
+    theta = math.sqrt(wx * wx + wy * wy + wz * wz)
+    t2 = theta * theta
+    skw = np.empty((3, 3))
+    _skew(skw, wx, wy, wz)
+    skw2 = np.empty((3, 3))
+    _mat33_mul(skw2, skw, skw)
+    if t2 < _LIE_EPS:
+        for i in range(3):
+            for j in range(3):
+                skw2[i, j] = -0.5 * skw[i, j] + skw2[i, j] / 12.0
+    else:
+        half = 0.5 * theta
+        coeff = (1.0 - 0.5 * theta * math.cos(half) / math.sin(half)) / t2
+        for i in range(3):
+            for j in range(3):
+                skw2[i, j] = -0.5 * skw[i, j] + coeff * skw2[i, j]
+    for i in range(3):  # skw2 is now V^-1
+        skw2[i, i] += 1.0
+    for i in range(3):
+        tangent[i] = skw2[i, 0] * t[4] + skw2[i, 1] * t[5] + skw2[i, 2] * t[6]
+    tangent[3], tangent[4], tangent[5] = wx, wy, wz
+
+
+@kernel("void(float64[:, ::1], float64[::1])")
+def _se3_jlog(jlog: np.ndarray, t: np.ndarray) -> None:
+    """mink's ``_se3_jlog``: the inverse right Jacobian at ``log(t)`` (6 x 6)."""
+    tangent = np.empty(6)
+    _se3_log(tangent, t)
+    vx, vy, vz = -tangent[0], -tangent[1], -tangent[2]
+    wx, wy, wz = -tangent[3], -tangent[4], -tangent[5]
+    jlog[:, :] = 0.0
+    inner = wx * wx + wy * wy + wz * wz
+    if inner < _LIE_EPS:
+        for i in range(6):
+            jlog[i, i] = 1.0
+        return
+    theta = math.sqrt(inner)
+    t2 = theta * theta  # >= _LIE_EPS here: mink's small-angle series is never used
+    t4 = t2 * t2
+    st, ct = math.sin(theta), math.cos(theta)
+    b = (theta - st) / (t2 * theta)
+    c = (1.0 - 0.5 * t2 - ct) / t4
+    d = (2.0 * theta - 3.0 * st + theta * ct) / (2.0 * t4 * theta)
+    v, w = np.empty((3, 3)), np.empty((3, 3))
+    _skew(v, vx, vy, vz)
+    _skew(w, wx, wy, wz)
+    vw, wvw, vww = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+    wvww, wwvw = np.empty((3, 3)), np.empty((3, 3))
+    _mat33_mul(vw, v, w)
+    wv = vw.T.copy()  # (VW)^T = WV for skew matrices
+    _mat33_mul(wvw, wv, w)
+    _mat33_mul(vww, vw, w)
+    _mat33_mul(wvww, wvw, w)
+    _mat33_mul(wwvw, w, wvw)
+    q = np.empty((3, 3))  # Sola et al. eq. 180
+    for i in range(3):
+        for j in range(3):
+            q[i, j] = (0.5 * v[i, j] + b * (wv[i, j] + vw[i, j] + wvw[i, j])
+                       - c * (vww[i, j] - vww[j, i] - 3.0 * wvw[i, j]) + d * (wvww[i, j] + wwvw[i, j]))
+    beta = (1.0 / t2) * (1.0 - (theta * st / (2.0 * (1.0 - ct))))
+    lji = np.empty((3, 3))  # SO3 left Jacobian inverse at -omega
+    for i in range(3):
+        for j in range(3):
+            lji[i, j] = beta * (-tangent[3 + i] * -tangent[3 + j] - (inner if i == j else 0.0))
+    lji[0, 1] += 0.5 * wz
+    lji[0, 2] += -0.5 * wy
+    lji[1, 0] += -0.5 * wz
+    lji[1, 2] += 0.5 * wx
+    lji[2, 0] += 0.5 * wy
+    lji[2, 1] += -0.5 * wx
+    for i in range(3):
+        lji[i, i] += 1.0
+    qj, jqj = np.empty((3, 3)), np.empty((3, 3))
+    _mat33_mul(qj, q, lji)
+    _mat33_mul(jqj, lji, qj)
+    for i in range(3):
+        for j in range(3):
+            jlog[i, j] = lji[i, j]
+            jlog[3 + i, 3 + j] = lji[i, j]
+            jlog[i, 3 + j] = -jqj[i, j]
+
+
+@kernel("void(float64[::1], float64[::1], float64[::1])")
+def frame_pose(out: np.ndarray, xmat: np.ndarray, xpos: np.ndarray) -> None:
+    """A site's pose from MuJoCo's ``site_xmat`` (9) and ``site_xpos`` (3), as mink reads it
+    (``xmat_xpos_to_wxyz_xyz``: Shepperd's method, normalised)."""
+    r = xmat
+    tr = r[0] + r[4] + r[8]
+    if tr > 0.0:
+        s = math.sqrt(tr + 1.0) * 2.0
+        w, x, y, z = 0.25 * s, (r[7] - r[5]) / s, (r[2] - r[6]) / s, (r[3] - r[1]) / s
+    elif r[0] > r[4] and r[0] > r[8]:
+        s = math.sqrt(1.0 + r[0] - r[4] - r[8]) * 2.0
+        w, x, y, z = (r[7] - r[5]) / s, 0.25 * s, (r[1] + r[3]) / s, (r[2] + r[6]) / s
+    elif r[4] > r[8]:
+        s = math.sqrt(1.0 + r[4] - r[0] - r[8]) * 2.0
+        w, x, y, z = (r[2] - r[6]) / s, (r[1] + r[3]) / s, 0.25 * s, (r[5] + r[7]) / s
+    else:
+        s = math.sqrt(1.0 + r[8] - r[0] - r[4]) * 2.0
+        w, x, y, z = (r[3] - r[1]) / s, (r[2] + r[6]) / s, (r[5] + r[7]) / s, 0.25 * s
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if n > 0.0:
+        inv = 1.0 / n
+        w, x, y, z = w * inv, x * inv, y * inv, z * inv
+    out[0], out[1], out[2], out[3] = w, x, y, z
+    out[4], out[5], out[6] = xpos[0], xpos[1], xpos[2]
+
+
+@kernel("void(float64[::1], float64[::1], float64[:, ::1], float64[::1], float64, float64[:, ::1], float64[::1])")
+def frame_terms(frame: np.ndarray, target: np.ndarray, body_jac: np.ndarray, cost: np.ndarray, gain: float,
+                weighted_jac: np.ndarray, c_out: np.ndarray) -> None:
+    """mink's ``FrameTask`` toward ``target`` at the frame pose ``frame`` with the body Jacobian
+    ``body_jac``: its weighted Jacobian (whose Gram matrix is the task's Hessian) into
+    ``weighted_jac`` and its linear term into ``c_out``."""
+    n = body_jac.shape[1]
+    rel = np.empty(7)
+    _se3_inverse_multiply(rel, frame, target)
+    error = np.empty(6)
+    _se3_log(error, rel)
+    _se3_inverse_multiply(rel, target, frame)
+    jlog = np.empty((6, 6))
+    _se3_jlog(jlog, rel)
+    for i in range(6):
+        for j in range(n):
+            acc = 0.0
+            for k in range(6):
+                acc += jlog[i, k] * body_jac[k, j]
+            weighted_jac[i, j] = cost[i] * -acc
+    for j in range(n):
+        acc = 0.0
+        for i in range(6):
+            acc += -(cost[i] * (-gain * error[i])) * weighted_jac[i, j]
+        c_out[j] = acc
+
+
+@kernel("boolean(float64[:, ::1], float64[:, ::1])")
+def cholesky_solve(p: np.ndarray, rhs: np.ndarray) -> bool:
+    """``rhs <- p^-1 rhs`` (columns of ``rhs``) for a symmetric positive definite ``p`` (Cholesky;
+    ``p`` is left unchanged). False, ``rhs`` undefined, when ``p`` is not positive definite."""
+    n = p.shape[0]
+    low = np.zeros((n, n))
+    for j in range(n):
+        acc = p[j, j]
+        for k in range(j):
+            acc -= low[j, k] * low[j, k]
+        if not acc > 0.0:
+            return False
+        low[j, j] = math.sqrt(acc)
+        for i in range(j + 1, n):
+            acc = p[i, j]
+            for k in range(j):
+                acc -= low[i, k] * low[j, k]
+            low[i, j] = acc / low[j, j]
+    for col in range(rhs.shape[1]):
+        for i in range(n):
+            acc = rhs[i, col]
+            for k in range(i):
+                acc -= low[i, k] * rhs[k, col]
+            rhs[i, col] = acc / low[i, i]
+        for i in range(n - 1, -1, -1):
+            acc = rhs[i, col]
+            for k in range(i + 1, n):
+                acc -= low[k, i] * rhs[k, col]
+            rhs[i, col] = acc / low[i, i]
+    return True
+
+
+@kernel("boolean(float64[::1], float64[::1], float64[:, ::1], float64[::1], float64[::1], boolean, "
+        "float64[::1], float64, float64[::1], float64, float64[::1], float64[::1], float64, float64, "
+        "float64[:, ::1], float64[::1], float64[::1], float64[:, ::1], float64[:, ::1])")
+def cartesian_objective(xmat: np.ndarray, xpos: np.ndarray, jac_world: np.ndarray, target: np.ndarray,
+                        ref: np.ndarray, with_ref: bool, frame_cost: np.ndarray, frame_gain: float,
+                        posture_cost: np.ndarray, posture_gain: float, posture_goal: np.ndarray, q: np.ndarray,
+                        damping: float, correction_gain: float, p: np.ndarray, c: np.ndarray, c_frame: np.ndarray,
+                        wjac: np.ndarray, d: np.ndarray) -> bool:
+    """The Cartesian cycle's QP objective and its unconstrained optimum, in one call.
+
+    ``(p, c)``: mink's ``FrameTask`` (site pose ``xmat``/``xpos``, world Jacobian ``jac_world`` of
+    the site, rows linear then angular) toward ``target`` plus mink's ``PostureTask`` toward
+    ``posture_goal`` at the joints ``q`` (hinges: the error is ``q - goal``) plus ``damping`` on the diagonal;
+    ``c_frame``: the frame task's own linear term. ``d`` (2 x n): row 0 the optimum ``-p^-1 c``;
+    with ``with_ref``, row 1 the optimum toward the reference pose ``ref`` (the pull-back), of
+    which ``correction_gain`` is this cycle's share (row 0 becomes the line plus that share, row 1
+    the share: see ``DifferentialIK.step``); without, row 1 is zero. ``wjac``: scratch (6 x n).
+    False if ``p`` is not positive definite (``d`` undefined)."""
+    n = jac_world.shape[1]
+    frame = np.empty(7)
+    frame_pose(frame, xmat, xpos)
+    body = np.empty((6, n))  # mink's body Jacobian: the world Jacobian rotated into the site frame
+    for half in range(2):
+        for i in range(3):
+            for j in range(n):
+                body[3 * half + i, j] = (xmat[i] * jac_world[3 * half, j] + xmat[3 + i] * jac_world[3 * half + 1, j]
+                                         + xmat[6 + i] * jac_world[3 * half + 2, j])
+    frame_terms(frame, target, body, frame_cost, frame_gain, wjac, c_frame)
+    posture_linear = np.empty(n)
+    for i in range(n):
+        posture_linear[i] = -(posture_cost[i] * (-posture_gain * (q[i] - posture_goal[i]))) * posture_cost[i]
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for k in range(6):
+                acc += wjac[k, i] * wjac[k, j]
+            p[i, j] = acc
+        p[i, i] += posture_cost[i] * posture_cost[i]
+        p[i, i] += damping
+        c[i] = c_frame[i] + posture_linear[i]
+    rhs = np.empty((n, 2))
+    c_ref = np.zeros(n)
+    if with_ref:
+        frame_terms(frame, ref, body, frame_cost, frame_gain, wjac, c_ref)
+    for i in range(n):
+        rhs[i, 0] = -c[i]
+        rhs[i, 1] = -(c_ref[i] + posture_linear[i]) if with_ref else 0.0
+    if not cholesky_solve(p, rhs):
+        return False
+    for i in range(n):
+        if with_ref:
+            d[0, i] = rhs[i, 0] - rhs[i, 1] * (1.0 - correction_gain)
+            d[1, i] = rhs[i, 1] * correction_gain
+        else:
+            d[0, i] = rhs[i, 0]
+            d[1, i] = 0.0
+    return True
+
+
+# --------------------------------------------------------------------------- rows and the line
+@kernel("UniTuple(float64, 2)(float64[::1], float64[:, ::1], float64[::1], float64[::1], float64)")
+def scale_interval(direction: np.ndarray, g: np.ndarray, h: np.ndarray, shift: np.ndarray, shift_scale: float
+                   ) -> tuple[float, float]:
+    """The interval of ``s`` with ``g @ (s * direction) <= h - shift_scale * g @ shift`` (the rows are
+    linear); ``(nan, nan)`` when empty (also when a row the direction does not move is violated)."""
+    tiny = 1e-15
+    s_hi, s_lo = math.inf, -math.inf
+    m, n = g.shape
+    for i in range(m):
+        ai = 0.0
+        bi = 0.0
+        for j in range(n):
+            ai += g[i, j] * direction[j]
+            bi += g[i, j] * shift[j]
+        hi = h[i] - shift_scale * bi if shift_scale != 0.0 else h[i]
+        if ai > tiny:
+            r = hi / ai
+            if r < s_hi:
+                s_hi = r
+        elif ai < -tiny:
+            r = hi / ai
+            if r > s_lo:
+                s_lo = r
+        elif hi < -1e-12:
+            return math.nan, math.nan
+    if s_lo <= s_hi:
+        return s_lo, s_hi
+    return math.nan, math.nan
+
+
+@kernel("int64(float64[:, ::1], float64[::1], float64[::1], int64[::1], int64, int64, boolean[::1], float64, "
+        "int64, int64)")
+def binding_flags(g: np.ndarray, h: np.ndarray, dq: np.ndarray, row_flags: np.ndarray, accel_lo: int,
+                  accel_hi: int, velocity_bound: np.ndarray, tol: float, velocity_flag: int,
+                  accel_flag: int) -> int:
+    """The flags of the rows ``dq`` binds: slack ``h - g dq`` within ``tol + 1e-6 |h|``, inactive
+    rows (``h = inf``) never. An acceleration row (``accel_lo <= i < accel_hi``) whose bound is the
+    velocity one raises ``velocity_flag``; ``accel_flag`` stays only if a row bound by acceleration binds."""
+    m, n = g.shape
+    out = 0
+    accel_binds = False
+    for i in range(m):
+        hv = h[i]
+        if not math.isfinite(hv):
+            continue
+        a = 0.0
+        for j in range(n):
+            a += g[i, j] * dq[j]
+        if hv - a <= tol + 1e-6 * abs(hv):
+            out |= row_flags[i]
+            if accel_lo <= i < accel_hi:
+                if velocity_bound[i - accel_lo]:
+                    out |= velocity_flag
+                else:
+                    accel_binds = True
+    if not accel_binds:
+        out &= ~accel_flag
+    return out
+
+
+@kernel("void(float64, float64[::1], float64[::1], int64[::1], float64[::1], float64[::1])")
+def configuration_limit_rows(gain: float, upper: np.ndarray, lower: np.ndarray, qpos_index: np.ndarray,
+                             qpos: np.ndarray, h: np.ndarray) -> None:
+    """mink's ``ConfigurationLimit`` bounds: ``gain * (upper - q)``, then ``gain * (q - lower)``."""
+    k = len(qpos_index)
+    for i in range(k):
+        x = qpos[qpos_index[i]]
+        h[i] = gain * (upper[i] - x)
+        h[k + i] = gain * (x - lower[i])
+
+
+@kernel("float64(float64[:, ::1], float64[::1], float64[::1], float64[::1])")
+def path_rate(c: np.ndarray, brake: np.ndarray, u: np.ndarray, out_u: np.ndarray) -> float:
+    """:class:`~servo_app.motion.ik_limits.PathBraking`'s rate along ``u``: ``min_i brake_i / |(C u)_i|``
+    over the rows ``C u`` moves (above 1e-12 of the largest); inf when none. ``u`` copied to ``out_u``."""
+    n = len(u)
+    biggest = 0.0
+    uf = np.empty(n)
+    for i in range(n):
+        acc = 0.0
+        for k in range(n):  # the products summed in column order, zeros skipped, as the matrix product
+            if c[i, k] != 0.0:
+                acc += c[i, k] * u[k]
+        uf[i] = abs(acc)
+        biggest = max(biggest, uf[i])
+        out_u[i] = u[i]
+    tiny = 1e-12 * max(biggest, 1e-300)
+    rate = math.inf
+    for i in range(n):
+        if uf[i] > tiny:
+            rate = min(rate, brake[i] / uf[i])
+    return rate
+
+
+@kernel("void(float64[:, ::1], float64[::1], float64[::1], float64[::1], float64[::1], boolean[::1])")
+def acceleration_rows(c: np.ndarray, dq_prev: np.ndarray, vmax: np.ndarray, da: np.ndarray, h: np.ndarray,
+                      velocity_bound: np.ndarray) -> None:
+    """:class:`~servo_app.motion.ik_limits.AccelerationLimit`'s 12 bounds into ``h``: for ``p = C dq_prev``
+    ``min(max(vmax, p - da), p + da)``, then the same of ``-p``; ``velocity_bound``: the rows whose
+    bound is ``vmax`` (the reference's operations in its order: equal to the bit)."""
+    n = len(dq_prev)
+    for half in range(2):
+        sign = 1.0 if half == 0 else -1.0
+        for i in range(n):
+            p = 0.0
+            for k in range(n):
+                if c[i, k] != 0.0:
+                    p += c[i, k] * dq_prev[k]
+            p = sign * p
+            hi = p + da[i]
+            x = max(vmax[i], p - da[i])
+            x = hi if hi < x else x
+            h[half * n + i] = x
+            velocity_bound[half * n + i] = x < hi
+
+
+@kernel("void(float64[::1], float64[::1], float64[::1], int64[::1], float64[::1], float64, float64, boolean, "
+        "float64[::1], float64, float64, float64[::1], float64[::1])")
+def braking_rows(bound: np.ndarray, acc: np.ndarray, brake: np.ndarray, cols: np.ndarray, q: np.ndarray, dt: float,
+                 lag: float, with_path: bool, u: np.ndarray, rate: float, floor: float, h: np.ndarray,
+                 h_path: np.ndarray) -> None:
+    """:class:`~servo_app.motion.ik_limits.BrakingLimit`'s 12 bounds ``dt * braking_speed(distance,
+    acc, dt + lag)`` into ``h`` (distance to ``bound``: upper bounds, then lower ones negated), and
+    into ``h_path`` the same with the path's deceleration (``with_path``; else ``h``)."""
+    n = len(q)
+    horizon = dt + lag
+    t2 = horizon * horizon
+    for i in range(2 * n):
+        d = bound[i] - q[i] if i < n else bound[i] + q[i - n]
+        d = d if d > 0.0 else 0.0
+        a = acc[i]
+        h[i] = dt * (a * (math.sqrt(t2 + 2.0 * d / a) - horizon))
+        if with_path:
+            cap = brake[i % n]
+            x = rate * abs(u[cols[i % n]])
+            fc = floor * cap
+            x = fc if fc > x else x
+            a = cap if cap < x else x
+            h_path[i] = dt * (a * (math.sqrt(t2 + 2.0 * d / a) - horizon))
+        else:
+            h_path[i] = h[i]
+
+
+@kernel("boolean(float64[::1], float64[::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[::1], "
+        "float64[::1])")
+def collision_drift(q: np.ndarray, q_refresh: np.ndarray, far_weights: np.ndarray, near_q: np.ndarray,
+                    near_weights: np.ndarray, far_slack: np.ndarray, drift: np.ndarray) -> bool:
+    """The collision cache's bounds (see ``CollisionLimit.fill``): True when a far pair could be within
+    detection distance at ``q`` (its slack minus ``far_weights . |q - q_refresh|`` at most 0: refresh);
+    else each near pair's drift ``near_weights . |q - near_q|`` into ``drift``."""
+    n = len(q)
+    for k in range(far_weights.shape[0]):
+        acc = 0.0
+        for j in range(n):
+            acc += far_weights[k, j] * abs(q[j] - q_refresh[j])
+        if far_slack[k] - acc <= 0.0:
+            return True
+    for k in range(near_q.shape[0]):
+        acc = 0.0
+        for j in range(n):
+            acc += abs(q[j] - near_q[k, j]) * near_weights[k, j]
+        drift[k] = acc
+    return False
+
+
+@kernel("boolean(float64[::1])")
+def any_nonzero(v: np.ndarray) -> bool:
+    """``v.any()`` for a float vector (a kernel call costs a third of numpy's reduction here)."""
+    for x in v:  # noqa: SIM110 - a loop numba compiles (no generator expression)
+        if x != 0.0:
+            return True
+    return False
+
+
+@kernel("boolean(float64[::1])")
+def all_finite(v: np.ndarray) -> bool:
+    """``np.isfinite(v).all()`` for a float vector."""
+    for x in v:  # noqa: SIM110 - a loop numba compiles (no generator expression)
+        if not math.isfinite(x):
+            return False
+    return True
+
+
+@kernel("UniTuple(float64, 4)(float64[::1], float64, float64, float64, float64, float64, float64, boolean, "
+        "float64, float64, int64, int64, float64[::1])")
+def shoulder_row(q: np.ndarray, a1: float, a2: float, a3: float, d4: float, shoulder_m: float, brake_acc: float,
+                 top: bool, dt: float, lag: float, col2: int, col3: int, g: np.ndarray
+                 ) -> tuple[float, float, float, float]:
+    """:class:`~servo_app.motion.ik_limits.ConfigurationGuard`'s row (the wrist centre stays on its side
+    of the J1 axis, braking at ``brake_acc``): its coefficients into ``g`` (columns ``col2``, ``col3``
+    for q2, q3), and ``(h, distance, grad2, grad3)``: the bound, the distance to the boundary and the
+    gradient's two entries (for the path's deceleration). The reference's float operations in its
+    order (equal to the bit)."""
+    q2, q3 = q[1], q[2]
+    phi = q2 - q3
+    cphi, sphi = math.cos(phi), math.sin(phi)
+    x = a1 + a2 * math.sin(q2) + d4 * cphi + a3 * sphi
+    dphi = -d4 * sphi + a3 * cphi
+    g1, g2 = a2 * math.cos(q2) + dphi, -dphi
+    sign = 1.0 if top else -1.0
+    distance = sign * x - shoulder_m
+    for i in range(len(g)):
+        g[i] = 0.0
+    g[col2] = -sign * g1
+    g[col3] = -sign * g2
+    horizon = dt + lag
+    d = distance if distance > 0.0 else 0.0
+    h = dt * (brake_acc * (math.sqrt(horizon * horizon + 2.0 * d / brake_acc) - horizon))
+    return h, distance, g1, g2

@@ -1,0 +1,244 @@
+"""Each compiled kernel of the IK cycle (servo_app.motion.ik_kernels) against a plain numpy / MuJoCo /
+mink oracle on random inputs: the limit rows to the bit, the rest within rounding."""
+
+from __future__ import annotations
+
+import math
+
+import mink
+import mujoco
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from servo_app.motion import ik_kernels as k
+from servo_app.motion.diffik import DifferentialIK
+from servo_app.motion.ik_limits import braking_speed, fanuc_rate_matrix
+from servo_app.robots.profile import load_profile
+
+PROFILE = load_profile("lrmate200id")
+finite = st.floats(-3.0, 3.0, allow_nan=False, allow_infinity=False)
+vec6 = arrays(np.float64, 6, elements=finite)
+mat6 = arrays(np.float64, (6, 6), elements=finite)
+
+
+def unit_quat(v: np.ndarray) -> np.ndarray:
+    n = float(np.linalg.norm(v))
+    return v / n if n > 1e-3 else np.array([1.0, 0.0, 0.0, 0.0])
+
+
+poses = st.builds(lambda q, p: np.concatenate([unit_quat(q), p]),
+                  arrays(np.float64, 4, elements=finite), arrays(np.float64, 3, elements=finite))
+
+
+@given(a=poses, b=poses)
+def test_quaternion_product_and_rotation_between_match_mujoco(a: np.ndarray, b: np.ndarray) -> None:
+    out, ref = np.empty(4), np.empty(4)
+    k.quat_mul(out, a[:4].copy(), b[:4].copy())
+    mujoco.mju_mulQuat(ref, a[:4], b[:4])
+    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-15)
+    b_inv, diff, w = np.empty(4), np.empty(4), np.empty(3)
+    mujoco.mju_negQuat(b_inv, b[:4])
+    mujoco.mju_mulQuat(diff, a[:4], b_inv)
+    mujoco.mju_quat2Vel(w, diff, 1.0)
+    rot = np.empty(3)
+    k.rotation_between(rot, a, b)
+    np.testing.assert_allclose(rot, w, rtol=1e-9, atol=1e-12)
+
+
+@given(pose=poses, xi=vec6, s=st.floats(-2.0, 2.0), dt=st.sampled_from([0.004, 0.008, 1.0]))
+def test_advance_matches_mujoco(pose: np.ndarray, xi: np.ndarray, s: float, dt: float) -> None:
+    xi_dt = s * xi * dt
+    turn, ref = np.array([1.0, 0.0, 0.0, 0.0]), np.empty(7)
+    mujoco.mju_quatIntegrate(turn, xi_dt[3:], 1.0)
+    mujoco.mju_mulQuat(ref[:4], turn, pose[:4])
+    ref[4:] = pose[4:] + xi_dt[:3]
+    out = np.empty(7)
+    k.advance(out, pose, xi, s, dt)
+    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-14)
+
+
+@given(ref=poses, xi=vec6, step=vec6)
+def test_along_track_and_near_match_numpy(ref: np.ndarray, xi: np.ndarray, step: np.ndarray) -> None:
+    tcp = np.empty(7)
+    k.advance(tcp, ref, step, 1.0, 0.01)
+    w = np.array([1.0] * 3 + [0.09] * 3)
+    rot = np.empty(3)
+    k.rotation_between(rot, tcp, ref)
+    err = np.concatenate([tcp[4:] - ref[4:], rot])
+    norm = float(xi @ (w * xi))
+    out = np.empty(7)
+    moved = k.along_track(out, ref, tcp, xi, w)
+    assert moved == (norm > 0.0)
+    if moved:
+        expected = np.empty(7)
+        k.advance(expected, ref, xi, float(err @ (w * xi)) / norm, 1.0)
+        np.testing.assert_allclose(out, expected, rtol=1e-9, atol=1e-12)
+    near = np.linalg.norm(tcp[4:] - ref[4:]) <= 1e-2 and np.linalg.norm(rot) * 0.7 <= 1e-2
+    assert k.poses_near(tcp, ref, 1e-2, 0.7) == near
+
+
+@given(jac=mat6, reach=st.floats(0.1, 2.0))
+def test_condition_number_matches_the_svd(jac: np.ndarray, reach: float) -> None:
+    scaled = jac.copy()
+    scaled[:3] /= reach
+    sv = np.linalg.svd(scaled, compute_uv=False)
+    expected = sv[0] / sv[-1] if sv[-1] > 1e-12 * sv[0] else 1e12
+    got = k.condition_number(jac, reach, np.empty((6, 6)))
+    if expected < 1e8:  # well inside the cap: the same value to rounding (relative error ~ eps * kappa)
+        assert math.isclose(got, expected, rel_tol=1e-12 * max(1.0, expected))
+    else:
+        assert got > 1e7
+
+
+@given(a=mat6, rhs=arrays(np.float64, (6, 2), elements=finite))
+def test_cholesky_solve_matches_numpy(a: np.ndarray, rhs: np.ndarray) -> None:
+    p = a.T @ a + 0.1 * np.eye(6)
+    x = rhs.copy()
+    assert k.cholesky_solve(p, x)
+    np.testing.assert_allclose(x, np.linalg.solve(p, rhs), rtol=1e-9, atol=1e-9)
+    assert not k.cholesky_solve(-p, rhs.copy())
+
+
+IK = DifferentialIK(PROFILE, 0.008)
+
+
+@settings(max_examples=60, deadline=None)
+@given(u=arrays(np.float64, 6, elements=st.floats(0.05, 0.95)), xi=vec6, goal=vec6, with_ref=st.booleans())
+def test_cartesian_objective_matches_minks_tasks(u: np.ndarray, xi: np.ndarray, goal: np.ndarray,
+                                                 with_ref: bool) -> None:
+    lo, hi = np.radians(PROFILE.joint_min_deg), np.radians(PROFILE.joint_max_deg)
+    q = lo + u * (hi - lo)
+    IK.configuration.update(q)
+    IK.posture_task.set_target(q + 0.1 * goal)
+    tcp = IK.configuration.get_transform_frame_to_world(IK.site, "site")
+    target = (tcp @ mink.SE3.exp(xi * 0.01)).wxyz_xyz.copy()
+    ref = (tcp @ mink.SE3.exp(-xi * 0.003)).wxyz_xyz.copy()
+    p, c = IK._cartesian_objective(target, ref if with_ref else None)
+    IK.frame_task.set_target(mink.SE3(target))
+    p_ref, c_ref = IK.objective([IK.frame_task, IK.posture_task])
+    np.testing.assert_allclose(p, p_ref, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(c, c_ref, rtol=1e-9, atol=1e-14)
+    d = np.linalg.solve(p_ref, -c_ref)
+    if with_ref:
+        IK.frame_task.set_target(mink.SE3(ref))
+        _, c_back = IK.objective([IK.frame_task, IK.posture_task])
+        d_corr = np.linalg.solve(p_ref, -c_back)
+        gain = IK._correction_gain
+        np.testing.assert_allclose(IK._d[0], d - d_corr * (1.0 - gain), rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(IK._d[1], d_corr * gain, rtol=1e-9, atol=1e-12)
+    else:
+        np.testing.assert_allclose(IK._d[0], d, rtol=1e-9, atol=1e-12)
+        assert not IK._d[1].any()
+
+
+rows = st.integers(1, 30).flatmap(lambda m: st.tuples(
+    arrays(np.float64, (m, 6), elements=finite),
+    arrays(np.float64, m, elements=st.one_of(st.floats(-1.0, 5.0), st.just(math.inf)))))
+
+
+@given(gh=rows, direction=vec6, shift=vec6, with_shift=st.booleans())
+def test_scale_interval_matches_numpy(gh: tuple[np.ndarray, np.ndarray], direction: np.ndarray, shift: np.ndarray,
+                                      with_shift: bool) -> None:
+    g, h = gh
+    hs = h - g @ shift if with_shift else h
+    a = g @ direction
+    lo = max((hs[a < -1e-15] / a[a < -1e-15]).tolist(), default=-math.inf)
+    hi = min((hs[a > 1e-15] / a[a > 1e-15]).tolist(), default=math.inf)
+    still = np.abs(a) <= 1e-15
+    empty = bool(np.any(hs[still] < -1e-12)) or lo > hi
+    got = k.scale_interval(direction, g, h, shift, 1.0 if with_shift else 0.0)
+    if empty:
+        # Only a rounding-level tie may differ (g @ x summed in another order).
+        assert math.isnan(got[0]) or got[0] >= got[1] - 1e-9 * max(1.0, abs(got[1]))
+    else:
+        assert not math.isnan(got[0])
+        np.testing.assert_allclose(got, (lo, hi), rtol=1e-9, atol=1e-12)
+
+
+@given(gh=rows, dq=vec6, vb=arrays(np.bool_, 12))
+def test_binding_flags_match_numpy(gh: tuple[np.ndarray, np.ndarray], dq: np.ndarray, vb: np.ndarray) -> None:
+    g, h = gh
+    m = len(h)
+    flags = (1 << (np.arange(m) % 5)).astype(np.int64)
+    lo, hi = min(2, m), min(14, m)
+    slack = h - g @ dq
+    binds = np.isfinite(h) & (slack <= 1e-9 + 1e-6 * np.abs(h))
+    expected = 0
+    accel = False
+    for i in np.flatnonzero(binds):
+        expected |= int(flags[i])
+        if lo <= i < hi:
+            if vb[i - lo]:
+                expected |= 1 << 6
+            else:
+                accel = True
+    if not accel:
+        expected &= ~(1 << 7)
+    with np.errstate(invalid="ignore"):  # inf - inf on inactive rows
+        tie = np.isfinite(h) & (np.abs(slack - (1e-9 + 1e-6 * np.abs(h))) < 1e-12)
+    if not tie.any():  # away from a tie at the tolerance (rounding of g @ dq)
+        assert k.binding_flags(g, h, dq, flags, lo, hi, vb, 1e-9, 1 << 6, 1 << 7) == expected
+
+
+@given(prev=vec6, j23=st.floats(-1.0, 1.0), dt=st.sampled_from([0.004, 0.008]))
+def test_acceleration_rows_equal_the_numpy_formula(prev: np.ndarray, j23: float, dt: float) -> None:
+    c = fanuc_rate_matrix(j23)
+    vel, acc = np.radians(PROFILE.vel_limit), np.radians(PROFILE.acc_limit)
+    p, vmax, da = c @ prev, vel * dt, acc * dt * dt
+    upper = np.minimum(np.maximum(vmax, p - da), p + da)
+    lower = np.maximum(np.minimum(-vmax, p + da), p - da)
+    h, bound = np.empty(12), np.empty(12, dtype=bool)
+    k.acceleration_rows(c, prev, vmax, da, h, bound)
+    np.testing.assert_array_equal(h, np.concatenate([upper, -lower]))
+    np.testing.assert_array_equal(bound, np.concatenate([upper < p + da, lower > p - da]))
+
+
+@given(q=vec6, bound=arrays(np.float64, 12, elements=st.floats(-3.0, 3.0)), u=vec6,
+       with_path=st.booleans(), lag=st.floats(0.0, 0.1))
+def test_braking_rows_and_path_rate_equal_the_numpy_formula(q: np.ndarray, bound: np.ndarray, u: np.ndarray,
+                                                            with_path: bool, lag: float) -> None:
+    dt = 0.008
+    brake = np.radians(PROFILE.acc_limit) * 0.4
+    acc = np.concatenate([brake, brake])
+    c = fanuc_rate_matrix(PROFILE.j23_factor)
+    u_copy = np.empty(6)
+    rate = k.path_rate(c, brake, u, u_copy)
+    uf = np.abs(c @ u)
+    moved = uf > 1e-12 * max(float(uf.max()), 1e-300)
+    assert rate == (np.min(brake[moved] / uf[moved]) if moved.any() else math.inf)
+    np.testing.assert_array_equal(u_copy, u)
+    distance = bound - np.concatenate([q, -q])
+    h, hp = np.empty(12), np.empty(12)
+    cols = np.arange(6, dtype=np.int64)
+    k.braking_rows(bound, acc, brake, cols, q, dt, lag, with_path, u, rate if math.isfinite(rate) else 0.0, 0.05,
+                   h, hp)
+    np.testing.assert_array_equal(h, dt * braking_speed(distance, acc, dt + lag))
+    if with_path:
+        r = rate if math.isfinite(rate) else 0.0
+        decel = np.minimum(brake, np.maximum(r * np.abs(u), 0.05 * brake))
+        np.testing.assert_array_equal(hp, dt * braking_speed(distance, np.concatenate([decel, decel]), dt + lag))
+    else:
+        np.testing.assert_array_equal(hp, h)
+
+
+@given(q=vec6, q0=vec6, near=arrays(np.float64, (4, 6), elements=finite),
+       wf=arrays(np.float64, (3, 6), elements=st.floats(0.0, 1.0)),
+       wn=arrays(np.float64, (4, 6), elements=st.floats(0.0, 1.0)),
+       slack=arrays(np.float64, 3, elements=st.floats(-0.1, 5.0)))
+def test_collision_drift_matches_numpy(q, q0, near, wf, wn, slack) -> None:
+    drift = np.empty(4)
+    refresh = k.collision_drift(q, q0, wf, near, wn, slack, drift)
+    assert refresh == bool((slack - wf @ np.abs(q - q0)).min() <= 0.0)
+    if not refresh:
+        np.testing.assert_allclose(drift, (np.abs(q - near) * wn).sum(axis=1), rtol=1e-12, atol=1e-15)
+
+
+@given(v=vec6, bad=st.sampled_from([math.nan, math.inf, -math.inf]), at=st.integers(0, 5))
+def test_any_nonzero_and_all_finite_match_numpy(v: np.ndarray, bad: float, at: int) -> None:
+    assert k.any_nonzero(v) == bool(v.any())
+    assert not k.any_nonzero(np.zeros(6))
+    assert k.all_finite(v)
+    v[at] = bad
+    assert not k.all_finite(v)
