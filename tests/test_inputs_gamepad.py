@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -13,7 +14,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from waiting import wait_for, wait_until
 
-from servo_app.inputs import ConfigError, ButtonEvent, TwistSample, create_adapter, parse_inputs_config
+from servo_app.inputs import (
+    ButtonEvent,
+    ConfigError,
+    TwistSample,
+    create_adapter,
+    load_inputs_config,
+    parse_inputs_config,
+)
 from servo_app.inputs.actions import LOCAL_ACTIONS
 from servo_app.inputs.gamepad.adapter import DEFAULT_AXES, GamepadAdapter, GamepadConfig, gamepad_failure
 from servo_app.inputs.gamepad.mapping import (
@@ -207,10 +215,6 @@ def test_configuration_errors_name_the_key_and_value() -> None:
 
 
 def test_the_example_configuration_loads() -> None:
-    from pathlib import Path
-
-    from servo_app.inputs import load_inputs_config
-
     cfg = load_inputs_config(Path(__file__).parent.parent / "configs" / "inputs" / "gamepad.toml")
     (pad,) = cfg.adapters
     assert isinstance(pad, GamepadConfig) and pad.deadman == "leftshoulder" and pad.buttons["b"] == "stop"
@@ -254,8 +258,8 @@ def test_sdl_names_axes_and_buttons_as_the_mapping_does(pad: VirtualPad) -> None
     assert tuple(sdl.SDL_GameControllerGetStringForAxis(i).decode() for i in range(len(AXIS_NAMES))) == AXIS_NAMES
     assert tuple(sdl.SDL_GameControllerGetStringForButton(i).decode() for i in range(len(BUTTON_NAMES))) == \
         BUTTON_NAMES
-    assert sdl.SDL_CONTROLLER_AXIS_MAX == len(AXIS_NAMES) and sdl.SDL_CONTROLLER_BUTTON_MAX == len(BUTTON_NAMES)
-    assert TRIGGERS == {sdl.SDL_CONTROLLER_AXIS_TRIGGERLEFT, sdl.SDL_CONTROLLER_AXIS_TRIGGERRIGHT}
+    assert len(AXIS_NAMES) == sdl.SDL_CONTROLLER_AXIS_MAX and len(BUTTON_NAMES) == sdl.SDL_CONTROLLER_BUTTON_MAX
+    assert {sdl.SDL_CONTROLLER_AXIS_TRIGGERLEFT, sdl.SDL_CONTROLLER_AXIS_TRIGGERRIGHT} == TRIGGERS
     assert set(COMPONENTS) == set(DEFAULT_AXES)
     assert sdl.SDL_WasInit(sdl.SDL_INIT_VIDEO) == 0  # headless: no video subsystem, no window
 
