@@ -15,7 +15,7 @@ import threading
 import time
 from abc import ABC, abstractmethod
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -28,6 +28,7 @@ from servo_app.inputs.slots import EventQueue, LatestValue
 from servo_app.realtime import make_realtime
 
 Clock = Callable[[], float]
+RobotState = Callable[[], Mapping[str, Any]]  # the servo process's published state (a shared-memory copy)
 
 
 class AdapterConfig(BaseModel):
@@ -98,6 +99,9 @@ class InputAdapter(ABC):
         self.failure: DeviceFailure | None = None  # why the last open failed; None once open
         self.first_attempt = threading.Event()  # set after the first open, failed or not
         self.scheduling = "not started"  # what the thread got: SCHED_FIFO or normal priority
+        # Set by the inputs bridge when the service starts, for devices that signal the robot's state
+        # back to the operator (a gamepad rumbles on a fault).
+        self.robot_state: RobotState | None = None
 
     # -- identity -------------------------------------------------------------------------------
     @property
@@ -238,4 +242,4 @@ class InputAdapter(ABC):
         )
 
 
-__all__ = ["AdapterConfig", "AdapterStatus", "Clock", "InputAdapter", "SourceSpec"]
+__all__ = ["AdapterConfig", "AdapterStatus", "Clock", "InputAdapter", "RobotState", "SourceSpec"]

@@ -23,6 +23,7 @@ _REGISTRY: dict[str, type[InputAdapter] | str] = {
     "serial_line": "servo_app.inputs.serial_sensor.adapter:SerialLineAdapter",
     "serial_binary": "servo_app.inputs.serial_sensor.adapter:SerialBinaryAdapter",
     "can": "servo_app.inputs.can_sensor.adapter:CanSensorAdapter",
+    "gamepad": "servo_app.inputs.gamepad.adapter:GamepadAdapter",
 }
 
 

@@ -107,6 +107,8 @@ class InputsBridge:
     # ------------------------------------------------------------------ life
     def start(self, request: Request | None = None, feedback: Feedback | None = None, act: Act | None = None) -> None:
         self._request, self._pipeline.feedback, self._buttons.act = request, feedback, act
+        for adapter in self.adapters:
+            adapter.robot_state = feedback
         self._loop.start()
 
     def stop(self) -> None:
