@@ -192,11 +192,8 @@ class LogConverter:
         q_model = fanuc_deg_to_model_rad(q_deg, self.j23)
         v_model = np.radians(checker.velocity)
         v_model[2] += self.j23 * v_model[1]  # the model's J3 rate (q3 = J3 + j23 * J2)
-        if cartesian:  # the commanded pose itself (mm -> m)
-            pose = xyzwpr_to_matrix(values[:6])
-            pose[:3, 3] /= 1000.0
-        else:
-            pose = self.kin.fk(q_model)
+        # Cartesian: the commanded pose itself; joints: the flange pose they put the arm in.
+        pose = xyzwpr_to_matrix(values[:6]) if cartesian else self.kin.fk(q_model)
         vel, acc, jerk = checker.limits_at(checker.flange_speed)
         out = [Message("/joint_commands", t, ros.joint_state(t, q_model, v_model)),
                Message("/tcp_pose/commanded", t, ros.pose_stamped(t, pose)),

@@ -283,3 +283,32 @@ def test_a_stream_the_controller_stops_is_on_diagnostics(tmp_path: Path) -> None
     [(_, diag)] = by_topic["/diagnostics"]
     assert diag.status[0].level == ros.ERROR and "status bit 0 cleared" in diag.status[0].message
     assert {kv.key: kv.value for kv in diag.status[0].values} == {"seq": "14"}
+
+
+def test_a_cartesian_stream_exports_its_poses_and_the_joints_the_controller_makes(tmp_path: Path) -> None:
+    """X Y Z W P R commands (data format 0): the commanded pose is the command itself, in metres; the
+    joints are the controller's conversion of it (as `servo-app check` converts them)."""
+    from servo_app.robots.conventions import matrix_to_xyzwpr
+
+    profile = load_profile(MODEL)
+    kin = ArmKinematics(profile)
+    s = np.linspace(0.0, 1.0, 30)
+    ramp = 0.5 * (10 * s**3 - 15 * s**4 + 6 * s**5)  # 0.5 deg, quintic: within every limit
+    joints = np.array([[10.0 + r, 20.0, -10.0 - r, 5.0, -60.0, 15.0 + r] for r in ramp])
+    poses = np.array([matrix_to_xyzwpr(kin.fk_fanuc_deg(q)) for q in joints])
+    src, out = tmp_path / "cart.srvlog", tmp_path / "cart.mcap"
+    w = SessionLogWriter(src, {"model": MODEL, "interval_ms": 8.0, "protocol": "fanuc-j519"})
+    for i, (q, xyzwpr) in enumerate(zip(joints, poses, strict=True)):
+        w.status(i * 0.008, 50 + i, 0x05, 0, tuple(q))
+        w.command(i * 0.008 + 1e-4, 50 + i, int(i == len(joints) - 1), 0, 0, 100.0, tuple(xyzwpr))
+    w.close()
+    done = export(src, out)
+    assert done.returncode == 0, done.stderr
+    by_topic, _, _ = read_mcap(out)
+    assert "/diagnostics" not in by_topic, [s.message for _, m in by_topic["/diagnostics"] for s in m.status]
+    logged = read_session_log(src).commands["values"][:, :6].astype(float)
+    for xyzwpr, (_, msg) in zip(logged, by_topic["/tcp_pose/commanded"], strict=True):
+        p = msg.pose.position
+        np.testing.assert_allclose([p.x, p.y, p.z], xyzwpr[:3] / 1000.0, rtol=0, atol=1e-12)
+    for q, (_, msg) in zip(joints, by_topic["/joint_commands"], strict=True):
+        np.testing.assert_allclose(msg.position, fanuc_deg_to_model_rad(q, profile.j23_factor), atol=1e-5)
