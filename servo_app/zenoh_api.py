@@ -377,15 +377,14 @@ class ZenohInterface:
         return {"joints": self.joints_to_service(v), "hold_ms": hold_ms}
 
     def _target_body(self, kind: str, m: Any) -> dict[str, Any]:
-        from servo_app.robots.conventions import rotation_to_wpr
+        from servo_app.robots.conventions import matrix_to_xyzwpr
 
         if kind == "pose_target":
             try:
                 pose = ros.pose_matrix(m.pose)
             except ValueError as exc:
                 raise Refused(422, f"pose_target: {exc}") from None
-            w, p, r = rotation_to_wpr(pose[:3, :3])
-            return {"xyzwpr": [*(pose[:3, 3] * 1000.0).tolist(), w, p, r]}
+            return {"xyzwpr": [float(v) for v in matrix_to_xyzwpr(pose)]}
         q = self._by_name(list(m.name), np.asarray(m.position, float), "joint_target")
         return {"joints": self.joints_to_service(q)}
 
@@ -483,8 +482,7 @@ class ZenohInterface:
 
         cart = s.get("cart_servo")
         if cart is not None and s.get("status_live") and len(cart) >= 6 and not self.linear.any():
-            pose = xyzwpr_to_matrix(cart[:6])
-            pose[:3, 3] /= 1000.0
+            pose = xyzwpr_to_matrix(cart[:6])  # in metres
             self._pubs["pose"].put(ros.pose_stamped(t_ns, pose), t_ns)
         fault = s.get("fault") or {}
         level = ros.ERROR if s.get("state") == "fault" else ros.WARN if s.get("state") in ("stopping", "stopped") \
