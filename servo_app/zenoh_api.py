@@ -395,6 +395,9 @@ class ZenohInterface:
             answer = self.lease_request(body if isinstance(body, dict) else {})
         except ValueError as exc:
             answer = {"ok": False, "status": 422, "detail": f"not a JSON object: {exc}"}
+        except Exception as exc:  # answered all the same: a query left unanswered waits for its timeout
+            log.exception("zenoh lease query failed")
+            answer = {"ok": False, "status": 500, "detail": f"{type(exc).__name__}: {exc}"}
         query.reply(query.key_expr, json.dumps(answer, default=str).encode())
 
     def lease_request(self, body: dict[str, Any]) -> dict[str, Any]:

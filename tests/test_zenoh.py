@@ -78,9 +78,12 @@ class Client:
 
     def lease(self, **body: Any) -> dict[str, Any]:
         payload = {"token": TOKEN, "client": "ros-node", "force": True, **body}
-        replies = list(self.session.get(f"servo_app/{self.cell}/lease", payload=json.dumps(payload).encode(),
-                                        timeout=10.0))
-        assert replies and replies[0].ok is not None
+
+        def ask() -> list[Any]:  # none until the queryable's declaration has reached this session
+            return [r for r in self.session.get(f"servo_app/{self.cell}/lease", payload=json.dumps(payload).encode(),
+                                                timeout=5.0) if r.ok is not None]
+
+        replies = wait_for(ask, 20.0, "the lease queryable's answer")
         return json.loads(replies[0].ok.payload.to_bytes())  # type: ignore[no-any-return]
 
     def send(self, topic: str, typename: str, message: Any) -> dict[str, Any]:
