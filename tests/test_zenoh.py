@@ -199,7 +199,8 @@ def test_ros_commands_move_the_arm(cell: tuple[Rig, ZenohInterface, Client]) -> 
     # delta_twist_cmds: +z in the base frame
     z0 = rig.state()["cart_servo"][2]
     for _ in range(10):
-        r = client.send("delta_twist_cmds", ros.TWIST_STAMPED, ros.twist_stamped(time.time_ns(), (0, 0, 0.05), (0, 0, 0)))
+        up = ros.twist_stamped(time.time_ns(), (0, 0, 0.05), (0, 0, 0))
+        r = client.send("delta_twist_cmds", ros.TWIST_STAMPED, up)
         assert r["ok"], r
     rig.wait(lambda s: s["cart_servo"][2] > z0 + 2.0, 5.0, "the TCP rose")
     # joint_target (rad, the model's chain): J1 to 5 deg
