@@ -94,11 +94,36 @@ def jog_over_api(port: int, seconds: float) -> str:
             f"{t1:.0f} Hz + {t2:.0f} Hz")
 
 
+def jog_with_zenoh(app: object, service: ServoService, seconds: float) -> str:
+    """The direct jogs while the Zenoh interface publishes at 50 Hz to a subscriber in this process
+    (the cell's API process work: state reads, CDR, Zenoh I/O)."""
+    import socket
+
+    from servo_app.ros.messages import JOINT_STATE
+    from servo_app.zenoh_api import ZenohInterface, ZenohSettings, ros_key
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        endpoint = f"tcp/127.0.0.1:{sock.getsockname()[1]}"
+    iface = ZenohInterface(app.state.api, ZenohSettings(cell="bench", listen=[endpoint])).start()  # type: ignore[attr-defined]
+    received = [0]
+    sub = iface.session.declare_subscriber(ros_key(0, "/bench/joint_states", JOINT_STATE),  # type: ignore[union-attr]
+                                           lambda _: received.__setitem__(0, received[0] + 1))
+    try:
+        jog_direct(service, seconds)
+    finally:
+        sub.undeclare()
+        iface.close()
+    return f"direct jogs, Zenoh publishing ({received[0] / seconds:.0f} joint states/s received)"
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--seconds", type=float, default=60.0, help="streaming time per case (default 60)")
     p.add_argument("--interval-ms", type=int, choices=(4, 8), default=4)
     p.add_argument("--lead", type=int, default=ServiceConfig.lead)
+    p.add_argument("--zenoh", action="store_true",
+                   help="a third row: direct jogs while the Zenoh interface publishes (needs eclipse-zenoh)")
     p.add_argument("--no-write", action="store_true", help="print only; leave bench/RESULTS.md as it is")
     args = p.parse_args(argv)
 
@@ -106,7 +131,8 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         service = ServoService(ServiceConfig(var_dir=Path(tmp), interval_ms=args.interval_ms, lead=args.lead))
         service.open()
-        server = uvicorn.Server(uvicorn.Config(create_app(service, TOKEN), host="127.0.0.1", port=0,
+        app = create_app(service, TOKEN)
+        server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=0,
                                                log_level="warning", ws="websockets-sansio"))
         thread = threading.Thread(target=server.run, daemon=True)
         thread.start()
@@ -114,11 +140,15 @@ def main(argv: list[str] | None = None) -> int:
             while not server.started:
                 time.sleep(0.01)
             port = int(server.servers[0].sockets[0].getsockname()[1])
-            for case in ("direct", "api"):
+            # zenoh before api: the api row's lease would expire during it and stop the arm
+            for case in ("direct", *(("zenoh",) if args.zenoh else ()), "api"):
                 service.request(Start())
                 wait_for(service, lambda s: s["state"] == "streaming", 15.0)
-                what = (jog_direct(service, args.seconds) if case == "direct"
-                        else jog_over_api(port, args.seconds))
+                if case == "zenoh":
+                    what = jog_with_zenoh(app, service, args.seconds)
+                else:
+                    what = (jog_direct(service, args.seconds) if case == "direct"
+                            else jog_over_api(port, args.seconds))
                 wait_for(service, lambda s: s["state"] == "stopped", 10.0)  # the last hold ran out
                 service.request(End())
                 wait_for(service, lambda s: s["state"] in ("ended", "fault"), 30.0)

@@ -43,6 +43,12 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return run_export(args)
 
 
+def _cmd_monitor(args: argparse.Namespace) -> int:
+    from servo_app.monitor import run_monitor  # zenoh loads only when asked
+
+    return run_monitor(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="servo-app", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -65,6 +71,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mcap", required=True, metavar="OUT", help="the MCAP file to write")
     p.add_argument("--model", help="robot model (default: the log header's)")
     p.set_defaults(handler=_cmd_export)
+
+    p = sub.add_parser("monitor", help="one live line per cell on the Zenoh network (servo-app run --zenoh)")
+    p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                   help="a Zenoh router or peer, e.g. tcp/localhost:7447 (repeatable)")
+    p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT")
+    p.add_argument("--config", default=None, help="a Zenoh JSON5 configuration")
+    p.add_argument("--multicast", action="store_true", help="find peers by multicast scouting")
+    p.add_argument("--http-port", type=int, default=None, help="also serve the lines as one web page on this port")
+    p.add_argument("--seconds", type=float, default=None, help="stop after this long (default: until Ctrl-C)")
+    p.add_argument("--once", action="store_true", help="print the table once after --seconds, not live")
+    p.set_defaults(handler=_cmd_monitor)
 
     p = sub.add_parser("profiles", help="list robot profiles")
     p.set_defaults(handler=_cmd_profiles)

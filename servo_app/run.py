@@ -35,6 +35,18 @@ def add_run_parser(sub: Any) -> None:
                    help="inputs TOML: adapters, feeds and [[applications]] (examples in configs/inputs/)")
     p.add_argument("--mcap", action="store_true",
                    help="also write each session log as MCAP (ROS 2 types, for Foxglove) beside it, live")
+    p.add_argument("--zenoh", nargs="?", const="", default=None, metavar="CONFIG",
+                   help="also serve the cell on Zenoh: ROS 2 topics as rmw_zenoh names them, plus JSON status "
+                        "(docs/zenoh.md); CONFIG: a Zenoh JSON5 configuration (default: peer mode, no multicast)")
+    p.add_argument("--cell", default=None, help="the cell's name on Zenoh (default: the host name)")
+    p.add_argument("--zenoh-listen", action="append", default=[], metavar="ENDPOINT",
+                   help="a Zenoh endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
+    p.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
+                   help="a Zenoh router or peer to connect to, e.g. tcp/localhost:7447 (repeatable)")
+    p.add_argument("--zenoh-mode", choices=("peer", "client"), default="peer")
+    p.add_argument("--ros-domain", type=int, default=0, help="ROS_DOMAIN_ID of the ROS 2 key expressions")
+    p.add_argument("--zenoh-json", action="store_true",
+                   help="also the JSON keys servo_app/CELL/json/... for tools that are not ROS")
     p.add_argument("--api-priority", type=int, default=5,
                    help="SCHED_FIFO priority of the HTTP/WebSocket event loop, below the servo process (20) and the "
                         "embedded simulator (10), so feed samples are handled as they arrive; 0: normal priority")
@@ -79,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
           f"{service.robot_address[0]}:{service.robot_address[1]}; console http://{args.host}:{args.http_port}",
           flush=True)
     app = create_app(service, token, cors_origins=args.cors_origin or None)
+    zenoh_iface = start_zenoh(app.state.api, args) if args.zenoh is not None else None
     config = uvicorn.Config(app, host=args.host, port=args.http_port, log_level="warning")
     server = uvicorn.Server(config)
     servers.append(server)
@@ -93,12 +106,27 @@ def run(args: argparse.Namespace) -> int:
     try:
         server.run()  # returns on SIGINT/SIGTERM
     finally:
+        if zenoh_iface is not None:  # no more commands in before the stream ends
+            zenoh_iface.close()
         # The servo process decelerates, sends last data and stops the status output before it exits.
         summary = service.close(group_signal_wait_s=0.3 if signal.SIGINT in received else 0.0)
         print(f"servo_app: stopped; stream {summary.get('state')}, link {summary.get('link')}, "
               f"servo process exit code {summary.get('servo_exit_code')}, "
               f"controller alarms {summary.get('alarms', [])}", flush=True)
     return 0 if summary.get("servo_exit_code") == 0 else 1
+
+
+def start_zenoh(api: Any, args: argparse.Namespace) -> Any:
+    """The Zenoh interface in this (the API) process; never in the servo process."""
+    from servo_app.zenoh_api import ZenohInterface, ZenohSettings, cell_name
+
+    settings = ZenohSettings(cell=cell_name(args.cell), domain=args.ros_domain,
+                             config_file=Path(args.zenoh) if args.zenoh else None, mode=args.zenoh_mode,
+                             listen=args.zenoh_listen, connect=args.zenoh_connect, json=args.zenoh_json)
+    iface = ZenohInterface(api, settings).start()
+    print(f"servo_app: Zenoh cell {settings.cell!r} (ROS domain {settings.domain}): topics /{settings.cell}/..., "
+          f"status {iface.json_key('status')}", flush=True)
+    return iface
 
 
 def report_input_failures(service: ServoService, timeout_s: float = 3.0) -> None:

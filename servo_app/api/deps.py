@@ -82,12 +82,17 @@ async def authed(conn: HTTPConnection, authorization: Annotated[str | None, Head
 async def controlling(conn: HTTPConnection, client: Annotated[str, Depends(authed)],
                       x_lease_id: Annotated[str | None, Header()] = None) -> str:
     """The token and the control lease; returns ``lease-holder@host:port``."""
-    api = api_of(conn)
+    return lease_holder(api_of(conn), client, x_lease_id, f"{conn.scope.get('method', 'WS')} {conn.url.path}")
+
+
+def lease_holder(api: ApiContext, client: str, lease_id: str | None, action: str) -> str:
+    """``lease-holder@client`` if ``lease_id`` is the current lease's, else 409 (counted and audited).
+    Shared with the Zenoh interface (servo_app/zenoh_api.py): one rule for both."""
     try:
-        lease = api.leases.check(x_lease_id)
+        lease = api.leases.check(lease_id)
     except PermissionError as exc:
         api.metrics.count("no_lease")
-        api.audit.record(client, f"{conn.scope.get('method', 'WS')} {conn.url.path}", False, str(exc))
+        api.audit.record(client, action, False, str(exc))
         raise HTTPException(409, str(exc)) from None
     return f"{lease.client}@{client}"
 

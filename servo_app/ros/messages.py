@@ -25,6 +25,10 @@ STATUS_BITS = "servo_app_msgs/msg/StatusBits"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
+TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
+JOINT_JOG = "control_msgs/msg/JointJog"
+STRING = "std_msgs/msg/String"
+EMPTY = "std_msgs/msg/Empty"
 
 _OWN_TYPES = {
     LIMIT_USAGE: """\
@@ -47,8 +51,20 @@ string[] set
 """,
 }
 
+# control_msgs is not in rosbags' Jazzy store: its standard definition (control_msgs 4.x, as MoveIt
+# Servo's delta_joint_cmds uses it), registered under its real name so its RIHS01 hash is the ROS one.
+_STANDARD_MISSING = {
+    JOINT_JOG: """\
+std_msgs/Header header
+string[] joint_names
+float64[] displacements
+float64[] velocities
+float64 duration
+""",
+}
+
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
-for _name, _text in _OWN_TYPES.items():
+for _name, _text in {**_STANDARD_MISSING, **_OWN_TYPES}.items():
     TYPESTORE.register(get_types_from_msg(_text, _name))
 
 _T = TYPESTORE.types
@@ -63,6 +79,12 @@ DiagnosticArray = _T[DIAGNOSTIC_ARRAY]
 DiagnosticStatus = _T["diagnostic_msgs/msg/DiagnosticStatus"]
 KeyValue = _T["diagnostic_msgs/msg/KeyValue"]
 LimitUsage = _T[LIMIT_USAGE]
+TwistStamped = _T[TWIST_STAMPED]
+Twist = _T["geometry_msgs/msg/Twist"]
+Vector3 = _T["geometry_msgs/msg/Vector3"]
+JointJog = _T[JOINT_JOG]
+String = _T[STRING]
+Empty = _T[EMPTY]
 StatusBits = _T[STATUS_BITS]
 
 
@@ -77,6 +99,15 @@ def serialize(message: Any, typename: str) -> bytes:
 
 def deserialize(data: bytes, typename: str) -> Any:
     return TYPESTORE.deserialize_cdr(data, typename)
+
+
+def type_hash(typename: str) -> str:
+    """The type's RIHS01 hash (``RIHS01_<64 hex>``), as ROS 2 Iron and later name types on the wire."""
+    return str(TYPESTORE.hash_rihs01(typename))
+
+
+def stamp_ns(msg_header: Any) -> int:
+    return int(msg_header.stamp.sec) * 1_000_000_000 + int(msg_header.stamp.nanosec)
 
 
 def header(t_ns: int, frame_id: str = FRAME_BASE) -> Any:
@@ -148,3 +179,37 @@ def diagnostics(t_ns: int, name: str, hardware_id: str,
                                values=[KeyValue(key=k, value=v) for k, v in values.items()])
               for level, message, values in entries]
     return DiagnosticArray(header=header(t_ns, ""), status=status)
+
+
+def twist_stamped(t_ns: int, linear: Sequence[float], angular: Sequence[float], frame_id: str = FRAME_BASE) -> Any:
+    """m/s and rad/s, as MoveIt Servo's ``delta_twist_cmds``."""
+    return TwistStamped(header=header(t_ns, frame_id), twist=Twist(
+        linear=Vector3(x=float(linear[0]), y=float(linear[1]), z=float(linear[2])),
+        angular=Vector3(x=float(angular[0]), y=float(angular[1]), z=float(angular[2]))))
+
+
+def joint_jog(t_ns: int, names: list[str], velocities: Sequence[float], duration_s: float = 0.0) -> Any:
+    """Joint velocities (rad/s or m/s), as MoveIt Servo's ``delta_joint_cmds``."""
+    return JointJog(header=header(t_ns, ""), joint_names=list(names),
+                    displacements=np.zeros(0, dtype=np.float64),
+                    velocities=np.asarray(velocities, dtype=np.float64), duration=float(duration_s))
+
+
+def pose_matrix(msg_pose: Any) -> np.ndarray:
+    """A ``geometry_msgs/Pose`` as a 4x4 homogeneous transform (metres); the quaternion normalised."""
+    o, p = msg_pose.orientation, msg_pose.position
+    q = np.array([o.x, o.y, o.z, o.w], dtype=float)
+    n = float(np.linalg.norm(q))
+    if not np.isfinite(n) or n < 1e-9:
+        raise ValueError(f"the orientation quaternion {q.tolist()} has no rotation (zero or not finite)")
+    x, y, z, w = q / n
+    m = np.eye(4)
+    m[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                 [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                 [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+    m[:3, 3] = [p.x, p.y, p.z]
+    return m
+
+
+def string(text: str) -> Any:
+    return String(data=text)

@@ -1,0 +1,533 @@
+"""The Zenoh interface (``servo-app run --zenoh``): ROS 2 topics over Zenoh, named as rmw_zenoh names
+them, so a ROS 2 node on ``rmw_zenoh_cpp`` reaches the service through a Zenoh router with no bridge.
+
+It runs in the API process, never in the servo process: one session, one thread that publishes (the
+state read as ``/ws/telemetry`` reads it) and one that runs the commands (a command waits for the
+servo process's answer; Zenoh's own callback threads only queue it). Every command goes through the
+REST layer's own functions: the same validation models, control lease, jog rate limit, hold-to-run and
+refusal messages (see docs/zenoh.md for the key space and the lease).
+
+Key expressions follow rmw_zenoh's mapping as of ROS 2 Jazzy (rmw_zenoh_cpp 0.2.x/0.6+):
+``<domain>/<topic without leading slash>/<pkg>::msg::dds_::<Type>_/RIHS01_<hash>``, CDR payloads,
+and the 33-byte publisher attachment (sequence number, source timestamp, GID) rmw_zenoh requires.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import logging
+import math
+import queue
+import re
+import socket
+import struct
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from fastapi import HTTPException
+from fastapi.encoders import jsonable_encoder
+from pydantic import TypeAdapter, ValidationError
+
+from servo_app.api import lease as lease_routes
+from servo_app.api import session as session_routes
+from servo_app.api.app import _json_safe
+from servo_app.api.auth import token_matches
+from servo_app.api.deps import lease_holder
+from servo_app.api.models import JogBody, JointTarget, LeaseRequest, PoseTargetBody, StopRequest
+from servo_app.api.motion import admit_jog, jog_request, target_request
+from servo_app.api.state import state_snapshot
+from servo_app.ros import messages as ros
+
+if TYPE_CHECKING:
+    import zenoh
+
+    from servo_app.api.deps import ApiContext
+
+log = logging.getLogger(__name__)
+
+# The JSON key space (the fleet monitor, and tools that are not ROS): servo_app/<cell>/...
+JSON_ROOT = "servo_app"
+STATUS_SUFFIX = "status"
+LEASE_SUFFIX = "lease"
+REPLY_SUFFIX = "reply"
+JOINT_NAMES_RE = re.compile(r"joint_(\d+)$")
+
+
+def cell_name(text: str | None = None) -> str:
+    """A cell name usable in a ROS 2 name and a Zenoh key: letters, digits and '_', starting with a letter."""
+    name = re.sub(r"[^A-Za-z0-9_]", "_", text or socket.gethostname())
+    return name if name[:1].isalpha() else f"cell_{name}"
+
+
+def dds_type_name(typename: str) -> str:
+    """``sensor_msgs/msg/JointState`` -> ``sensor_msgs::msg::dds_::JointState_`` (rmw_zenoh's type token)."""
+    pkg, kind, name = typename.split("/")
+    return f"{pkg}::{kind}::dds_::{name}_"
+
+
+def ros_key(domain: int, topic: str, typename: str) -> str:
+    """A ROS 2 topic's data key expression under rmw_zenoh (Jazzy): domain/topic/type/hash."""
+    return f"{domain}/{topic.strip('/')}/{dds_type_name(typename)}/{ros.type_hash(typename)}"
+
+
+def rmw_attachment(seq: int, t_ns: int, gid: bytes) -> bytes:
+    """rmw_zenoh's publisher attachment (zenoh-ext serialisation): int64 LE sequence number (from 1),
+    int64 LE source time (ns since the epoch), the GID as a sequence (LEB128 length 16, 16 bytes)."""
+    assert len(gid) == 16
+    return struct.pack("<qqB", seq, t_ns, 16) + gid
+
+
+def parse_rmw_attachment(data: bytes | None) -> tuple[int, int, bytes] | None:
+    if data is None or len(data) != 33 or data[16] != 16:
+        return None
+    seq, t_ns = struct.unpack_from("<qq", data)
+    return seq, t_ns, bytes(data[17:])
+
+
+@dataclass
+class ZenohSettings:
+    cell: str = field(default_factory=cell_name)
+    domain: int = 0  # ROS_DOMAIN_ID
+    config_file: Path | None = None  # a Zenoh JSON5 configuration; the options below go on top
+    mode: str = "peer"
+    listen: list[str] = field(default_factory=list)
+    connect: list[str] = field(default_factory=list)
+    # rmw_zenoh's sessions scout by gossip through the router, not by multicast: off by default here
+    # too, so a cell joins only the network it is told to (and tests stay on loopback).
+    multicast_scouting: bool = False
+    json: bool = False  # also the JSON keys for tools that are not ROS
+    hz: float = 50.0  # joint states
+    status_hz: float = 5.0  # TCP pose, safety state and the fleet status, besides every change
+
+
+def session_config(settings: ZenohSettings) -> zenoh.Config:
+    import zenoh
+
+    conf = zenoh.Config.from_file(str(settings.config_file)) if settings.config_file else zenoh.Config()
+    conf.insert_json5("mode", json.dumps(settings.mode))
+    if settings.listen:
+        conf.insert_json5("listen/endpoints", json.dumps(settings.listen))
+    if settings.connect:
+        conf.insert_json5("connect/endpoints", json.dumps(settings.connect))
+    if settings.config_file is None:
+        conf.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
+    return conf
+
+
+class _RosPublisher:
+    """One ROS 2 topic's publisher: CDR with the rmw attachment (its own GID and sequence)."""
+
+    def __init__(self, session: zenoh.Session, domain: int, topic: str, typename: str) -> None:
+        self.key = ros_key(domain, topic, typename)
+        self.typename = typename
+        self.gid = hashlib.blake2b(f"{session.zid()}/{self.key}".encode(), digest_size=16).digest()
+        self.seq = 0
+        self._pub = session.declare_publisher(self.key)
+
+    def put(self, message: Any, t_ns: int) -> None:
+        self.seq += 1
+        self._pub.put(ros.serialize(message, self.typename), attachment=rmw_attachment(self.seq, t_ns, self.gid))
+
+    def undeclare(self) -> None:
+        self._pub.undeclare()
+
+
+class Refused(Exception):
+    """A command refused before it reaches the REST layer's functions (as HTTP would answer it)."""
+
+    def __init__(self, status: int, detail: Any) -> None:
+        super().__init__(detail)
+        self.status, self.detail = status, detail
+
+
+class ZenohInterface:
+    """Publishes the cell's state and runs its commands; ``start`` / ``close``."""
+
+    # Commands: topic (under /<cell>/) -> (ROS type, what the command is)
+    ROS_COMMANDS: dict[str, tuple[str, str]] = {  # noqa: RUF012
+        "delta_twist_cmds": (ros.TWIST_STAMPED, "twist"),
+        "delta_joint_cmds": (ros.JOINT_JOG, "joint_jog"),
+        "pose_target": (ros.POSE_STAMPED, "pose_target"),
+        "joint_target": (ros.JOINT_STATE, "joint_target"),
+        "stop": (ros.EMPTY, "stop"),
+        "resume": (ros.EMPTY, "resume"),
+    }
+    JSON_COMMANDS = ("jog", "target", "stop", "resume")
+
+    def __init__(self, api: ApiContext, settings: ZenohSettings) -> None:
+        self.api = api
+        self.settings = settings
+        self.cell = settings.cell
+        service = api.service
+        self.axes = service.backend.axes()
+        self.n = len(self.axes)
+        self.linear = np.array([a["unit"] == "mm" for a in self.axes])
+        self.j23 = float(getattr(service.profile, "j23_factor", 0.0) or 0.0)
+        self.session: zenoh.Session | None = None
+        self._commands: queue.Queue[tuple[str, str, Any] | None] = queue.Queue(maxsize=256)
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._declared: list[Any] = []
+        self._pubs: dict[str, _RosPublisher] = {}
+        # The lease last granted through the queryable: ROS commands (no lease id in a ROS message)
+        # act for it while it is the current lease.
+        self._topics_lease_id: str | None = None
+        self.published = 0  # joint-state ticks, for the bench
+
+    # ------------------------------------------------------------------------------------ keys
+    def json_key(self, suffix: str) -> str:
+        return f"{JSON_ROOT}/{self.cell}/{suffix}"
+
+    def topic(self, name: str) -> str:
+        return f"/{self.cell}/{name}"
+
+    # ------------------------------------------------------------------------------- lifecycle
+    def start(self) -> ZenohInterface:
+        import zenoh
+
+        zenoh.init_log_from_env_or("error")
+        self.session = s = zenoh.open(session_config(self.settings))
+        d = self.settings.domain
+        for name, topic, typename in (("measured", "joint_states", ros.JOINT_STATE),
+                                      ("commanded", "joint_commands", ros.JOINT_STATE),
+                                      ("pose", "tcp_pose", ros.POSE_STAMPED),
+                                      ("safety", "safety_state", ros.DIAGNOSTIC_ARRAY),
+                                      ("alarms", "diagnostics", ros.DIAGNOSTIC_ARRAY),
+                                      ("reply", "servo_app/reply", ros.STRING)):
+            self._pubs[name] = _RosPublisher(s, d, self.topic(topic), typename)
+        self._status_pub = s.declare_publisher(self.json_key(STATUS_SUFFIX))
+        self._reply_pub = s.declare_publisher(self.json_key(REPLY_SUFFIX))
+        for topic, (typename, kind) in self.ROS_COMMANDS.items():
+            self._declared.append(s.declare_subscriber(ros_key(d, self.topic(topic), typename),
+                                                       self._enqueue("cdr", kind)))
+        if self.settings.json:
+            for kind in self.JSON_COMMANDS:
+                self._declared.append(s.declare_subscriber(self.json_key(f"json/cmd/{kind}"),
+                                                           self._enqueue("json", kind)))
+        self._declared.append(s.declare_queryable(self.json_key(LEASE_SUFFIX), self._on_lease_query))
+        for target, name in ((self._publish_loop, "zenoh telemetry"), (self._command_loop, "zenoh commands")):
+            t = threading.Thread(target=target, name=name, daemon=True)
+            t.start()
+            self._threads.append(t)
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        with contextlib.suppress(queue.Full):
+            self._commands.put_nowait(None)
+        for t in self._threads:
+            t.join(5.0)
+        if self.session is not None:
+            with contextlib.suppress(Exception):  # closing a session whose peers are gone
+                self.session.close()
+            self.session = None
+
+    # -------------------------------------------------------------------------------- commands
+    def _enqueue(self, encoding: str, kind: str) -> Callable[[Any], None]:
+        def on_sample(sample: Any) -> None:  # a Zenoh thread: queue only, never block it
+            attachment = sample.attachment.to_bytes() if sample.attachment is not None else None
+            try:
+                self._commands.put_nowait((encoding, kind, (sample.payload.to_bytes(), attachment)))
+            except queue.Full:
+                log.warning("zenoh: command queue full, %s dropped", kind)
+
+        return on_sample
+
+    def _command_loop(self) -> None:
+        while True:
+            item = self._commands.get()
+            if item is None or self._stop.is_set():
+                return
+            encoding, kind, (payload, attachment) = item
+            self.handle(encoding, kind, payload, attachment)
+
+    def handle(self, encoding: str, kind: str, payload: bytes, attachment: bytes | None) -> dict[str, Any]:
+        """Run one command; its answer goes on the reply keys (and is returned)."""
+        rmw = parse_rmw_attachment(attachment)
+        source = rmw[2].hex() if rmw else "zenoh"
+        reply: dict[str, Any] = {"cell": self.cell, "command": kind, "encoding": encoding,
+                                 "seq": rmw[0] if rmw else None, "source": source}
+        try:
+            ack = self._run_cdr(kind, payload, source) if encoding == "cdr" else self._run_json(kind, payload)
+            reply.update(ok=True, status=200, detail=jsonable_encoder(ack.detail) if ack.detail is not None else None)
+        except Refused as exc:
+            reply.update(ok=False, status=exc.status, detail=exc.detail)
+        except HTTPException as exc:
+            reply.update(ok=False, status=exc.status_code, detail=exc.detail)
+        except Exception as exc:  # a command must never take the interface down
+            log.exception("zenoh command %s failed", kind)
+            reply.update(ok=False, status=500, detail=f"{type(exc).__name__}: {exc}")
+        self._reply(reply)
+        return reply
+
+    def _reply(self, reply: dict[str, Any]) -> None:
+        text = json.dumps(reply, default=str)
+        with contextlib.suppress(Exception):  # the session is closing
+            self._reply_pub.put(text.encode())
+            self._pubs["reply"].put(ros.string(text), time.time_ns())
+
+    def _client(self, source: str) -> str:
+        return f"zenoh:{source}"
+
+    def _controlling(self, client: str, lease_id: str | None, kind: str) -> str:
+        return lease_holder(self.api, client, lease_id, f"ZENOH {kind}")
+
+    def _run_cdr(self, kind: str, payload: bytes, source: str) -> Any:
+        typename = next(t for t, k in self.ROS_COMMANDS.values() if k == kind)
+        try:
+            message = ros.deserialize(payload, typename)
+        except Exception as exc:
+            raise Refused(422, f"not a CDR {typename}: {type(exc).__name__}: {exc}") from None
+        client = self._client(source)
+        if kind == "stop":  # a stop never waits for control (no lease, no token: see docs/zenoh.md)
+            return session_routes.session_stop(client, self.api.calls, StopRequest())
+        controller = self._controlling(client, self._topics_lease_id, kind)
+        if kind == "resume":
+            return session_routes.session_resume(controller, self.api.calls)
+        if kind in ("twist", "joint_jog"):
+            return self._jog(controller, self._jog_body(kind, message))
+        return self._target(controller, self._target_body(kind, message))
+
+    def _run_json(self, kind: str, payload: bytes) -> Any:
+        try:
+            body = json.loads(payload)
+            if not isinstance(body, dict):
+                raise ValueError("the body is not a JSON object")
+        except ValueError as exc:
+            raise Refused(422, f"not a JSON object: {exc}") from None
+        client = self._client("json")
+        token, lease_id = body.pop("token", None), body.pop("lease_id", None)
+        if not token_matches(self.api.token, f"Bearer {token}" if isinstance(token, str) else None):
+            self.api.metrics.count("unauthorized")
+            self.api.audit.record(client, f"ZENOH {kind}", False, "bad token")
+            raise Refused(401, "missing or wrong bearer token")
+        if kind == "stop":
+            return session_routes.session_stop(client, self.api.calls, _validated(StopRequest, body))
+        controller = self._controlling(client, lease_id if isinstance(lease_id, str) else None, kind)
+        if kind == "resume":
+            return session_routes.session_resume(controller, self.api.calls)
+        if kind == "jog":
+            return self._jog(controller, body)
+        return self._target(controller, body)
+
+    def _jog(self, controller: str, body: dict[str, Any]) -> Any:
+        validated = _validated(_JOG, body)
+        admitted = admit_jog(self.api, controller)
+        return self.api.calls.forward(controller, "jog", jog_request(validated), at=admitted)
+
+    def _target(self, controller: str, body: dict[str, Any]) -> Any:
+        return self.api.calls.forward(controller, "target", target_request(_validated(_TARGET, body)))
+
+    # ROS units -> the REST bodies (deg, mm), so the REST models judge the values.
+    def joints_to_service(self, values: np.ndarray) -> list[float]:
+        """ROS (rad, m; the model's chain) -> service units (deg, mm; FANUC's coupled J2/J3). Linear,
+        so it serves positions and rates alike."""
+        from servo_app.robots.conventions import model_rad_to_fanuc_deg
+
+        v = np.asarray(values, dtype=float)
+        linear = self.linear[: len(v)]
+        out = np.where(linear, v * 1000.0, np.degrees(v)) if linear.any() else model_rad_to_fanuc_deg(v, self.j23)
+        return [float(x) for x in out]
+
+    def _by_name(self, names: list[str], values: np.ndarray, what: str) -> np.ndarray:
+        """Values per axis from a named list (axes not named: 0); unknown names are refused."""
+        if not names:
+            return np.asarray(values, dtype=float)
+        if len(names) != len(values):
+            raise Refused(422, f"{what}: {len(names)} joint names but {len(values)} values")
+        out = np.zeros(self.n)
+        for name, v in zip(names, values, strict=True):
+            m = JOINT_NAMES_RE.match(name)
+            if m is None or not 1 <= int(m.group(1)) <= self.n:
+                raise Refused(422, f"{what}: unknown joint {name!r}: this arm has {ros.joint_names(self.n)}")
+            out[int(m.group(1)) - 1] = v
+        return out
+
+    def _check_fresh(self, header: Any, hold_ms: float) -> None:
+        """A stamped hold-to-run command older than its hold time is refused: its sender has let go."""
+        t_ns = ros.stamp_ns(header)
+        if t_ns == 0:
+            return  # unstamped: it counts from its arrival, as a REST jog does
+        age_ms = (time.time_ns() - t_ns) / 1e6
+        if age_ms > hold_ms:
+            raise Refused(409, f"stale hold-to-run command: stamped {age_ms:.0f} ms ago, past its hold time of "
+                               f"{hold_ms:.0f} ms; send it fresh (clocks synchronised) to keep moving")
+
+    def _jog_body(self, kind: str, m: Any) -> dict[str, Any]:
+        hold_ms = 200.0
+        if kind == "twist":
+            self._check_fresh(m.header, hold_ms)
+            frame = FRAMES.get(m.header.frame_id, m.header.frame_id)
+            lin, ang = m.twist.linear, m.twist.angular
+            return {"frame": frame, "linear": [lin.x * 1000.0, lin.y * 1000.0, lin.z * 1000.0],
+                    "angular": [math.degrees(ang.x), math.degrees(ang.y), math.degrees(ang.z)]}
+        if len(m.displacements) and not len(m.velocities):
+            raise Refused(422, "delta_joint_cmds: displacements are not supported; send velocities (rad/s, m/s)")
+        if m.duration > 0:
+            hold_ms = m.duration * 1000.0
+        self._check_fresh(m.header, hold_ms)
+        v = self._by_name(list(m.joint_names), np.asarray(m.velocities, float), "delta_joint_cmds")
+        return {"joints": self.joints_to_service(v), "hold_ms": hold_ms}
+
+    def _target_body(self, kind: str, m: Any) -> dict[str, Any]:
+        from servo_app.robots.conventions import matrix_to_xyzwpr
+
+        if kind == "pose_target":
+            try:
+                pose = ros.pose_matrix(m.pose)
+            except ValueError as exc:
+                raise Refused(422, f"pose_target: {exc}") from None
+            return {"xyzwpr": [float(v) for v in matrix_to_xyzwpr(pose)]}
+        q = self._by_name(list(m.name), np.asarray(m.position, float), "joint_target")
+        return {"joints": self.joints_to_service(q)}
+
+    # ----------------------------------------------------------------------------------- lease
+    def _on_lease_query(self, query: Any) -> None:
+        try:
+            body = json.loads(query.payload.to_bytes()) if query.payload is not None else {}
+            answer = self.lease_request(body if isinstance(body, dict) else {})
+        except ValueError as exc:
+            answer = {"ok": False, "status": 422, "detail": f"not a JSON object: {exc}"}
+        except Exception as exc:  # answered all the same: a query left unanswered waits for its timeout
+            log.exception("zenoh lease query failed")
+            answer = {"ok": False, "status": 500, "detail": f"{type(exc).__name__}: {exc}"}
+        query.reply(query.key_expr, json.dumps(answer, default=str).encode())
+
+    def lease_request(self, body: dict[str, Any]) -> dict[str, Any]:
+        """``{"token", "op": "take"|"renew"|"release", "client", "force", "ttl_s", "lease_id"}``: the
+        REST lease routes' own functions answer it; the granted lease also covers the ROS topics."""
+        api = self.api
+        client = self._client("lease")
+        token = body.pop("token", None)
+        if not token_matches(api.token, f"Bearer {token}" if isinstance(token, str) else None):
+            api.metrics.count("unauthorized")
+            api.audit.record(client, "ZENOH lease", False, "bad token")
+            return {"ok": False, "status": 401, "detail": "missing or wrong bearer token"}
+        op = body.pop("op", "take")
+        lease_id = body.pop("lease_id", None)
+        try:
+            if op == "take":
+                granted = lease_routes.lease_acquire(_validated(LeaseRequest, body), client, api)
+                self._topics_lease_id = granted.lease_id
+                return {"ok": True, "status": 200, **granted.model_dump()}
+            if op == "renew":
+                renewed = lease_routes.lease_renew(client, api.leases, lease_id)
+                return {"ok": True, "status": 200, **renewed.model_dump()}
+            if op == "release":
+                lease_routes.lease_release(client, api, api.audit, lease_id)
+                return {"ok": True, "status": 200}
+            return {"ok": False, "status": 422, "detail": f"op {op!r} is not one of take, renew, release"}
+        except Refused as exc:
+            return {"ok": False, "status": exc.status, "detail": exc.detail}
+        except HTTPException as exc:
+            return {"ok": False, "status": exc.status_code, "detail": exc.detail}
+
+    # ------------------------------------------------------------------------------- telemetry
+    def _publish_loop(self) -> None:
+        period = 1.0 / self.settings.hz
+        status_period = 1.0 / self.settings.status_hz
+        due = time.monotonic()
+        last_status = -math.inf
+        last_change: tuple[Any, ...] | None = None
+        seen_alarms: set[tuple[str, float]] = set()
+        first = True
+        while not self._stop.is_set():
+            try:
+                s = state_snapshot(self.api)
+                t_ns = time.time_ns()
+                self._publish_joints(s, t_ns)
+                alarms = [a for a in s.get("alarm_history") or [] if (a.get("code"), a.get("time_unix")) not in
+                          seen_alarms]
+                seen_alarms.update((a.get("code"), a.get("time_unix")) for a in alarms)
+                if alarms and not first:
+                    self._publish_alarms(alarms, t_ns)
+                change = (s.get("state"), s.get("stop_reason"), str(s.get("fault")), len(s.get("alarms") or []),
+                          (s.get("lease") or {}).get("held"))
+                now = time.monotonic()
+                if change != last_change or now - last_status >= status_period:
+                    self._publish_status(s, t_ns)
+                    last_change, last_status = change, now
+                first = False
+            except Exception:  # the service is closing, or a reset replaces the servo process
+                log.debug("zenoh telemetry tick failed", exc_info=True)
+            due = max(due + period, time.monotonic() - period)
+            self._stop.wait(max(0.0, due - time.monotonic()))
+
+    def _publish_joints(self, s: dict[str, Any], t_ns: int) -> None:
+        for name, key in (("commanded", "q_cmd"), ("measured", "q_servo")):
+            q = s.get(key)
+            if q is None or (key == "q_servo" and not s.get("status_received")):
+                continue
+            self._pubs[name].put(ros.joint_state(t_ns, self.joints_to_ros(q[: self.n])), t_ns)
+            if self.settings.json:
+                self._json_put(f"json/{'joint_commands' if name == 'commanded' else 'joint_states'}",
+                               {"t_ns": t_ns, "joints": q[: self.n]})
+        self.published += 1
+
+    def joints_to_ros(self, q: list[float]) -> np.ndarray:
+        """Service units (deg, mm; FANUC's coupled J2/J3) -> ROS (rad, m; the model's chain)."""
+        v = np.asarray(q, dtype=float)
+        if self.linear.any():
+            return np.where(self.linear, v / 1000.0, np.radians(v))
+        from servo_app.robots.conventions import fanuc_deg_to_model_rad
+
+        return fanuc_deg_to_model_rad(v, self.j23)
+
+    def _publish_status(self, s: dict[str, Any], t_ns: int) -> None:
+        from servo_app.robots.conventions import xyzwpr_to_matrix
+
+        cart = s.get("cart_servo")
+        if cart is not None and s.get("status_live") and len(cart) >= 6 and not self.linear.any():
+            pose = xyzwpr_to_matrix(cart[:6])  # in metres
+            self._pubs["pose"].put(ros.pose_stamped(t_ns, pose), t_ns)
+        fault = s.get("fault") or {}
+        level = ros.ERROR if s.get("state") == "fault" else ros.WARN if s.get("state") in ("stopping", "stopped") \
+            else ros.OK
+        self._pubs["safety"].put(ros.diagnostics(t_ns, f"{self.cell}/safety", self.cell, [(
+            level, str(s.get("state")), {"state": str(s.get("state")), "link": str(s.get("link")),
+                                         "stop_reason": str(s.get("stop_reason") or ""),
+                                         "fault": str(fault.get("message") or "") if isinstance(fault, dict) else
+                                         str(fault)})]), t_ns)
+        lease = s.get("lease") or {}
+        status = {"cell": self.cell, "t_unix": t_ns / 1e9, "state": s.get("state"), "link": s.get("link"),
+                  "stop_reason": s.get("stop_reason"), "fault": s.get("fault"),
+                  "latency_p99_us": s.get("latency_p99_us"),
+                  "alarms": [a.get("code") for a in s.get("alarms") or []],
+                  "lease_held": bool(lease.get("held")), "lease_client": lease.get("client"),
+                  "model": s.get("model"), "q_cmd": (s.get("q_cmd") or [])[: self.n]}
+        self._status_pub.put(json.dumps(status, default=str).encode())
+
+    def _publish_alarms(self, alarms: list[dict[str, Any]], t_ns: int) -> None:
+        self._pubs["alarms"].put(ros.diagnostics(t_ns, f"{self.cell}/controller", self.cell, [
+            (ros.WARN if a.get("warning") else ros.ERROR, f"{a.get('code')}: {a.get('message')}",
+             {"code": str(a.get("code")), "time_unix": str(a.get("time_unix"))}) for a in alarms]), t_ns)
+        if self.settings.json:
+            self._json_put("json/alarms", {"t_ns": t_ns, "alarms": alarms})
+
+    def _json_put(self, suffix: str, value: Any) -> None:
+        assert self.session is not None
+        self.session.put(self.json_key(suffix), json.dumps(value, default=str).encode())
+
+
+# The frames MoveIt Servo users name in a TwistStamped's header: ours are "base" and "tool".
+FRAMES = {"": "base", "base_link": "base", "world": "base", "tool0": "tool", "flange": "tool"}
+
+_JOG: TypeAdapter[Any] = TypeAdapter(JogBody)
+_TARGET: TypeAdapter[Any] = TypeAdapter(JointTarget | PoseTargetBody)
+
+
+def _validated(model: Any, body: dict[str, Any]) -> Any:
+    """The REST model's verdict on ``body``: 422 with the same error list REST answers."""
+    adapter = model if isinstance(model, TypeAdapter) else TypeAdapter(model)
+    try:
+        return adapter.validate_python(body)
+    except ValidationError as exc:
+        raise Refused(422, jsonable_encoder(_json_safe(list(exc.errors())))) from None
+

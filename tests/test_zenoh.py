@@ -1,0 +1,348 @@
+"""The Zenoh interface with real Zenoh sessions on loopback (peer mode, no router, no multicast):
+ROS 2 messages in CDR keyed as rmw_zenoh names them, commands through the REST rules, the lease by
+queryable, and two services in two processes seen by the fleet monitor."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+zenoh = pytest.importorskip("zenoh")
+
+from servo_app.monitor import FleetMonitor  # noqa: E402
+from servo_app.ros import messages as ros  # noqa: E402
+from servo_app.zenoh_api import (  # noqa: E402
+    ZenohInterface,
+    ZenohSettings,
+    parse_rmw_attachment,
+    rmw_attachment,
+    ros_key,
+)
+from tests.test_api_harness import AUTH, TOKEN, Rig, running_rig  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def client_session(*connect: str) -> Any:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(conf)
+
+
+def wait_for(pred: Callable[[], Any], timeout: float = 10.0, what: str = "") -> Any:
+    deadline = time.monotonic() + timeout
+    while True:
+        value = pred()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what or pred}")
+        time.sleep(0.01)
+
+
+class Client:
+    """A Zenoh peer of the cell: the lease query, command publishers, the replies it collects."""
+
+    def __init__(self, session: Any, cell: str) -> None:
+        self.session, self.cell = session, cell
+        self.replies: list[dict[str, Any]] = []
+        self._subs = [session.declare_subscriber(f"servo_app/{cell}/reply", self._on_reply)]
+        self._pubs: dict[str, Any] = {}
+
+    def _on_reply(self, sample: Any) -> None:
+        self.replies.append(json.loads(sample.payload.to_bytes()))
+
+    def lease(self, **body: Any) -> dict[str, Any]:
+        payload = {"token": TOKEN, "client": "ros-node", "force": True, **body}
+
+        def ask() -> list[Any]:  # none until the queryable's declaration has reached this session
+            return [r for r in self.session.get(f"servo_app/{self.cell}/lease", payload=json.dumps(payload).encode(),
+                                                timeout=5.0) if r.ok is not None]
+
+        replies = wait_for(ask, 20.0, "the lease queryable's answer")
+        return json.loads(replies[0].ok.payload.to_bytes())  # type: ignore[no-any-return]
+
+    def send(self, topic: str, typename: str, message: Any) -> dict[str, Any]:
+        """Publish a ROS command and wait for its answer on the reply key."""
+        key = ros_key(0, f"/{self.cell}/{topic}", typename)
+        if key not in self._pubs:
+            self._pubs[key] = self.session.declare_publisher(key)
+        n = len(self.replies)
+        self._pubs[key].put(ros.serialize(message, typename))
+        return wait_for(lambda: self.replies[n] if len(self.replies) > n else None, 10.0, f"a reply to {topic}")
+
+    def send_json(self, kind: str, body: dict[str, Any]) -> dict[str, Any]:
+        n = len(self.replies)
+        self.session.put(f"servo_app/{self.cell}/json/cmd/{kind}", json.dumps(body).encode())
+        return wait_for(lambda: self.replies[n] if len(self.replies) > n else None, 10.0, f"a reply to {kind}")
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Rig, ZenohInterface, Client]]:
+    port = free_port()
+    with running_rig(tmp_path_factory.mktemp("zenoh")) as rig:
+        api = rig.server.server.config.app.state.api
+        iface = ZenohInterface(api, ZenohSettings(cell="cell_a", listen=[f"tcp/127.0.0.1:{port}"],
+                                                  json=True)).start()
+        session = client_session(f"tcp/127.0.0.1:{port}")
+        try:
+            yield rig, iface, Client(session, "cell_a")
+        finally:
+            session.close()
+            iface.close()
+            assert rig.sim_alarms() == [], "the controller alarmed"
+
+
+def streaming_for_zenoh(rig: Rig, client: Client) -> str:
+    """A running stream, the lease taken through the queryable (it stops the arm: resume over Zenoh)."""
+    rig.streaming()
+    granted = client.lease()
+    assert granted["ok"], granted
+    assert client.send("resume", ros.EMPTY, ros.Empty())["ok"]
+    rig.wait_state("streaming")
+    return str(granted["lease_id"])
+
+
+# ------------------------------------------------------------------------------------- the key space
+
+def test_keys_follow_rmw_zenoh_jazzy() -> None:
+    key = ros_key(0, "/cell_a/joint_states", ros.JOINT_STATE)
+    assert key == ("0/cell_a/joint_states/sensor_msgs::msg::dds_::JointState_/"
+                   "RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e")
+    # control_msgs/JointJog is registered from its .msg text: its hash is computed like any other
+    assert ros_key(3, "/c/delta_joint_cmds", ros.JOINT_JOG).startswith("3/c/delta_joint_cmds/"
+                                                                        "control_msgs::msg::dds_::JointJog_/RIHS01_")
+
+
+@given(st.integers(1, 2**63 - 1), st.integers(0, 2**63 - 1), st.binary(min_size=16, max_size=16))
+def test_attachment_is_zenoh_ext_serialisation(seq: int, t_ns: int, gid: bytes) -> None:
+    """rmw_zenoh reads the attachment with zenoh-ext's deserializer: int64, int64, a 16-byte sequence."""
+    from zenoh import ext
+
+    oracle = ext.z_serialize((ext.Int64(seq), ext.Int64(t_ns), [ext.UInt8(b) for b in gid])).to_bytes()
+    assert rmw_attachment(seq, t_ns, gid) == oracle
+    assert parse_rmw_attachment(oracle) == (seq, t_ns, gid)
+
+
+@given(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1), st.floats(-3, 3), st.floats(-3, 3), st.floats(-3, 3))
+def test_twist_and_jog_round_trip_in_cdr(x: float, y: float, z: float, a: float, b: float, c: float) -> None:
+    m = ros.deserialize(ros.serialize(ros.twist_stamped(123, (x, y, z), (a, b, c), "tool0"), ros.TWIST_STAMPED),
+                        ros.TWIST_STAMPED)
+    assert (m.twist.linear.x, m.twist.linear.y, m.twist.linear.z) == (x, y, z)
+    assert (m.twist.angular.x, m.twist.angular.y, m.twist.angular.z) == (a, b, c)
+    assert m.header.frame_id == "tool0" and ros.stamp_ns(m.header) == 123
+    j = ros.deserialize(ros.serialize(ros.joint_jog(5, ["joint_2"], [x], 0.5), ros.JOINT_JOG), ros.JOINT_JOG)
+    assert list(j.joint_names) == ["joint_2"] and j.velocities.tolist() == [x] and j.duration == 0.5
+
+
+# ------------------------------------------------------------------------------- telemetry and commands
+
+@pytest.mark.e2e
+def test_joint_states_arrive_at_the_rate_and_decode_as_ros2(cell: tuple[Rig, ZenohInterface, Client]) -> None:
+    rig, iface, client = cell
+    rig.streaming()
+    got: list[tuple[float, bytes, bytes]] = []
+    sub = client.session.declare_subscriber(ros_key(0, "/cell_a/joint_states", ros.JOINT_STATE),
+                                            lambda s: got.append((time.monotonic(), s.payload.to_bytes(),
+                                                                  s.attachment.to_bytes())))
+    try:
+        wait_for(lambda: len(got) >= 60, 10.0, "60 joint states")
+    finally:
+        sub.undeclare()
+    times = np.array([t for t, _, _ in got[10:]])
+    rate = (len(times) - 1) / (times[-1] - times[0])
+    assert 0.7 * iface.settings.hz < rate < 1.3 * iface.settings.hz, rate
+    seqs = [parse_rmw_attachment(a) for _, _, a in got]
+    assert all(s is not None for s in seqs)
+    assert np.all(np.diff([s[0] for s in seqs if s]) == 1), "the publisher's sequence numbers have gaps"
+    m = ros.deserialize(got[-1][1], ros.JOINT_STATE)
+    assert list(m.name) == ros.joint_names(6)
+    q = rig.state()["q_servo"]
+    np.testing.assert_allclose(m.position, iface.joints_to_ros(q[:6]), atol=1e-3)
+
+
+@pytest.mark.e2e
+def test_ros_commands_move_the_arm(cell: tuple[Rig, ZenohInterface, Client]) -> None:
+    rig, iface, client = cell
+    streaming_for_zenoh(rig, client)
+    q0 = rig.state()["q_cmd"]
+    # delta_joint_cmds, held by repeating it (hold-to-run, as MoveIt Servo publishes)
+    for _ in range(10):
+        r = client.send("delta_joint_cmds", ros.JOINT_JOG, ros.joint_jog(time.time_ns(), ["joint_1"], [0.3]))
+        assert r["ok"], r
+    s = rig.wait(lambda s: s["q_cmd"][0] > q0[0] + 0.5, 5.0, "J1 moved")
+    assert abs(s["q_cmd"][3] - q0[3]) < 1e-6, "an axis not commanded moved"
+    # delta_twist_cmds: +z in the base frame
+    z0 = rig.state()["cart_servo"][2]
+    for _ in range(10):
+        up = ros.twist_stamped(time.time_ns(), (0, 0, 0.05), (0, 0, 0))
+        r = client.send("delta_twist_cmds", ros.TWIST_STAMPED, up)
+        assert r["ok"], r
+    rig.wait(lambda s: s["cart_servo"][2] > z0 + 2.0, 5.0, "the TCP rose")
+    # joint_target (rad, the model's chain): J1 to 5 deg
+    goal = iface.joints_to_ros([5.0, *rig.state()["q_cmd"][1:6]])
+    r = client.send("joint_target", ros.JOINT_STATE, ros.joint_state(0, goal))
+    assert r["ok"], r
+    rig.wait(lambda s: abs(s["q_cmd"][0] - 5.0) < 0.01 and s["at_rest"], 10.0, "at the joint target")
+    # pose_target (m): 20 mm lower than here
+    c = rig.state()["cart_servo"]
+    from servo_app.robots.conventions import xyzwpr_to_matrix
+
+    goal_pose = xyzwpr_to_matrix([c[0], c[1], c[2] - 20.0, *c[3:6]])  # in metres
+    r = client.send("pose_target", ros.POSE_STAMPED, ros.pose_stamped(0, goal_pose))
+    assert r["ok"], r["detail"]
+    rig.wait(lambda s: abs(s["cart_servo"][2] - (c[2] - 20.0)) < 0.5 and s["at_rest"], 10.0, "at the pose target")
+    # stop, then resume
+    assert client.send("stop", ros.EMPTY, ros.Empty())["ok"]
+    rig.wait_state("stopped")
+    assert client.send("resume", ros.EMPTY, ros.Empty())["ok"]
+    rig.wait_state("streaming")
+    assert rig.sim_alarms() == []
+
+
+@pytest.mark.e2e
+def test_json_commands_carry_the_token_and_lease(cell: tuple[Rig, ZenohInterface, Client]) -> None:
+    rig, _, client = cell
+    lease_id = streaming_for_zenoh(rig, client)
+    q0 = rig.state()["q_cmd"]
+    for _ in range(6):
+        r = client.send_json("jog", {"token": TOKEN, "lease_id": lease_id, "joints": [0, 0, 0, 0, 0, 20],
+                                     "hold_ms": 300})
+        assert r["ok"], r
+    rig.wait(lambda s: s["q_cmd"][5] > q0[5] + 0.5, 5.0, "J6 moved")
+    r = client.send_json("jog", {"lease_id": lease_id, "joints": [0, 0, 0, 0, 0, 20]})
+    assert (r["status"], r["detail"]) == (401, "missing or wrong bearer token")
+
+
+@pytest.mark.e2e
+def test_every_refusal_is_answered_with_the_rest_message(cell: tuple[Rig, ZenohInterface, Client]) -> None:
+    rig, _, client = cell
+    lease_id = streaming_for_zenoh(rig, client)
+    jog = ros.joint_jog(0, ["joint_1"], [0.1])
+    # bad values: the REST model's error, word for word (a hold of 5 s is over its 2 s bound)
+    rest = rig.http.post("/api/jog", json={"joints": [5.7, 0, 0, 0, 0, 0], "hold_ms": 5000},
+                         headers={**AUTH, "X-Lease-Id": lease_id})
+    assert rest.status_code == 422
+    r = client.send("delta_joint_cmds", ros.JOINT_JOG, ros.joint_jog(0, ["joint_1"], [0.1], duration_s=5.0))
+    assert r["status"] == 422 and r["detail"][0]["msg"] == rest.json()["detail"][0]["msg"]
+    r = client.send("delta_twist_cmds", ros.TWIST_STAMPED, ros.twist_stamped(0, (0, 0, 0), (0, 0, 0), "camera"))
+    assert r["status"] == 422 and "base" in r["detail"][0]["msg"], r
+    r = client.send("delta_joint_cmds", ros.JOINT_JOG, ros.joint_jog(0, ["joint_9"], [0.1]))
+    assert r["status"] == 422 and "unknown joint 'joint_9'" in r["detail"], r
+    # stale hold-to-run: stamped a second ago, past its 0.2 s hold
+    r = client.send("delta_joint_cmds", ros.JOINT_JOG, ros.joint_jog(time.time_ns() - 1_000_000_000, ["joint_1"],
+                                                                     [0.1]))
+    assert r["status"] == 409 and r["detail"].startswith("stale hold-to-run command"), r
+    # wrong state: stopped (soft); a target is refused in REST's words
+    rig.post("/api/session/stop", AUTH)
+    rig.wait_state("stopped")
+    rest = rig.http.post("/api/target", json={"joints": [1, 0, 0, 0, -90, 0]},
+                         headers={**AUTH, "X-Lease-Id": lease_id})
+    r = client.send("joint_target", ros.JOINT_STATE, ros.joint_state(0, np.radians([1, 0, 0, 0, -90, 0])))
+    assert rest.status_code == r["status"] == 409 and r["detail"] == rest.json()["detail"], (r, rest.text)
+    # a lease taken over through REST: ROS commands no longer act for the Zenoh holder
+    rig.lease("operator")
+    rest = rig.http.post("/api/jog", json={"joints": [1, 0, 0, 0, 0, 0]}, headers={**AUTH, "X-Lease-Id": lease_id})
+    r = client.send("delta_joint_cmds", ros.JOINT_JOG, jog)
+    assert rest.status_code == r["status"] == 409 and r["detail"] == rest.json()["detail"], (r, rest.text)
+    # no lease at all
+    held = rig.lease("operator")
+    rig.http.delete("/api/lease", headers=held)
+    rest = rig.http.post("/api/jog", json={"joints": [1, 0, 0, 0, 0, 0]}, headers={**AUTH, "X-Lease-Id": lease_id})
+    r = client.send("delta_joint_cmds", ros.JOINT_JOG, jog)
+    assert rest.status_code == r["status"] == 409 and r["detail"] == rest.json()["detail"], (r, rest.text)
+    # the lease queryable: a wrong token, a live lease without force (REST's 409 text)
+    assert client.lease(token="wrong") == {"ok": False, "status": 401, "detail": "missing or wrong bearer token"}
+    assert client.lease()["ok"]
+    rest = rig.http.post("/api/lease", json={"client": "other"}, headers=AUTH)
+    refused = client.lease(client="other", force=False)
+    assert rest.status_code == refused["status"] == 409
+    assert refused["detail"].split(" for ")[0] == rest.json()["detail"].split(" for ")[0]
+    assert rig.sim_alarms() == []
+
+
+# ------------------------------------------------------------------------ two cells in two processes
+
+@contextlib.contextmanager
+def service_process(tmp: Path, cell: str, zenoh_port: int) -> Iterator[tuple[subprocess.Popen[str], int]]:
+    http_port = free_port()
+    env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "servo_app.cli", "run", "--zenoh", "--cell", cell, "--zenoh-listen",
+         f"tcp/127.0.0.1:{zenoh_port}", "--http-port", str(http_port), "--token", TOKEN, "--var-dir",
+         str(tmp / cell), "--api-priority", "0"], env=env, cwd=tmp, stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stdout or []), daemon=True)
+    reader.start()
+    try:
+        yield proc, http_port
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+        reader.join(5)
+        assert any("controller alarms []" in line for line in lines), "".join(lines)
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_two_services_in_two_processes_one_monitor(tmp_path: Path) -> None:
+    ports = {"cell_a": free_port(), "cell_b": free_port()}
+    endpoints = [f"tcp/127.0.0.1:{p}" for p in ports.values()]
+    with service_process(tmp_path, "cell_a", ports["cell_a"]) as (_, http_a), \
+            service_process(tmp_path, "cell_b", ports["cell_b"]) as (_, http_b):
+        monitor = FleetMonitor(ZenohSettings(cell="monitor", connect=endpoints)).start()
+        session = client_session(*endpoints)
+        try:
+            cells = wait_for(lambda: (c := monitor.cells()).keys() >= {"cell_a", "cell_b"} and c, 90.0,
+                             "both cells on the monitor")
+            assert all(not c["stale"] and c["alarms"] == [] for c in cells.values()), cells
+            lines = monitor.lines()
+            assert any(line.startswith("cell_a") for line in lines) and any(line.startswith("cell_b") for line in lines)
+            client = Client(session, "cell_a")
+            lease_id = client.lease()["lease_id"]
+            # The lease from the queryable is a REST lease too: start cell a's stream with it.
+            http = httpx.Client(base_url=f"http://127.0.0.1:{http_a}", timeout=10.0)
+            assert http.post("/api/session/start", headers={**AUTH, "X-Lease-Id": lease_id}).status_code == 200
+            wait_for(lambda: monitor.cells()["cell_a"]["state"] == "streaming", 15.0, "cell a streaming")
+            assert monitor.cells()["cell_a"]["lease_held"] and not monitor.cells()["cell_b"]["lease_held"]
+            a0, b0 = monitor.cells()["cell_a"]["q_cmd"], monitor.cells()["cell_b"]["q_cmd"]
+            for _ in range(10):
+                assert client.send("delta_joint_cmds", ros.JOINT_JOG,
+                                   ros.joint_jog(time.time_ns(), ["joint_1"], [0.3]))["ok"]
+            wait_for(lambda: monitor.cells()["cell_a"]["q_cmd"][0] > a0[0] + 0.5, 10.0, "cell a moved")
+            assert monitor.cells()["cell_b"]["q_cmd"] == b0, "cell b moved on a command to cell a"
+            assert math.isfinite(monitor.cells()["cell_a"]["latency_p99_us"])
+            http.close()
+            assert httpx.get(f"http://127.0.0.1:{http_b}/api/health").json() == {"ok": True}
+        finally:
+            session.close()
+            monitor.close()
