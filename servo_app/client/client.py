@@ -326,6 +326,17 @@ class ServoClient:
         self._post("/api/session/start")
         return self.wait_state("streaming", timeout=timeout)
 
+    def ensure_streaming(self, timeout: float = 15.0) -> State:
+        """Whatever the stream is doing, have it streaming: start a new one (disconnected, ready,
+        ended), or resume a soft stop. A fault or a fast stop is left to the operator (they need a
+        look first): FaultError, or RefusedError naming the reset."""
+        s = self.wait_state("streaming", "stopped", "disconnected", "connected", "ready", "ended", timeout=timeout)
+        if s.state == "stopped":
+            if s.stop_fast:
+                raise RefusedError(f"the arm was fast-stopped ({s.stop_reason}); acknowledge it first: reset()")
+            return self.resume()
+        return s if s.state == "streaming" else self.start(timeout)
+
     def stop(self, fast: bool = False, wait: bool = True, timeout: float = 10.0) -> State | None:
         """Decelerate to rest and hold (``fast``: the shortest ramp; then ``reset()`` before ``resume()``).
         Needs the token only: any client may stop the arm."""
