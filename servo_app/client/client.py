@@ -82,6 +82,7 @@ class JogHold:
         self._hold_ms = hold_ms
         self._lock = threading.Lock()
         self._released = threading.Event()
+        self._failed = threading.Event()  # the renewal was refused: a duration ends early
         self._thread: threading.Thread | None = None
         self.error: ServoError | None = None  # why the renewal stopped early, if it did
         self.sent = 0
@@ -98,6 +99,7 @@ class JogHold:
                 self._send()
             except ServoError as exc:  # refused, faulted, lease lost: the arm stops by itself; say why at release
                 self.error = exc
+                self._failed.set()
                 return
 
     def hold(self) -> JogHold:
@@ -204,6 +206,8 @@ class ServoClient:
         if self.lease_id is not None and self._lease_lost is None:
             try:
                 self._call("DELETE", "/api/lease", lease=True)
+            except LeaseError:  # taken over or expired since the last renewal: nothing left to release
+                pass
             finally:
                 self.lease_id = None
 
@@ -291,8 +295,6 @@ class ServoClient:
                                    reason=s.stop_reason)
             if fresh and done(s):
                 return s
-            if fresh and not moving and s.published_unix is None:
-                raise StoppedError(f"no servo process publishes a state ({s.state}): cannot wait for {what}")
             if time.monotonic() > deadline:
                 raise TimeoutError(f"{what}: not within {timeout} s (state {s.state}, at rest {s.at_rest}, "
                                    f"stop reason {s.stop_reason})")
@@ -397,7 +399,7 @@ class ServoClient:
     def _jog(self, body: dict[str, Any], duration: float | None) -> JogHold:
         held = JogHold(self, body).hold()
         if duration is not None:
-            held._released.wait(duration)  # nobody sets it: a bounded wait that ends at the duration
+            held._failed.wait(duration)  # the duration, or less if a renewal is refused
             held.release()
         return held
 
