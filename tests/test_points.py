@@ -26,6 +26,13 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
         yield r
 
 
+def settled_streaming(rig: Rig) -> dict[str, str]:
+    """The lease and a stream, with the arm settled (an earlier test may have left it moving)."""
+    h = rig.streaming("points")
+    rig.wait(lambda s: s["settled"], 15.0, "settled")
+    return h
+
+
 def _clear(rig: Rig, headers: dict[str, str]) -> None:
     for p in rig.http.get("/api/points").json():
         rig.http.request("DELETE", f"/api/points/{p['name']}", headers=headers)
@@ -106,7 +113,7 @@ def test_bad_names_are_refused_422(rig: Rig, name: str) -> None:
 
 
 def test_unknown_points_are_404_with_how_to_teach_them(rig: Rig) -> None:
-    h = rig.streaming("points")
+    h = settled_streaming(rig)
     r = rig.http.post("/api/points/nowhere/move", headers=h)
     assert r.status_code == 404
     assert r.json()["detail"] == ("no teach point named 'nowhere': list them with GET /api/points, or move the "
@@ -116,7 +123,7 @@ def test_unknown_points_are_404_with_how_to_teach_them(rig: Rig) -> None:
 
 
 def test_teaching_and_moving_need_the_lease(rig: Rig) -> None:
-    h = rig.streaming("points")
+    h = settled_streaming(rig)
     rig.post("/api/points/leased", h)
     for method, path in (("POST", "/api/points/leased"), ("POST", "/api/points/leased/move"),
                          ("DELETE", "/api/points/leased")):
@@ -127,7 +134,7 @@ def test_teaching_and_moving_need_the_lease(rig: Rig) -> None:
 
 
 def test_the_state_refuses_with_the_next_step_409(rig: Rig) -> None:
-    h = rig.streaming("points")
+    h = settled_streaming(rig)
     _clear(rig, h)
     rig.post("/api/points/p1", h)
     # Moving: a pose taken now would not match the joints.
@@ -148,7 +155,7 @@ def test_the_state_refuses_with_the_next_step_409(rig: Rig) -> None:
 
 
 def test_a_point_taught_on_another_model_is_refused_409(rig: Rig) -> None:
-    h = rig.streaming("points")
+    h = settled_streaming(rig)
     _clear(rig, h)
     rig.post("/api/points/elsewhere", h)
     path = rig.var_dir / "points.json"
@@ -162,7 +169,7 @@ def test_a_point_taught_on_another_model_is_refused_409(rig: Rig) -> None:
 
 
 def test_a_bad_move_body_is_refused_422(rig: Rig) -> None:
-    h = rig.streaming("points")
+    h = settled_streaming(rig)
     rig.post("/api/points/body", h)
     for body in ({"speed_scale": 0}, {"speed_scale": 1.5}, {"speed_scale": "1"}, {"speed": 1}):
         r = rig.http.post("/api/points/body/move", json=body, headers=h)

@@ -260,7 +260,17 @@ class ServoClient:
 
     def _fault_now(self, status: int | None = None) -> FaultError | None:
         s = self.state()
-        return self._fault_of(s, status) if s.state == "fault" else None
+        return self._fault_of(self._with_alarm(s), status) if s.state == "fault" else None
+
+    def _with_alarm(self, s: State, patience_s: float = 0.5) -> State:
+        """The fault state once its alarm is in: a fault the service sees on the status bits (SYSRDY
+        off) shows a poll of the controller's alarm list (50 ms) before the alarm that caused it."""
+        deadline = time.monotonic() + patience_s
+        while (s.fault is None or s.fault.code is None) and not any(not a.warning for a in s.alarms) \
+                and time.monotonic() < deadline and s.state == "fault":
+            time.sleep(_POLL_S)
+            s = self.state()
+        return s
 
     @staticmethod
     def _fault_of(s: State, status: int | None = None) -> FaultError:
@@ -287,7 +297,7 @@ class ServoClient:
         s = first
         while True:
             if s.state == "fault":
-                raise self._fault_of(s)
+                raise self._fault_of(self._with_alarm(s))
             fresh = s.published_unix is not None and first.published_unix is not None \
                 and s.published_unix > first.published_unix
             if fresh and moving and s.state not in _MOVING_STATES and s.at_rest:
@@ -317,7 +327,7 @@ class ServoClient:
             if s.state in states:
                 return s
             if s.state == "fault":
-                raise self._fault_of(s)
+                raise self._fault_of(self._with_alarm(s))
             if time.monotonic() > deadline:
                 raise TimeoutError(f"state {states}: not within {timeout} s (now {s.state}, {s.stop_reason})")
             time.sleep(_POLL_S)
