@@ -9,6 +9,7 @@ import { JOG, JogPad } from "./jog.js";
 import { installKeys } from "./keys.js";
 import { Lease } from "./lease.js";
 import { LogsPanel } from "./logs.js";
+import { PointsPanel } from "./points.js";
 import { TargetForm } from "./target.js";
 import { Telemetry } from "./telemetry.js";
 import {
@@ -63,6 +64,7 @@ const io = new IoPanel({ api, root: $("#io-buttons"), onError: sayError });
 const logs = new LogsPanel({ api, root: $("#logs-card"), limits: () => ui.limits, onError: sayError });
 const arm = new ArmView($("#arm-side"), $("#arm-top"));
 const joints = new JointTable($("#joint-rows"));
+const points = new PointsPanel({ api, root: $("#points-card"), onRender: () => refreshControls() });
 const target = new TargetForm({ api, root: $("#target-form"), telemetry: () => ui.tel, robot: () => ui.robot });
 const lease = new Lease({
   api,
@@ -340,6 +342,7 @@ function main() {
   new Telemetry({ hz: 20, onState, onLink }).start();
   loadRobot();
   logs.refresh();
+  points.refresh();
   pollInputs();
 }
 

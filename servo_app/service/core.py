@@ -31,6 +31,7 @@ from servo_app.process_handle import ServoProcessHandle, describe_exit
 from servo_app.service.alarms import AlarmForwarder
 from servo_app.service.config import ServiceConfig
 from servo_app.service.io import StreamIo
+from servo_app.service.points import PointStore
 from servo_app.service.views import StateViews
 
 
@@ -56,6 +57,7 @@ class ServoService:
         self.alarm_forwarder = AlarmForwarder(self.backend, self.sim_call, self.send, cfg.alarm_poll_s)
         self.io = StreamIo(self.backend, self.request, self.state_vector, cfg.lead)
         self.views = StateViews(self)
+        self.points = PointStore(cfg.var_dir / "points.json")  # teach points (servo_app.api.points)
 
     @property
     def options(self) -> ProcessOptions:

@@ -1,0 +1,120 @@
+"""``/api/points``: teach points. Teach the arm's current joints and TCP pose under a name, list them,
+delete them, and move back to one (a joint target: the arm returns in the configuration it was
+taught in, whatever IK would pick for the pose).
+
+Teaching and moving need the token and the control lease; listing is open. The points live in
+``points.json`` under the service's var directory (:class:`servo_app.service.points.PointStore`).
+Refusals follow the targets' rules: 422 for a bad name or body, 404 for a point nobody taught (the
+text says how to teach it), 409 when the state does not allow it (the text ends with the next step).
+"""
+
+# No `from __future__ import annotations`: FastAPI reads the dependency annotations at runtime.
+import time
+from typing import Annotated, Any
+
+from fastapi import APIRouter, HTTPException
+from fastapi import Path as PathParam
+from pydantic import BaseModel, ConfigDict, Field
+
+from servo_app import messages as msg
+from servo_app.api.deps import Calls, Controlling, Service
+from servo_app.api.models import REFUSALS, Ack, Problem
+from servo_app.errors import CommandRejected
+from servo_app.service import ServoService
+from servo_app.service.points import POINT_NAME_PATTERN
+
+router = APIRouter(tags=["points"])
+
+PointName = Annotated[str, PathParam(pattern=POINT_NAME_PATTERN, min_length=1, max_length=64, description=(
+    "letters, digits, '_', '.', '-'; starting with a letter or digit; at most 64 characters"))]
+_UNKNOWN = {404: {"model": Problem, "description": "no point of that name: the text says how to teach it"}}
+# States in which the controller reports where the arm is (the pose comes from its status packets).
+_TEACHABLE = ("streaming", "stopped")
+
+
+class PointView(BaseModel):
+    """A taught point."""
+
+    model_config = ConfigDict(extra="allow")
+    name: str
+    joints: list[float] = Field(description="commanded joints at teach time: deg (FANUC J1..J6), or mm and "
+                                            "deg (Janome X Y Z R); what moving to the point goes back to")
+    xyzwpr: list[float] = Field(description="the TCP pose the controller reported: X Y Z mm, W P R deg (world)")
+    model: str = Field(description="the robot profile it was taught on")
+    backend: str = Field(description="the robot backend's registered name")
+    taught_unix: float = Field(description="when it was taught (Unix s)")
+    taught_by: str = Field(description="the lease holder and address that taught it")
+
+
+class MoveToPoint(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+    speed_scale: float = Field(1.0, gt=0, le=1, description="share of the joint speed limits")
+
+
+def _unknown(name: str) -> HTTPException:
+    return HTTPException(404, f"no teach point named {name!r}: list them with GET /api/points, or move the "
+                              f"arm there and teach it: POST /api/points/{name}")
+
+
+def _capture(service: ServoService, name: str, client: str) -> dict[str, Any]:
+    """The point as the arm stands now; refused unless the controller reports a settled arm."""
+    s = service.state()
+    state = s["state"]
+    if state not in _TEACHABLE or not s.get("status_live"):
+        raise CommandRejected(f"teach refused in {state}: the controller reports the arm's pose only while a "
+                              "stream runs; start one: POST /api/session/start")
+    if not s.get("settled"):
+        raise CommandRejected("teach refused: the arm is moving (not settled), and a pose taken now would not "
+                              "match its joints; wait until GET /api/state shows settled, then teach again")
+    dof = len(service.backend.axes())
+    point = {"name": name, "joints": [float(q) for q in s["q_cmd"][:dof]],
+             "xyzwpr": [float(v) for v in s.get("cart_servo") or []], "model": service.profile.name,
+             "backend": service.backend.name, "taught_unix": time.time(), "taught_by": client}
+    service.points.save(point)
+    return point
+
+
+@router.get("/api/points", summary="List the teach points", response_model=list[PointView])
+def points_list(service: Service) -> list[dict[str, Any]]:
+    """Every taught point, by name, with its joints, TCP pose, robot model and when it was taught
+    (open: no token)."""
+    return service.points.all()
+
+
+@router.post("/api/points/{name}", summary="Teach a point: save the arm's current joints and pose",
+             responses=REFUSALS)
+def point_teach(name: PointName, client: Controlling, service: Service, calls: Calls) -> PointView:
+    """Save the commanded joints and the pose the controller reports under ``name`` (replacing a point
+    of that name), with the robot model and the time. Only while a stream runs and the arm has
+    settled (409 otherwise, saying what to wait for). Token and lease."""
+    ack = calls.call(client, "points.teach", lambda: _capture(service, name, client), {"name": name})
+    return PointView.model_validate(ack.detail)
+
+
+@router.delete("/api/points/{name}", summary="Delete a teach point", responses={**REFUSALS, **_UNKNOWN})
+def point_delete(name: PointName, client: Controlling, service: Service, calls: Calls) -> Ack:
+    """Forget the point ``name`` (404 if nobody taught it). Token and lease."""
+    if not calls.call(client, "points.delete", lambda: service.points.delete(name), {"name": name}).detail:
+        raise _unknown(name)
+    return Ack()
+
+
+@router.post("/api/points/{name}/move", summary="Move to a teach point (a joint target)",
+             responses={**REFUSALS, **_UNKNOWN})
+def point_move(name: PointName, client: Controlling, service: Service, calls: Calls,
+               body: MoveToPoint | None = None) -> Ack:
+    """Go to the point's joints along a jerk-limited path, as ``POST /api/target`` with ``{"joints":
+    [...]}`` would (the configuration exactly as taught; refused in the same states; resumes a
+    hold-to-run stop). A point taught on another robot model is refused (409). Token and lease."""
+    point = service.points.get(name)
+    if point is None:
+        calls.audit.record(client, "points.move", False, f"no teach point named {name!r}")
+        raise _unknown(name)
+    if point.get("model") != service.profile.name:
+        detail = (f"point {name!r} was taught on a {point.get('model')}, and this service drives a "
+                  f"{service.profile.name}; teach it again on this robot: POST /api/points/{name}")
+        calls.audit.record(client, "points.move", False, detail)
+        raise HTTPException(409, detail)
+    speed_scale = body.speed_scale if body is not None else 1.0
+    return calls.forward(client, "points.move", msg.JointTarget(joints=tuple(point["joints"]),
+                                                                 speed_scale=speed_scale))

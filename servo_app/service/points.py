@@ -1,0 +1,82 @@
+"""Teach points: named joint positions and TCP poses kept in one JSON file under the var directory.
+
+The file is rewritten whole for every change, atomically (a temporary file in the same directory,
+flushed to disk, then renamed over the old one): a crash or power cut mid-write leaves the old file
+or the new one, never half of either. It is read afresh each time, so a file edited by hand (or
+copied from another cell) is taken as it is.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import tempfile
+import threading
+from pathlib import Path
+from typing import Any
+
+from servo_app.errors import CommandRejected
+
+# Safe as a file name anywhere (no separators, no leading dot or dash), short enough for a pendant.
+POINT_NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
+POINT_NAME = re.compile(POINT_NAME_PATTERN)
+FILE_VERSION = 1
+
+
+class PointStore:
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._lock = threading.Lock()  # one read-modify-write at a time (API worker threads)
+
+    def _load(self) -> dict[str, dict[str, Any]]:
+        try:
+            doc = json.loads(self.path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            return {}
+        except (ValueError, OSError) as exc:
+            raise CommandRejected(f"the teach point file {self.path} cannot be read ({exc}); "
+                                  "fix it or move it away, then teach again") from None
+        points = doc.get("points") if isinstance(doc, dict) else None
+        if not isinstance(points, dict):
+            raise CommandRejected(f"the teach point file {self.path} has no 'points' object; "
+                                  "fix it or move it away, then teach again")
+        return points
+
+    def _store(self, points: dict[str, dict[str, Any]]) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        text = json.dumps({"version": FILE_VERSION, "points": points}, indent=2, sort_keys=True)
+        fd, tmp = tempfile.mkstemp(prefix=".points-", suffix=".json", dir=self.path.parent)
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                f.write(text)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, self.path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+
+    def all(self) -> list[dict[str, Any]]:
+        with self._lock:
+            points = self._load()
+            return [points[name] for name in sorted(points)]
+
+    def get(self, name: str) -> dict[str, Any] | None:
+        with self._lock:
+            return self._load().get(name)
+
+    def save(self, point: dict[str, Any]) -> None:
+        """Add or replace the point named ``point["name"]``."""
+        with self._lock:
+            points = self._load()
+            points[point["name"]] = point
+            self._store(points)
+
+    def delete(self, name: str) -> bool:
+        with self._lock:
+            points = self._load()
+            if points.pop(name, None) is None:
+                return False
+            self._store(points)
+            return True

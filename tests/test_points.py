@@ -1,0 +1,177 @@
+"""Teach points: ``/api/points`` end to end against a running service (teach, list, move to, delete,
+every refusal), and the store's file kept whole through every change."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from test_api_harness import AUTH, TOKEN, Rig, running_rig
+
+from servo_app.client import ServoClient
+from servo_app.errors import CommandRejected
+from servo_app.service.points import POINT_NAME, PointStore
+
+HOME = [0.0, 0.0, 0.0, 0.0, -90.0, 0.0]
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+    with running_rig(tmp_path_factory.mktemp("points")) as r:
+        yield r
+
+
+def settled_streaming(rig: Rig) -> dict[str, str]:
+    """The lease and a stream, with the arm settled (an earlier test may have left it moving)."""
+    h = rig.streaming("points")
+    rig.wait(lambda s: s["settled"], 15.0, "settled")
+    return h
+
+
+def _clear(rig: Rig, headers: dict[str, str]) -> None:
+    for p in rig.http.get("/api/points").json():
+        rig.http.request("DELETE", f"/api/points/{p['name']}", headers=headers)
+
+
+# ----------------------------------------------------------------------------------------- the store
+names = st.from_regex(POINT_NAME, fullmatch=True)
+
+
+@settings(max_examples=50, deadline=None)
+@given(name=names, joints=st.lists(st.floats(-180, 180, allow_nan=False), min_size=6, max_size=6))
+def test_a_saved_point_reads_back_and_the_file_stays_whole(tmp_path_factory: pytest.TempPathFactory, name: str,
+                                                           joints: list[float]) -> None:
+    d = tmp_path_factory.mktemp("store")
+    store = PointStore(d / "points.json")
+    store.save({"name": "other", "joints": [0.0] * 6})
+    store.save({"name": name, "joints": joints})
+    again = PointStore(d / "points.json")  # a new service reading the same file
+    assert again.get(name) == {"name": name, "joints": joints}
+    assert [p["name"] for p in again.all()] == sorted({"other", name})
+    assert [p.name for p in d.iterdir()] == ["points.json"]  # no temporary file left behind
+    assert json.loads((d / "points.json").read_text())["version"] == 1
+    assert again.delete(name) is True and again.get(name) is None and again.delete(name) is False
+    assert (again.get("other") is None) == (name == "other")
+
+
+def test_a_damaged_file_is_refused_with_what_to_do(tmp_path: Path) -> None:
+    path = tmp_path / "points.json"
+    path.write_text("{not json")
+    with pytest.raises(CommandRejected, match=r"cannot be read .*fix it or move it away"):
+        PointStore(path).all()
+
+
+# ------------------------------------------------------------------------------------------ the API
+def test_teach_list_and_move_to_with_zero_alarms(rig: Rig) -> None:
+    with ServoClient(rig.base_url, TOKEN, name="teacher", take_over=True) as arm:
+        arm.ensure_streaming()
+        for p in arm.points():
+            arm.delete_point(p.name)
+        arm.move_joints([25.0, 5.0, -10.0, 0.0, -75.0, 30.0])
+        a = arm.teach("corner_A")
+        arm.move_joints(HOME)
+        b = arm.teach("home.1")
+        assert [p.name for p in arm.points()] == ["corner_A", "home.1"]
+        np.testing.assert_allclose(a.joints, [25.0, 5.0, -10.0, 0.0, -75.0, 30.0], atol=1e-3)
+        assert a.model == "lrmate200id" and len(a.pose) == 6 and a.pose != b.pose
+
+        s = arm.move_to("corner_A", speed_scale=0.7)
+        assert s is not None
+        np.testing.assert_allclose(s.joints, a.joints, atol=1e-3)
+        reached = arm.wait_settled().pose
+        assert reached is not None and np.abs(np.subtract(reached[:3], a.pose[:3])).max() < 0.5
+        arm.move_to("home.1")
+        np.testing.assert_allclose(arm.state().joints, b.joints, atol=1e-3)
+
+        on_disk = json.loads((rig.var_dir / "points.json").read_text())["points"]
+        assert set(on_disk) == {"corner_A", "home.1"}
+        assert on_disk["corner_A"]["taught_by"].startswith("teacher@127.0.0.1:")
+        assert on_disk["corner_A"]["joints"] == list(a.joints)
+        arm.delete_point("corner_A")
+        assert [p.name for p in arm.points()] == ["home.1"]
+    assert rig.sim_alarms() == []
+    assert rig.state()["alarms"] == []
+
+
+@pytest.mark.parametrize("name", ["../etc", ".hidden", "-x", "a" * 65, "with space", "semi;colon", "ä"])
+def test_bad_names_are_refused_422(rig: Rig, name: str) -> None:
+    h = rig.lease("points")
+    for method, path in (("POST", f"/api/points/{name}"), ("POST", f"/api/points/{name}/move"),
+                         ("DELETE", f"/api/points/{name}")):
+        r = rig.http.request(method, path, headers=h)
+        assert r.status_code in (404, 422), (method, name, r.status_code, r.text)
+        if r.status_code == 404:  # "../etc" is resolved by the URL itself: no route, never a file
+            assert "/" in name
+        else:
+            assert r.json()["detail"][0]["loc"] == ["path", "name"], r.text
+    assert not (rig.var_dir / "etc").exists()
+
+
+def test_unknown_points_are_404_with_how_to_teach_them(rig: Rig) -> None:
+    h = settled_streaming(rig)
+    r = rig.http.post("/api/points/nowhere/move", headers=h)
+    assert r.status_code == 404
+    assert r.json()["detail"] == ("no teach point named 'nowhere': list them with GET /api/points, or move the "
+                                  "arm there and teach it: POST /api/points/nowhere")
+    r = rig.http.request("DELETE", "/api/points/nowhere", headers=h)
+    assert r.status_code == 404 and "POST /api/points/nowhere" in r.json()["detail"]
+
+
+def test_teaching_and_moving_need_the_lease(rig: Rig) -> None:
+    h = settled_streaming(rig)
+    rig.post("/api/points/leased", h)
+    for method, path in (("POST", "/api/points/leased"), ("POST", "/api/points/leased/move"),
+                         ("DELETE", "/api/points/leased")):
+        assert rig.http.request(method, path).status_code == 401
+        r = rig.http.request(method, path, headers=AUTH)
+        assert r.status_code == 409 and "X-Lease-Id" in r.json()["detail"], r.text
+    assert rig.http.get("/api/points").status_code == 200  # listing is open
+
+
+def test_the_state_refuses_with_the_next_step_409(rig: Rig) -> None:
+    h = settled_streaming(rig)
+    _clear(rig, h)
+    rig.post("/api/points/p1", h)
+    # Moving: a pose taken now would not match the joints.
+    rig.post("/api/target", h, {"joints": [40.0, 0.0, 0.0, 0.0, -90.0, 0.0], "speed_scale": 0.3})
+    rig.wait(lambda s: not s["at_rest"], 5.0, "moving")
+    r = rig.http.post("/api/points/p2", headers=h)
+    assert r.status_code == 409 and r.json()["detail"].startswith("teach refused: the arm is moving"), r.text
+    rig.wait(lambda s: s["settled"], 15.0, "settled")
+    # Ended: no pose from the controller, and no target either.
+    rig.end_and_wait(h)
+    r = rig.http.post("/api/points/p2", headers=h)
+    assert r.status_code == 409
+    assert r.json()["detail"] == ("teach refused in ended: the controller reports the arm's pose only while a "
+                                  "stream runs; start one: POST /api/session/start")
+    r = rig.http.post("/api/points/p1/move", headers=h)
+    assert r.status_code == 409 and r.json()["detail"].endswith("start a new session: POST /api/session/start")
+    assert [p["name"] for p in rig.http.get("/api/points").json()] == ["p1"]
+
+
+def test_a_point_taught_on_another_model_is_refused_409(rig: Rig) -> None:
+    h = settled_streaming(rig)
+    _clear(rig, h)
+    rig.post("/api/points/elsewhere", h)
+    path = rig.var_dir / "points.json"
+    doc = json.loads(path.read_text())
+    doc["points"]["elsewhere"]["model"] = "m20id25"
+    path.write_text(json.dumps(doc))
+    r = rig.http.post("/api/points/elsewhere/move", headers=h)
+    assert r.status_code == 409
+    assert r.json()["detail"] == ("point 'elsewhere' was taught on a m20id25, and this service drives a "
+                                  "lrmate200id; teach it again on this robot: POST /api/points/elsewhere")
+
+
+def test_a_bad_move_body_is_refused_422(rig: Rig) -> None:
+    h = settled_streaming(rig)
+    rig.post("/api/points/body", h)
+    for body in ({"speed_scale": 0}, {"speed_scale": 1.5}, {"speed_scale": "1"}, {"speed": 1}):
+        r = rig.http.post("/api/points/body/move", json=body, headers=h)
+        assert r.status_code == 422, (body, r.text)
+    assert rig.http.post("/api/points/body/move", json={"speed_scale": 0.5}, headers=h).status_code == 200

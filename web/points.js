@@ -1,0 +1,76 @@
+// Teach points: the list from GET /api/points with "Go to" (POST /api/points/{name}/move) and delete,
+// and a name to teach the arm's current position under (POST /api/points/{name}). A refusal shows the
+// server's own words: what was wrong and what to do next.
+
+import { $, el, fmt } from "./dom.js";
+
+export class PointsPanel {
+  /** api: Api; root: the card; onRender(): lets the console enable the new buttons (data-needs). */
+  constructor({ api, root, onRender }) {
+    Object.assign(this, { api, root, onRender });
+    this.list = $("#point-list", root);
+    this.message = $("#point-message", root);
+    $("#point-teach-form", root).addEventListener("submit", (ev) => { ev.preventDefault(); this.teach(); });
+    $("#point-refresh", root).addEventListener("click", () => this.refresh());
+  }
+
+  async refresh() {
+    try {
+      this.render(await this.api.get("/api/points"));
+    } catch (exc) {
+      this.show(`Points: ${exc.message}`, false);
+    }
+  }
+
+  render(points) {
+    if (!points.length) {
+      this.list.replaceChildren(el("li", { class: "muted" }, "no points taught"));
+    } else {
+      this.list.replaceChildren(...points.map((p) => el("li", { dataset: { point: p.name } },
+        el("b", {}, p.name),
+        el("span", { class: "muted small-text", title: `joints ${p.joints.map((q) => fmt(q, 2)).join(" ")}` },
+          p.xyzwpr.length ? p.xyzwpr.slice(0, 3).map((v) => fmt(v, 1)).join(" ") : p.joints.map((q) => fmt(q, 1)).join(" ")),
+        el("button", { type: "button", class: "small", "data-needs": "lease", "aria-label": `go to ${p.name}`,
+          onclick: () => this.goTo(p.name) }, "Go to"),
+        el("button", { type: "button", class: "small", "data-needs": "lease", "aria-label": `delete ${p.name}`,
+          onclick: () => this.remove(p.name) }, "×"))));
+    }
+    if (this.onRender) this.onRender();
+  }
+
+  async teach() {
+    const name = $("#point-name", this.root).value.trim();
+    try {
+      const p = await this.api.post(`/api/points/${encodeURIComponent(name)}`);
+      this.show(`taught ${p.name}`, true);
+      await this.refresh();
+    } catch (exc) {
+      this.show(`Teach refused${exc.status ? ` (${exc.status})` : ""}: ${exc.message}`, false);
+    }
+  }
+
+  async goTo(name) {
+    try {
+      await this.api.post(`/api/points/${encodeURIComponent(name)}/move`, {});
+      this.show(`going to ${name}`, true);
+    } catch (exc) {
+      this.show(`Go to ${name} refused${exc.status ? ` (${exc.status})` : ""}: ${exc.message}`, false);
+    }
+  }
+
+  async remove(name) {
+    if (!window.confirm(`Delete the point ${name}?`)) return;
+    try {
+      await this.api.del(`/api/points/${encodeURIComponent(name)}`);
+      this.show(`deleted ${name}`, true);
+      await this.refresh();
+    } catch (exc) {
+      this.show(`Delete refused: ${exc.message}`, false);
+    }
+  }
+
+  show(text, ok) {
+    this.message.textContent = text;
+    this.message.classList.toggle("ok", ok);
+  }
+}
