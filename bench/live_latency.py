@@ -13,8 +13,12 @@ session log (every status received and every command sent, time-stamped by the s
   status the servo process could start on) to its send;
 - the servo process's CPU share over the jog window (``/proc/PID/stat`` utime + stime; its pid is in
   the session log's name);
-- any cycle timing the servo process publishes (``/api/state`` keys naming a solve or cycle time,
-  sampled twice a second during the jog), else "-".
+- the cycle timings the servo process publishes (``/api/state``, sampled twice a second during the
+  jog): the motion step per command (``solve_p50_us`` / ``solve_max_us``: IK, shaper, guards) and a
+  status's whole handling in the servo process (``cycle_p50_us`` / ``cycle_max_us``: decode, safety,
+  send, log, publish, requests), each a median and maximum over its last 256 cycles; their difference
+  is what the live path costs beside the motion step. Other keys naming a solve, cycle or compute
+  time with a unit are shown as they come; none: "-".
 
 Prints a table (``--json``: a JSON document instead); ``--write`` writes its section of
 bench/RESULTS.md with the command line. Works under ``bench/ab.py`` (table rows, then a verdict line).
@@ -54,9 +58,10 @@ JOG_HZ = 20.0
 SPEED_MM_S = 40.0
 FLIP_S = 1.0
 HEADER = ("| run | interval ms | commands | p50 us | p99 us | p99.9 us | max us | late (> T/2) | late % "
-          "| first command us | solve us p50 / max | servo CPU % |")
+          "| first command us | solve us p50 / max | cycle us p50 / max | beside solve us p50 | servo CPU % |")
 # /api/state keys that carry a per-cycle compute time, whatever the servo process calls them.
 TIMING_KEY = re.compile(r"(solve|cycle|compute).*(_us|_ms|_s)$")
+KNOWN_TIMING = {"solve_p50_us", "solve_max_us", "cycle_p50_us", "cycle_max_us"}
 BIT0, BIT1 = StatusBit.WAITING_FOR_COMMAND, StatusBit.COMMAND_RECEIVED
 
 
@@ -87,10 +92,22 @@ class Run:
     def row(self) -> str:
         first = f"{self.first_us:.0f}" if self.first_us is not None else "-"
         cpu = f"{self.cpu_pct:.1f}" if self.cpu_pct is not None else "-"
-        solve = "; ".join(f"{k} {np.percentile(v, 50):.0f} / {max(v):.0f}" for k, v in self.timing.items() if v)
+        solve, cycle = self.window("solve"), self.window("cycle")
+        beside = f"{cycle[0] - solve[0]:.0f}" if solve and cycle else "-"
+        others = "; ".join(f"{k} {np.percentile(v, 50):.0f} / {max(v):.0f}" for k, v in self.timing.items()
+                           if v and k not in KNOWN_TIMING)
+        solve_col = f"{solve[0]:.0f} / {solve[1]:.0f}" if solve else (others or "-")
+        cycle_col = f"{cycle[0]:.0f} / {cycle[1]:.0f}" if cycle else "-"
         return (f"| jog ±X {SPEED_MM_S:g} mm/s, {self.seconds:g} s | {self.interval_ms} | {self.commands} "
                 f"| {self.p50_us:.0f} | {self.p99_us:.0f} | {self.p999_us:.0f} | {self.max_us:.0f} | {self.late} "
-                f"| {self.late_pct:.1f} | {first} | {solve or '-'} | {cpu} |")
+                f"| {self.late_pct:.1f} | {first} | {solve_col} | {cycle_col} | {beside} | {cpu} |")
+
+    def window(self, name: str) -> tuple[float, float] | None:
+        """(median of the sampled medians, largest sampled maximum) of ``name``_p50_us / _max_us; None
+        if the servo process does not publish them (or had not filled a window when sampled)."""
+        p50 = [v for v in self.timing.get(f"{name}_p50_us", []) if v > 0]
+        top = [v for v in self.timing.get(f"{name}_max_us", []) if v > 0]
+        return (float(np.median(p50)), max(top)) if p50 and top else None
 
 
 def free_port() -> int:
@@ -272,9 +289,10 @@ def main(argv: list[str] | None = None) -> int:
             f"own process), Cartesian jogs over REST: ±X at {SPEED_MM_S:g} mm/s in the base frame, renewed at "
             f"{JOG_HZ:g} Hz, flipping every {FLIP_S:g} s. Latency = status receipt to command send, from the "
             f"session log; first command = from the ready status it answers to its send; servo CPU = its "
-            f"utime + stime over the jog window; solve = cycle times the servo process publishes "
-            f"(sampled from /api/state; '-': none published).\n\n"
-            f"{HEADER}\n|---|---|---|---|---|---|---|---|---|---|---|---|\n" + "\n".join(rows) + f"\n\n{verdict}."
+            f"utime + stime over the jog window; solve = the motion step per command, cycle = a status's "
+            f"whole handling in the servo process, as it publishes them (sampled from /api/state; '-': none "
+            f"published); beside solve = cycle - solve.\n\n"
+            f"{HEADER}\n{'|---' * HEADER.count(' | ')}|---|\n" + "\n".join(rows) + f"\n\n{verdict}."
         )
         print("wrote", write_section("live_latency", cmd, text))
     return 0 if ok else 1

@@ -25,7 +25,11 @@ import numba
 F = TypeVar("F", bound=Callable[..., Any])
 
 # Modules that define kernels: imported by the warm-up below (add a module here when it gains kernels).
-KERNEL_MODULES: tuple[str, ...] = ("servo_app.motion.ik_kernels",)
+KERNEL_MODULES: tuple[str, ...] = (
+    "servo_app.motion.ik_kernels",
+    "servo_app.motion.settle",
+    "servo_app.fanuc.runner",
+)
 
 
 def kernel(signature: str | list[str]) -> Callable[[F], F]:

@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import multiprocessing as mp
 import os
+import select
 import signal
 import threading
 import time
@@ -78,6 +79,10 @@ class ServoProcessHost:
         self._start_waiters: list[int] = []
         self._last_phase: str | None = None
         self.log: SessionLogWriter | None = None
+        # The pipe polled by a poll object made once: Connection.poll() builds a selector per call
+        # (4 us here, every loop iteration), this one call costs 0.6 us.
+        self._pipe_poll = select.poll()
+        self._pipe_poll.register(conn.fileno(), select.POLLIN)
 
     # -- what each backend implements
     def _io_step(self) -> None:
@@ -153,7 +158,7 @@ class ServoProcessHost:
             return
         while True:
             try:
-                if not self.conn.poll():
+                if not self._pipe_poll.poll(0):  # readable, or hung up (then recv raises EOFError)
                     return
                 env = self.conn.recv()
             except (EOFError, OSError):  # the parent is gone
@@ -238,12 +243,18 @@ class ServoProcessHost:
             self._event(msg.SafetyChanged(view=self.sup.describe()))
         sv = self.state
         d = sv.data
-        d[OFFSET["published_unix"]] = time.time()
-        d[OFFSET["phase"]] = PHASES.index(self.sup.link_phase()[0])
-        d[OFFSET["mode"]] = MODES.index(self.sup.state.mode.value)
-        d[OFFSET["session_time"]] = time.monotonic() - self.t0
+        d[_PUBLISHED_UNIX] = time.time()
+        d[_PHASE] = _PHASE_INDEX[self.sup.link_phase()[0]]
+        d[_MODE] = _MODE_INDEX[self.sup.state.mode.value]
+        d[_SESSION_TIME] = time.monotonic() - self.t0
         self._publish_backend(sv)
         self.slot.write(d)  # the one write a reader sees
+
+
+_PUBLISHED_UNIX, _PHASE, _MODE, _SESSION_TIME = (OFFSET[k] for k in ("published_unix", "phase", "mode",
+                                                                     "session_time"))
+_PHASE_INDEX = {name: i for i, name in enumerate(PHASES)}
+_MODE_INDEX = {name: i for i, name in enumerate(MODES)}
 
 
 # ------------------------------------------------------------------------------------ parent side

@@ -28,8 +28,9 @@ Format (version 1), little-endian:
   20     9xf32 values: servo joints J1..J9 / X Y Z R (status); commanded values (command)
   ====== ===== ==============================================================================
 
-Every record goes to the kernel as it is written (one unbuffered ``write`` per record, after the
-datagram has left): a killed process, even by SIGKILL, loses nothing it logged.
+Every record goes to the kernel as it is written (unbuffered, after the datagram has left): a killed
+process, even by SIGKILL, loses nothing it logged. ``write_records`` hands a status and the commands
+that answered it to the kernel in one ``write`` (one system call per status packet instead of two).
 """
 
 from __future__ import annotations
@@ -56,6 +57,25 @@ RECORD_DTYPE = np.dtype(
 assert RECORD_DTYPE.itemsize == RECORD_SIZE == 56
 
 
+_ZEROS = (0.0,) * 9
+
+
+def status_record(t: float, seq: int, bits: int, io: int, joints: tuple[float, ...] | list[float]) -> bytes:
+    """One status record: the status bits (or Janome robot state), its read I/O value (error code) and
+    the servo joints (X Y Z R)."""
+    n = min(len(joints), 9)
+    return _RECORD.pack(KIND_STATUS, t, seq, bits, io, 0.0, *joints[:n], *_ZEROS[n:])
+
+
+def command_record(t: float, seq: int, last_data: int, data_format: int, io: int, latency_us: float,
+                   values: tuple[float, ...] | list[float]) -> bytes:
+    """One command record: ``last_data | data_format << 1``, the write I/O value, the latency from the
+    status's receipt to this command's send, and the commanded values."""
+    n = min(len(values), 9)
+    return _RECORD.pack(KIND_COMMAND, t, seq, last_data | (data_format << 1), io, latency_us, *values[:n],
+                        *_ZEROS[n:])
+
+
 class SessionLogWriter:
     def __init__(self, path: Path, header: dict[str, Any]) -> None:
         self.path = path
@@ -69,17 +89,16 @@ class SessionLogWriter:
         self.records = 0
 
     def status(self, t: float, seq: int, bits: int, io: int, joints: tuple[float, ...]) -> None:
-        self._write(KIND_STATUS, t, seq, bits, io, 0.0, joints)
+        self.write_records([status_record(t, seq, bits, io, joints)])
 
     def command(self, t: float, seq: int, last_data: int, data_format: int, io: int, latency_us: float,
-                values: tuple[float, ...]) -> None:
-        self._write(KIND_COMMAND, t, seq, last_data | (data_format << 1), io, latency_us, values)
+                values: tuple[float, ...] | list[float]) -> None:
+        self.write_records([command_record(t, seq, last_data, data_format, io, latency_us, values)])
 
-    def _write(self, kind: int, t: float, seq: int, flags: int, io: int, latency_us: float,
-               values: tuple[float, ...]) -> None:
-        vals = tuple(values[:9]) + (0.0,) * (9 - len(values[:9]))
-        self._f.write(_RECORD.pack(kind, t, seq, flags, io, latency_us, *vals))
-        self.records += 1
+    def write_records(self, records: list[bytes]) -> None:
+        """Records made by ``status_record`` / ``command_record``, to the kernel in one write."""
+        self._f.write(records[0] if len(records) == 1 else b"".join(records))
+        self.records += len(records)
 
     def close(self) -> None:
         if not self._f.closed:

@@ -34,6 +34,13 @@ _FIELDS: list[tuple[str, int]] = [
     ("malformed", 1),
     ("late_commands", 1),
     ("late_inputs", 1),  # solves again for an input that reached the slot during the solve
+    # Per-cycle compute times over the last 256 (median, maximum; 0 until there are 64): the motion step
+    # per command (IK, shaper, guards), and a status packet's whole handling in the servo process, from
+    # its receipt to the end of that loop's housekeeping (decode, safety, send, log, publish, requests).
+    ("solve_p50_us", 1),
+    ("solve_max_us", 1),
+    ("cycle_p50_us", 1),
+    ("cycle_max_us", 1),
     ("ik_active", 1),  # the last cycle was a Cartesian one (twist, pose target, braking on its path)
     ("ik_flags", 1),  # its IkFlag bits
     ("ik_scale", 1),  # the share of the commanded motion it delivered

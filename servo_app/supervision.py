@@ -184,6 +184,7 @@ class SupervisorBase:
         self._start_pending = False
         self._start_deadline = 0.0
         self.start_error = ""  # why the last start was given up
+        self._fed_actions: tuple[Action, ...] = ()
 
     # ------------------------------------------------------------ what each backend implements
     def _link_open(self, now: float) -> None:
@@ -256,6 +257,7 @@ class SupervisorBase:
         self.state = state
         for action in t.actions:
             self._do(action, now)
+        self._fed_actions = t.actions  # what this event set off (none, and the state kept: a fixed point)
         return t.error
 
     def _do(self, action: Action, now: float) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import struct
+from typing import Any
 
 import pytest
 from hypothesis import given
@@ -142,3 +143,25 @@ def test_encode_rejects_out_of_range_fields(field: str) -> None:
 def test_encode_rejects_too_many_values() -> None:
     with pytest.raises(P.PacketError, match="values has 10"):
         P.Command(seq=1, values=(0.0,) * 10).encode()
+
+
+def _encode_or_error(make: Any) -> bytes | str:
+    try:
+        return make()
+    except P.PacketError as exc:
+        return f"PacketError: {exc}"
+
+
+# Fields that go over their range now and then (and below zero): either both ways pack the same bytes,
+# or both raise the same PacketError naming the field.
+wide8, wide16, wide32 = (st.integers(-2, top + 2) | st.sampled_from([0, top]) for top in (255, 65535, 2**32 - 1))
+
+
+@given(seq=wide32, values=st.lists(st.floats(width=32), max_size=10), fmt=wide8, last=wide8, rt=wide8,
+       ri=wide16, rm=wide16, wt=wide8, wi=wide16, wm=wide16, wv=wide16)
+def test_pack_command_is_command_encode(seq, values, fmt, last, rt, ri, rm, wt, wi, wm, wv) -> None:
+    fast = _encode_or_error(lambda: P.pack_command(seq, values, fmt, last, (rt, ri, rm), (wt, wi, wm, wv)))
+    plain = _encode_or_error(lambda: P.Command(
+        seq=seq, values=tuple(values), data_format=fmt, last_data=last, read_io_type=rt, read_io_index=ri,
+        read_io_mask=rm, write_io_type=wt, write_io_index=wi, write_io_mask=wm, write_io_value=wv).encode())
+    assert fast == plain

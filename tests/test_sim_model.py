@@ -209,6 +209,21 @@ def test_600_first_command_with_an_old_seq() -> None:
     assert r.lines[0] == f"MOTN-600 ST:Sequence No error. PC {r.status.seq - 2}, Rob {r.status.seq}"
 
 
+def test_a_strict_controller_takes_the_first_command_only_for_the_latest_status() -> None:
+    """Issue 15's controller: a first command that answers the status before the latest (it came one
+    interval late) posts MOTN-600 "PC 20, Rob 21"; the latest one is taken."""
+    late, timely = Rig(ControllerConfig(strict_first_seq=True)), Rig(ControllerConfig(strict_first_seq=True))
+    for r in (late, timely):
+        r.ready()
+        r.tick()
+    late.send(late.cmd(np.zeros(6), seq=late.status.seq - 1))
+    assert late.codes() == ["MOTN-600"]
+    assert late.lines[0] == f"MOTN-600 ST:Sequence No error. PC {late.status.seq - 1}, Rob {late.status.seq}"
+    timely.send(timely.cmd(np.zeros(6)))
+    timely.tick()
+    assert timely.codes() == [] and timely.status.status & RECV
+
+
 def test_600_skipped_seq_is_found_when_processed() -> None:
     r = Rig()
     st = r.ready()

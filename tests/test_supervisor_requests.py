@@ -85,3 +85,28 @@ def test_every_refusal_by_the_state_ends_with_the_next_step(state_name: str, req
         assert NEXT.search(str(exc)), str(exc)
         assert "Requested" not in str(exc), str(exc)  # the operator's words, not the state machine's
     cell.sup.request(Stop(), cell.t)
+
+
+def test_a_steady_status_skips_the_state_machine_and_a_changed_one_still_reaches_it(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Streaming status packets with the same bits leave the safety state as it was (the transition is
+    pure): the supervisor runs it once for them, not once per packet; a new bit is fed at once."""
+    import servo_app.supervision as supervision
+
+    fed: list[str] = []
+    real = supervision.transition
+
+    def counting(state, event):  # type: ignore[no-untyped-def]
+        fed.append(type(event).__name__)
+        return real(state, event)
+
+    cell = Cell()
+    cell.start()
+    monkeypatch.setattr(supervision, "transition", counting)
+    for _ in range(50):
+        cell.cycle()
+    assert cell.sup.state.mode is Mode.STREAMING and fed.count("StatusReceived") <= 2  # moving bit: one change
+    cell.ctrl.abort_program()  # bit 0 falls: the controller stopped waiting for commands
+    for _ in range(3):
+        cell.cycle()
+    assert cell.sup.state.mode is Mode.FAULT and "StatusReceived" in fed[-3:]

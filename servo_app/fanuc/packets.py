@@ -284,8 +284,31 @@ class LimitTableResponse:
         )
 
 
+_ZEROS = (0.0,) * N_AXES
+
+
+def pack_command(seq: int, values: tuple[float, ...] | list[float], data_format: int = DataFormat.JOINT,
+                 last_data: int = 0, read_io: tuple[int, int, int] = (0, 0, 0),
+                 write_io: tuple[int, int, int, int] = (0, 0, 0, 0)) -> bytes:
+    """``Command(seq, values, data_format, last_data, *read_io, *write_io).encode()`` without building
+    the Command: the same bytes for integer fields in range, in ~1 us instead of ~6 (the session makes
+    one per status packet). ``read_io`` is (type, index, mask), ``write_io`` (type, index, mask, value).
+    A field that does not fit goes through Command's checks, which raise PacketError naming it."""
+    n = len(values)
+    if n <= N_AXES:
+        try:
+            return _COMMAND.pack(PacketType.COMMAND, PROTOCOL_VERSION, seq, last_data, *read_io, data_format,
+                                 *write_io, 0, *values, *_ZEROS[n:])
+        except struct.error:
+            pass
+    return Command(seq, tuple(values), data_format, last_data, *read_io, *write_io).encode()
+
+
 RobotBound = Status | LimitTableResponse
 ControllerBound = StatusStart | StatusStop | Command | LimitTableRequest
+
+
+_new = object.__new__
 
 
 def _check_version(version: int, expected: int | None) -> None:
@@ -303,19 +326,13 @@ def decode_from_robot(data: bytes, version: int | None = PROTOCOL_VERSION) -> Ro
             raise PacketError(f"length={len(data)} is wrong for a status packet, expected {STATUS_SIZE}")
         _check_version(ver, version)
         f = _STATUS.unpack(data)
-        return Status(
-            seq=f[2],
-            status=f[3],
-            read_io_type=f[4],
-            read_io_index=f[5],
-            read_io_mask=f[6],
-            read_io_value=f[7],
-            timestamp_ms=f[8],
-            cartesian=tuple(f[9:18]),
-            joints=tuple(f[18:27]),
-            currents=tuple(f[27:36]),
-            version=ver,
-        )
+        # Every field straight into the instance's __dict__, as the frozen dataclass's own __init__
+        # would set them one object.__setattr__ at a time: half the cost of a status packet's decode.
+        st = _new(Status)
+        st.__dict__.update(seq=f[2], status=f[3], read_io_type=f[4], read_io_index=f[5], read_io_mask=f[6],
+                           read_io_value=f[7], timestamp_ms=f[8], cartesian=f[9:18], joints=f[18:27],
+                           currents=f[27:36], version=ver)
+        return st
     if ptype == PacketType.LIMIT_TABLE:
         if len(data) != LIMIT_RESPONSE_SIZE:
             raise PacketError(

@@ -27,9 +27,10 @@ import numpy as np
 
 from servo_app import messages as msg
 from servo_app.fanuc.packets import ROBOT_PORT, Status
-from servo_app.fanuc.session import Phase, SessionConfig
+from servo_app.fanuc.session import MotionSource, Phase, SessionConfig
 from servo_app.fanuc.supervisor import StreamSupervisor
 from servo_app.input_slot import InputSlotReader
+from servo_app.jit import kernel
 from servo_app.messages import Ready
 from servo_app.motion.servo import ServoCycle, ServoSettings
 from servo_app.motion.settle import SettleDetector
@@ -38,6 +39,7 @@ from servo_app.realtime import WakeLatencyHold, make_realtime
 from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.profile import load_profile
 from servo_app.safety import Mode
+from servo_app.session_log import command_record, status_record
 from servo_app.state import FIELDS, LATENCY_BUCKETS_US, MODES, OFFSET, PHASES, StateVector
 
 assert all(p.value in PHASES for p in Phase)
@@ -78,41 +80,48 @@ class StreamConfig:
 
 
 class _CommandHistory:
-    """The last four commanded positions in a preallocated array, and their finite differences as
+    """The last four commanded positions in a preallocated ring, and their finite differences as
     the controller computes them (``state.command_derivatives``, without allocating in the cycle)."""
 
     def __init__(self, dof: int, dt: float) -> None:
         self.dof, self.dt = dof, dt
         self.q = np.zeros((4, dof))
-        self._v = np.zeros((3, dof))
-        self._a = np.zeros((2, dof))
+        self.newest = 0  # the row of q holding the newest command
         self.n = 0  # commands since clear()
 
     def clear(self) -> None:
         self.n = 0
 
     def add(self, values: tuple[float, ...]) -> None:
-        q = self.q
         if self.n == 0:  # at the start, the first command stands in for the ones not sent yet
-            q[:] = values[: self.dof]
+            self.q[:] = values[: self.dof]
         else:
-            q[:-1] = q[1:]
-            q[-1] = values[: self.dof]
+            self.newest = (self.newest + 1) % 4
+            self.q[self.newest] = values[: self.dof]
         self.n += 1
 
     def write(self, d: np.ndarray) -> None:
         """q_cmd, vel, acc and jerk into the state vector ``d`` (the same arithmetic as np.diff)."""
-        q, v, a, dt, n = self.q, self._v, self._a, self.dt, self.dof
-        d[_Q_CMD: _Q_CMD + n] = q[-1]
-        np.subtract(q[1:], q[:-1], out=v)
-        v /= dt
-        np.subtract(v[1:], v[:-1], out=a)
-        a /= dt
-        d[_VEL: _VEL + n] = v[-1]
-        d[_ACC: _ACC + n] = a[-1]
-        jerk = d[_JERK: _JERK + n]
-        np.subtract(a[1], a[0], out=jerk)
-        jerk /= dt
+        _write_derivatives(self.q, self.newest, self.dt, d, _Q_CMD, _VEL, _ACC, _JERK)
+
+
+@kernel("void(float64[:, ::1], int64, float64, float64[::1], int64, int64, int64, int64)")
+def _write_derivatives(q: np.ndarray, newest: int, dt: float, d: np.ndarray, at_q: int, at_v: int, at_a: int,
+                       at_j: int) -> None:
+    """The newest of the four commands in ring ``q`` and its backward differences divided by ``dt``, in
+    np.diff's order of operations (so the state shows exactly what command_derivatives computes)."""
+    n = q.shape[1]
+    r0, r1, r2, r3 = (newest + 1) % 4, (newest + 2) % 4, (newest + 3) % 4, newest  # oldest .. newest
+    for i in range(n):
+        v0 = (q[r1, i] - q[r0, i]) / dt
+        v1 = (q[r2, i] - q[r1, i]) / dt
+        v2 = (q[r3, i] - q[r2, i]) / dt
+        a0 = (v1 - v0) / dt
+        a1 = (v2 - v1) / dt
+        d[at_q + i] = q[r3, i]
+        d[at_v + i] = v2
+        d[at_a + i] = a1
+        d[at_j + i] = (a1 - a0) / dt
 
 
 _Q_CMD, _VEL, _ACC, _JERK = (OFFSET[k] for k in ("q_cmd", "vel", "acc", "jerk"))
@@ -142,6 +151,51 @@ class _Latency:
         return float(p50), float(p99)
 
 
+class _TimeWindow:
+    """The last ``size`` samples of a per-cycle time (us) in a preallocated ring; its median and maximum
+    are refreshed every ``every`` samples (a median of 256 costs ~20 us: a few per second is plenty for
+    a display, and nothing is computed in between)."""
+
+    def __init__(self, size: int = 256, every: int = 64) -> None:
+        self.ring = np.zeros(size)
+        self.every = every
+        self.count = 0
+        self.p50_us = 0.0
+        self.max_us = 0.0
+
+    def add(self, us: float) -> None:
+        ring = self.ring
+        ring[self.count % ring.size] = us
+        self.count += 1
+        if self.count % self.every == 0:
+            filled = ring[: min(self.count, ring.size)]
+            self.p50_us = float(np.median(filled))
+            self.max_us = float(filled.max())
+
+
+class _TimedMotion:
+    """The servo cycle as the stream session sees it, with the time of each ``next_command`` (the
+    motion step: IK, shaper, guards) kept in ``window``. Two clock reads per command (~0.1 us)."""
+
+    def __init__(self, cycle: MotionSource, window: _TimeWindow) -> None:
+        self.cycle, self.window = cycle, window
+
+    def begin(self, q_start: np.ndarray, tables: Any) -> None:
+        self.cycle.begin(q_start, tables)
+
+    def next_command(self, status: Status) -> np.ndarray:
+        t = time.perf_counter()
+        q = self.cycle.next_command(status)
+        self.window.add((time.perf_counter() - t) * 1e6)
+        return q
+
+    def request_rest(self) -> None:
+        self.cycle.request_rest()
+
+    def at_rest(self) -> bool:
+        return self.cycle.at_rest()
+
+
 class _ServoProcess(ServoProcessHost):
     def __init__(self, cfg: StreamConfig, conn: Connection, slot_name: str) -> None:
         super().__init__(conn, slot_name)
@@ -157,6 +211,11 @@ class _ServoProcess(ServoProcessHost):
         self.sup = StreamSupervisor(self.cycle, SessionConfig(
             lead=cfg.lead, status_timeout_s=cfg.status_timeout_s, link_timeout_s=cfg.link_timeout_s,
             max_payload_kg=self.profile.max_payload_kg), start_timeout_s=cfg.start_timeout_s)
+        # Per-cycle compute times, published (solve_*_us, cycle_*_us): the motion step per command, and
+        # a status's whole handling here, from its receipt to the end of the loop's housekeeping.
+        self.solve_time, self.cycle_time = _TimeWindow(), _TimeWindow()
+        self.sup.session.motion = _TimedMotion(self.cycle, self.solve_time)
+        self._handled_status = False  # this loop iteration handled a datagram (its cycle time is due)
         self.inputs = InputSlotReader(cfg.input_slot) if cfg.input_slot else None
         self._t_recv = 0.0  # when the status packet being answered arrived
         late_ms = self.dt * 1000 / 4 if cfg.late_input_ms is None else cfg.late_input_ms
@@ -216,6 +275,9 @@ class _ServoProcess(ServoProcessHost):
         self.latency.add(100.0, self.late_us)
         self.latency.percentiles()
         self.latency = _Latency()
+        window = _TimeWindow()
+        for _ in range(window.every):  # np.median's first call
+            window.add(1.0)
         cycle = ServoCycle(self.profile, self.dt, self.cycle.settings)
         q0 = np.zeros(self.profile.dof)
         q0[4] = -90.0  # wrist bent: a regular pose, away from every configuration boundary
@@ -259,6 +321,7 @@ class _ServoProcess(ServoProcessHost):
             t_sent = time.monotonic()
             self.sup.session.begin_motion()  # a stream's first commands (the hold) left first
             self._after_datagram(now, t_sent, t_first)
+            self._handled_status = True
         else:
             self._send(self.sup.on_idle(now))
 
@@ -267,6 +330,9 @@ class _ServoProcess(ServoProcessHost):
         # Last, once requests and signals are in: the next status finds the first command ready if it
         # starts the stream.
         self.sup.prepare_first_command()
+        if self._handled_status:
+            self._handled_status = False
+            self.cycle_time.add((time.monotonic() - self._t_recv) * 1e6)
 
     def _deliver_signal(self, sig: int, now: float) -> None:
         self._send(self.sup.signal(sig, now))
@@ -304,22 +370,24 @@ class _ServoProcess(ServoProcessHost):
         st = s.last_status
         if st is None or self.log is None:
             return
-        t = t_recv - self.t0
+        records = []
         if st.seq != self._logged_seq:
             self._logged_seq = st.seq
-            self.log.status(t, st.seq, st.status, st.read_io_value, st.joints)
+            records.append(status_record(t_recv - self.t0, st.seq, st.status, st.read_io_value, st.joints))
             if self.last_status_t:
-                self.state.set("status_interval_last_ms", (t_recv - self.last_status_t) * 1000)
+                self.state.data[_STATUS_INTERVAL] = (t_recv - self.last_status_t) * 1000
             self.last_status_t = t_recv
-        for sent in s.sent:
-            c = sent.command
-            t = t_first if sent.early else t_sent
+        for c in s.sent:
+            t = t_first if c.early else t_sent
             lat_us = (t - t_recv) * 1e6
-            self.log.command(t - self.t0, c.seq, c.last_data, c.data_format, c.write_io_value, lat_us, c.values)
+            records.append(command_record(t - self.t0, c.seq, c.last_data, c.data_format, c.write_io[3], lat_us,
+                                          c.values))
             self.latency.add(lat_us, self.late_us)
             self.lat_hist[bisect.bisect_left(LATENCY_BUCKETS_US, lat_us)] += 1  # le semantics
             self.lat_sum_us += lat_us
             self.hist.add(c.values)
+        if records:  # the status and its answers in one write, after they left
+            self.log.write_records(records)
         s.sent = []
 
     def _open_stream_log(self) -> None:
@@ -397,6 +465,10 @@ class _ServoProcess(ServoProcessHost):
             d[F["latency_max_us"]] = lat.max_us
             d[F["late_commands"]] = lat.late
         d[F["late_inputs"]] = c.late_inputs
+        d[F["solve_p50_us"]] = self.solve_time.p50_us
+        d[F["solve_max_us"]] = self.solve_time.max_us
+        d[F["cycle_p50_us"]] = self.cycle_time.p50_us
+        d[F["cycle_max_us"]] = self.cycle_time.max_us
         ik = c.last_ik if c.ik_active else None
         d[F["ik_active"]] = ik is not None
         d[F["ik_flags"]] = ik.flags if ik else 0.0
@@ -419,6 +491,7 @@ class _ServoProcess(ServoProcessHost):
 
 
 _Q_SERVO, _CART_SERVO, _LAT_HIST = (OFFSET[k] for k in ("q_servo", "cart_servo", "latency_hist"))
+_STATUS_INTERVAL = OFFSET["status_interval_last_ms"]
 assert FIELDS["latency_hist"].stop - _LAT_HIST == len(LATENCY_BUCKETS_US) + 1
 
 

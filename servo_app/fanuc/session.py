@@ -46,6 +46,7 @@ from servo_app.fanuc.packets import (
     StatusStop,
     decode_from_robot,
     next_seq,
+    pack_command,
     seq_diff,
 )
 from servo_app.motion.limit_tables import LimitTables, tables_from_rows
@@ -57,6 +58,12 @@ _READY_MASK = (StatusBit.WAITING_FOR_COMMAND | StatusBit.COMMAND_RECEIVED | Stat
                | StatusBit.MOVING)
 _READY_BITS = StatusBit.WAITING_FOR_COMMAND | StatusBit.SYSRDY
 _JOINTS = struct.Struct(">9f")  # a status packet's J1..J9
+
+
+def _floats(q: np.ndarray | tuple[float, ...] | list[float]) -> list[float]:
+    """A command's values as Python floats (ndarray.tolist: one call, where a generator of float()
+    took 1.5 us for six)."""
+    return q.tolist() if isinstance(q, np.ndarray) else [float(v) for v in q]
 
 
 class Phase(StrEnum):
@@ -88,12 +95,19 @@ class MotionSource(Protocol):
 
 @dataclass
 class IoRequest:
-    """Read (sticky) and write (one-shot) I/O carried by command packets."""
+    """Read (sticky) and write (one-shot) I/O carried by command packets. Checked when made (PacketError
+    naming the field), so that a bad one is refused with its request, never in a cycle's encode."""
 
     io_type: int
     index: int
     mask: int = 0xFFFF
     value: int = 0
+
+    def __post_init__(self) -> None:
+        for name, top in (("io_type", 0xFF), ("index", 0xFFFF), ("mask", 0xFFFF), ("value", 0xFFFF)):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or not 0 <= v <= top:
+                raise PacketError(f"{name}={v!r} is not an unsigned integer in 0..{top}")
 
 
 @dataclass
@@ -124,13 +138,39 @@ class SessionStats:
     last_error: str = ""
 
 
-@dataclass
 class SentCommand:
-    """What went out in one datagram; the runner logs it."""
+    """What went out in one datagram; the runner logs it. The fields the log needs are kept as made
+    (the session packs the datagram straight from them, one per status packet); ``command`` builds
+    the :class:`Command` they describe on demand."""
 
-    command: Command
-    data: bytes
-    early: bool = False  # sent by the runner ahead of the rest (first_command_early)
+    __slots__ = ("data", "data_format", "early", "last_data", "read_io", "seq", "values", "write_io")
+
+    def __init__(self, seq: int, values: tuple[float, ...] | list[float], data_format: int, last_data: int,
+                 read_io: tuple[int, int, int], write_io: tuple[int, int, int, int], data: bytes,
+                 early: bool = False) -> None:
+        self.seq, self.values, self.data_format, self.last_data = seq, values, data_format, last_data
+        self.read_io, self.write_io = read_io, write_io
+        self.data = data
+        self.early = early  # sent by the runner ahead of the rest (first_command_early)
+
+    @property
+    def write_io_value(self) -> int:
+        return self.write_io[3]
+
+    @property
+    def command(self) -> Command:
+        return Command(seq=self.seq, values=tuple(self.values), data_format=self.data_format,
+                       last_data=self.last_data, read_io_type=self.read_io[0], read_io_index=self.read_io[1],
+                       read_io_mask=self.read_io[2], write_io_type=self.write_io[0],
+                       write_io_index=self.write_io[1], write_io_mask=self.write_io[2],
+                       write_io_value=self.write_io[3])
+
+    def __repr__(self) -> str:
+        return f"SentCommand({self.command!r}, early={self.early})"
+
+
+_NO_READ = (0, 0, 0)
+_NO_WRITE = (0, 0, 0, 0)
 
 
 @dataclass
@@ -487,28 +527,22 @@ class StreamSession:
         self._q_last = q
         write = self._io_writes.pop(0) if self._io_writes else None
         read = self.io_read
-        cmd = Command(
-            seq=self._next_cmd_seq,
-            values=tuple(float(v) for v in (self.to_cartesian(q) if self.to_cartesian else q)),
-            data_format=DataFormat.CARTESIAN if self.to_cartesian else DataFormat.JOINT,
-            last_data=last,
-            read_io_type=read.io_type if read else 0,
-            read_io_index=read.index if read else 0,
-            read_io_mask=read.mask if read else 0,
-            write_io_type=write.io_type if write else 0,
-            write_io_index=write.index if write else 0,
-            write_io_mask=write.mask if write else 0,
-            write_io_value=write.value if write else 0,
-        )
-        data = cmd.encode()
+        seq = self._next_cmd_seq
+        if self.to_cartesian is None:
+            fmt, values = DataFormat.JOINT, _floats(q)
+        else:
+            fmt, values = DataFormat.CARTESIAN, _floats(self.to_cartesian(q))
+        read_io = _NO_READ if read is None else (read.io_type, read.index, read.mask)
+        write_io = _NO_WRITE if write is None else (write.io_type, write.index, write.mask, write.value)
         early = self._early_sent
-        ahead = early is not None and early[0] == cmd.seq
+        ahead = early is not None and early[0] == seq
         if early is not None and ahead:  # it went out before this status was decoded: not again
             self._early_sent = None
-            self.sent.append(SentCommand(cmd, early[1], early=True))
+            data = early[1]
         else:
-            self.sent.append(SentCommand(cmd, data))
-        self._next_cmd_seq = next_seq(self._next_cmd_seq)
+            data = pack_command(seq, values, fmt, last, read_io, write_io)
+        self.sent.append(SentCommand(seq, values, fmt, last, read_io, write_io, data, early=ahead))
+        self._next_cmd_seq = next_seq(seq)
         self._sent_since_start += 1
         self.stats.commands_sent += 1
         if last:

@@ -26,7 +26,7 @@ import numpy as np
 from servo_app import messages as msg
 from servo_app.errors import CommandRejected, InvalidRequest
 from servo_app.fanuc.alarms import ALARMS
-from servo_app.fanuc.packets import IoType, LimitTableResponse, Status
+from servo_app.fanuc.packets import IoType, LimitTableResponse, Status, StatusBit
 from servo_app.fanuc.session import IoRequest, Phase, SessionConfig, StreamSession
 from servo_app.input_slot import POSE, TWIST, InputCommand
 from servo_app.motion.commands import PoseTarget, Twist
@@ -37,6 +37,7 @@ from servo_app.safety import (
     SEND_FIRST_COMMAND,
     ControllerAlarm,
     Mode,
+    SafetyState,
     ShaperAtRest,
     Signal,
     StartRequested,
@@ -45,6 +46,10 @@ from servo_app.safety import (
     transition,
 )
 from servo_app.supervision import SupervisorBase, check_count, check_speeds, next_step
+
+# The status bits a StatusReceived event carries (bit 0, bit 1, SYSRDY, moving).
+_STATUS_EVENT_BITS = int(StatusBit.WAITING_FOR_COMMAND | StatusBit.COMMAND_RECEIVED | StatusBit.SYSRDY
+                         | StatusBit.MOVING)
 
 # A pose whose X, Y and Z all lie within this many mm of the base was almost surely sent in metres.
 METRES_SUSPECT_MM = 5.0
@@ -84,6 +89,9 @@ class StreamSupervisor(SupervisorBase):
         self.cycle = self.motion = cycle
         self.session = StreamSession(cycle, session_config or SessionConfig())
         self._out: list[bytes] = []
+        # A status's bits and the state they left as it was, with no action: the fixed point _on_status_before skips.
+        self._steady_bits = -1
+        self._steady_state: SafetyState | None = None
 
     # ------------------------------------------------------------------- the link
     def _link_open(self, now: float) -> None:
@@ -279,8 +287,15 @@ class StreamSupervisor(SupervisorBase):
         prev = self.session.last_status
         if prev is not None and prev.seq == st.seq:
             return  # a duplicate carries no news
-        self._feed(StatusReceived(bit0=st.waiting_for_command, bit1=st.command_received, sysrdy=st.sysrdy,
-                                  moving=st.moving), now)
+        bits = st.status & _STATUS_EVENT_BITS
+        # The transition is pure: the same bits into the very state they left unchanged (no action)
+        # leave it unchanged again, so a streaming cycle does not build the event and run it each time.
+        if bits != self._steady_bits or self.state is not self._steady_state:
+            before = self.state
+            self._feed(StatusReceived(bit0=st.waiting_for_command, bit1=st.command_received, sysrdy=st.sysrdy,
+                                      moving=st.moving), now)
+            steady = self.state is before and not self._fed_actions
+            self._steady_bits, self._steady_state = (bits, before) if steady else (-1, None)
         # A start after an ended stream stays in ended (not ready) while the controller comes back to
         # IBGN start: the waiting status there is as good as ready.
         if self.session.phase != Phase.FETCHING_TABLES:

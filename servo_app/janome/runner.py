@@ -36,7 +36,7 @@ from servo_app.messages import PeerConnected, PeerDisconnected, PeerRefused, Rea
 from servo_app.motion.settle import SettleDetector
 from servo_app.process_handle import ServoProcessHandle, ServoProcessHost, run_child
 from servo_app.safety import Mode, safe_to_exit
-from servo_app.state import MODES, PHASES, StateVector, command_derivatives
+from servo_app.state import FIELDS, MODES, OFFSET, PHASES, StateVector, command_derivatives
 
 assert all(p.value in PHASES for p in Phase)
 assert all(m.value in MODES for m in Mode)
@@ -195,10 +195,10 @@ class _JanomeServoProcess(ServoProcessHost):
         if st is not None and st.seq != self._settle_seq:  # a new status: where the last move ended
             self._settle_seq = st.seq
             self.settle.add(t_recv, st.xyzr)
-            self.state.set("status_unix", time.time() - (time.monotonic() - t_recv))
+            self.state.data[OFFSET["status_unix"]] = time.time() - (time.monotonic() - t_recv)
         if st is not None:
             if self.last_status_t:
-                self.state.set("status_interval_last_ms", (t_recv - self.last_status_t) * 1000)
+                self.state.data[OFFSET["status_interval_last_ms"]] = (t_recv - self.last_status_t) * 1000
             self.last_status_t = t_recv
         if self.motion.last is not None:
             self.hist.append(self.motion.last.copy())
@@ -250,38 +250,49 @@ class _JanomeServoProcess(ServoProcessHost):
 
     # -- publishing
     def _publish_backend(self, sv: StateVector) -> None:
+        # Straight into the vector by offset, as FANUC's: the slot then takes it in its one write.
         self._last_pub = time.monotonic()
-        s, m = self.sup.session, self.motion
+        d, s, m, F = sv.data, self.sup.session, self.motion, OFFSET
         st = s.last_status
         if st is not None:
-            sv.set("status_seq", st.seq)
-            sv.set("status_bits", int(st.state) | int(st.error) << 8)
-            sv.set("q_servo", _pad(st.xyzr))
-            sv.set("cart_servo", np.array([st.x, st.y, st.z, 0.0, 0.0, st.r]))
-        for k in ("commands_sent", "status_received", "status_lost", "status_duplicated", "malformed"):
-            sv.set(k, getattr(s.stats, k))
+            d[F["status_seq"]] = st.seq
+            d[F["status_bits"]] = int(st.state) | int(st.error) << 8
+            q = d[_Q_SERVO: _Q_SERVO + 6]
+            q[:4] = st.xyzr
+            q[4:] = 0.0
+            d[_CART_SERVO: _CART_SERVO + 6] = (st.x, st.y, st.z, 0.0, 0.0, st.r)
+        stats = s.stats
+        d[F["commands_sent"]] = stats.commands_sent
+        d[F["status_received"]] = stats.status_received
+        d[F["status_lost"]] = stats.status_lost
+        d[F["status_duplicated"]] = stats.status_duplicated
+        d[F["malformed"]] = stats.malformed
         if self.lat_us:
             a = np.fromiter(self.lat_us, float)
-            sv.set("latency_last_us", a[-1])
-            sv.set("latency_p50_us", float(np.percentile(a, 50)))
-            sv.set("latency_p99_us", float(np.percentile(a, 99)))
-            sv.set("latency_max_us", self.lat_max)
-        sv.set("at_rest", float(m.at_rest()))
-        sv.set("settled", float(m.at_rest() and self.settle.settled))
-        sv.set("stopped", float(m.stopped))
-        sv.set("vel_limit", _pad(m.vel))
-        sv.set("acc_limit", _pad(m.acc))
-        sv.set("jerk_limit", _pad(m.jerk))
+            d[F["latency_last_us"]] = a[-1]
+            d[F["latency_p50_us"]], d[F["latency_p99_us"]] = np.percentile(a, [50, 99])
+            d[F["latency_max_us"]] = self.lat_max
+        at_rest = m.at_rest()
+        d[F["at_rest"]] = at_rest
+        d[F["settled"]] = at_rest and self.settle.settled
+        d[F["stopped"]] = m.stopped
+        _put(d, "vel_limit", m.vel)
+        _put(d, "acc_limit", m.acc)
+        _put(d, "jerk_limit", m.jerk)
         if self.hist:
             for key, value in command_derivatives(self.hist, m.step_s).items():
-                sv.set(key, _pad(value))
+                _put(d, key, value)
 
 
-def _pad(v: Any) -> np.ndarray:
-    out = np.zeros(6)
-    a = np.asarray(v, dtype=float)[:6]
-    out[: a.size] = a
-    return out
+_Q_SERVO, _CART_SERVO = OFFSET["q_servo"], OFFSET["cart_servo"]
+
+
+def _put(d: np.ndarray, name: str, v: Any) -> None:
+    """A vector field of up to 6 values (X Y Z R here), the rest zero."""
+    sl = FIELDS[name]
+    a = np.asarray(v, dtype=float).reshape(-1)[: sl.stop - sl.start]
+    d[sl.start: sl.start + a.size] = a
+    d[sl.start + a.size: sl.stop] = 0.0
 
 
 def _child_main(cfg_dict: dict[str, Any], conn: Connection, slot_name: str) -> None:

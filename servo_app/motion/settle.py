@@ -6,46 +6,119 @@ last move, 4 mm further on). ``settled`` says the reported position itself has s
 of the last ``window_s`` lies within ``tol`` of the others, per axis, and the window holds at least
 ``min_samples`` samples (a single status proves nothing).
 
-Pure: the runner hands it each new status's time and position.
+Pure: the runner hands it each new status's time and position. The samples live in a preallocated
+ring and each one costs one compiled call (:func:`_settle_add`: it appends, drops what left the window
+and judges the window in one pass), where the deque of arrays and ``np.stack`` it replaces cost
+about 25 us per status here, a tenth of a 4 ms cycle's budget outside the IK.
 """
 
 from __future__ import annotations
 
-from collections import deque
+import math
 from collections.abc import Sequence
 
 import numpy as np
 
+from servo_app.jit import kernel
+
+MAX_AXES = 9  # J1..J9 (FANUC) or X Y Z R (Janome): the ring's width
+
+
+@kernel("int64(float64[::1], float64[:, ::1], int64[::1], float64, float64[::1], int64, float64, float64, int64)")
+def _settle_add(ts: np.ndarray, ps: np.ndarray, ring: np.ndarray, t: float, p: np.ndarray, n_axes: int,
+                window_s: float, tol: float, min_samples: int) -> int:
+    """Append sample (t, p[:n_axes]) to the ring (``ring`` = [head, count]: the oldest slot and how many
+    are kept), drop the samples before the window's start but one, and judge the window.
+
+    Returns 1 settled, 0 not settled, -1 the ring is full (nothing changed: the caller grows it and
+    calls again). The arithmetic is numpy's: the range per axis is max - min with NaN propagating, and
+    ``range <= tol`` decides, so a NaN or an infinity anywhere in the window is never settled."""
+    cap = ts.shape[0]
+    head, count = ring[0], ring[1]
+    if count == cap:
+        # Full: free the oldest slot only if it has left the window anyway (as the loop below would).
+        if count >= 2 and ts[(head + 1) % cap] <= t - window_s:
+            head = (head + 1) % cap
+            count -= 1
+        else:
+            return -1
+    slot = (head + count) % cap
+    ts[slot] = t
+    for j in range(n_axes):
+        ps[slot, j] = p[j]
+    count += 1
+    # Keep one sample at or before the window's start: the window is then covered from its start.
+    while count >= 2 and ts[(head + 1) % cap] <= t - window_s:
+        head = (head + 1) % cap
+        count -= 1
+    ring[0], ring[1] = head, count
+    covered = t - ts[head] >= window_s
+    finite = True
+    for j in range(n_axes):
+        if not math.isfinite(p[j]):
+            finite = False
+    if not covered or count < min_samples or not finite:
+        return 0
+    for j in range(n_axes):
+        hi = ps[head, j]
+        lo = hi
+        for k in range(1, count):
+            v = ps[(head + k) % cap, j]
+            if math.isnan(v) or math.isnan(hi):
+                hi = math.nan
+            elif v > hi:
+                hi = v
+            if math.isnan(v) or math.isnan(lo):
+                lo = math.nan
+            elif v < lo:
+                lo = v
+        if not hi - lo <= tol:
+            return 0
+    return 1
+
 
 class SettleDetector:
-    def __init__(self, tol: float, window_s: float, min_samples: int = 3) -> None:
+    def __init__(self, tol: float, window_s: float, min_samples: int = 3, capacity: int = 64) -> None:
         if not (tol > 0 and window_s > 0 and min_samples >= 2):
             raise ValueError(f"tol={tol} and window_s={window_s} must be > 0, min_samples={min_samples} >= 2")
         self.tol = tol
         self.window_s = window_s
         self.min_samples = min_samples
-        self._samples: deque[tuple[float, np.ndarray]] = deque()
+        self._ts = np.zeros(capacity)
+        self._ps = np.zeros((capacity, MAX_AXES))
+        self._ring = np.zeros(2, dtype=np.int64)  # head, count
+        self._p = np.zeros(MAX_AXES)  # the sample being added, as the kernel takes it
+        self._n_axes = 0
         self.settled = False
 
     def reset(self) -> None:
         """A new link: nothing is known about the feedback until it has been watched for a window."""
-        self._samples.clear()
+        self._ring[:] = 0
         self.settled = False
 
     def add(self, t: float, position: Sequence[float] | np.ndarray) -> bool:
         """One feedback sample at time ``t`` (s, monotonic); returns (and keeps) ``settled``."""
-        p = np.asarray(position, dtype=float)
-        s = self._samples
-        if s and (t < s[-1][0] or s[-1][1].shape != p.shape):
-            s.clear()  # a clock or an axis count that goes back: start watching afresh
-        s.append((t, p))
-        # Keep one sample at or before the window's start: the window is then covered from its start.
-        while len(s) >= 2 and s[1][0] <= t - self.window_s:
-            s.popleft()
-        covered = t - s[0][0] >= self.window_s
-        if not covered or len(s) < self.min_samples or not np.all(np.isfinite(p)):
-            self.settled = False
-            return False
-        a = np.stack([q for _, q in s])
-        self.settled = bool(np.all(a.max(axis=0) - a.min(axis=0) <= self.tol))
+        n = len(position)
+        if n > MAX_AXES:
+            raise ValueError(f"{n} axes: at most {MAX_AXES}")
+        ts, ring = self._ts, self._ring
+        if ring[1] and (n != self._n_axes or t < ts[(ring[0] + ring[1] - 1) % ts.size]):
+            ring[:] = 0  # a clock or an axis count that goes back: start watching afresh
+        self._n_axes = n
+        p = self._p
+        p[:n] = position
+        r = _settle_add(ts, self._ps, ring, float(t), p, n, self.window_s, self.tol, self.min_samples)
+        if r < 0:  # more samples in the window than the ring holds (a fast link): twice the room
+            self._grow()
+            r = _settle_add(self._ts, self._ps, ring, float(t), p, n, self.window_s, self.tol, self.min_samples)
+        self.settled = r == 1
         return self.settled
+
+    def _grow(self) -> None:
+        head, count = (int(v) for v in self._ring)
+        order = (head + np.arange(count)) % self._ts.size
+        cap = 2 * self._ts.size
+        ts, ps = np.zeros(cap), np.zeros((cap, MAX_AXES))
+        ts[:count], ps[:count] = self._ts[order], self._ps[order]
+        self._ts, self._ps = ts, ps
+        self._ring[:] = (0, count)

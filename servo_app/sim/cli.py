@@ -27,6 +27,9 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
     f.add_argument("--joints", default=None, help="initial joints J1..J6, FANUC deg, comma-separated")
     f.add_argument("--no-cartesian", action="store_true",
                    help="model a robot without Cartesian format (MOTN-619 for data format 0)")
+    f.add_argument("--strict-first-seq", action="store_true",
+                   help="take a stream's first command only as the answer to the latest status (MOTN-600 "
+                        "otherwise), as a strict controller does; default: the latest or the one before")
     f.add_argument("--jitter-ms", type=float, default=0.0, help="tick jitter +- ms (1 at 8 ms: 6-10 ms)")
     f.add_argument("--drop", type=float, default=0.0, help="status packet drop probability")
     f.add_argument("--seed", type=int, default=0, help="fault injection RNG seed")
@@ -46,7 +49,8 @@ def _run_fanuc(args: argparse.Namespace) -> int:
     try:
         joints = None if args.joints is None else [float(v) for v in args.joints.split(",")]
         config = ControllerConfig(pkt_stack=args.pkt_stack, start_move=args.start_move,
-                                  payload_kg=args.payload, cartesian_supported=not args.no_cartesian)
+                                  payload_kg=args.payload, cartesian_supported=not args.no_cartesian,
+                                  strict_first_seq=args.strict_first_seq)
         faults = FaultConfig(drop_prob=args.drop, jitter_s=args.jitter_ms / 1000.0, seed=args.seed)
         sim = FanucSimulator(args.host, args.port, args.model, args.interval_ms, config=config,
                              faults=faults, initial_joints=joints)

@@ -19,8 +19,11 @@ Behaviour (manual chapter 61) and the choices where the manual is silent:
   moves (servo speed above 0.05 deg/s, or a jog in progress).
 - The first command must carry the sequence number of the status packet sent just before it. We
   accept the last sent status sequence number and the one before it: a command answering status k
-  may arrive after status k+1 left (the race every client has). Later commands must be the previous
-  command + 1, checked when processed (FAQ), else MOTN-600 "PC <got>, Rob <expected>".
+  may arrive after status k+1 left (the race every client has). ``ControllerConfig.strict_first_seq``
+  models the stricter controller of issue 15: only the latest status's sequence number is taken, so
+  a first command that arrives after the next status left posts MOTN-600 (first command 20, status 21).
+  Later commands must be the previous command + 1, checked when processed (FAQ), else MOTN-600
+  "PC <got>, Rob <expected>".
 - Commands are buffered ($PKT_STACK - 1 unprocessed, MOTN-604 beyond); motion starts once
   $START_MOVE are buffered; from then on each control cycle needs one in the buffer (MOTN-603).
   Processing checks, in order: sequence (600), data format (602 unless 0/1), Cartesian format
@@ -124,6 +127,9 @@ class ControllerConfig:
     timestamp_offset_ms: int = 0  # added to the status timestamp (to test its wrap)
     jog_speed_fraction: float = 0.2  # of the velocity / stage-1 acceleration limits
     cartesian_supported: bool = True  # False: the robot model posts MOTN-619 for Cartesian format
+    # True: the first command must answer the latest status (a controller seen posting MOTN-600 when the
+    # first command came one interval late); False: the latest or the one before it.
+    strict_first_seq: bool = False
 
     def __post_init__(self) -> None:
         if not 2 <= self.pkt_stack <= 10:
@@ -276,8 +282,9 @@ class FanucControllerModel:
             self.ignored_commands += 1
             return
         if not self.command_received:
-            accepted = {s for s in (self.last_status_seq, self.prev_status_seq) if s is not None}
-            if cmd.seq not in accepted:
+            accepted = (self.last_status_seq,) if self.config.strict_first_seq else (
+                self.last_status_seq, self.prev_status_seq)
+            if self.last_status_seq is None or cmd.seq not in accepted:
                 self._alarm("MOTN-600", pc=cmd.seq, rob=self.last_status_seq)
                 return
             self.command_received = True
