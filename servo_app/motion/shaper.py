@@ -391,8 +391,9 @@ class JointShaper:
         previous ones until the state fits the new ones (ruckig brakes into them)."""
         if limits.n_axes != self.n:
             raise ValueError(f"limits have {limits.n_axes} axes, shaper has {self.n}")
+        if limits is not getattr(self, "limits", None):  # (the constructor built them already)
+            self._env = self._envelopes(limits)
         self.limits = limits
-        self._env = self._envelopes(limits)
         self._wanted_guard = self._env[self._plan_mode]
         straight = self._mode == "position" and self._target_key is not None and self._target_key[2]
         self._apply_plan_limits(self._line_to(np.array(self._inp.target_position)) if straight else None)
