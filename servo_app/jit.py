@@ -25,7 +25,8 @@ import numba
 F = TypeVar("F", bound=Callable[..., Any])
 
 # Modules that define kernels: imported by the warm-up below (add a module here when it gains kernels).
-KERNEL_MODULES: tuple[str, ...] = ("servo_app.robots.kernels", "servo_app.motion.cycle_kernels")
+KERNEL_MODULES: tuple[str, ...] = ("servo_app.robots.kernels", "servo_app.motion.cycle_kernels",
+                                   "servo_app.motion.shaper_kernels")
 
 
 def kernel(signature: str | list[str]) -> Callable[[F], F]:
