@@ -150,3 +150,29 @@ def test_predicted_flange_speed_matches_numpy(q, v, a, dt):
     expected = float(np.linalg.norm(KIN.flange_xyz_mm_fanuc_deg(ahead) - KIN.flange_xyz_mm_fanuc_deg(q))) / (4 * dt)
     got = ck.predicted_flange_speed(q, v, a, dt, J23, DIMS, np.empty(6))
     assert math.isclose(got, expected, rel_tol=1e-13, abs_tol=1e-9)
+
+
+@settings(max_examples=300, deadline=None)
+@given(fanuc_joints, unit_offsets, velocities, velocities, st.sampled_from([1.0, 1e-3, 1e-5]))
+def test_ik_velocity_guard_matches_numpy(start, offset, v, v_now, size):
+    """ServoCycle._steer_ik's cut: the stoppable share, then zero below a creep (1e-3 deg/s)."""
+    region = region_around(start)
+    q, brake, creep = start + 20.0 * offset, np.full(6, 700.0), 1e-3
+    v, v_now = v * size, v_now * size
+    scale = stoppable_scale_oracle(region, q, v, 0.1, brake)
+    expected = v * scale
+    if (np.abs(expected) < creep).all() and (np.abs(v_now) < creep).all():
+        expected = np.zeros_like(expected)
+    got = v.copy()
+    assert ck.guard_ik_velocity(q, got, v_now, 0.1, brake, J23, region.packed, creep, np.empty(6)) == scale
+    assert got.tolist() == expected.tolist()
+
+
+def test_ik_velocity_guard_holds_a_creep_still():
+    region = region_around(START)
+    v = np.full(6, 5e-4)
+    ck.guard_ik_velocity(START, v, np.zeros(6), 0.1, np.full(6, 700.0), J23, region.packed, 1e-3, np.empty(6))
+    assert not v.any()
+    v = np.full(6, 5e-4)
+    ck.guard_ik_velocity(START, v, np.full(6, 0.1), 0.1, np.full(6, 700.0), J23, region.packed, 1e-3, np.empty(6))
+    assert v.tolist() == [5e-4] * 6  # still moving faster: braked by the shaper, not held

@@ -8,7 +8,13 @@ from hypothesis import strategies as st
 
 from servo_app.robots.configuration import ConfigurationRegion, boundary_distances, wrist_centre_offset
 from servo_app.robots.conventions import fanuc_deg_to_model_rad
-from servo_app.robots.kernels import fanuc_deg_in_region, flange_distance_mm, flange_point_mm, pack_dims
+from servo_app.robots.kernels import (
+    fanuc_deg_in_region,
+    fanuc_deg_to_model_rad_into,
+    flange_distance_mm,
+    flange_point_mm,
+    pack_dims,
+)
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import load_profile
 
@@ -67,3 +73,11 @@ def test_flange_position_matches_python(q0, q1, j23):
     assert list(flange_point_mm(q1, j23, DIMS)) == kin.flange_xyz_mm_fanuc_deg(q1).tolist()
     distance = float(np.linalg.norm(kin.flange_xyz_mm_fanuc_deg(q1) - kin.flange_xyz_mm_fanuc_deg(q0)))
     assert math.isclose(flange_distance_mm(q0, q1, j23, DIMS), distance, rel_tol=1e-14, abs_tol=1e-11)
+
+
+@settings(max_examples=300, deadline=None)
+@given(fanuc_joints, st.sampled_from([0.0, 1.0]))
+def test_joint_conversion_matches_numpy(q, j23):
+    out = np.empty(6)
+    fanuc_deg_to_model_rad_into(q, j23, out)
+    assert out.tolist() == fanuc_deg_to_model_rad(q, j23).tolist()

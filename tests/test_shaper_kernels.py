@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from servo_app.motion.shaper import Envelope, ShaperLimits
-from servo_app.motion.shaper_kernels import emit_if_passes, line_limits
+from servo_app.motion.shaper_kernels import emit_if_passes, line_limits, velocity_within
 
 DT = 0.008
 LIMITS = ShaperLimits(np.array([370.0, 310.0, 410.0, 550.0, 545.0, 1000.0]),
@@ -128,3 +128,20 @@ def test_line_limits_take_each_branch():
     assert out[0, 1] / out[0, 0] == 0.5 and out[0, 2] == ENV.plan_vel[2]
     assert not line_limits(p, np.array([0.0, 0.0, 1.0, 0, 0, 0]), np.zeros(6), q, *args)  # moving across
     assert not line_limits(p, np.zeros(6), np.zeros(6), p + 1e-8, *args)  # nothing to keep straight
+
+
+@settings(max_examples=300, deadline=None)
+@given(six, st.sampled_from([1.0, 100.0, 1000.0, 1e5]))
+def test_velocity_cap_matches_numpy(v, size):
+    """JointShaper.set_velocity's cap: all axes scaled by one factor above the limit."""
+    v = v * size
+    over = np.max(np.abs(v) / ENV.plan_vel)
+    out = np.empty(6)
+    assert velocity_within(v, ENV.plan_vel, out) == over
+    assert out.tolist() == (v / over if over > 1.0 else v).tolist()
+
+
+def test_velocity_cap_refuses_what_is_not_finite():
+    out = np.empty(6)
+    assert velocity_within(np.array([0.0, np.nan, 0, 0, 0, 0]), ENV.plan_vel, out) < 0.0
+    assert velocity_within(np.array([0.0, 0, 0, 0, 0, -np.inf]), ENV.plan_vel, out) < 0.0

@@ -64,6 +64,25 @@ def stoppable_scale(q: np.ndarray, v: np.ndarray, lag: float, brake: np.ndarray,
     return lo
 
 
+@kernel("float64(float64[::1], float64[::1], float64[::1], float64, float64[::1], float64, float64[::1], "
+        "float64, float64[::1])")
+def guard_ik_velocity(q: np.ndarray, v: np.ndarray, v_now: np.ndarray, lag: float, brake: np.ndarray,
+                      j23_factor: float, region: np.ndarray, creep: float, point: np.ndarray) -> float:
+    """The IK's joint velocity ``v`` cut in place to the share the arm can still stop from
+    (:func:`stoppable_scale`), and to zero when it and the current velocity ``v_now`` are both a creep
+    (every axis below ``creep``). Returns the share."""
+    n = q.shape[0]
+    scale = stoppable_scale(q, v, lag, brake, j23_factor, region, point)
+    creeping = True
+    for j in range(n):
+        v[j] = v[j] * scale
+        creeping = creeping and abs(v[j]) < creep and abs(v_now[j]) < creep
+    if creeping:
+        for j in range(n):
+            v[j] = 0.0
+    return scale
+
+
 @kernel("float64(float64[::1], float64[::1], int64, float64, float64[::1], float64[::1])")
 def config_keeping_reach(q0: np.ndarray, q1: np.ndarray, samples: int, j23_factor: float, region: np.ndarray,
                          point: np.ndarray) -> float:

@@ -31,7 +31,7 @@ from servo_app.motion.limit_tables import LimitTables, default_tables
 from servo_app.motion.shaper import JointShaper, ShaperLimits
 from servo_app.robots.configuration import ArmConfiguration, ConfigurationRegion, boundary_distances
 from servo_app.robots.conventions import fanuc_deg_to_model_rad, model_rad_to_fanuc_deg, xyzwpr_to_matrix
-from servo_app.robots.kernels import flange_distance_mm, pack_dims
+from servo_app.robots.kernels import fanuc_deg_to_model_rad_into, flange_distance_mm, pack_dims
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import RobotProfile
 
@@ -304,9 +304,9 @@ class ServoCycle:
     def _steer_ik(self, shaper: JointShaper) -> None:
         if isinstance(self._cart, PoseTarget) and self._finish_pose(shaper, self._cart):
             return
-        j23 = self.profile.j23_factor
         q_f, v_f, _ = shaper.state
-        q_m = fanuc_deg_to_model_rad(q_f, j23)
+        q_m = np.empty(len(q_f))  # (a new one each cycle: the IK may keep it)
+        fanuc_deg_to_model_rad_into(q_f, self._j23, q_m)
         dq_prev = self.ik.c_inv @ np.radians(v_f) * self.dt  # what the shaper delivers, model rad/cycle
         res = self.ik.step(q_m, self._cart, dq_prev=dq_prev)
         while self.late_command is not None:
@@ -320,12 +320,8 @@ class ServoCycle:
             res = self.ik.step_again(q_m, self._cart, dq_prev=dq_prev)
             self.late_inputs += 1
         self.last_ik = res
-        v = self.ik.velocity_fanuc_deg_s(res.velocity)
-        v = v * self._stoppable_scale(q_f, v, shaper)
-        if (np.abs(v) < CREEP_DEG_S).all() and (np.abs(v_f) < CREEP_DEG_S).all():
-            # Braking rows let the IK approach a boundary (a target out of reach) ever more slowly:
-            # below this it only creeps, and the arm is held still and at rest instead.
-            v = np.zeros_like(v)
+        v = np.ascontiguousarray(self.ik.velocity_fanuc_deg_s(res.velocity), dtype=np.float64)
+        self._guard_ik_velocity(q_f, v, v_f, shaper)
         if self._cart is None and not res.dq.any() and not v_f.any():
             self._cart_active = False  # braked to rest along the path
             shaper.stop("soft")
@@ -369,17 +365,19 @@ class ServoCycle:
         shaper.set_target(q_goal, scale * self._speed_scale)
         return True
 
-    def _stoppable_scale(self, q: np.ndarray, v: np.ndarray, shaper: JointShaper) -> float:
-        """Largest share of ``v`` (whole vector, so the path keeps its direction) from which the arm can
-        still stop inside the joint ranges and the held configuration.
+    def _guard_ik_velocity(self, q: np.ndarray, v: np.ndarray, v_now: np.ndarray, shaper: JointShaper) -> None:
+        """Cut the IK's joint velocity ``v`` (in place) to the largest share (whole vector, so the path
+        keeps its direction) from which the arm can still stop inside the joint ranges and the held
+        configuration; below a creep (``v`` and the current ``v_now``), to zero.
 
         A safety net under the IK's own limits: the stopping point allows for the shaper's lag in
-        building up a deceleration (acc/jerk) and brakes at half the acceleration limit.
+        building up a deceleration (acc/jerk) and brakes at half the acceleration limit. Braking rows
+        let the IK approach a boundary (a target out of reach) ever more slowly: below CREEP_DEG_S it
+        only creeps, and the arm is held still and at rest instead.
         """
         self._soft_limits(shaper)
-        self.limit_scale = cycle_kernels.stoppable_scale(q, v, self._stop_lag, self._brake, self._j23,
-                                                         self._region_packed, self._scratch)
-        return self.limit_scale
+        self.limit_scale = cycle_kernels.guard_ik_velocity(q, v, v_now, self._stop_lag, self._brake, self._j23,
+                                                           self._region_packed, CREEP_DEG_S, self._scratch)
 
     def _soft_limits(self, shaper: JointShaper) -> None:
         """The guards' view of the shaper's soft limits, derived again only when the limits change."""

@@ -49,7 +49,7 @@ from ruckig import (
 )
 
 from servo_app.motion.limit_tables import LimitTables
-from servo_app.motion.shaper_kernels import emit_if_passes, line_limits
+from servo_app.motion.shaper_kernels import emit_if_passes, line_limits, velocity_within
 from servo_app.motion.stops import STOP_MODES, StopMode, stop_path, time_optimal_stop_duration
 
 ArrayLike = Sequence[float] | np.ndarray
@@ -445,11 +445,11 @@ class JointShaper:
         """Reach joint velocity ``v`` (deg/s) jerk-limited; above the limit all axes are scaled by one
         factor, which keeps the direction."""
         v = _arr(v)
-        if v.shape != (self.n,) or not np.isfinite(v).all():
+        within = np.empty(self.n)
+        if v.shape != (self.n,) or velocity_within(v, self._env["soft"].plan_vel, within) < 0.0:
             raise ValueError(f"expected {self.n} finite joint velocities, got {v}")
         self._select_plan("soft", 1.0)
-        over = np.max(np.abs(v) / self._env["soft"].plan_vel)
-        self._set_velocity_mode(v / over if over > 1.0 else v, "velocity")
+        self._set_velocity_mode(within, "velocity")
 
     def stop(self, mode: StopMode = "soft") -> None:
         """Decelerate to rest, time-optimally: ``soft`` within the normal limits, ``fast`` within the

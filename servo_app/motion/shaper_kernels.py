@@ -99,3 +99,18 @@ def line_limits(p: np.ndarray, v: np.ndarray, a: np.ndarray, q: np.ndarray, plan
             if line >= 1e-9 * size:
                 out[k, i] = line * rate
     return True
+
+
+@kernel("float64(float64[::1], float64[::1], float64[::1])")
+def velocity_within(v: np.ndarray, vmax: np.ndarray, out: np.ndarray) -> float:
+    """``v`` scaled by one factor so that no axis exceeds ``vmax`` (keeps the direction), into ``out``.
+    Returns max |v| / vmax (the factor when above 1), or -1.0 if ``v`` is not finite."""
+    n = v.shape[0]
+    over = -np.inf
+    for i in range(n):
+        if not math.isfinite(v[i]):
+            return -1.0
+        over = max(over, abs(v[i]) / vmax[i])
+    for i in range(n):
+        out[i] = v[i] / over if over > 1.0 else v[i]
+    return over

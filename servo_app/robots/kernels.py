@@ -104,3 +104,12 @@ def flange_distance_mm(q0_fanuc_deg: np.ndarray, q1_fanuc_deg: np.ndarray, j23_f
     x1, y1, z1 = flange_point_mm(q1_fanuc_deg, j23_factor, dims)
     dx, dy, dz = x1 - x0, y1 - y0, z1 - z0
     return math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@kernel("void(float64[::1], float64, float64[::1])")
+def fanuc_deg_to_model_rad_into(q_fanuc_deg: np.ndarray, j23_factor: float, out: np.ndarray) -> None:
+    """``conventions.fanuc_deg_to_model_rad`` of a joint vector, into ``out``."""
+    for i in range(q_fanuc_deg.shape[0]):
+        out[i] = q_fanuc_deg[i] * DEG_TO_RAD
+    if q_fanuc_deg.shape[0] >= 3:
+        out[2] = out[2] + j23_factor * out[1]
