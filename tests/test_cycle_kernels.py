@@ -16,6 +16,7 @@ J23 = PROFILE.j23_factor
 RANGE_LO = np.degrees(PROFILE.joint_min_rad) + 0.5  # model deg, as ServoCycle keeps them
 RANGE_HI = np.degrees(PROFILE.joint_max_rad) - 0.5
 START = np.array([0.0, 10.0, -10.0, 0.0, -70.0, 0.0])
+VMAX = np.array([370.0, 310.0, 410.0, 550.0, 545.0, 1000.0]) * 0.9
 
 velocities = st.lists(st.floats(-400.0, 400.0), min_size=6, max_size=6).map(np.array)
 
@@ -129,17 +130,26 @@ def test_clip_to_range_matches_numpy(q):
 
 
 @settings(max_examples=300, deadline=None)
-@given(fanuc_joints, unit_offsets, velocities, st.floats(0.05, 1.0), st.floats(0.1, 2.0))
+@given(fanuc_joints, unit_offsets, velocities.map(lambda v: v * (np.abs(v) > 200.0)), st.floats(0.05, 1.0),
+       st.floats(0.1, 2.0))
 def test_jog_target_matches_numpy(start, offset, v, speed_scale, horizon):
     """ServoCycle._steer_jog's target: ahead by the horizon, clipped, cut at the configuration."""
     region = region_around(start)
     q = start + 5.0 * offset
     out = np.empty(6)
-    reach = ck.jog_target(q, v, speed_scale, horizon, J23, RANGE_LO, RANGE_HI, region.packed, np.empty(6), out)
+    scale = ck.jog_target(q, v, speed_scale, VMAX, horizon, J23, RANGE_LO, RANGE_HI, region.packed, np.empty(6), out)
+    assert scale == float(np.max(np.abs(v * speed_scale) / VMAX))
+    if scale <= 1e-9:
+        return  # held: no target
     ahead = clip_oracle(q + v * speed_scale * horizon)
-    expected_reach = reach_oracle(region, q, ahead)
-    assert reach == expected_reach
-    assert out.tolist() == (q + (ahead - q) * expected_reach).tolist()
+    assert out.tolist() == (q + (ahead - q) * reach_oracle(region, q, ahead)).tolist()
+
+
+def test_jog_target_of_a_still_jog_is_none():
+    out = np.full(6, 7.0)
+    assert ck.jog_target(START, np.zeros(6), 1.0, VMAX, 0.5, J23, RANGE_LO, RANGE_HI, region_around(START).packed,
+                         np.empty(6), out) == 0.0
+    assert out.tolist() == [7.0] * 6
 
 
 @settings(max_examples=300, deadline=None)

@@ -133,22 +133,27 @@ def clip_to_range(q_fanuc_deg: np.ndarray, j23_factor: float, lo_model_deg: np.n
         out[j] = r * RAD_TO_DEG
 
 
-@kernel("float64(float64[::1], float64[::1], float64, float64, float64, float64[::1], float64[::1], "
+@kernel("float64(float64[::1], float64[::1], float64, float64[::1], float64, float64, float64[::1], float64[::1], "
         "float64[::1], float64[::1], float64[::1])")
-def jog_target(q: np.ndarray, v: np.ndarray, speed_scale: float, horizon: float, j23_factor: float,
+def jog_target(q: np.ndarray, v: np.ndarray, speed_scale: float, vmax: np.ndarray, horizon: float, j23_factor: float,
                lo_model_deg: np.ndarray, hi_model_deg: np.ndarray, region: np.ndarray, point: np.ndarray,
                out: np.ndarray) -> float:
-    """A joint jog at ``v * speed_scale``: its speed as a share of ``vmax`` is computed by the caller;
-    here the target ``horizon`` seconds ahead, clipped to the ranges and cut where the line would leave
-    the region, into ``out``. Returns the reach (share of the clipped line kept)."""
+    """A joint jog at ``v * speed_scale``: returns its speed as a share of ``vmax`` (the fastest axis'),
+    and if that is above 1e-9 writes into ``out`` the target ``horizon`` seconds ahead, clipped to the
+    ranges and cut where the line would leave the region."""
     n = q.shape[0]
+    scale = -np.inf
+    for j in range(n):
+        scale = max(scale, abs(v[j] * speed_scale) / vmax[j])
+    if scale <= 1e-9:
+        return scale
     for j in range(n):
         out[j] = q[j] + v[j] * speed_scale * horizon
     clip_to_range(out, j23_factor, lo_model_deg, hi_model_deg, out)
     reach = config_keeping_reach(q, out, 24, j23_factor, region, point)
     for j in range(n):
         out[j] = q[j] + (out[j] - q[j]) * reach
-    return reach
+    return scale
 
 
 @kernel("float64(float64[::1], float64[::1], float64[::1], float64, float64, float64[::1], float64[::1])")

@@ -409,15 +409,14 @@ class ServoCycle:
 
     def _steer_jog(self, shaper: JointShaper, v: np.ndarray) -> None:
         self._soft_limits(shaper)
-        scale = float(np.max(np.abs(v * self._speed_scale) / self._soft_vel))
+        # The target runs ahead, clipped to the ranges, cut where the line would leave the configuration.
+        lo, hi = self._range_model_deg
+        scale = cycle_kernels.jog_target(shaper.state[0], v, self._speed_scale, self._soft_vel, self._horizon,
+                                         self._j23, lo, hi, self._region_packed, self._scratch, self._jog_goal)
         if scale <= 1e-9:
             if not shaper.at_rest and shaper.mode != "stop-soft":
                 shaper.stop("soft")
             return
-        # The target runs ahead, clipped to the ranges, cut where the line would leave the configuration.
-        lo, hi = self._range_model_deg
-        cycle_kernels.jog_target(shaper.state[0], v, self._speed_scale, self._horizon, self._j23, lo, hi,
-                                 self._region_packed, self._scratch, self._jog_goal)
         shaper.set_target(self._jog_goal, min(scale, 1.0))
 
     def _safe(self, q_fanuc_deg: np.ndarray) -> np.ndarray:

@@ -479,7 +479,7 @@ class JointShaper:
             return r
         r, changed = self.guard.filter(candidate, self._guard_env)
         self._out.pass_to_input(self._inp)
-        if changed.any():
+        if changed is not _NO_CHANGE[self.n] and changed.any():
             self._resync(changed)
         elif self._finished:
             self._settle()
