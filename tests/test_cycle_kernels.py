@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 from test_robots_kernels import DIMS, KIN, PROFILE, contains_oracle, fanuc_joints, region_around, unit_offsets
 
 from servo_app.motion import cycle_kernels as ck
+from servo_app.motion.diffik import DifferentialIK
 from servo_app.robots.configuration import ConfigurationRegion
 from servo_app.robots.conventions import fanuc_deg_to_model_rad, model_rad_to_fanuc_deg
 
@@ -16,6 +17,7 @@ J23 = PROFILE.j23_factor
 RANGE_LO = np.degrees(PROFILE.joint_min_rad) + 0.5  # model deg, as ServoCycle keeps them
 RANGE_HI = np.degrees(PROFILE.joint_max_rad) - 0.5
 START = np.array([0.0, 10.0, -10.0, 0.0, -70.0, 0.0])
+IK = DifferentialIK(PROFILE, 0.008)  # its rate conversions: velocity_fanuc_deg_s, c_inv
 VMAX = np.array([370.0, 310.0, 410.0, 550.0, 545.0, 1000.0]) * 0.9
 
 velocities = st.lists(st.floats(-400.0, 400.0), min_size=6, max_size=6).map(np.array)
@@ -164,25 +166,36 @@ def test_predicted_flange_speed_matches_numpy(q, v, a, dt):
 
 @settings(max_examples=300, deadline=None)
 @given(fanuc_joints, unit_offsets, velocities, velocities, st.sampled_from([1.0, 1e-3, 1e-5]))
-def test_ik_velocity_guard_matches_numpy(start, offset, v, v_now, size):
-    """ServoCycle._steer_ik's cut: the stoppable share, then zero below a creep (1e-3 deg/s)."""
+def test_ik_velocity_guard_matches_numpy(start, offset, v_model, v_now, size):
+    """ServoCycle._steer_ik's cut: the IK's velocity in FANUC deg/s (velocity_fanuc_deg_s), the
+    stoppable share, then zero below a creep (1e-3 deg/s)."""
     region = region_around(start)
     q, brake, creep = start + 20.0 * offset, np.full(6, 700.0), 1e-3
-    v, v_now = v * size, v_now * size
+    v_model, v_now = np.radians(v_model) * size, v_now * size
+    v = IK.velocity_fanuc_deg_s(v_model)
     scale = stoppable_scale_oracle(region, q, v, 0.1, brake)
     expected = v * scale
     if (np.abs(expected) < creep).all() and (np.abs(v_now) < creep).all():
         expected = np.zeros_like(expected)
-    got = v.copy()
-    assert ck.guard_ik_velocity(q, got, v_now, 0.1, brake, J23, region.packed, creep, np.empty(6)) == scale
+    got = np.empty(6)
+    assert ck.guard_ik_velocity(q, v_model, v_now, 0.1, brake, J23, region.packed, creep, np.empty(6), got) == scale
     assert got.tolist() == expected.tolist()
+
+
+@settings(max_examples=300, deadline=None)
+@given(fanuc_joints, velocities, st.sampled_from([0.004, 0.008]))
+def test_ik_start_matches_numpy(q, v, dt):
+    """The IK's start: fanuc_deg_to_model_rad and the IK's own rate conversion (c_inv), bit for bit."""
+    q_m, dq = np.empty(6), np.empty(6)
+    ck.ik_start(q, v, J23, dt, q_m, dq)
+    assert q_m.tolist() == fanuc_deg_to_model_rad(q, J23).tolist()
+    assert dq.tolist() == (IK.c_inv @ np.radians(v) * dt).tolist()
 
 
 def test_ik_velocity_guard_holds_a_creep_still():
     region = region_around(START)
-    v = np.full(6, 5e-4)
-    ck.guard_ik_velocity(START, v, np.zeros(6), 0.1, np.full(6, 700.0), J23, region.packed, 1e-3, np.empty(6))
+    slow, v = np.radians(np.full(6, 5e-4)), np.empty(6)
+    ck.guard_ik_velocity(START, slow, np.zeros(6), 0.1, np.full(6, 700.0), J23, region.packed, 1e-3, np.empty(6), v)
     assert not v.any()
-    v = np.full(6, 5e-4)
-    ck.guard_ik_velocity(START, v, np.full(6, 0.1), 0.1, np.full(6, 700.0), J23, region.packed, 1e-3, np.empty(6))
-    assert v.tolist() == [5e-4] * 6  # still moving faster: braked by the shaper, not held
+    ck.guard_ik_velocity(START, slow, np.full(6, 0.1), 0.1, np.full(6, 700.0), J23, region.packed, 1e-3, np.empty(6), v)
+    assert v.tolist() == IK.velocity_fanuc_deg_s(slow).tolist()  # still moving faster: braked by the shaper

@@ -13,7 +13,13 @@ from __future__ import annotations
 import numpy as np
 
 from servo_app.jit import kernel
-from servo_app.robots.kernels import DEG_TO_RAD, RAD_TO_DEG, fanuc_deg_in_region, flange_distance_mm
+from servo_app.robots.kernels import (
+    DEG_TO_RAD,
+    RAD_TO_DEG,
+    fanuc_deg_in_region,
+    fanuc_deg_to_model_rad_into,
+    flange_distance_mm,
+)
 
 STOP_SEARCH_ROUNDS, STOP_SEARCH_SAMPLES = 2, 16  # two rounds of 16: ~0.4 % resolution
 REACH_SEARCH_ROUNDS = 3
@@ -64,14 +70,32 @@ def stoppable_scale(q: np.ndarray, v: np.ndarray, lag: float, brake: np.ndarray,
     return lo
 
 
+@kernel("void(float64[::1], float64[::1], float64, float64, float64[::1], float64[::1])")
+def ik_start(q: np.ndarray, v: np.ndarray, j23_factor: float, dt: float, q_model: np.ndarray,
+             dq_model: np.ndarray) -> None:
+    """The IK's start from the shaper's state (FANUC deg, deg/s): the position in the model convention
+    (rad) and the step the shaper delivers this cycle (model rad). Joint rates convert as positions do
+    (``fanuc_rate_matrix``'s inverse), so this is ``c_inv @ radians(v) * dt`` to the bit."""
+    fanuc_deg_to_model_rad_into(q, j23_factor, q_model)
+    fanuc_deg_to_model_rad_into(v, j23_factor, dq_model)
+    for j in range(dq_model.shape[0]):
+        dq_model[j] = dq_model[j] * dt
+
+
 @kernel("float64(float64[::1], float64[::1], float64[::1], float64, float64[::1], float64, float64[::1], "
-        "float64, float64[::1])")
-def guard_ik_velocity(q: np.ndarray, v: np.ndarray, v_now: np.ndarray, lag: float, brake: np.ndarray,
-                      j23_factor: float, region: np.ndarray, creep: float, point: np.ndarray) -> float:
-    """The IK's joint velocity ``v`` cut in place to the share the arm can still stop from
-    (:func:`stoppable_scale`), and to zero when it and the current velocity ``v_now`` are both a creep
-    (every axis below ``creep``). Returns the share."""
+        "float64, float64[::1], float64[::1])")
+def guard_ik_velocity(q: np.ndarray, velocity_model: np.ndarray, v_now: np.ndarray, lag: float, brake: np.ndarray,
+                      j23_factor: float, region: np.ndarray, creep: float, point: np.ndarray, v: np.ndarray) -> float:
+    """The IK's joint velocity (model rad/s) in FANUC deg/s into ``v`` (as ``velocity_fanuc_deg_s``),
+    cut to the share the arm can still stop from (:func:`stoppable_scale`), and to zero when it and
+    the current velocity ``v_now`` are both a creep (every axis below ``creep``). Returns the share."""
     n = q.shape[0]
+    for j in range(n):
+        v[j] = velocity_model[j]
+    if n >= 3:
+        v[2] = v[2] - j23_factor * v[1]
+    for j in range(n):
+        v[j] = v[j] * RAD_TO_DEG
     scale = stoppable_scale(q, v, lag, brake, j23_factor, region, point)
     creeping = True
     for j in range(n):

@@ -31,7 +31,7 @@ from servo_app.motion.limit_tables import LimitTables, default_tables
 from servo_app.motion.shaper import JointShaper, ShaperLimits
 from servo_app.robots.configuration import ArmConfiguration, ConfigurationRegion, boundary_distances
 from servo_app.robots.conventions import fanuc_deg_to_model_rad, model_rad_to_fanuc_deg, xyzwpr_to_matrix
-from servo_app.robots.kernels import fanuc_deg_to_model_rad_into, flange_distance_mm, pack_dims
+from servo_app.robots.kernels import flange_distance_mm, pack_dims
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import RobotProfile
 
@@ -305,9 +305,10 @@ class ServoCycle:
         if isinstance(self._cart, PoseTarget) and self._finish_pose(shaper, self._cart):
             return
         q_f, v_f, _ = shaper.state
-        q_m = np.empty(len(q_f))  # (a new one each cycle: the IK may keep it)
-        fanuc_deg_to_model_rad_into(q_f, self._j23, q_m)
-        dq_prev = self.ik.c_inv @ np.radians(v_f) * self.dt  # what the shaper delivers, model rad/cycle
+        # The start in the model convention and what the shaper delivers, model rad/cycle (new arrays
+        # each cycle: the IK may keep them).
+        q_m, dq_prev = np.empty(len(q_f)), np.empty(len(q_f))
+        cycle_kernels.ik_start(q_f, v_f, self._j23, self.dt, q_m, dq_prev)
         res = self.ik.step(q_m, self._cart, dq_prev=dq_prev)
         while self.late_command is not None:
             # A command that arrived while the IK solved still makes this cycle's packet: the input
@@ -320,8 +321,7 @@ class ServoCycle:
             res = self.ik.step_again(q_m, self._cart, dq_prev=dq_prev)
             self.late_inputs += 1
         self.last_ik = res
-        v = np.ascontiguousarray(self.ik.velocity_fanuc_deg_s(res.velocity), dtype=np.float64)
-        self._guard_ik_velocity(q_f, v, v_f, shaper)
+        v = self._guard_ik_velocity(q_f, res.velocity, v_f, shaper)
         if self._cart is None and not res.dq.any() and not v_f.any():
             self._cart_active = False  # braked to rest along the path
             shaper.stop("soft")
@@ -365,10 +365,12 @@ class ServoCycle:
         shaper.set_target(q_goal, scale * self._speed_scale)
         return True
 
-    def _guard_ik_velocity(self, q: np.ndarray, v: np.ndarray, v_now: np.ndarray, shaper: JointShaper) -> None:
-        """Cut the IK's joint velocity ``v`` (in place) to the largest share (whole vector, so the path
-        keeps its direction) from which the arm can still stop inside the joint ranges and the held
-        configuration; below a creep (``v`` and the current ``v_now``), to zero.
+    def _guard_ik_velocity(self, q: np.ndarray, velocity_model: np.ndarray, v_now: np.ndarray,
+                           shaper: JointShaper) -> np.ndarray:
+        """The IK's joint velocity (model rad/s) in FANUC deg/s (``DifferentialIK.velocity_fanuc_deg_s``),
+        cut to the largest share (whole vector, so the path keeps its direction) from which the arm can
+        still stop inside the joint ranges and the held configuration; below a creep (it and the
+        current ``v_now``), zero.
 
         A safety net under the IK's own limits: the stopping point allows for the shaper's lag in
         building up a deceleration (acc/jerk) and brakes at half the acceleration limit. Braking rows
@@ -376,8 +378,11 @@ class ServoCycle:
         only creeps, and the arm is held still and at rest instead.
         """
         self._soft_limits(shaper)
-        self.limit_scale = cycle_kernels.guard_ik_velocity(q, v, v_now, self._stop_lag, self._brake, self._j23,
-                                                           self._region_packed, CREEP_DEG_S, self._scratch)
+        v = np.empty(len(q))
+        self.limit_scale = cycle_kernels.guard_ik_velocity(
+            q, np.ascontiguousarray(velocity_model, dtype=np.float64), v_now, self._stop_lag, self._brake, self._j23,
+            self._region_packed, CREEP_DEG_S, self._scratch, v)
+        return v
 
     def _soft_limits(self, shaper: JointShaper) -> None:
         """The guards' view of the shaper's soft limits, derived again only when the limits change."""
