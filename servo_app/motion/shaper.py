@@ -364,6 +364,7 @@ class JointShaper:
         self._target_key: tuple[list[float], float, bool] | None = None
         self._finished = True  # the last ruckig update reached its target and no command came since
         self._env = self._envelopes(limits)
+        self.limits = limits
         self._guard_env = self._wanted_guard = self._env["soft"]  # guard: enforced now / to adopt
         self._applied_plan: tuple[Envelope, float] | None = None  # plain limits ruckig has (see _apply_plan_limits)
         self._line_limits = np.empty((3, self.n))  # scratch of _apply_line_limits
@@ -377,7 +378,7 @@ class JointShaper:
         previous ones until the state fits the new ones (ruckig brakes into them)."""
         if limits.n_axes != self.n:
             raise ValueError(f"limits have {limits.n_axes} axes, shaper has {self.n}")
-        if limits is not getattr(self, "limits", None):  # (the constructor built them already)
+        if limits is not self.limits:  # (the constructor built the envelopes of its limits already)
             self._env = self._envelopes(limits)
         self.limits = limits
         self._wanted_guard = self._env[self._plan_mode]
