@@ -26,6 +26,9 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 # Modules that define kernels: imported by the warm-up below (add a module here when it gains kernels).
 KERNEL_MODULES: tuple[str, ...] = (
+    "servo_app.robots.kernels",
+    "servo_app.motion.cycle_kernels",
+    "servo_app.motion.shaper_kernels",
     "servo_app.motion.ik_kernels",
     "servo_app.motion.settle",
     "servo_app.fanuc.runner",

@@ -24,12 +24,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from servo_app.errors import CommandRejected
+from servo_app.motion import cycle_kernels
 from servo_app.motion.commands import PoseTarget, Twist
 from servo_app.motion.diffik import DifferentialIK, IkResult
 from servo_app.motion.limit_tables import LimitTables, default_tables
 from servo_app.motion.shaper import JointShaper, ShaperLimits
 from servo_app.robots.configuration import ArmConfiguration, ConfigurationRegion, boundary_distances
 from servo_app.robots.conventions import fanuc_deg_to_model_rad, model_rad_to_fanuc_deg, xyzwpr_to_matrix
+from servo_app.robots.kernels import flange_distance_mm, pack_dims
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import RobotProfile
 
@@ -64,10 +66,23 @@ class ServoCycle:
         self._jog: np.ndarray | None = None
         self._horizon = 0.0
         self.tables_source = "profile"
+        self._profile_tables: LimitTables | None = None  # default_tables(profile), built once
+        self._limits_for: tuple[object, ...] | None = None  # (tables, cap, payload) self.limits were built for
         lo = np.asarray(profile.joint_min_deg) + self.settings.joint_margin_deg
         hi = np.asarray(profile.joint_max_deg) - self.settings.joint_margin_deg
         self._range_model_deg = (lo, hi)
         self.kin = ArmKinematics(profile)
+        k = self.kin
+        self._dims = pack_dims(k.a1, k.a2, k.a3, k.d4, k.d6)  # for the flange-speed kernels
+        self._j23 = float(profile.j23_factor)
+        self._region_packed = np.empty(0)  # self._region for the kernels (set by begin)
+        # Scratch for the kernels: the cycle allocates nothing for them.
+        self._scratch = np.empty(profile.dof)
+        self._jog_goal = np.empty(profile.dof)
+        # The shaper's soft limits as the guards use them, for the limits they were derived from.
+        self._soft_for: ShaperLimits | None = None
+        self._soft_vel = self._brake = np.empty(0)
+        self._stop_lag = 0.0
         self.ik = DifferentialIK(profile, dt, self.settings.tool_xyzwpr, self.settings.ik_solver,  # type: ignore[arg-type]
                                  collision=self.settings.collision)
         self._pending = False  # a joint motion waits for rest after a change of direction
@@ -90,15 +105,23 @@ class ServoCycle:
 
     # ------------------------------------------------------------ MotionSource
     def begin(self, q_start: np.ndarray, tables: LimitTables | None) -> None:
+        """Set up the motion of a stream that starts at ``q_start``: it runs between the stream's first
+        command and its second, so what does not change from one stream to the next is kept."""
         if tables is None:
-            tables = default_tables(self.profile)
+            if self._profile_tables is None:
+                self._profile_tables = default_tables(self.profile)
+            tables = self._profile_tables
             self.tables_source = "profile"
         else:
             self.tables_source = "controller"
         cap = self.settings.flange_speed_cap or tables.vmax
         self.cap = cap
-        vel, acc, jerk = (x[: self.profile.dof] for x in tables.for_cap(cap, self.settings.payload_kg))
-        self.limits = (vel, acc, jerk)
+        key = (tables, cap, self.settings.payload_kg)
+        if self._limits_for is None or any(a is not b for a, b in zip(self._limits_for, key, strict=True)):
+            self.limits = tuple(x[: self.profile.dof] for x in tables.for_cap(cap, self.settings.payload_kg))  # type: ignore[assignment]
+            self._limits_for = key
+        assert self.limits is not None
+        vel, acc, jerk = self.limits
         self.shaper = JointShaper(ShaperLimits(vel, acc, jerk, fraction=self.settings.limit_fraction),
                                   self.dt, np.asarray(q_start[: self.profile.dof], dtype=float))
         # A jog target runs this far ahead: always beyond the braking distance at full speed.
@@ -119,6 +142,7 @@ class ServoCycle:
         lo, hi = self._range_model_deg  # widened by a rounding step: clipped targets land on the bound
         region = ConfigurationRegion.around(q_model, self.kin, margins)
         self._region = region.within(np.radians(lo - 1e-9), np.radians(hi + 1e-9))
+        self._region_packed = self._region.packed
         self.configuration = self._region.reference
 
     def next_command(self, status: object) -> np.ndarray:
@@ -181,7 +205,7 @@ class ServoCycle:
     def jog_joints(self, v_deg_s: np.ndarray) -> None:
         """Jog at joint velocities (deg/s): a target kept ahead in the jog direction, clipped to the ranges,
         so the shaper brakes to rest at a joint limit instead of running into it."""
-        v = np.asarray(v_deg_s, dtype=float)
+        v = np.ascontiguousarray(v_deg_s, dtype=float)  # (the jog kernel takes contiguous arrays)
         n = self.profile.dof
         if v.shape != (n,):
             raise CommandRejected(f"joints has {v.size} values, expected {n}")
@@ -280,10 +304,11 @@ class ServoCycle:
     def _steer_ik(self, shaper: JointShaper) -> None:
         if isinstance(self._cart, PoseTarget) and self._finish_pose(shaper, self._cart):
             return
-        j23 = self.profile.j23_factor
         q_f, v_f, _ = shaper.state
-        q_m = fanuc_deg_to_model_rad(q_f, j23)
-        dq_prev = self.ik.c_inv @ np.radians(v_f) * self.dt  # what the shaper delivers, model rad/cycle
+        # The start in the model convention and what the shaper delivers, model rad/cycle (new arrays
+        # each cycle: the IK may keep them).
+        q_m, dq_prev = np.empty(len(q_f)), np.empty(len(q_f))
+        cycle_kernels.ik_start(q_f, v_f, self._j23, self.dt, q_m, dq_prev)
         res = self.ik.step(q_m, self._cart, dq_prev=dq_prev)
         while self.late_command is not None:
             # A command that arrived while the IK solved still makes this cycle's packet: the input
@@ -296,12 +321,7 @@ class ServoCycle:
             res = self.ik.step_again(q_m, self._cart, dq_prev=dq_prev)
             self.late_inputs += 1
         self.last_ik = res
-        v = self.ik.velocity_fanuc_deg_s(res.velocity)
-        v = v * self._stoppable_scale(q_f, v, shaper)
-        if (np.abs(v) < CREEP_DEG_S).all() and (np.abs(v_f) < CREEP_DEG_S).all():
-            # Braking rows let the IK approach a boundary (a target out of reach) ever more slowly:
-            # below this it only creeps, and the arm is held still and at rest instead.
-            v = np.zeros_like(v)
+        v = self._guard_ik_velocity(q_f, res.velocity, v_f, shaper)
         if self._cart is None and not res.dq.any() and not v_f.any():
             self._cart_active = False  # braked to rest along the path
             shaper.stop("soft")
@@ -345,50 +365,45 @@ class ServoCycle:
         shaper.set_target(q_goal, scale * self._speed_scale)
         return True
 
-    def _stoppable_scale(self, q: np.ndarray, v: np.ndarray, shaper: JointShaper) -> float:
-        """Largest share of ``v`` (whole vector, so the path keeps its direction) from which the arm can
-        still stop inside the joint ranges and the held configuration.
+    def _guard_ik_velocity(self, q: np.ndarray, velocity_model: np.ndarray, v_now: np.ndarray,
+                           shaper: JointShaper) -> np.ndarray:
+        """The IK's joint velocity (model rad/s) in FANUC deg/s (``DifferentialIK.velocity_fanuc_deg_s``),
+        cut to the largest share (whole vector, so the path keeps its direction) from which the arm can
+        still stop inside the joint ranges and the held configuration; below a creep (it and the
+        current ``v_now``), zero.
 
         A safety net under the IK's own limits: the stopping point allows for the shaper's lag in
-        building up a deceleration (acc/jerk) and brakes at half the acceleration limit.
+        building up a deceleration (acc/jerk) and brakes at half the acceleration limit. Braking rows
+        let the IK approach a boundary (a target out of reach) ever more slowly: below CREEP_DEG_S it
+        only creeps, and the arm is held still and at rest instead.
         """
-        _, acc, jerk = shaper.limits.scaled("soft")
-        lag = self.dt + float(np.max(acc / jerk))
-        brake = 0.5 * acc
+        self._soft_limits(shaper)
+        v = np.empty(len(q))
+        self.limit_scale = cycle_kernels.guard_ik_velocity(
+            q, np.ascontiguousarray(velocity_model, dtype=np.float64), v_now, self._stop_lag, self._brake, self._j23,
+            self._region_packed, CREEP_DEG_S, self._scratch, v)
+        return v
 
-        def stop_points(scales: np.ndarray) -> np.ndarray:
-            w = np.outer(scales, v)
-            return q + w * lag + w * np.abs(w) / (2 * brake)
-
-        if self._safe(stop_points(np.ones(1)))[0]:
-            self.limit_scale = 1.0
-            return 1.0
-        lo, hi = 0.0, 1.0
-        for _ in range(2):  # two rounds of 16: ~0.4 % resolution
-            scales = np.linspace(lo, hi, 17)[1:]
-            ok = self._safe(stop_points(scales))
-            first_bad = int(np.argmin(ok)) if not ok.all() else len(ok)
-            if first_bad == len(ok):
-                lo = hi
-                break
-            lo, hi = (scales[first_bad - 1] if first_bad else lo), scales[first_bad]
-        self.limit_scale = lo
-        return lo
+    def _soft_limits(self, shaper: JointShaper) -> None:
+        """The guards' view of the shaper's soft limits, derived again only when the limits change."""
+        if shaper.limits is self._soft_for:
+            return
+        vel, acc, jerk = shaper.limits.scaled("soft")
+        self._soft_vel = vel
+        self._stop_lag = self.dt + float(np.max(acc / jerk))
+        self._brake = 0.5 * acc
+        self._soft_for = shaper.limits
 
     def _guard_flange_speed(self, shaper: JointShaper, q: np.ndarray) -> None:
         """Slow joint-space motion down before the flange exceeds the cap (the IK caps Cartesian speed)."""
         if self._q_prev is not None:
-            p0 = self.kin.flange_xyz_mm_fanuc_deg(self._q_prev)
-            p1 = self.kin.flange_xyz_mm_fanuc_deg(q)
-            self.flange_speed = float(np.linalg.norm(p1 - p0)) / self.dt
+            self.flange_speed = flange_distance_mm(self._q_prev, q, self._j23, self._dims) / self.dt
         self._q_prev = q
         if self._cart_active or self.stopped:
             return
         # Predict a few cycles ahead from the shaper's velocity: braking must start before the cap.
         _, v_f, a_f = shaper.state
-        ahead = q + (v_f + a_f * 4 * self.dt) * 4 * self.dt
-        predicted = float(np.linalg.norm(self.kin.flange_xyz_mm_fanuc_deg(ahead)
-                                         - self.kin.flange_xyz_mm_fanuc_deg(q))) / (4 * self.dt)
+        predicted = cycle_kernels.predicted_flange_speed(q, v_f, a_f, self.dt, self._j23, self._dims, self._scratch)
         limit = self.cap * self.settings.flange_speed_margin
         if predicted > limit:
             self._speed_scale = max(0.05, self._speed_scale * min(0.9, limit / predicted))
@@ -398,17 +413,16 @@ class ServoCycle:
             self._speed_scale = min(1.0, self._speed_scale * 1.05)
 
     def _steer_jog(self, shaper: JointShaper, v: np.ndarray) -> None:
-        vmax = shaper.limits.scaled("soft")[0]
-        v = v * self._speed_scale
-        scale = float(np.max(np.abs(v) / vmax))
+        self._soft_limits(shaper)
+        # The target runs ahead, clipped to the ranges, cut where the line would leave the configuration.
+        lo, hi = self._range_model_deg
+        scale = cycle_kernels.jog_target(shaper.state[0], v, self._speed_scale, self._soft_vel, self._horizon,
+                                         self._j23, lo, hi, self._region_packed, self._scratch, self._jog_goal)
         if scale <= 1e-9:
             if not shaper.at_rest and shaper.mode != "stop-soft":
                 shaper.stop("soft")
             return
-        q = shaper.state[0]
-        ahead = self._clip_to_range(q + v * self._horizon)
-        reach = self._config_keeping_reach(q, ahead)
-        shaper.set_target(q + (ahead - q) * reach, min(scale, 1.0))
+        shaper.set_target(self._jog_goal, min(scale, 1.0))
 
     def _safe(self, q_fanuc_deg: np.ndarray) -> np.ndarray:
         """Per row (or for one vector): inside the joint ranges and the held configuration, with margins.
@@ -425,22 +439,15 @@ class ServoCycle:
         Found to ~1e-4 of the line: a coarse answer would move a jog's target back and forth from one
         cycle to the next, and a target that jumps back can be overshot.
         """
-        lo, hi = 0.0, 1.0
-        for _ in range(3):
-            f = np.linspace(lo, hi, samples + 1)[1:]
-            ok = self._safe(q0 + np.outer(f, q1 - q0))
-            if ok.all():
-                return hi if hi == 1.0 else lo
-            first_bad = int(np.argmin(ok))
-            lo, hi = (f[first_bad - 1] if first_bad else lo), f[first_bad]
-        return lo
+        assert self._region is not None, "begin() sets the region"
+        return cycle_kernels.config_keeping_reach(np.asarray(q0, dtype=float), np.asarray(q1, dtype=float), samples,
+                                                  self._j23, self._region_packed, self._scratch)
 
     def _clip_to_range(self, q_fanuc_deg: np.ndarray) -> np.ndarray:
-        j23 = self.profile.j23_factor
-        q_model = np.degrees(fanuc_deg_to_model_rad(q_fanuc_deg, j23))
         lo, hi = self._range_model_deg
-        clipped = np.radians(np.clip(q_model, lo, hi))
-        return model_rad_to_fanuc_deg(clipped, j23)
+        out = np.empty(self.profile.dof)
+        cycle_kernels.clip_to_range(np.asarray(q_fanuc_deg, dtype=float), self._j23, lo, hi, out)
+        return out
 
     def _require(self) -> JointShaper:
         if self.shaper is None:

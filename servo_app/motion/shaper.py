@@ -34,7 +34,6 @@ profiles whenever the straight one is not time-optimal).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -50,6 +49,7 @@ from ruckig import (
 )
 
 from servo_app.motion.limit_tables import LimitTables
+from servo_app.motion.shaper_kernels import emit_if_passes, line_limits, velocity_within
 from servo_app.motion.stops import STOP_MODES, StopMode, stop_path, time_optimal_stop_duration
 
 ArrayLike = Sequence[float] | np.ndarray
@@ -135,8 +135,8 @@ class Envelope:
     plan_vel: np.ndarray  # given to ruckig
     plan_acc: np.ndarray
     plan_jerk: np.ndarray
-    # per axis (vel, acc, jerk, brake_vel, brake_jerk * dt) as floats for the per-cycle check
-    rows: tuple[tuple[float, float, float, float, float], ...] = field(repr=False, compare=False)
+    # rows (vel, acc, jerk, brake_vel, brake_jerk * dt), per axis: the per-cycle check's table
+    table: np.ndarray = field(repr=False, compare=False)
 
     @classmethod
     def build(cls, vel: np.ndarray, acc: np.ndarray, jerk: np.ndarray, pos_abs_max: np.ndarray,
@@ -151,8 +151,8 @@ class Envelope:
         if (plan_vel <= 0).any() or (plan_acc <= 0).any() or (plan_jerk <= 0).any():
             raise ValueError("float32 rounding at this position range and dt leaves no room within the "
                              f"limits (vel {vel}, acc {acc}, jerk {jerk}, dt {dt}, |q| <= {pos_abs_max})")
-        rows = tuple(zip(*(x.tolist() for x in (vel, acc, jerk, brake_vel, brake_jerk * dt)), strict=True))
-        return cls(vel, acc, jerk, brake_vel, brake_jerk, plan_vel, plan_acc, plan_jerk, rows)
+        table = np.array([vel, acc, jerk, brake_vel, brake_jerk * dt], dtype=np.float64)
+        return cls(vel, acc, jerk, brake_vel, brake_jerk, plan_vel, plan_acc, plan_jerk, table)
 
 
 def _brake_peaks(v: np.ndarray, a: np.ndarray, brake_jerk: np.ndarray, dt: float
@@ -172,8 +172,8 @@ def _brake_peaks(v: np.ndarray, a: np.ndarray, brake_jerk: np.ndarray, dt: float
 class DiscreteGuard:
     """The emitted float32 history and the controller's finite-difference check on it.
 
-    The per-cycle check runs on Python floats (same IEEE doubles as numpy, a third of the time for six
-    axes); numpy is used only on the rare slow path.
+    The per-cycle check and commit is one compiled kernel (:func:`~servo_app.motion.shaper_kernels.emit_if_passes`,
+    the same IEEE arithmetic as numpy); numpy is used only on the rare slow path.
     """
 
     def __init__(self, dt: float, q0: ArrayLike) -> None:
@@ -185,24 +185,25 @@ class DiscreteGuard:
 
     def reset(self, q: ArrayLike) -> None:
         """At rest at ``q``: every earlier position equals it."""
-        self._s: list[float] = to_f32(q).tolist()
-        self._v: list[float] = [0.0] * len(self._s)
-        self._a: list[float] = [0.0] * len(self._s)
+        self._s = np.ascontiguousarray(to_f32(q))
+        self._v = np.zeros(len(self._s))
+        self._a = np.zeros(len(self._s))
+        self._r = np.empty(len(self._s))  # the kernel's float32-rounded candidate
 
     @property
     def s1(self) -> np.ndarray:
         """Last emitted position (float32 values)."""
-        return np.array(self._s)
+        return self._s.copy()
 
     @property
     def v1(self) -> np.ndarray:
         """Last finite-difference velocity."""
-        return np.array(self._v)
+        return self._v.copy()
 
     @property
     def a1(self) -> np.ndarray:
         """Last finite-difference acceleration."""
-        return np.array(self._a)
+        return self._a.copy()
 
     def differences(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(v, a, j) of emitting ``r`` next, computed exactly as the controller does."""
@@ -236,40 +237,23 @@ class DiscreteGuard:
         a_next = a + np.clip(a_goal - a, -env.brake_jerk * dt, env.brake_jerk * dt)
         return self.s1 + dt * (v + dt * a_next)
 
-    def commit(self, r: list[float]) -> None:
-        dt, v_new, a_new = self.dt, [], []
-        for x, s, v1 in zip(r, self._s, self._v, strict=True):
-            v = (x - s) / dt
-            a_new.append((v - v1) / dt)
-            v_new.append(v)
-        self._s, self._v, self._a = list(r), v_new, a_new
-
-    def _fast_ok(self, r: list[float], env: Envelope) -> bool:
-        """``passes(r).all()`` on Python floats, the same arithmetic."""
-        dt = self.dt
-        for x, s, v1, a1, (vmax, amax, jmax, vb, c) in zip(r, self._s, self._v, self._a, env.rows,
-                                                            strict=True):
-            v = (x - s) / dt
-            a = (v - v1) / dt
-            j = (a - a1) / dt
-            if abs(v) > vmax or abs(a) > amax or abs(j) > jmax:
-                return False
-            n = (abs(a) / c) // 1.0
-            peak = v + dt * (n * a - math.copysign(c * n * (n + 1.0) / 2.0, a))
-            if abs(v) > vb or abs(peak) > vb:
-                return False
-        return True
+    def commit(self, r: ArrayLike) -> None:
+        """Emit ``r`` (float32 values): the controller's finite differences move on."""
+        r = np.array(r, dtype=np.float64)
+        v = (r - self._s) / self.dt
+        self._a = (v - self._v) / self.dt
+        self._s, self._v = r, v
 
     def filter(self, candidate: ArrayLike, env: Envelope) -> tuple[np.ndarray, np.ndarray]:
         """The float32 position to emit for ``candidate`` and the mask of axes that were changed."""
-        r_list = np.asarray(candidate, dtype=np.float32).tolist()
-        if self._fast_ok(r_list, env):
-            self.commit(r_list)
-            return np.array(r_list), _NO_CHANGE[len(r_list)]
-        r = np.array(r_list)
+        r = self._r
+        if emit_if_passes(np.ascontiguousarray(candidate, dtype=np.float64), self._s, self._v, self._a,
+                          env.table, self.dt, r):
+            return r.copy(), _NO_CHANGE[len(r)]
+        r = r.copy()
         ok = self.passes(r, env)
         if ok.all():  # the fast check is the stricter one only by rounding; trust the reference
-            self.commit(r_list)
+            self.commit(r)
             return r, ~ok
         self.interventions += 1
         bad = np.flatnonzero(~ok)
@@ -380,7 +364,10 @@ class JointShaper:
         self._target_key: tuple[list[float], float, bool] | None = None
         self._finished = True  # the last ruckig update reached its target and no command came since
         self._env = self._envelopes(limits)
+        self.limits = limits
         self._guard_env = self._wanted_guard = self._env["soft"]  # guard: enforced now / to adopt
+        self._applied_plan: tuple[Envelope, float] | None = None  # plain limits ruckig has (see _apply_plan_limits)
+        self._line_limits = np.empty((3, self.n))  # scratch of _apply_line_limits
         self.set_limits(limits)
         self.reseed(q0)
 
@@ -391,11 +378,16 @@ class JointShaper:
         previous ones until the state fits the new ones (ruckig brakes into them)."""
         if limits.n_axes != self.n:
             raise ValueError(f"limits have {limits.n_axes} axes, shaper has {self.n}")
+        if limits is not self.limits:  # (the constructor built the envelopes of its limits already)
+            self._env = self._envelopes(limits)
         self.limits = limits
-        self._env = self._envelopes(limits)
         self._wanted_guard = self._env[self._plan_mode]
         straight = self._mode == "position" and self._target_key is not None and self._target_key[2]
-        self._apply_plan_limits(self._line_to(np.array(self._inp.target_position)) if straight else None)
+        self._applied_plan = None
+        if straight:
+            self._apply_line_limits(np.array(self._inp.target_position))
+        else:
+            self._apply_plan_limits()
         self._try_switch_guard()
 
     def _envelopes(self, limits: ShaperLimits) -> dict[str, Envelope]:
@@ -445,19 +437,20 @@ class JointShaper:
         if self._mode == "position" and key == self._target_key and self._plan_mode == "soft":
             return  # re-sent every cycle by a streaming caller: nothing changes, ruckig keeps its plan
         self._target_key = key
-        self._select_plan("soft", max_vel_scale)
-        self._apply_plan_limits(self._line_to(q) if straight else None)
+        self._select_plan("soft", max_vel_scale, apply=not straight)
+        if straight:
+            self._apply_line_limits(q)
         self._set_position_mode(q)
 
     def set_velocity(self, v: ArrayLike) -> None:
         """Reach joint velocity ``v`` (deg/s) jerk-limited; above the limit all axes are scaled by one
         factor, which keeps the direction."""
         v = _arr(v)
-        if v.shape != (self.n,) or not np.isfinite(v).all():
+        within = np.empty(self.n)
+        if v.shape != (self.n,) or velocity_within(v, self._env["soft"].plan_vel, within) < 0.0:
             raise ValueError(f"expected {self.n} finite joint velocities, got {v}")
         self._select_plan("soft", 1.0)
-        over = np.max(np.abs(v) / self._env["soft"].plan_vel)
-        self._set_velocity_mode(v / over if over > 1.0 else v, "velocity")
+        self._set_velocity_mode(within, "velocity")
 
     def stop(self, mode: StopMode = "soft") -> None:
         """Decelerate to rest, time-optimally: ``soft`` within the normal limits, ``fast`` within the
@@ -487,7 +480,7 @@ class JointShaper:
             return r
         r, changed = self.guard.filter(candidate, self._guard_env)
         self._out.pass_to_input(self._inp)
-        if changed.any():
+        if changed is not _NO_CHANGE[self.n] and changed.any():
             self._resync(changed)
         elif self._finished:
             self._settle()
@@ -555,44 +548,40 @@ class JointShaper:
 
     # -- internals -------------------------------------------------------------------------------
 
-    def _select_plan(self, mode: StopMode, vel_scale: float) -> None:
+    def _select_plan(self, mode: StopMode, vel_scale: float, apply: bool = True) -> None:
+        """Plan in ``mode`` at ``vel_scale``; ``apply=False``: the caller gives ruckig the limits."""
         if mode != self._plan_mode:
             self._plan_mode = mode
             self._wanted_guard = self._env[mode]
             self._try_switch_guard()
         self._vel_scale = vel_scale
-        self._apply_plan_limits()
+        if apply:
+            self._apply_plan_limits()
 
-    def _apply_plan_limits(self, line: np.ndarray | None = None) -> None:
-        """Give ruckig the mode's planning limits; along ``line`` (|displacement| per axis) scaled so
-        that every axis has the same limits relative to its displacement: the per-axis profiles are
-        then one profile scaled, a straight line, and the slowest axis' limits still bind."""
+    def _apply_plan_limits(self) -> None:
+        """Give ruckig the mode's planning limits (velocity scaled by the plan's share), unless it has
+        them already: a velocity stream (teleop) asks for the same ones every cycle."""
         e = self._env[self._plan_mode]
-        limits = [e.plan_vel * self._vel_scale, e.plan_acc, e.plan_jerk]
-        if line is not None:
-            moving = line > 0.0
-            for k, lim in enumerate(limits):
-                rate = np.min(lim[moving] / line[moving])
-                limits[k] = np.where(moving, line * rate, lim)
-        self._inp.max_velocity, self._inp.max_acceleration, self._inp.max_jerk = (x.tolist() for x in limits)
+        applied = self._applied_plan
+        if applied is not None and applied[0] is e and applied[1] == self._vel_scale:
+            return
+        self._inp.max_velocity = (e.plan_vel * self._vel_scale).tolist()
+        self._inp.max_acceleration, self._inp.max_jerk = e.plan_acc.tolist(), e.plan_jerk.tolist()
+        self._applied_plan = (e, self._vel_scale)
 
-    def _line_to(self, q: np.ndarray) -> np.ndarray | None:
-        """|displacement| per axis if the motion to ``q`` can be a straight line (at rest, or velocity
-        and acceleration along the displacement), else None."""
+    def _apply_line_limits(self, q: np.ndarray) -> None:
+        """Give ruckig the planning limits for a move to ``q``: along the straight line in joint space
+        when the state allows one (at rest, or velocity and acceleration along the displacement),
+        scaled so that every axis has the same limits relative to its displacement. The per-axis
+        profiles are then one profile scaled, a straight line, and the slowest axis' limits still
+        bind. Else the mode's plain limits."""
+        e = self._env[self._plan_mode]
         p, v, a = self.state
-        d = q - p
-        size = np.max(np.abs(d))
-        if size < 1e-6:  # deg: nothing to keep straight, and no limits scaled by a vanishing share
-            return None
-        line = np.abs(d)
-        line[line < 1e-9 * size] = 0.0  # numerically not moving: keeps its own limits, stays put
-        u = np.where(line > 0.0, d, 0.0)
-        u /= np.linalg.norm(u)
-        for x in (v, a):
-            off = x - (x @ u) * u  # the part of the state across the line
-            if np.linalg.norm(off) > 1e-9 * (np.linalg.norm(x) + 1e-12):
-                return None
-        return line
+        lim = self._line_limits
+        line_limits(p, v, a, np.ascontiguousarray(q, dtype=np.float64), e.plan_vel, e.plan_acc, e.plan_jerk,
+                    self._vel_scale, lim)
+        self._inp.max_velocity, self._inp.max_acceleration, self._inp.max_jerk = lim.tolist()
+        self._applied_plan = None
 
     def _set_position_mode(self, q: np.ndarray) -> None:
         self._mode = "position"

@@ -24,11 +24,13 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 
 from servo_app.robots.conventions import ArrayLike
 from servo_app.robots.geometry import ArmGeometry
+from servo_app.robots.kernels import pack_region, rows_in_region
 
 TWO_PI = 2.0 * math.pi
 _PATTERN = re.compile(r"^\s*([NF])\s*([UD])\s*([TB])\s*(?:,?\s*(-?\d+)\s*,?\s*(-?\d+)\s*,?\s*(-?\d+))?\s*$",
@@ -157,10 +159,15 @@ class ConfigurationRegion:
         """This region cut to the joint ranges ``[lower, upper]`` (model rad)."""
         return replace(self, lower=np.maximum(self.lower, lower), upper=np.minimum(self.upper, upper))
 
+    @cached_property
+    def packed(self) -> np.ndarray:
+        """This region as one float64 array, for the compiled kernels (:mod:`servo_app.robots.kernels`)."""
+        k = self.kin
+        return pack_region(self.lower, self.upper, k.a1, k.a2, k.a3, k.d4, self.reference.top, self.top_margin_m)
+
     def contains(self, q_model_rad: np.ndarray) -> np.ndarray:
         """Per row of ``q`` ((n, 6) or (6,)): inside the box and on the reference's side of the J1 axis."""
-        q = np.atleast_2d(q_model_rad)[:, :6]
-        ok = np.all((q >= self.lower) & (q <= self.upper), axis=1)
-        x = wrist_centre_offset(q[:, 1], q[:, 2], self.kin)
-        side = x > 0.0 if self.reference.top else x <= 0.0
-        return ok & side & (np.abs(x) >= self.top_margin_m)
+        q = np.atleast_2d(np.asarray(q_model_rad, dtype=float))
+        out = np.empty(q.shape[0], dtype=bool)
+        rows_in_region(q, self.packed, out)
+        return out

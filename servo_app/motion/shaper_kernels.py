@@ -1,0 +1,116 @@
+"""Compiled kernels of the shaper's per-cycle work (numba): the guard's check of the float32 candidate
+and the straight-line planning limits of :class:`~servo_app.motion.shaper.JointShaper`.
+
+The guard's check ran on Python floats and the line limits as a dozen numpy calls (a jog sets a new
+target every cycle): about 40 us of a joint-jog cycle here, one kernel call each now. The arithmetic
+follows the readings they replace operation for operation (the float32 rounding, the finite
+differences exactly as the controller computes them, the braking peak), so the guard passes and
+commits the same positions; tests/test_shaper_kernels.py compares both with those readings.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from servo_app.jit import kernel
+
+# Rows of an envelope's check table (Envelope.table): per axis.
+CHECK_VEL, CHECK_ACC, CHECK_JERK, CHECK_BRAKE_VEL, CHECK_BRAKE_STEP = 0, 1, 2, 3, 4
+
+
+@kernel("boolean(float64[::1], float64[::1], float64[::1], float64[::1], float64[:, ::1], float64, float64[::1])")
+def emit_if_passes(candidate: np.ndarray, s: np.ndarray, v: np.ndarray, a: np.ndarray, table: np.ndarray,
+                   dt: float, r: np.ndarray) -> bool:
+    """Round ``candidate`` to float32 into ``r``; if emitting it keeps every axis' finite differences
+    within ``table`` with a braking-feasible future, commit it (``s``, ``v``, ``a`` updated in place:
+    the emitted position, velocity and acceleration) and return True; else change nothing else."""
+    n = s.shape[0]
+    for i in range(n):
+        r[i] = np.float64(np.float32(candidate[i]))
+    for i in range(n):
+        vi = (r[i] - s[i]) / dt
+        ai = (vi - v[i]) / dt
+        ji = (ai - a[i]) / dt
+        if abs(vi) > table[CHECK_VEL, i] or abs(ai) > table[CHECK_ACC, i] or abs(ji) > table[CHECK_JERK, i]:
+            return False
+        c, vb = table[CHECK_BRAKE_STEP, i], table[CHECK_BRAKE_VEL, i]
+        # velocity still gained while |a| ramps down by c per cycle (see shaper._brake_peaks)
+        k = math.floor(abs(ai) / c)
+        peak = vi + dt * (k * ai - math.copysign(c * k * (k + 1.0) / 2.0, ai))
+        if abs(vi) > vb or abs(peak) > vb:
+            return False
+    for i in range(n):
+        vi = (r[i] - s[i]) / dt
+        a[i] = (vi - v[i]) / dt
+        v[i] = vi
+        s[i] = r[i]
+    return True
+
+
+@kernel("boolean(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], "
+        "float64[::1], float64, float64[:, ::1])")
+def line_limits(p: np.ndarray, v: np.ndarray, a: np.ndarray, q: np.ndarray, plan_vel: np.ndarray,
+                plan_acc: np.ndarray, plan_jerk: np.ndarray, vel_scale: float, out: np.ndarray) -> bool:
+    """The planning limits (rows: velocity, acceleration, jerk) for a move from state (p, v, a) to ``q``
+    into ``out``; True if the move can be a straight line (from rest, or with velocity and
+    acceleration along the displacement): the limits are then scaled to each axis' share of the
+    displacement, else they are the plain ones (velocity times ``vel_scale``)."""
+    n = p.shape[0]
+    for i in range(n):
+        out[0, i] = plan_vel[i] * vel_scale
+        out[1, i] = plan_acc[i]
+        out[2, i] = plan_jerk[i]
+    size = 0.0
+    for i in range(n):
+        size = max(size, abs(q[i] - p[i]))
+    if size < 1e-6:  # deg: nothing to keep straight, and no limits scaled by a vanishing share
+        return False
+    norm_u = 0.0
+    for i in range(n):
+        d = q[i] - p[i]
+        if abs(d) >= 1e-9 * size:  # numerically not moving otherwise: keeps its own limits, stays put
+            norm_u += d * d
+    norm_u = math.sqrt(norm_u)
+    for x in (v, a):
+        along, norm_x = 0.0, 0.0
+        for i in range(n):
+            d = q[i] - p[i]
+            u = d / norm_u if abs(d) >= 1e-9 * size else 0.0
+            along += x[i] * u
+            norm_x += x[i] * x[i]
+        norm_off = 0.0
+        for i in range(n):
+            d = q[i] - p[i]
+            u = d / norm_u if abs(d) >= 1e-9 * size else 0.0
+            off = x[i] - along * u  # the part of the state across the line
+            norm_off += off * off
+        if math.sqrt(norm_off) > 1e-9 * (math.sqrt(norm_x) + 1e-12):
+            return False
+    for k in range(3):
+        rate = np.inf
+        for i in range(n):
+            line = abs(q[i] - p[i])
+            if line >= 1e-9 * size:
+                rate = min(rate, out[k, i] / line)
+        for i in range(n):
+            line = abs(q[i] - p[i])
+            if line >= 1e-9 * size:
+                out[k, i] = line * rate
+    return True
+
+
+@kernel("float64(float64[::1], float64[::1], float64[::1])")
+def velocity_within(v: np.ndarray, vmax: np.ndarray, out: np.ndarray) -> float:
+    """``v`` scaled by one factor so that no axis exceeds ``vmax`` (keeps the direction), into ``out``.
+    Returns max |v| / vmax (the factor when above 1), or -1.0 if ``v`` is not finite."""
+    n = v.shape[0]
+    over = -np.inf
+    for i in range(n):
+        if not math.isfinite(v[i]):
+            return -1.0
+        over = max(over, abs(v[i]) / vmax[i])
+    for i in range(n):
+        out[i] = v[i] / over if over > 1.0 else v[i]
+    return over

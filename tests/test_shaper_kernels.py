@@ -1,0 +1,147 @@
+"""The shaper's compiled kernels (servo_app.motion.shaper_kernels) against the readings they replace:
+the guard's check on Python floats and the straight-line limits in numpy."""
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from servo_app.motion.shaper import Envelope, ShaperLimits
+from servo_app.motion.shaper_kernels import emit_if_passes, line_limits, velocity_within
+
+DT = 0.008
+LIMITS = ShaperLimits(np.array([370.0, 310.0, 410.0, 550.0, 545.0, 1000.0]),
+                      np.array([1500.0, 1300.0, 1700.0, 2300.0, 2300.0, 4200.0]),
+                      np.array([9000.0, 8000.0, 10000.0, 14000.0, 14000.0, 25000.0]))
+ENV = Envelope.build(*LIMITS.scaled(), LIMITS.pos_abs_max, DT)  # type: ignore[arg-type]
+
+six = st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6).map(np.array)
+
+
+def passes_oracle(r, s, v1, a1, env):
+    """DiscreteGuard._fast_ok as it ran on Python floats."""
+    rows = zip(*(x.tolist() for x in (env.vel, env.acc, env.jerk, env.brake_vel, env.brake_jerk * DT)), strict=True)
+    for x, s0, v0, a0, (vmax, amax, jmax, vb, c) in zip(r, s, v1, a1, rows, strict=True):
+        v = (x - s0) / DT
+        a = (v - v0) / DT
+        j = (a - a0) / DT
+        if abs(v) > vmax or abs(a) > amax or abs(j) > jmax:
+            return False
+        n = (abs(a) / c) // 1.0
+        peak = v + DT * (n * a - math.copysign(c * n * (n + 1.0) / 2.0, a))
+        if abs(v) > vb or abs(peak) > vb:
+            return False
+    return True
+
+
+@st.composite
+def guard_states(draw):
+    """A reachable emitted state (s, v, a) and a candidate around its continuation, some far off."""
+    s = np.asarray((draw(six) * 300.0).astype(np.float32), dtype=np.float64)
+    v = draw(six) * ENV.vel
+    a = draw(six) * ENV.acc
+    spread = draw(st.sampled_from([1e-7, 1e-5, 1e-3, 1e-1]))
+    candidate = s + DT * (v + DT * a) + draw(six) * spread * ENV.jerk * DT**3 / 1e-3
+    return s, v, a, candidate
+
+
+@settings(max_examples=500, deadline=None)
+@given(guard_states())
+def test_guard_check_matches_python_floats(state):
+    s, v, a, candidate = state
+    r_list = np.asarray(candidate, dtype=np.float32).tolist()
+    expected = passes_oracle(r_list, s.tolist(), v.tolist(), a.tolist(), ENV)
+    s_k, v_k, a_k, r = s.copy(), v.copy(), a.copy(), np.empty(6)
+    assert emit_if_passes(candidate, s_k, v_k, a_k, ENV.table, DT, r) == expected
+    assert r.tolist() == r_list
+    if expected:  # committed: the controller's finite differences, as DiscreteGuard.commit took them
+        v_new = [(x - s0) / DT for x, s0 in zip(r_list, s.tolist(), strict=True)]
+        a_new = [(vn - v0) / DT for vn, v0 in zip(v_new, v.tolist(), strict=True)]
+        assert (s_k.tolist(), v_k.tolist(), a_k.tolist()) == (r_list, v_new, a_new)
+    else:
+        assert (s_k.tolist(), v_k.tolist(), a_k.tolist()) == (s.tolist(), v.tolist(), a.tolist())
+
+
+def test_guard_check_has_both_answers():
+    s, v, a, r = np.zeros(6), np.zeros(6), np.zeros(6), np.empty(6)
+    assert emit_if_passes(np.full(6, 1e-6), s, v, a, ENV.table, DT, r)
+    assert not emit_if_passes(np.full(6, 1.0), s, v, a, ENV.table, DT, r)  # 125 deg/s from rest in one cycle
+
+
+def line_limits_oracle(p, v, a, q, env, vel_scale):
+    """JointShaper._line_to and _apply_plan_limits as numpy ran them."""
+    limits = [env.plan_vel * vel_scale, env.plan_acc, env.plan_jerk]
+    d = q - p
+    size = np.max(np.abs(d))
+    if size < 1e-6:
+        return False, limits
+    line = np.abs(d)
+    line[line < 1e-9 * size] = 0.0
+    u = np.where(line > 0.0, d, 0.0)
+    u /= np.linalg.norm(u)
+    for x in (v, a):
+        off = x - (x @ u) * u
+        if np.linalg.norm(off) > 1e-9 * (np.linalg.norm(x) + 1e-12):
+            return False, limits
+    moving = line > 0.0
+    for k, lim in enumerate(limits):
+        rate = np.min(lim[moving] / line[moving])
+        limits[k] = np.where(moving, line * rate, lim)
+    return True, limits
+
+
+@st.composite
+def moves(draw):
+    """A state and a target: at rest, moving along the line to the target, or across it."""
+    p = draw(six) * 170.0
+    d = draw(six) * draw(st.sampled_from([1e-7, 1e-3, 1.0, 100.0]))
+    if draw(st.booleans()):
+        d[draw(st.integers(0, 5))] = 0.0  # an axis that does not move
+    kind = draw(st.sampled_from(["rest", "along", "across"]))
+    if kind == "rest":
+        v, a = np.zeros(6), np.zeros(6)
+    elif kind == "along":
+        v, a = d * draw(st.floats(0.1, 10.0)), d * draw(st.floats(-10.0, 10.0))
+    else:
+        v, a = draw(six) * 100.0, draw(six) * 1000.0
+    return p, v, a, p + d, draw(st.floats(0.01, 1.0))
+
+
+@settings(max_examples=500, deadline=None)
+@given(moves())
+def test_line_limits_match_numpy(move):
+    p, v, a, q, vel_scale = move
+    straight, expected = line_limits_oracle(p, v, a, q, ENV, vel_scale)
+    out = np.empty((3, 6))
+    assert line_limits(p, v, a, q, ENV.plan_vel, ENV.plan_acc, ENV.plan_jerk, vel_scale, out) == straight
+    # The rate is a minimum of quotients and the limits are products: bit for bit. (The decision above
+    # sums dot products in the kernel's order, numpy's BLAS may differ in the last bit: thresholds only.)
+    assert out.tolist() == [x.tolist() for x in expected]
+
+
+def test_line_limits_take_each_branch():
+    out = np.empty((3, 6))
+    p, q = np.zeros(6), np.array([10.0, 5.0, 0.0, 0.0, 0.0, 0.0])
+    args = (ENV.plan_vel, ENV.plan_acc, ENV.plan_jerk, 1.0, out)
+    assert line_limits(p, np.zeros(6), np.zeros(6), q, *args)
+    assert out[0, 1] / out[0, 0] == 0.5 and out[0, 2] == ENV.plan_vel[2]
+    assert not line_limits(p, np.array([0.0, 0.0, 1.0, 0, 0, 0]), np.zeros(6), q, *args)  # moving across
+    assert not line_limits(p, np.zeros(6), np.zeros(6), p + 1e-8, *args)  # nothing to keep straight
+
+
+@settings(max_examples=300, deadline=None)
+@given(six, st.sampled_from([1.0, 100.0, 1000.0, 1e5]))
+def test_velocity_cap_matches_numpy(v, size):
+    """JointShaper.set_velocity's cap: all axes scaled by one factor above the limit."""
+    v = v * size
+    over = np.max(np.abs(v) / ENV.plan_vel)
+    out = np.empty(6)
+    assert velocity_within(v, ENV.plan_vel, out) == over
+    assert out.tolist() == (v / over if over > 1.0 else v).tolist()
+
+
+def test_velocity_cap_refuses_what_is_not_finite():
+    out = np.empty(6)
+    assert velocity_within(np.array([0.0, np.nan, 0, 0, 0, 0]), ENV.plan_vel, out) < 0.0
+    assert velocity_within(np.array([0.0, 0, 0, 0, 0, -np.inf]), ENV.plan_vel, out) < 0.0
