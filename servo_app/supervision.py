@@ -424,9 +424,10 @@ class SupervisorBase:
 
     def _start_when_ready(self, now: float) -> None:
         """Called on each new status: a pending start begins once the controller is waiting."""
+        if not self._start_pending:  # the streaming case: nothing to look at
+            return
         st = self.state.status
-        ready = self.state.mode == Mode.READY or (self.state.mode == Mode.ENDED and st is not None and st.waiting)
-        if self._start_pending and ready:
+        if self.state.mode == Mode.READY or (self.state.mode == Mode.ENDED and st is not None and st.waiting):
             self._start_pending = False
             self._feed(StartRequested(), now)
 
