@@ -363,8 +363,6 @@ class JointShaper:
         self._mode = "position"
         self._target_key: tuple[list[float], float, bool] | None = None
         self._finished = True  # the last ruckig update reached its target and no command came since
-        # ruckig's current state as arrays, read once after each change (None: changed since)
-        self._state_now: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._env = self._envelopes(limits)
         self.limits = limits
         self._guard_env = self._wanted_guard = self._env["soft"]  # guard: enforced now / to adopt
@@ -410,7 +408,6 @@ class JointShaper:
         self._inp.current_position = q.tolist()
         self._inp.current_velocity = [0.0] * self.n
         self._inp.current_acceleration = [0.0] * self.n
-        self._state_now = None
         self.guard.reset(q)
         self._hold_first = True
         self._plan_mode = "soft"
@@ -483,7 +480,6 @@ class JointShaper:
             return r
         r, changed = self.guard.filter(candidate, self._guard_env)
         self._out.pass_to_input(self._inp)
-        self._state_now = None
         if changed is not _NO_CHANGE[self.n] and changed.any():
             self._resync(changed)
         elif self._finished:
@@ -495,17 +491,8 @@ class JointShaper:
     @property
     def state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Internal continuous (position, velocity, acceleration) the next cycle starts from."""
-        p, v, a = self._state()
-        return p.copy(), v.copy(), a.copy()
-
-    def _state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:attr:`state` without the copies, for reading only: read off ruckig once per change (a
-        jog cycle reads it three times)."""
-        if self._state_now is None:
-            inp = self._inp
-            self._state_now = (np.array(inp.current_position), np.array(inp.current_velocity),
-                               np.array(inp.current_acceleration))
-        return self._state_now
+        return (np.asarray(self._inp.current_position), np.asarray(self._inp.current_velocity),
+                np.asarray(self._inp.current_acceleration))
 
     @property
     def commanded(self) -> np.ndarray:
@@ -516,7 +503,7 @@ class JointShaper:
     def at_rest(self) -> bool:
         """Not moving, as the controller sees it (the last three positions equal) and internally, and
         no command pending."""
-        p, v, a = self._state()
+        p, v, a = self.state
         return bool(self._finished and (self.guard.v1 == 0.0).all() and (self.guard.a1 == 0.0).all()
                     and np.array_equal(self.guard.s1, to_f32(p))
                     and (np.abs(v) <= _REST_TOL).all() and (np.abs(a) <= _REST_TOL).all())
@@ -545,7 +532,7 @@ class JointShaper:
     def stop_path(self, mode: StopMode = "soft", samples: int = 16) -> np.ndarray:
         """Where ``stop(mode)`` would take the axes from the current state: ``samples`` positions."""
         e = self._env[mode]
-        p, v, a = self._state()
+        p, v, a = self.state
         return stop_path(p, v, a, e.plan_vel, e.plan_acc, e.plan_jerk, samples)
 
     def optimal_stop_duration(self, mode: StopMode = "soft", planned: bool = False) -> float:
@@ -554,7 +541,7 @@ class JointShaper:
         ``planned`` within the limits ruckig is actually given (checked minus the float32 margins),
         which the stop meets to the cycle."""
         e = self._env[mode]
-        p, v, a = self._state()
+        p, v, a = self.state
         if planned:
             return time_optimal_stop_duration(p, v, a, e.plan_vel, e.plan_acc, e.plan_jerk)
         return time_optimal_stop_duration(p, v, a, e.vel, e.acc, e.jerk)
@@ -589,7 +576,7 @@ class JointShaper:
         profiles are then one profile scaled, a straight line, and the slowest axis' limits still
         bind. Else the mode's plain limits."""
         e = self._env[self._plan_mode]
-        p, v, a = self._state()
+        p, v, a = self.state
         lim = self._line_limits
         line_limits(p, v, a, np.ascontiguousarray(q, dtype=np.float64), e.plan_vel, e.plan_acc, e.plan_jerk,
                     self._vel_scale, lim)
@@ -660,7 +647,6 @@ class JointShaper:
             inp.current_acceleration = [0.0] * self.n
             if position:
                 inp.current_position = inp.target_position
-            self._state_now = None
 
     def _resync(self, axes: np.ndarray) -> None:
         """Continue ruckig from the parabola through the last three emitted positions on ``axes``:
@@ -671,4 +657,3 @@ class JointShaper:
         p[axes], v[axes], a[axes] = g.s1[axes], g.v1[axes] + g.a1[axes] * self.dt / 2.0, g.a1[axes]
         self._inp.current_position, self._inp.current_velocity = p.tolist(), v.tolist()
         self._inp.current_acceleration = a.tolist()
-        self._state_now = None
