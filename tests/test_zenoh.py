@@ -20,21 +20,20 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
+import zenoh  # a test dependency (pyproject's test extra): missing, the tests must fail, not skip
 from hypothesis import given
 from hypothesis import strategies as st
+from test_api_harness import AUTH, TOKEN, Rig, running_rig
 
-zenoh = pytest.importorskip("zenoh")
-
-from servo_app.monitor import FleetMonitor  # noqa: E402
-from servo_app.ros import messages as ros  # noqa: E402
-from servo_app.zenoh_api import (  # noqa: E402
+from servo_app.monitor import FleetMonitor
+from servo_app.ros import messages as ros
+from servo_app.zenoh_api import (
     ZenohInterface,
     ZenohSettings,
     parse_rmw_attachment,
     rmw_attachment,
     ros_key,
 )
-from tests.test_api_harness import AUTH, TOKEN, Rig, running_rig  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
