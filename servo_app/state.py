@@ -89,6 +89,16 @@ VECTOR_FIELDS = {name for name, n in _FIELDS if n > 1}
 OFFSET: dict[str, int] = {name: sl.start for name, sl in FIELDS.items()}
 
 
+# The link counters every backend's session keeps under these names (its ``stats``).
+LINK_COUNTERS = ("commands_sent", "status_received", "status_lost", "status_duplicated", "malformed")
+
+
+def write_link_counters(data: np.ndarray, stats: object) -> None:
+    """A session's link counters, straight into a state vector's data (a servo process's publish)."""
+    for name in LINK_COUNTERS:
+        data[OFFSET[name]] = getattr(stats, name)
+
+
 class StateVector:
     """A writable state vector with attribute-like access by field name."""
 

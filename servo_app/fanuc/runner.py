@@ -40,7 +40,7 @@ from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.profile import load_profile
 from servo_app.safety import Mode
 from servo_app.session_log import command_record, status_record
-from servo_app.state import FIELDS, LATENCY_BUCKETS_US, MODES, OFFSET, PHASES, StateVector
+from servo_app.state import FIELDS, LATENCY_BUCKETS_US, MODES, OFFSET, PHASES, StateVector, write_link_counters
 
 assert all(p.value in PHASES for p in Phase)
 assert all(m.value in MODES for m in Mode)
@@ -442,12 +442,7 @@ class _ServoProcess(ServoProcessHost):
             d[F["io_read_type"]] = st.read_io_type
             d[F["io_read_index"]] = st.read_io_index
             d[F["io_read_mask"]] = st.read_io_mask
-        stats = s.stats
-        d[F["commands_sent"]] = stats.commands_sent
-        d[F["status_received"]] = stats.status_received
-        d[F["status_lost"]] = stats.status_lost
-        d[F["status_duplicated"]] = stats.status_duplicated
-        d[F["malformed"]] = stats.malformed
+        write_link_counters(d, s.stats)
         d[_LAT_HIST: _LAT_HIST + self.lat_hist.size] = self.lat_hist
         d[F["latency_sum_us"]] = self.lat_sum_us
         lat = self.latency

@@ -36,7 +36,7 @@ from servo_app.messages import PeerConnected, PeerDisconnected, PeerRefused, Rea
 from servo_app.motion.settle import SettleDetector
 from servo_app.process_handle import ServoProcessHandle, ServoProcessHost, run_child
 from servo_app.safety import Mode, safe_to_exit
-from servo_app.state import FIELDS, MODES, OFFSET, PHASES, StateVector, command_derivatives
+from servo_app.state import FIELDS, MODES, OFFSET, PHASES, StateVector, command_derivatives, write_link_counters
 
 assert all(p.value in PHASES for p in Phase)
 assert all(m.value in MODES for m in Mode)
@@ -261,12 +261,7 @@ class _JanomeServoProcess(ServoProcessHost):
             q[:4] = st.xyzr
             q[4:] = 0.0
             d[_CART_SERVO: _CART_SERVO + 6] = (st.x, st.y, st.z, 0.0, 0.0, st.r)
-        stats = s.stats
-        d[F["commands_sent"]] = stats.commands_sent
-        d[F["status_received"]] = stats.status_received
-        d[F["status_lost"]] = stats.status_lost
-        d[F["status_duplicated"]] = stats.status_duplicated
-        d[F["malformed"]] = stats.malformed
+        write_link_counters(d, s.stats)
         if self.lat_us:
             a = np.fromiter(self.lat_us, float)
             d[F["latency_last_us"]] = a[-1]
