@@ -38,6 +38,13 @@ from typing import IO, Any
 import numpy as np
 from mcap.writer import Writer
 
+from servo_app.fanuc.alarms import format_violation
+from servo_app.fanuc.packets import StatusBit
+from servo_app.motion.cartesian import CartesianConverter
+from servo_app.motion.checker import ControllerLimitChecker
+from servo_app.robots.conventions import fanuc_deg_to_model_rad, xyzwpr_to_matrix
+from servo_app.robots.kinematics import ArmKinematics
+from servo_app.robots.profile import ProfileError, load_profile
 from servo_app.ros import messages as ros
 from servo_app.session_log import KIND_COMMAND, KIND_STATUS, SessionLogError, read_session_log
 
@@ -51,7 +58,6 @@ TOPICS: dict[str, str] = {
     "/diagnostics": ros.DIAGNOSTIC_ARRAY,
 }
 DIAGNOSTIC_NAME = "servo_app/controller"
-FANUC_BITS = ((0x01, "waiting_for_command"), (0x02, "command_received"), (0x04, "sysrdy"), (0x08, "moving"))
 
 
 class ExportError(ValueError):
@@ -119,11 +125,6 @@ class LogConverter:
     # ---- FANUC J519 --------------------------------------------------------------------------------
 
     def _fanuc_setup(self, model: str | None) -> None:
-        from servo_app.motion.cartesian import CartesianConverter
-        from servo_app.motion.checker import ControllerLimitChecker
-        from servo_app.robots.kinematics import ArmKinematics
-        from servo_app.robots.profile import ProfileError, load_profile
-
         name = model or self.header.get("model")
         if not isinstance(name, str) or not name:
             raise ExportError("the session log's header names no model: give one with --model")
@@ -147,15 +148,13 @@ class LogConverter:
         self.streams = 0
 
     def _fanuc_status(self, rec: np.void, t: int, values: np.ndarray) -> list[Message]:
-        from servo_app.robots.conventions import fanuc_deg_to_model_rad
-
         q_model = fanuc_deg_to_model_rad(values[: self.n], self.j23)
         bits = int(rec["flags"])
         out = [Message("/joint_states", t, ros.joint_state(t, q_model)),
                Message("/tcp_pose", t, ros.pose_stamped(t, self.kin.fk(q_model))),
                Message("/status_bits", t, ros.status_bits(t, int(rec["seq"]), bits, int(rec["io"]),
-                                                          [label for bit, label in FANUC_BITS if bits & bit]))]
-        if self.streaming and not bits & 0x01:
+                                                          [b.name.lower() for b in StatusBit if bits & b]))]
+        if self.streaming and not bits & StatusBit.WAITING_FOR_COMMAND:
             self.streaming = False
             out.append(Message("/diagnostics", t, ros.diagnostics(t, DIAGNOSTIC_NAME, self.hardware, [(
                 ros.ERROR, "the controller stopped the stream (status bit 0 cleared): see its alarm history",
@@ -163,9 +162,6 @@ class LogConverter:
         return out
 
     def _fanuc_command(self, rec: np.void, t: int, values: np.ndarray) -> list[Message]:
-        from servo_app.fanuc.alarms import format_violation
-        from servo_app.robots.conventions import fanuc_deg_to_model_rad, xyzwpr_to_matrix
-
         seq, flags = int(rec["seq"]), int(rec["flags"])  # flags = last_data | data_format << 1
         cartesian = not (flags >> 1) & 1
         if self.new_stream:
@@ -190,8 +186,7 @@ class LogConverter:
             found += checker.finish(seq)
             self.new_stream, self.streaming = True, False
         q_model = fanuc_deg_to_model_rad(q_deg, self.j23)
-        v_model = np.radians(checker.velocity)
-        v_model[2] += self.j23 * v_model[1]  # the model's J3 rate (q3 = J3 + j23 * J2)
+        v_model = fanuc_deg_to_model_rad(checker.velocity, self.j23)  # linear: rates convert as positions do
         # Cartesian: the commanded pose itself; joints: the flange pose they put the arm in.
         pose = xyzwpr_to_matrix(values[:6]) if cartesian else self.kin.fk(q_model)
         vel, acc, jerk = checker.limits_at(checker.flange_speed)

@@ -128,18 +128,34 @@ def is_session_log(path: Path) -> bool:
         return f.read(len(MAGIC)) == MAGIC
 
 
-def read_session_log(path: Path) -> SessionLog:
-    """Read a log; a trailing partial record (a crash mid-write) is dropped."""
-    data = Path(path).read_bytes()
-    if data[: len(MAGIC)] != MAGIC:
+def parse_header(data: bytes, path: object = "session log") -> tuple[dict[str, Any], int] | None:
+    """The header of a log's first bytes and where its records start; None while it is not all there
+    (a log being written). SessionLogError when the bytes are no session log."""
+    if data[: len(MAGIC)] != MAGIC[: len(data)]:
         raise SessionLogError(f"{path}: not a servo_app session log (magic={data[:8]!r})")
-    (n,) = struct.unpack_from("<I", data, len(MAGIC))
     start = len(MAGIC) + 4
+    if len(data) < start:
+        return None
+    (n,) = struct.unpack_from("<I", data, len(MAGIC))
+    if len(data) < start + n:
+        return None
     try:
         header = json.loads(data[start:start + n])
     except json.JSONDecodeError as exc:
         raise SessionLogError(f"{path}: header is not valid JSON: {exc}") from exc
-    body = data[start + n:]
+    return header, start + n
+
+
+def read_session_log(path: Path) -> SessionLog:
+    """Read a log; a trailing partial record (a crash mid-write) is dropped."""
+    data = Path(path).read_bytes()
+    if data[: len(MAGIC)] != MAGIC:  # a whole file: a short one is no log either
+        raise SessionLogError(f"{path}: not a servo_app session log (magic={data[:8]!r})")
+    parsed = parse_header(data, path)
+    if parsed is None:
+        raise SessionLogError(f"{path}: the header is cut short ({len(data)} bytes)")
+    header, body_start = parsed
+    body = data[body_start:]
     usable = len(body) - len(body) % RECORD_SIZE
     records = np.frombuffer(body[:usable], dtype=RECORD_DTYPE)
     return SessionLog(header=header, records=records)

@@ -47,6 +47,11 @@ class ServoService:
         self.robot_address: tuple[str, int] | None = None
         self.events: deque[msg.Event] = deque(maxlen=2000)
         self.recorders: list[Any] = []  # LiveMcapRecorder per session log, with cfg.mcap_live
+        self._recorder_class: Any = None
+        if cfg.mcap_live:  # imported here, not on the event thread at the first stream (mcap, rosbags: 0.3 s)
+            from servo_app.service.mcap_live import LiveMcapRecorder
+
+            self._recorder_class = LiveMcapRecorder
         self._safety: dict[str, Any] = {}  # the servo process's last SafetyChanged view
         self._safety_cv = threading.Condition()
         self._lifecycle = threading.Lock()  # one open / replace / close at a time
@@ -184,11 +189,9 @@ class ServoService:
     def _on_event(self, ev: msg.Event) -> None:
         """Called on the handle's reader thread for every event."""
         self.events.append(ev)
-        if self.cfg.mcap_live and isinstance(ev, msg.LogOpened):
+        if self._recorder_class is not None and isinstance(ev, msg.LogOpened):
             self._close_recorders()
-            from servo_app.service.mcap_live import LiveMcapRecorder  # mcap and rosbags: only when asked
-
-            self.recorders.append(LiveMcapRecorder(Path(ev.path)).start())
+            self.recorders.append(self._recorder_class(Path(ev.path)).start())
         elif isinstance(ev, msg.LogClosed):
             self._close_recorders()
         if isinstance(ev, msg.SafetyChanged):

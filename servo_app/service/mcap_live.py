@@ -9,9 +9,7 @@ leaves an MCAP readable up to its last chunk, and the ``.srvlog`` complete.
 
 from __future__ import annotations
 
-import json
 import logging
-import struct
 import threading
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -19,7 +17,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from servo_app.mcap_export import ExportError, LogConverter, McapSink
-from servo_app.session_log import MAGIC, RECORD_DTYPE, RECORD_SIZE
+from servo_app.session_log import RECORD_DTYPE, RECORD_SIZE, SessionLogError, parse_header
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +64,7 @@ class LiveMcapRecorder:
                             break
                         self._closed.wait(self.poll_s)
                     sink.finish()
-        except (OSError, ExportError, ValueError) as exc:
+        except (OSError, ExportError, SessionLogError) as exc:
             self.error = f"{self.path}: {exc}"
             log.warning("live MCAP stopped: %s (the session log is complete; `servo-app export` converts it)",
                         self.error)
@@ -76,14 +74,9 @@ class LiveMcapRecorder:
         while True:
             closed = self._closed.is_set()
             src.seek(0)
-            head = src.read(len(MAGIC) + 4)
-            if len(head) == len(MAGIC) + 4:
-                if head[: len(MAGIC)] != MAGIC:
-                    raise ValueError(f"{self.srvlog} is not a session log")
-                (n,) = struct.unpack_from("<I", head, len(MAGIC))
-                blob = src.read(n)
-                if len(blob) == n:
-                    return json.loads(blob), len(MAGIC) + 4 + n
+            parsed = parse_header(src.read(), self.srvlog)
+            if parsed is not None:
+                return parsed
             if closed:
                 return None, 0
             self._closed.wait(self.poll_s)
