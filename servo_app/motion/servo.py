@@ -440,13 +440,13 @@ class ServoCycle:
         cycle to the next, and a target that jumps back can be overshot.
         """
         assert self._region is not None, "begin() sets the region"
-        return cycle_kernels.config_keeping_reach(np.asarray(q0, dtype=float), np.asarray(q1, dtype=float), samples,
-                                                  self._j23, self._region_packed, self._scratch)
+        q0, q1 = np.ascontiguousarray(q0, dtype=float), np.ascontiguousarray(q1, dtype=float)
+        return cycle_kernels.config_keeping_reach(q0, q1, samples, self._j23, self._region_packed, self._scratch)
 
     def _clip_to_range(self, q_fanuc_deg: np.ndarray) -> np.ndarray:
         lo, hi = self._range_model_deg
         out = np.empty(self.profile.dof)
-        cycle_kernels.clip_to_range(np.asarray(q_fanuc_deg, dtype=float), self._j23, lo, hi, out)
+        cycle_kernels.clip_to_range(np.ascontiguousarray(q_fanuc_deg, dtype=float), self._j23, lo, hi, out)
         return out
 
     def _require(self) -> JointShaper:
