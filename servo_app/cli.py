@@ -5,6 +5,7 @@ Subcommands:
   sim fanuc|janome         a controller simulator, standalone
   check FILE [--model M]   validate a trajectory or session log as the controller would
   export FILE --mcap OUT   a session log as MCAP with ROS 2 types (Foxglove)
+  monitor                  one live line per cell on the Zenoh network
   profiles                 list the robot profiles found (FANUC and Janome)
 """
 
