@@ -107,6 +107,20 @@ class Rig:
     def wait_state(self, *states: str, timeout: float = 10.0) -> dict[str, Any]:
         return self.wait(lambda s: s["state"] in states, timeout, f"state in {states}")
 
+    def wait_at_rest_settled(self, timeout: float = 3.0) -> dict[str, Any]:
+        """Commands at rest, then the simulated servo settled (it follows the commands with a lag)."""
+        s = self.wait(lambda s: s["at_rest"] and max(map(abs, s["vel"])) < 1e-6, timeout, "at rest")
+        deadline = time.monotonic() + timeout
+        last = np.array(s["cart_servo"])
+        while True:
+            time.sleep(0.05)
+            s = self.state()
+            now = np.array(s["cart_servo"])
+            if np.abs(now - last).max() < 1e-3:
+                return s
+            assert time.monotonic() < deadline, "the servo position did not settle"
+            last = now
+
     def start_streaming(self, headers: dict[str, str]) -> dict[str, Any]:
         self.post("/api/session/start", headers)
         return self.wait_state("streaming")

@@ -277,18 +277,7 @@ def done(cell: Cell, h: dict[str, str]) -> None:
 
 
 def at_rest(cell: Cell, timeout: float = 3.0) -> dict[str, Any]:
-    """Commands at rest, then the simulated servo settled (it follows the commands with a lag)."""
-    s = cell.rig.wait(lambda s: s["at_rest"] and max(map(abs, s["vel"])) < 1e-6, timeout, "at rest")
-    deadline = time.monotonic() + timeout
-    last = np.array(s["cart_servo"])
-    while True:
-        time.sleep(0.05)
-        s = cell.rig.state()
-        now = np.array(s["cart_servo"])
-        if np.abs(now - last).max() < 1e-3:
-            return s
-        assert time.monotonic() < deadline, "the servo position did not settle"
-        last = now
+    return cell.rig.wait_at_rest_settled(timeout)
 
 
 def stopped(cell: Cell, timeout: float = 3.0) -> dict[str, Any]:
