@@ -50,4 +50,5 @@ def warm_up() -> float:
 
 if __name__ == "__main__":
     seconds = warm_up()
-    print(f"servo_app kernels ready: {len(KERNEL_MODULES)} modules in {seconds:.1f} s", file=sys.stderr)
+    if "-v" in sys.argv[1:]:  # quiet by default: scripts/install runs it on every start
+        print(f"servo_app kernels ready: {len(KERNEL_MODULES)} modules in {seconds:.1f} s", file=sys.stderr)

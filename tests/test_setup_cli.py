@@ -83,11 +83,11 @@ def test_path_check_catches_a_path_outside_the_repository() -> None:
 # ------------------------------------------------------------------------------ scripts/install
 
 # A stand-in for python (a real full install takes ~1.5 min and the network: .ci/run does that on a
-# fresh clone). "-m venv DIR" makes DIR/bin/python (a copy of this script); every other call is a pip
-# run, logged; PIP_FAIL=1 makes it fail like a broken download.
+# fresh clone). "-m venv DIR" makes DIR/bin/python (a copy of this script); "-m pip" runs are logged;
+# PIP_FAIL=1 makes every other call fail like a broken download.
 FAKE_PYTHON = """#!/bin/sh
 if [ "$1" = "-m" ] && [ "$2" = "venv" ]; then mkdir -p "$3/bin" && cp "$0" "$3/bin/python" && exit 0; fi
-echo "$*" >> "$PIP_LOG"
+[ "$1" = "-m" ] && [ "$2" = "pip" ] && echo "$*" >> "$PIP_LOG"  # the pip runs, not the kernel warm-up
 [ "${PIP_FAIL:-0}" = 1 ] && exit 1
 exit 0
 """
