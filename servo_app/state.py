@@ -41,6 +41,9 @@ _FIELDS: list[tuple[str, int]] = [
     ("solve_max_us", 1),
     ("cycle_p50_us", 1),
     ("cycle_max_us", 1),
+    # The IK solved ahead between status packets (ServoCycle.solve_ahead), per solve: not in solve_*.
+    ("solve_ahead_p50_us", 1),
+    ("solve_ahead_max_us", 1),
     ("ik_active", 1),  # the last cycle was a Cartesian one (twist, pose target, braking on its path)
     ("ik_flags", 1),  # its IkFlag bits
     ("ik_scale", 1),  # the share of the commanded motion it delivered

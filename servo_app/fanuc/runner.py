@@ -214,6 +214,7 @@ class _ServoProcess(ServoProcessHost):
         # Per-cycle compute times, published (solve_*_us, cycle_*_us): the motion step per command, and
         # a status's whole handling here, from its receipt to the end of the loop's housekeeping.
         self.solve_time, self.cycle_time = _TimeWindow(), _TimeWindow()
+        self.ahead_time = _TimeWindow()  # the IK solved ahead, per solve (ServoCycle.solve_ahead)
         self.sup.session.motion = _TimedMotion(self.cycle, self.solve_time)
         self._handled_status = False  # this loop iteration handled a datagram (its cycle time is due)
         self.inputs = InputSlotReader(cfg.input_slot) if cfg.input_slot else None
@@ -333,6 +334,14 @@ class _ServoProcess(ServoProcessHost):
         if self._handled_status:
             self._handled_status = False
             self.cycle_time.add((time.monotonic() - self._t_recv) * 1e6)
+        # Last of all, once this loop has read every request, signal and input it will read before the
+        # next status packet: the next command's IK, so that the status finds it solved. The command
+        # itself (shaper, guards) is still made on the status, from what holds then; a command changed
+        # on the status (input slot, safety, hold-to-run) is solved afresh there, as without this.
+        if self.sup.session.streaming_motion:
+            t = time.perf_counter()
+            if self.cycle.solve_ahead():
+                self.ahead_time.add((time.perf_counter() - t) * 1e6)
 
     def _deliver_signal(self, sig: int, now: float) -> None:
         self._send(self.sup.signal(sig, now))
@@ -464,6 +473,8 @@ class _ServoProcess(ServoProcessHost):
         d[F["solve_max_us"]] = self.solve_time.max_us
         d[F["cycle_p50_us"]] = self.cycle_time.p50_us
         d[F["cycle_max_us"]] = self.cycle_time.max_us
+        d[F["solve_ahead_p50_us"]] = self.ahead_time.p50_us
+        d[F["solve_ahead_max_us"]] = self.ahead_time.max_us
         ik = c.last_ik if c.ik_active else None
         d[F["ik_active"]] = ik is not None
         d[F["ik_flags"]] = ik.flags if ik else 0.0

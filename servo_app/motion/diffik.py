@@ -470,6 +470,12 @@ class DifferentialIK:
         self._dq_prev, self._ref, self._last_xi, self._mode = self._before
         return self.step(q_model_rad, command, dq_prev=dq_prev)
 
+    def undo_step(self) -> None:
+        """Forget the last step(): the next one starts from where it started (the servo cycle solves
+        a command ahead, and drops that solve when the command it needs is no longer the same)."""
+        if self._before is not None:
+            self._dq_prev, self._ref, self._last_xi, self._mode = self._before
+
     def objective(self, tasks: list[mink.Task]) -> tuple[np.ndarray, np.ndarray]:
         """mink's QP objective (P, c) for ``tasks`` at the current configuration, with our damping
         (built by the tasks themselves: for comparisons; step() assembles its own)."""

@@ -39,6 +39,28 @@ CREEP_DEG_S = 1e-3  # joint speed below which a Cartesian motion is held still (
 
 
 @dataclass
+class _Ahead:
+    """The IK of the next command, solved ahead (:meth:`ServoCycle.solve_ahead`): its result, the
+    command it was solved for, the shaper step it starts after, and the start it was solved from."""
+
+    result: IkResult
+    command: Twist | None
+    steps: int
+    q_f: np.ndarray
+    v_f: np.ndarray
+    q_m: np.ndarray
+    dq_prev: np.ndarray
+
+
+def _same_motion(a: Twist | PoseTarget | None, b: Twist | PoseTarget | None) -> bool:
+    """Would the IK solve ``a`` and ``b`` alike? (A renewal of a twist is a new object with a new stamp.)"""
+    if a is b:
+        return True
+    return (isinstance(a, Twist) and isinstance(b, Twist) and a.linear == b.linear and a.angular == b.angular
+            and a.frame == b.frame)
+
+
+@dataclass
 class ServoSettings:
     limit_fraction: float = 0.9  # share of the controller's limits the shaper may use
     flange_speed_cap: float | None = None  # mm/s; None: the profile's $MAX_SPD
@@ -102,6 +124,9 @@ class ServoCycle:
         # cycle then solves again from the same start (see _steer_ik); it must stop doing so in time.
         self.late_command: Callable[[], None] | None = None
         self.late_inputs = 0  # solves again for a command that arrived during the solve
+        self._ahead: _Ahead | None = None  # the next command's IK, solved ahead (solve_ahead)
+        self._steps = 0  # shaper steps taken: an ahead solve is good for the step after the one it followed
+        self.ahead_used = self.ahead_dropped = 0  # ahead solves a command used / solved again
 
     # ------------------------------------------------------------ MotionSource
     def begin(self, q_start: np.ndarray, tables: LimitTables | None) -> None:
@@ -135,6 +160,7 @@ class ServoCycle:
         self._speed_scale = 1.0
         self._q_prev = None
         q_model = fanuc_deg_to_model_rad(np.asarray(q_start[: self.profile.dof], float), self.profile.j23_factor)
+        self._ahead = None
         self.ik.reset(q_model)
         # A stream may begin closer than the margin to a boundary: keep at least what it had there.
         start = boundary_distances(q_model, self.kin)
@@ -149,17 +175,49 @@ class ServoCycle:
         """The next commanded joint position; ``status`` (the controller's latest status) is not read:
         the cycle advances by the fixed interval."""
         shaper = self._require()
+        ahead, self._ahead = self._ahead, None
         if self._pending and shaper.at_rest:  # at rest after a change of direction: start it now
             self._pending = False
             if self._target is not None:
                 shaper.set_target(self._target[0], self._target[1] * self._speed_scale)
         if self._cart_active:
-            self._steer_ik(shaper)
-        elif self._jog is not None and not self.stopped and not self._pending:
-            self._steer_jog(shaper, self._jog)
+            self._steer_ik(shaper, ahead)
+        else:
+            self._drop(ahead)
+            if self._jog is not None and not self.stopped and not self._pending:
+                self._steer_jog(shaper, self._jog)
         q = shaper.step()
+        self._steps += 1
         self._guard_flange_speed(shaper, q)
         return q
+
+    def solve_ahead(self) -> bool:
+        """Solve the next command's IK now, between status packets, for a twist or a brake along its
+        path (True if it did). ``next_command`` uses the result if the command is still the same
+        motion and the shaper has not stepped since; otherwise it solves again from the same start
+        (``DifferentialIK.step_again``): what it would have computed anyway. Nothing else is advanced:
+        the shaper steps, and every guard runs, when the command is made.
+
+        Why: at 8 ms the IK solved on the status packet's arrival took 370-410 us with caches cold after
+        the wait (170 us in a loop), most of the 510-610 us from status to command (issue 15). A pose
+        target is not solved ahead: whether its IK runs at all is decided when the command is made
+        (``_finish_pose``)."""
+        shaper = self.shaper
+        cart = self._cart
+        if shaper is None or not self._cart_active or self._ahead is not None or isinstance(cart, PoseTarget):
+            return False
+        q_f, v_f, _ = shaper.state
+        q_m, dq_prev = np.empty(len(q_f)), np.empty(len(q_f))
+        cycle_kernels.ik_start(q_f, v_f, self._j23, self.dt, q_m, dq_prev)
+        res = self.ik.step(q_m, cart, dq_prev=dq_prev)
+        self._ahead = _Ahead(res, cart, self._steps, q_f, v_f, q_m, dq_prev)
+        return True
+
+    def _drop(self, ahead: _Ahead | None) -> None:
+        """An ahead solve no command uses: the IK forgets it."""
+        if ahead is not None:
+            self.ik.undo_step()
+            self.ahead_dropped += 1
 
     @property
     def ik_active(self) -> bool:
@@ -301,15 +359,24 @@ class ServoCycle:
             return False
         return nd < 1e-9 or float(np.dot(v, direction)) < 0.999 * nv * nd
 
-    def _steer_ik(self, shaper: JointShaper) -> None:
+    def _steer_ik(self, shaper: JointShaper, ahead: _Ahead | None = None) -> None:
         if isinstance(self._cart, PoseTarget) and self._finish_pose(shaper, self._cart):
+            self._drop(ahead)
             return
-        q_f, v_f, _ = shaper.state
-        # The start in the model convention and what the shaper delivers, model rad/cycle (new arrays
-        # each cycle: the IK may keep them).
-        q_m, dq_prev = np.empty(len(q_f)), np.empty(len(q_f))
-        cycle_kernels.ik_start(q_f, v_f, self._j23, self.dt, q_m, dq_prev)
-        res = self.ik.step(q_m, self._cart, dq_prev=dq_prev)
+        if ahead is not None and ahead.steps == self._steps and _same_motion(ahead.command, self._cart):
+            q_f, v_f, q_m, dq_prev, res = ahead.q_f, ahead.v_f, ahead.q_m, ahead.dq_prev, ahead.result
+            self.ahead_used += 1
+        else:
+            q_f, v_f, _ = shaper.state
+            # The start in the model convention and what the shaper delivers, model rad/cycle (new
+            # arrays each cycle: the IK may keep them).
+            q_m, dq_prev = np.empty(len(q_f)), np.empty(len(q_f))
+            cycle_kernels.ik_start(q_f, v_f, self._j23, self.dt, q_m, dq_prev)
+            if ahead is not None:  # solved ahead for another command: from the same start again
+                self.ahead_dropped += 1
+                res = self.ik.step_again(q_m, self._cart, dq_prev=dq_prev)
+            else:
+                res = self.ik.step(q_m, self._cart, dq_prev=dq_prev)
         while self.late_command is not None:
             # A command that arrived while the IK solved still makes this cycle's packet: the input
             # is read as late as the cycle allows, not only when the status packet arrived. The hook
