@@ -245,6 +245,14 @@ class ViewBox(BaseModel):
     max: list[float]
 
 
+class TcpPoint(BaseModel):
+    """The active tool's TCP for the arm view."""
+
+    tool: str
+    xyz_mm: list[float]
+    axes: list[list[float]] = Field(description="the TCP's x, y, z axes (unit vectors, world)")
+
+
 class RobotView(BaseModel):
     """What the web console draws: the axes and a stick figure of the current position."""
 
@@ -271,6 +279,7 @@ class RobotView(BaseModel):
     max_flange_speed_mm_s: float | None = None
     q_fanuc_deg: list[float] | None = None
     q_model_deg: list[float] | None = None
+    tcp: TcpPoint | None = Field(None, description="the active tool's TCP, drawn from the flange (FANUC)")
 
 
 # ---------------------------------------------------------------------------------------- the state

@@ -20,6 +20,7 @@ from typing import Any
 
 from servo_app import messages as msg
 from servo_app.errors import CommandRejected
+from servo_app.robots.conventions import xyzwpr_to_matrix
 from servo_app.robots.tool import FLANGE, Tool, ToolError, ToolSet, check_tool, load_tools, tcp_pose
 from servo_app.service.config import ServiceConfig
 
@@ -127,3 +128,15 @@ class ActiveTool:
         if not tool.is_flange and len(flange) >= 6:
             s["cart_servo"] = [float(v) for v in tcp_pose(flange[:6], tool.xyzwpr)]
         return s
+
+    def decorate_robot(self, view: dict[str, Any]) -> dict[str, Any]:
+        """``GET /api/robot`` with the active tool's TCP (``tcp``: its point and axes, for the console
+        to draw a line from the flange and a triad), where the view gives the flange's pose."""
+        tool = self._active
+        flange = next((p for p in view.get("points", ()) if p.get("name") == "flange" and "xyzwpr" in p), None)
+        if flange is None:
+            return view
+        t = xyzwpr_to_matrix(flange["xyzwpr"]) @ xyzwpr_to_matrix(tool.xyzwpr)
+        view["tcp"] = {"tool": tool.name, "xyz_mm": [float(v) * 1000.0 for v in t[:3, 3]],
+                       "axes": [[float(v) for v in t[:3, i]] for i in range(3)]}
+        return view

@@ -133,7 +133,7 @@ class StateViews:
         q = st.get("q_servo") if st.get("status_received") else st.get("q_cmd")
         view = svc.backend.robot_view(q or [0.0] * 6)
         view["cartesian_jog"] = svc.backend.cartesian_jog
-        return view
+        return svc.tools.decorate_robot(view)  # the active tool's TCP, drawn from the flange
 
     def session_logs(self) -> list[dict[str, Any]]:
         d = self.service.cfg.log_dir
