@@ -10,6 +10,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from servo_app.errors import CommandRejected
+from servo_app.motion.checker import ControllerLimitChecker
 from servo_app.motion.commands import PoseTarget, Twist
 from servo_app.motion.servo import ServoCycle, ServoSettings
 from servo_app.robots.conventions import fanuc_deg_to_model_rad, matrix_to_xyzwpr, xyzwpr_to_matrix
@@ -216,3 +217,16 @@ def test_payload_rebuilds_the_limits_at_rest():
     assert cycle.shaper is not None and np.allclose(cycle.shaper.limits.acc, light)
     cycle.set_tool(GRIPPER, PROFILE.max_payload_kg)
     np.testing.assert_allclose(cycle.limits[1], heavy)
+
+
+# ------------------------------------------------------------------- the simulator follows the payload
+@pytest.mark.parametrize("payload", [0.5, 3.0, None])
+def test_the_controller_checker_at_a_new_payload_is_one_built_for_it(payload: float | None):
+    moved = ControllerLimitChecker.for_profile(PROFILE, payload_kg=7.0)
+    moved.set_payload(payload)
+    built = ControllerLimitChecker.for_profile(PROFILE, payload_kg=payload)
+    assert moved.payload_kg == payload
+    for a, b in zip(moved._stages, built._stages, strict=True):
+        np.testing.assert_array_equal(a, b)
+    for name in ("vel_lim", "acc1", "jrk1", "first_jump", "jump"):
+        np.testing.assert_array_equal(getattr(moved, name), getattr(built, name))
