@@ -124,6 +124,16 @@ class IoWrite(Request):
 
 
 @dataclass(frozen=True)
+class SetTool(Request):
+    """Make this tool the TCP (offset from the flange: X Y Z mm, W P R deg) and its payload the limit
+    tables' (kg; None: the maximum). Only at rest; refused otherwise, changing nothing."""
+
+    name: str
+    xyzwpr: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    payload_kg: float | None = None
+
+
+@dataclass(frozen=True)
 class Envelope:
     """A request on the pipe; ``id`` None means fire-and-forget (no reply)."""
 

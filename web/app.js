@@ -10,6 +10,7 @@ import { installKeys } from "./keys.js";
 import { Lease } from "./lease.js";
 import { LogsPanel } from "./logs.js";
 import { PointsPanel } from "./points.js";
+import { ToolPanel } from "./tools.js";
 import { TargetForm } from "./target.js";
 import { Telemetry } from "./telemetry.js";
 import {
@@ -65,6 +66,7 @@ const logs = new LogsPanel({ api, root: $("#logs-card"), limits: () => ui.limits
 const arm = new ArmView($("#arm-side"), $("#arm-top"));
 const joints = new JointTable($("#joint-rows"));
 const points = new PointsPanel({ api, root: $("#points-card"), onRender: () => refreshControls() });
+const tools = new ToolPanel({ api, root: $("#arm-card"), canControl: () => api.signedIn && lease.held });
 const target = new TargetForm({ api, root: $("#target-form"), telemetry: () => ui.tel, robot: () => ui.robot });
 const lease = new Lease({
   api,
@@ -236,6 +238,7 @@ function onState(s) {
   renderStatus(s, ui.telemetryUp);
   if (lease.held) $("#lease-holder").textContent = `control: you (${api.operator})`;
   renderPose(s, ui.robot);
+  tools.render(s);
   renderHeldBack(s);
   renderTiming(s);
   renderAlarms(s);
@@ -343,6 +346,7 @@ function main() {
   loadRobot();
   logs.refresh();
   points.refresh();
+  tools.refresh();
   pollInputs();
 }
 

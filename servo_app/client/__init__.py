@@ -22,7 +22,7 @@ from servo_app.client.errors import (
     TimeoutError,
 )
 from servo_app.client.frames import offset_in_tool
-from servo_app.client.state import Alarm, Fault, Point, State
+from servo_app.client.state import Alarm, Fault, Point, State, Tool
 
 __all__ = ["Alarm", "AuthError", "Fault", "FaultError", "JogHold", "LeaseError", "Point", "RefusedError",
-           "ServoClient", "ServoError", "State", "StoppedError", "TimeoutError", "offset_in_tool"]
+           "ServoClient", "ServoError", "State", "StoppedError", "TimeoutError", "Tool", "offset_in_tool"]

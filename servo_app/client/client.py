@@ -38,7 +38,7 @@ from servo_app.client.errors import (
     StoppedError,
     TimeoutError,
 )
-from servo_app.client.state import Point, State
+from servo_app.client.state import Point, State, Tool
 
 # The server's lease refusals (servo_app.api.auth.LeaseManager) all speak of control or the lease;
 # the state's refusals never do.
@@ -390,13 +390,15 @@ class ServoClient:
 
     def move_pose(self, xyzwpr: Sequence[float], linear_speed: float = 100.0, angular_speed: float = 30.0,
                   wait: bool = True, timeout: float = 60.0) -> State | None:
-        """Go to a TCP pose (X Y Z mm, W P R deg, world frame) at the given flange speeds."""
+        """Go to a pose of the active tool's TCP (X Y Z mm, W P R deg, world frame; see :meth:`set_tool`)
+        in a straight line at the given TCP speeds."""
         body = {"xyzwpr": [float(v) for v in xyzwpr], "linear_speed": linear_speed, "angular_speed": angular_speed}
         return self._move("/api/target", body, wait, timeout)
 
     def jog(self, linear: Sequence[float] = (0.0, 0.0, 0.0), angular: Sequence[float] = (0.0, 0.0, 0.0),
             frame: str = "base", duration: float | None = None) -> JogHold:
-        """A Cartesian jog (mm/s, deg/s; ``frame`` "base" or "tool"). Without ``duration``: a context
+        """A Cartesian jog of the active tool's TCP (mm/s, deg/s; rotations turn about the TCP).
+        ``frame`` "base": along and about the world axes; "tool": the TCP's own axes. Without ``duration``: a context
         manager that holds it until the block ends (``with arm.jog(linear=(20, 0, 0)): ...``); with
         one: held that long, then released, returning once the arm is at rest."""
         body = {"linear": [float(v) for v in linear], "angular": [float(v) for v in angular], "frame": frame}
@@ -412,6 +414,24 @@ class ServoClient:
             held._failed.wait(duration)  # the duration, or less if a renewal is refused
             held.release()
         return held
+
+    # ------------------------------------------------------------------ tools
+    def tools(self) -> list[Tool]:
+        """The cell's tools (the built-in ``flange`` first); the active one is ``state().tool``."""
+        return [Tool.from_json(t) for t in self._call("GET", "/api/tools")["tools"]]
+
+    def set_tool(self, name: str) -> Tool:
+        """Make ``name`` the TCP of jogs, pose targets and the reported pose, and its payload the limit
+        tables'. Only at rest: waits until the arm has settled if a stream runs (a refusal raises
+        RefusedError and changes nothing; an unknown name: RefusedError with status 404)."""
+        if self.state().state in ("streaming", "stopping", "stopped", "ending"):
+            self.wait_settled()
+        return Tool.from_json(self._call("PUT", "/api/tool", {"name": name}, lease=True))
+
+    def define_tool(self, name: str, xyzwpr: Sequence[float], payload_kg: float) -> Tool:
+        """Add a tool until the service stops (the tools file keeps it: servo-app run --tools)."""
+        body = {"name": name, "xyzwpr": [float(v) for v in xyzwpr], "payload_kg": float(payload_kg)}
+        return Tool.from_json(self._post("/api/tools", body))
 
     # -------------------------------------------------------------------- I/O
     def io_read(self, io_type: str, index: int) -> bool:

@@ -89,6 +89,7 @@ class ServoCycle:
         self._horizon = 0.0
         self.tables_source = "profile"
         self._profile_tables: LimitTables | None = None  # default_tables(profile), built once
+        self._tables: LimitTables | None = None  # the tables of the stream that began last
         self._limits_for: tuple[object, ...] | None = None  # (tables, cap, payload) self.limits were built for
         lo = np.asarray(profile.joint_min_deg) + self.settings.joint_margin_deg
         hi = np.asarray(profile.joint_max_deg) - self.settings.joint_margin_deg
@@ -139,14 +140,8 @@ class ServoCycle:
             self.tables_source = "profile"
         else:
             self.tables_source = "controller"
-        cap = self.settings.flange_speed_cap or tables.vmax
-        self.cap = cap
-        key = (tables, cap, self.settings.payload_kg)
-        if self._limits_for is None or any(a is not b for a, b in zip(self._limits_for, key, strict=True)):
-            self.limits = tuple(x[: self.profile.dof] for x in tables.for_cap(cap, self.settings.payload_kg))  # type: ignore[assignment]
-            self._limits_for = key
-        assert self.limits is not None
-        vel, acc, jerk = self.limits
+        self._tables = tables
+        vel, acc, jerk = self._limits_of(tables)
         self.shaper = JointShaper(ShaperLimits(vel, acc, jerk, fraction=self.settings.limit_fraction),
                                   self.dt, np.asarray(q_start[: self.profile.dof], dtype=float))
         # A jog target runs this far ahead: always beyond the braking distance at full speed.
@@ -170,6 +165,43 @@ class ServoCycle:
         self._region = region.within(np.radians(lo - 1e-9), np.radians(hi + 1e-9))
         self._region_packed = self._region.packed
         self.configuration = self._region.reference
+
+    def _limits_of(self, tables: LimitTables) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The (vel, acc, jerk) limits of ``tables`` at the cap and the payload (Appendix B), built
+        again only when one of them changed (``self.limits``, which the runner publishes)."""
+        cap = self.settings.flange_speed_cap or tables.vmax
+        self.cap = cap
+        key = (tables, cap, self.settings.payload_kg)
+        if self._limits_for is None or any(a is not b for a, b in zip(self._limits_for, key, strict=True)):
+            self.limits = tuple(x[: self.profile.dof] for x in tables.for_cap(cap, self.settings.payload_kg))  # type: ignore[assignment]
+            self._limits_for = key
+        assert self.limits is not None
+        return self.limits
+
+    def set_tool(self, tool_xyzwpr: tuple[float, ...] | None, payload_kg: float | None, streaming: bool = True
+                 ) -> None:
+        """Another tool: the TCP the IK, pose targets and tool-frame twists use, and the payload of the
+        limit tables (Appendix B). While a stream is alive (``streaming``), only at rest with no motion
+        held (a jog against a limit, a twist, a pose target): CommandRejected otherwise, and nothing
+        changes; the shaper's limits are then rebuilt for the payload (at rest its state fits any
+        limits). Without a stream the next one's ``begin`` builds them. A target interrupted by a soft
+        stop is dropped (a pose target was a pose of the old TCP): resume has nothing to continue."""
+        moving = (not self.at_rest() or self._cart_active or self._jog is not None or self._pending)
+        if streaming and moving:
+            raise CommandRejected("tool change refused: the arm is moving; wait until it is at rest "
+                                  "(GET /api/state shows at_rest and settled), then change the tool")
+        tool = None if tool_xyzwpr is None else tuple(float(v) for v in tool_xyzwpr)
+        self.ik.set_tool(tool)
+        self.settings.tool_xyzwpr = tool
+        self.settings.payload_kg = payload_kg
+        self._target, self._cart, self._finishing = None, None, None
+        self._jog, self._cart_active, self._pending = None, False, False
+        if self._tables is None:
+            return  # no stream yet: its begin builds the limits
+        vel, acc, jerk = self._limits_of(self._tables)  # published at once, streaming or not
+        if self.shaper is not None and streaming:
+            self.shaper.set_limits(ShaperLimits(vel, acc, jerk, fraction=self.settings.limit_fraction))
+            self._horizon = float(np.max(2.0 * (vel / acc + acc / jerk))) + 0.1
 
     def next_command(self, status: object) -> np.ndarray:
         """The next commanded joint position; ``status`` (the controller's latest status) is not read:
