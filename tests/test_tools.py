@@ -230,3 +230,31 @@ def test_the_controller_checker_at_a_new_payload_is_one_built_for_it(payload: fl
         np.testing.assert_array_equal(a, b)
     for name in ("vel_lim", "acc1", "jrk1", "first_jump", "jump"):
         np.testing.assert_array_equal(getattr(moved, name), getattr(built, name))
+
+
+def test_a_turn_about_a_long_tool_counts_the_flanges_swing_against_the_speed_cap():
+    """The cap and the Appendix B tables are the flange's: turning about a TCP r mm away swings the
+    flange at up to |w| r on top of the TCP's speed. A twist within the cap at the TCP but over it at
+    the flange is refused and changes nothing; the same twist with the flange as the tool is taken."""
+    long_tool = (0.0, 0.0, 1500.0, 0.0, 0.0, 0.0)
+    cycle = _streaming_cycle(long_tool)
+    limit = cycle.cap * cycle.settings.flange_speed_margin
+    linear = 0.8 * limit
+    angular = math.degrees(0.3 * limit / 1500.0)  # the swing alone: 0.3 of the limit
+    twist = Twist(source="test", stamp=0.0, linear=(linear, 0.0, 0.0), angular=(0.0, 0.0, angular), frame="tool")
+    with pytest.raises(CommandRejected, match="flange-speed cap") as refused:
+        cycle.twist(twist)
+    assert "1500 mm from the flange" in str(refused.value)
+    assert not cycle.ik_active and cycle.at_rest()
+    target = PoseTarget(source="test", stamp=0.0, xyzwpr=tuple(matrix_to_xyzwpr(_tcp(cycle, cycle.shaper.state[0]))),
+                        linear_speed=linear, angular_speed=angular)
+    with pytest.raises(CommandRejected, match="flange-speed cap"):
+        cycle.pose_target(target)
+    assert not cycle.ik_active
+    # Slower turns fit: the same linear speed with a tenth of the swing is taken.
+    slower = Twist(source="test", stamp=0.0, linear=(linear, 0.0, 0.0), angular=(0.0, 0.0, angular / 10), frame="tool")
+    cycle.twist(slower)
+    assert cycle.ik_active
+    flange_cycle = _streaming_cycle(None)
+    flange_cycle.twist(twist)
+    assert flange_cycle.ik_active

@@ -316,10 +316,11 @@ class ServoCycle:
     def twist(self, cmd: Twist) -> None:
         """Move the TCP at a twist (base or tool frame) until replaced, stopped or the hold runs out."""
         self._require()
-        speed = float(np.linalg.norm(cmd.linear))
-        if speed > self.cap * self.settings.flange_speed_margin:
-            raise CommandRejected(f"linear speed {speed:.1f} mm/s is above the flange-speed cap "
-                                  f"{self.cap * self.settings.flange_speed_margin:.0f} mm/s")
+        linear = float(np.linalg.norm(cmd.linear))
+        limit = self.cap * self.settings.flange_speed_margin
+        if self._flange_speed_bound(linear, float(np.linalg.norm(cmd.angular))) > limit:
+            raise CommandRejected(f"linear speed {linear:.1f} mm/s{self._tool_note(cmd.angular)} is above the "
+                                  f"flange-speed cap {limit:.0f} mm/s")
         self._cart, self._cart_active = cmd, True
         self._jog, self._target, self._finishing = None, None, None
         self.stopped = False
@@ -328,9 +329,10 @@ class ServoCycle:
         """Reach a TCP pose in a straight line at the command's speed caps (same configuration); the
         last millimetres of a target held still run as a joint move (:meth:`_finish_pose`)."""
         self._require()
-        if cmd.linear_speed > self.cap * self.settings.flange_speed_margin:
-            raise CommandRejected(f"linear_speed={cmd.linear_speed} mm/s is above the flange-speed cap "
-                                  f"{self.cap * self.settings.flange_speed_margin:.0f} mm/s")
+        limit = self.cap * self.settings.flange_speed_margin
+        if self._flange_speed_bound(cmd.linear_speed, cmd.angular_speed) > limit:
+            raise CommandRejected(f"linear_speed={cmd.linear_speed} mm/s{self._tool_note(cmd.angular_speed)} is "
+                                  f"above the flange-speed cap {limit:.0f} mm/s")
 
         def same(other: Twist | PoseTarget | None) -> bool:
             return (isinstance(other, PoseTarget) and other.xyzwpr == cmd.xyzwpr
@@ -363,6 +365,21 @@ class ServoCycle:
             self.shaper.set_target(self._target[0], self._target[1] * self._speed_scale)
 
     # ----------------------------------------------------------------- helpers
+    def _tool_offset_mm(self) -> float:
+        tool = self.settings.tool_xyzwpr
+        return math.hypot(*tool[:3]) if tool else 0.0
+
+    def _flange_speed_bound(self, linear_mm_s: float, angular_deg_s: float) -> float:
+        """The most the flange can move for a TCP at ``linear_mm_s`` turning at ``angular_deg_s``: the
+        controller's speed cap and Appendix B tables are the flange's, and a turn about a TCP r mm away
+        swings the flange at up to |w| r on top (a 2 m tool at 90 deg/s: +3.1 m/s)."""
+        return linear_mm_s + math.radians(angular_deg_s) * self._tool_offset_mm()
+
+    def _tool_note(self, angular: float | tuple[float, ...]) -> str:
+        r = self._tool_offset_mm()
+        w = float(np.linalg.norm(angular))
+        return f" + {w:g} deg/s about a TCP {r:.0f} mm from the flange (the flange moves up to the sum)" if r else ""
+
     def _stop_shaper(self, shaper: JointShaper, mode: str) -> None:
         """Time-optimal stop when its path stays in range and configuration, else along the line."""
         if shaper.at_rest:
