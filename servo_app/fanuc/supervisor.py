@@ -81,6 +81,7 @@ def check_pose_plausible(xyzwpr: tuple[float, ...], profile: RobotProfile,
 class StreamSupervisor(SupervisorBase):
     REQUESTS: ClassVar[dict[type, str]] = {
         msg.Twist: "_on_twist", msg.PoseTarget: "_on_pose", msg.IoRead: "_on_io_read", msg.IoWrite: "_on_io_write",
+        msg.Trajectory: "_on_trajectory",
     }
 
     def __init__(self, cycle: ServoCycle, session_config: SessionConfig | None = None,
@@ -200,6 +201,25 @@ class StreamSupervisor(SupervisorBase):
         check_pose_plausible(pose.xyzwpr, self.cycle.profile, self.cycle.settings.tool_xyzwpr)
         self._target_gate("pose target", now)
         self.cycle.pose_target(pose)
+
+    def _on_trajectory(self, req: msg.Trajectory, now: float) -> dict[str, Any]:
+        """Replay planned samples: the values first (422), then the state (409: streaming, at rest at
+        the first sample), then the gate; a refusal changes nothing."""
+        if self.cycle.shaper is None:
+            self._motion_gate("trajectory", now=now)  # not streaming: refused with the next step
+        ramp = int(req.ramp_steps)
+        if ramp < 1 or ramp % 2 == 0:
+            raise InvalidRequest(f"ramp_steps={req.ramp_steps} must be odd and positive")
+        try:
+            q = self.cycle.check_replay(req.joints)
+        except CommandRejected as exc:
+            raise InvalidRequest(str(exc)) from None
+        why = self.cycle.replay_start_mismatch(q)
+        if why:
+            raise CommandRejected(f"trajectory refused: {why}")
+        self._target_gate("trajectory", now)
+        self.cycle.replay(q, ramp)
+        return {"samples": len(q), "duration_s": (len(q) - 1) * self.cycle.dt, "ramp_steps": ramp}
 
     def _on_io_read(self, req: msg.IoRead, now: float) -> None:
         self.session.io_read = IoRequest(_io_type(req.type), int(req.index), int(req.mask))

@@ -38,8 +38,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from servo_app.motion.checker import ControllerLimitChecker, check_trajectory
+from servo_app.motion.limit_tables import LimitTables
 from servo_app.motion.shaper import Envelope, ShaperLimits, to_f32
-from servo_app.robots.configuration import ConfigurationRegion
+from servo_app.robots.configuration import ConfigurationRegion, boundary_distances
 from servo_app.robots.conventions import fanuc_deg_to_model_rad, model_rad_to_fanuc_deg, xyzwpr_to_matrix
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import RobotProfile
@@ -253,6 +254,31 @@ class TrajectoryPlanner:
         self.speed_scale = float(speed_scale)
         self.dof = profile.dof
 
+    @classmethod
+    def for_stream(cls, profile: RobotProfile, dt: float, tables: LimitTables, q_now: np.ndarray, *,
+                   cap: float | None = None, payload_kg: float | None = None, limit_fraction: float = 0.9,
+                   flange_margin: float = 0.8, joint_margin_deg: float = 0.5, config_margin_deg: float = 1.0,
+                   tool_xyzwpr: Sequence[float] | None = None, speed_scale: float = 1.0) -> TrajectoryPlanner:
+        """A planner for a stream resting at ``q_now`` (FANUC deg), with the servo cycle's settings: the
+        limits for the flange-speed cap, the joint ranges less the margin and ``q_now``'s configuration
+        (as :meth:`ServoCycle.begin` holds it), the controller's check with ``tables``."""
+        cap = float(cap or tables.vmax)
+        dof = profile.dof
+        vel, acc, jerk = (np.asarray(x[:dof], float) for x in tables.for_cap(cap, payload_kg))
+        limits = PlanLimits.for_servo(vel, acc, jerk, dt, cap, limit_fraction, flange_margin)
+        kin = ArmKinematics(profile)
+        q_model = fanuc_deg_to_model_rad(np.asarray(q_now, float)[:dof], profile.j23_factor)
+        margins = np.minimum(np.radians(config_margin_deg), boundary_distances(q_model, kin) * 0.999)
+        lo = np.radians(np.asarray(profile.joint_min_deg) + joint_margin_deg)
+        hi = np.radians(np.asarray(profile.joint_max_deg) - joint_margin_deg)
+        region = ConfigurationRegion.around(q_model, kin, margins).within(lo, hi)
+
+        def checker() -> ControllerLimitChecker:
+            return ControllerLimitChecker.for_profile(profile, kin.flange_xyz_mm_fanuc_deg, tables=tables,
+                                                      interval_s=dt, payload_kg=payload_kg)
+
+        return cls(profile, limits, region, checker, tool_xyzwpr, speed_scale)
+
     # -- inputs -> segments
     def joint_segments(self, start: np.ndarray, waypoints: np.ndarray, times: Sequence[float] | None
                        ) -> list[_Segment]:
@@ -265,8 +291,9 @@ class TrajectoryPlanner:
                 if times is not None and times[i] > times[i - 1]:
                     segs.append(_Segment(pts, float(times[i] - times[i - 1]), label=f"waypoint {i}"))
                 continue
-            segs.append(_Segment(_densify_line(pts[0], pts[1]), None if times is None else float(times[i] - times[i - 1]),
-                                 label=f"waypoint {i - 1} -> {i}"))
+            duration = None if times is None else float(times[i] - times[i - 1])
+            label = f"waypoint {i - 1} -> {i}" + (f" (times[{i}])" if times is not None else "")
+            segs.append(_Segment(_densify_line(pts[0], pts[1]), duration, label=label))
         return segs
 
     def dense_segments(self, start: np.ndarray, rows: np.ndarray, what: str) -> list[_Segment]:
@@ -295,7 +322,7 @@ class TrajectoryPlanner:
         for i in range(1, len(poses)):
             pts = self._cartesian_line(poses[i - 1], poses[i], joints[i - 1], i)
             segs.append(_Segment(pts, None if times is None else float(times[i] - times[i - 1]),
-                                 label=f"poses[{i - 1}] -> poses[{i}]"))
+                                 label=f"poses[{i - 1}] -> poses[{i}]" + (f" (times[{i}])" if times else "")))
         return segs, joints
 
     # -- timing
@@ -367,7 +394,10 @@ class TrajectoryPlanner:
             raise TrajectoryRefused(f"{seg.label}: TOPP-RA found no timing within the limits")
         s = _sample_constant_acceleration(grid, np.maximum(sd, 0.0), dt)
         if seg.duration_s is not None:
-            s = _stretch(s, seg.duration_s, dt, self._smoothing_width(vel, acc))
+            try:
+                s = _stretch(s, seg.duration_s, dt, self._smoothing_width(vel, acc))
+            except TrajectoryRefused as exc:
+                raise TrajectoryRefused(f"times: {seg.label} {exc}") from None
         sigma = _moving_average(s, self._smoothing_width(vel, acc))
         q = path(sigma)
         q[sigma <= 0.0] = pts[0]
@@ -402,7 +432,8 @@ class TrajectoryPlanner:
         if found:
             v = found[0]
             k = max(0, (v.seq or 1) - 1)
-            return self._segment_of[min(k, len(samples) - 1)], f"sample {k}: controller check {v.code} {v.kind} J{v.axis}"
+            return (self._segment_of[min(k, len(samples) - 1)],
+                    f"sample {k}: controller check {v.code} {v.kind} J{v.axis}")
         return None
 
     def _label_of(self, sample: int) -> str:
