@@ -92,7 +92,7 @@ def test_a_dense_path_that_turns_back_is_replayed_through_its_rows() -> None:
 def test_cartesian_waypoints_keep_the_tcp_on_the_straight_segment() -> None:
     kin = ArmKinematics(PROFILE)
     x0 = matrix_to_xyzwpr(kin.fk_fanuc_deg(HOME))
-    poses = np.array([x0, [*x0, 80.0, -40.0, 60.0, 0.0, 0.0, 15.0]])
+    poses = np.array([x0, x0 + np.array([80.0, -40.0, 60.0, 0.0, 0.0, 15.0])])
     p = planner()
     segs, _ = p.cartesian_segments(HOME, poses, None)
     traj = p.plan(segs)
@@ -107,7 +107,7 @@ def test_cartesian_waypoints_keep_the_tcp_on_the_straight_segment() -> None:
 
 def test_times_are_honoured_when_feasible_and_refused_when_not() -> None:
     p = planner()
-    w = np.array([HOME, [*HOME, 20.0, 0, 0, 0, 0, 0]])
+    w = np.array([HOME, HOME + np.array([20.0, 0, 0, 0, 0, 0])])
     slow = p.plan(p.joint_segments(HOME, w, [0.0, 3.0]))
     assert abs(slow.duration_s - 3.0) < 0.05
     with pytest.raises(TrajectoryRefused, match="times"):
@@ -117,7 +117,7 @@ def test_times_are_honoured_when_feasible_and_refused_when_not() -> None:
 def test_a_waypoint_out_of_range_is_refused_by_index() -> None:
     p = planner()
     with pytest.raises(TrajectoryRefused, match=r"joints\[1\]"):
-        p.joint_segments(HOME, np.array([HOME, [*HOME, 0, 0, 0, 0, 0, 500.0]]), None)
+        p.joint_segments(HOME, np.array([HOME, HOME + np.array([0, 0, 0, 0, 0, 500.0])]), None)
 
 
 def test_warp_is_the_sample_on_whole_indices_and_ramps_land_on_samples() -> None:
@@ -131,7 +131,7 @@ def test_warp_is_the_sample_on_whole_indices_and_ramps_land_on_samples() -> None
 
 def test_servo_cycle_replays_the_samples_exactly_and_holds_the_end() -> None:
     p = planner()
-    traj = p.plan(p.joint_segments(HOME, np.array([[*HOME, 15.0, -5.0, 5.0, 10.0, 5.0, -20.0]]), None))
+    traj = p.plan(p.joint_segments(HOME, np.array([HOME + np.array([15.0, -5.0, 5.0, 10.0, 5.0, -20.0])]), None))
     cycle = streaming_cycle()
     cycle.replay(cycle.check_replay(traj.samples), traj.ramp_steps)
     sent = [cycle.next_command(Status(seq=1)) for _ in range(len(traj.samples) + 10)]
@@ -143,7 +143,7 @@ def test_servo_cycle_replays_the_samples_exactly_and_holds_the_end() -> None:
 
 def test_a_soft_stop_pauses_on_the_path_and_resume_finishes_it() -> None:
     p = planner()
-    goal = [*HOME, 30.0, 10.0, -10.0, 0.0, 0.0, 0.0]
+    goal = HOME + np.array([30.0, 10.0, -10.0, 0.0, 0.0, 0.0])
     traj = p.plan(p.joint_segments(HOME, np.array([goal]), None))
     cycle = streaming_cycle()
     cycle.replay(cycle.check_replay(traj.samples), traj.ramp_steps)
@@ -167,7 +167,7 @@ def test_a_soft_stop_pauses_on_the_path_and_resume_finishes_it() -> None:
 
 def test_a_fast_stop_or_another_command_leaves_the_replay_with_coherent_motion() -> None:
     p = planner()
-    traj = p.plan(p.joint_segments(HOME, np.array([[*HOME, 30.0, 0, 0, 0, 0, 0]]), None))
+    traj = p.plan(p.joint_segments(HOME, np.array([HOME + np.array([30.0, 0, 0, 0, 0, 0])]), None))
     cycle = streaming_cycle()
     cycle.replay(cycle.check_replay(traj.samples), traj.ramp_steps)
     sent = [cycle.next_command(Status(seq=1)) for _ in range(len(traj.samples) // 2)]
@@ -180,8 +180,8 @@ def test_a_fast_stop_or_another_command_leaves_the_replay_with_coherent_motion()
 
 def test_replay_refuses_samples_that_do_not_start_at_rest_here() -> None:
     p = planner()
-    traj = p.plan(p.joint_segments(HOME, np.array([[*HOME, 10.0, 0, 0, 0, 0, 0]]), None))
-    cycle = streaming_cycle([*HOME, 1.0, 0, 0, 0, 0, 0])
+    traj = p.plan(p.joint_segments(HOME, np.array([HOME + np.array([10.0, 0, 0, 0, 0, 0])]), None))
+    cycle = streaming_cycle(HOME + np.array([1.0, 0, 0, 0, 0, 0]))
     assert "moved since the plan" in cycle.replay_start_mismatch(traj.samples)
     jumpy = traj.samples.copy()
     jumpy[5] += 1.0
