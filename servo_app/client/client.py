@@ -229,9 +229,14 @@ class ServoClient:
         return {**self._auth, "X-Lease-Id": self.lease_id}
 
     def _call(self, method: str, path: str, body: Any = None, *, lease: bool = False,
-              params: dict[str, Any] | None = None) -> Any:
+              params: dict[str, Any] | None = None, csv: str | None = None) -> Any:
+        headers = self._headers(lease)
         try:
-            r = self._http.request(method, path, json=body, params=params, headers=self._headers(lease))
+            if csv is not None:  # a CSV body (POST /api/trajectory)
+                r = self._http.request(method, path, content=csv.encode(), params=params,
+                                       headers={**headers, "Content-Type": "text/csv"})
+            else:
+                r = self._http.request(method, path, json=body, params=params, headers=headers)
         except httpx.TimeoutException as exc:
             raise TimeoutError(f"{method} {path}: no answer from {self.url} ({exc})") from None
         except httpx.TransportError as exc:
@@ -393,6 +398,39 @@ class ServoClient:
         """Go to a TCP pose (X Y Z mm, W P R deg, world frame) at the given flange speeds."""
         body = {"xyzwpr": [float(v) for v in xyzwpr], "linear_speed": linear_speed, "angular_speed": angular_speed}
         return self._move("/api/target", body, wait, timeout)
+
+    def replay(self, joints: Sequence[Sequence[float]] | None = None, *,
+               poses: Sequence[Sequence[float]] | None = None, times: Sequence[float] | None = None,
+               csv: str | None = None, log: str | None = None, from_s: float | None = None,
+               to_s: float | None = None, speed_scale: float = 1.0, wait: bool = True,
+               timeout: float = 300.0) -> dict[str, Any]:
+        """Replay a path within the controller's limits (``POST /api/trajectory``): joint waypoints
+        (deg), TCP ``poses`` (X Y Z mm, W P R deg), a ``csv`` text in ``servo-app check``'s form, or a
+        recorded session ``log`` by name with an optional window (s after its first command). The arm
+        first moves to the path's start if it rests elsewhere. With ``wait``, returns once the replay
+        is done and at rest; a stop or a fault before that raises (StoppedError, FaultError). Returns
+        the plan's summary (samples, duration_s, ramp_s, ...)."""
+        if csv is not None:
+            ack = self._call("POST", "/api/trajectory", lease=True, csv=csv, params={"speed_scale": speed_scale})
+        else:
+            body: dict[str, Any] = {"speed_scale": speed_scale}
+            for key, value in (("joints", joints), ("poses", poses)):
+                if value is not None:
+                    body[key] = [[float(v) for v in row] for row in value]
+            if times is not None:
+                body["times"] = [float(t) for t in times]
+            if log is not None:
+                body["log"] = log
+                if from_s is not None:
+                    body["from_s"] = from_s
+                if to_s is not None:
+                    body["to_s"] = to_s
+            ack = self._post("/api/trajectory", body)
+        summary: dict[str, Any] = dict(ack.get("detail") or {})
+        if wait:
+            self._wait(lambda s: s.trajectory is not None and s.trajectory.state == "done" and s.at_rest,
+                       timeout, "the replay", moving=True)
+        return summary
 
     def jog(self, linear: Sequence[float] = (0.0, 0.0, 0.0), angular: Sequence[float] = (0.0, 0.0, 0.0),
             frame: str = "base", duration: float | None = None) -> JogHold:
