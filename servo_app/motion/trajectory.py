@@ -294,7 +294,7 @@ class TrajectoryPlanner:
             duration = None if times is None else float(times[i] - times[i - 1])
             label = f"waypoint {i - 1} -> {i}" + (f" (times[{i}])" if times is not None else "")
             segs.append(_Segment(_densify_line(pts[0], pts[1]), duration, label=label))
-        return segs
+        return self._anchored(segs)
 
     def dense_segments(self, start: np.ndarray, rows: np.ndarray, what: str) -> list[_Segment]:
         """A dense path (CSV rows, a log's commands): split where it turns back, knots every
@@ -303,7 +303,7 @@ class TrajectoryPlanner:
         segs = self._approach(start, rows[0])
         for piece in _split_at_reversals(_thin(rows, DENSE_KNOT_DEG)):
             segs.append(_Segment(piece, label=f"{what} rows"))
-        return segs
+        return self._anchored(segs)
 
     def cartesian_segments(self, start: np.ndarray, poses: np.ndarray, times: Sequence[float] | None
                            ) -> tuple[list[_Segment], np.ndarray]:
@@ -323,7 +323,7 @@ class TrajectoryPlanner:
             pts = self._cartesian_line(poses[i - 1], poses[i], joints[i - 1], i)
             segs.append(_Segment(pts, None if times is None else float(times[i] - times[i - 1]),
                                  label=f"poses[{i - 1}] -> poses[{i}]" + (f" (times[{i}])" if times else "")))
-        return segs, joints
+        return self._anchored(segs), joints
 
     # -- timing
     def plan(self, segments: list[_Segment]) -> TimedTrajectory:
@@ -441,9 +441,21 @@ class TrajectoryPlanner:
 
     # -- helpers
     def _approach(self, start: np.ndarray, first: np.ndarray) -> list[_Segment]:
+        """The move from where the arm rests to the path's first point; none if it rests there (to
+        within 1e-6 deg, what an IK solution of the pose it rests at may differ by: the path is then
+        anchored at ``start`` itself, so its first sample is the commanded position, bit for bit)."""
+        self._start = np.array(start, dtype=float)
         if np.allclose(start, first, atol=1e-6):
             return []
         return [_Segment(_densify_line(start, first), label="the approach to the first waypoint")]
+
+    def _anchored(self, segments: list[_Segment]) -> list[_Segment]:
+        if segments and not np.array_equal(segments[0].points[0], self._start):
+            first = segments[0]
+            points = first.points.copy()
+            points[0] = self._start
+            segments[0] = _Segment(points, first.duration_s, first.share, first.label)
+        return segments
 
     def _check_inside(self, rows: np.ndarray, what: str) -> None:
         q = fanuc_deg_to_model_rad(rows, self.profile.j23_factor)
