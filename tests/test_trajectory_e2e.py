@@ -190,3 +190,19 @@ def test_the_client_replays_and_servo_app_replay_runs_a_csv_file(rig: Rig, tmp_p
     assert "done" in r.stdout
     s = rig.state()
     assert np.allclose(s["q_cmd"][:6], last, atol=1e-3) and rig.sim_alarms() == []
+
+
+def test_the_client_records_a_jog_and_replays_it(rig: Rig) -> None:
+    at_home(rig)
+    with ServoClient(rig.base_url, TOKEN, take_over=True) as arm:
+        arm.ensure_streaming()
+        with arm.record() as rec:
+            arm.jog_joints([0.0, 8.0, 0.0, -10.0, 0.0, 10.0], duration=0.8)  # released: waits for rest
+        jogged = arm.state().joints
+        assert jogged is not None and rec.end_unix is not None
+        arm.move_joints(HOME)
+        summary = arm.replay(**rec.window)
+        assert summary["samples"] > 10
+        s = arm.state()
+        assert s.joints is not None and np.allclose(s.joints[:6], jogged[:6], atol=1e-3)
+    assert rig.sim_alarms() == []

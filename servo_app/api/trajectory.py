@@ -42,6 +42,8 @@ class TrajectoryBody(BaseModel):
         "a recorded session log's name (GET /api/sessions): replay its commanded path (record and replay)"))
     from_s: float | None = Field(None, description="with log: start of the window, s after its first command")
     to_s: float | None = Field(None, description="with log: end of the window (default: the log's end)")
+    from_unix: float | None = Field(None, description="with log: the window's start as wall-clock time (Unix s)")
+    to_unix: float | None = Field(None, description="with log: the window's end as wall-clock time (Unix s)")
     speed_scale: float = Field(1.0, gt=0, le=1, description="share of the joint speed limits")
 
     @model_validator(mode="after")
@@ -50,8 +52,9 @@ class TrajectoryBody(BaseModel):
         if len(given) != 1:
             raise ValueError(f"give exactly one of joints, poses or log (got {given or 'none'}); "
                              "or send a CSV body with Content-Type: text/csv")
-        if (self.from_s is not None or self.to_s is not None) and self.log is None:
-            raise ValueError("from_s and to_s select a window of a log: give log too")
+        window = (self.from_s, self.to_s, self.from_unix, self.to_unix)
+        if any(v is not None for v in window) and self.log is None:
+            raise ValueError("from_s, to_s, from_unix and to_unix select a window of a log: give log too")
         return self
 
 
@@ -94,7 +97,8 @@ async def trajectory(request: Request, client: Controlling, calls: Calls, servic
                                            "msg": f"the body is not JSON ({exc}): send JSON or text/csv",
                                            "input": None}]) from None
         req = TrajectoryInput(joints=body.joints, poses=body.poses, times=body.times, log=body.log,
-                              from_s=body.from_s, to_s=body.to_s, speed_scale=body.speed_scale)
+                              from_s=body.from_s, to_s=body.to_s, from_unix=body.from_unix, to_unix=body.to_unix,
+                              speed_scale=body.speed_scale)
     detail = {"source": "csv" if req.csv_text is not None else ("log" if req.log else
                                                                   "joints" if req.joints else "poses")}
 

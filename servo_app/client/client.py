@@ -21,6 +21,7 @@ import re
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
 from urllib.parse import quote
@@ -141,6 +142,20 @@ class JogHold:
             return
         with contextlib.suppress(ServoError):  # the block raised: let go without waiting, let its exception through
             self.release(wait=False)
+
+
+@dataclass
+class Recording:
+    """A stretch recorded by :meth:`ServoClient.record`: its session log and wall-clock window."""
+
+    log: str
+    start_unix: float
+    end_unix: float | None = None
+
+    @property
+    def window(self) -> dict[str, Any]:
+        """``ServoClient.replay``'s keyword arguments for this stretch."""
+        return {"log": self.log, "from_unix": self.start_unix, "to_unix": self.end_unix}
 
 
 class ServoClient:
@@ -399,11 +414,29 @@ class ServoClient:
         body = {"xyzwpr": [float(v) for v in xyzwpr], "linear_speed": linear_speed, "angular_speed": angular_speed}
         return self._move("/api/target", body, wait, timeout)
 
+    def session_logs(self) -> list[dict[str, Any]]:
+        """The service's session logs, newest first: name, bytes, modified_unix."""
+        return list(self._call("GET", "/api/sessions"))
+
+    @contextlib.contextmanager
+    def record(self) -> Iterator[Recording]:
+        """Record what the arm does in the block (jogging, teleoperation, hand guiding: every stream is
+        logged per cycle); afterwards ``replay(**recording.window)`` replays that stretch. Needs a
+        running stream (its session log is the newest)."""
+        logs = self.session_logs()
+        if not logs:
+            raise ServoError("no session log: start a stream first (ensure_streaming())")
+        rec = Recording(log=str(logs[0]["name"]), start_unix=time.time())
+        try:
+            yield rec
+        finally:
+            rec.end_unix = time.time()
+
     def replay(self, joints: Sequence[Sequence[float]] | None = None, *,
                poses: Sequence[Sequence[float]] | None = None, times: Sequence[float] | None = None,
                csv: str | None = None, log: str | None = None, from_s: float | None = None,
-               to_s: float | None = None, speed_scale: float = 1.0, wait: bool = True,
-               timeout: float = 300.0) -> dict[str, Any]:
+               to_s: float | None = None, from_unix: float | None = None, to_unix: float | None = None,
+               speed_scale: float = 1.0, wait: bool = True, timeout: float = 300.0) -> dict[str, Any]:
         """Replay a path within the controller's limits (``POST /api/trajectory``): joint waypoints
         (deg), TCP ``poses`` (X Y Z mm, W P R deg), a ``csv`` text in ``servo-app check``'s form, or a
         recorded session ``log`` by name with an optional window (s after its first command). The arm
@@ -423,8 +456,9 @@ class ServoClient:
                 body["log"] = log
                 if from_s is not None:
                     body["from_s"] = from_s
-                if to_s is not None:
-                    body["to_s"] = to_s
+                for key, t in (("to_s", to_s), ("from_unix", from_unix), ("to_unix", to_unix)):
+                    if t is not None:
+                        body[key] = t
             ack = self._post("/api/trajectory", body)
         summary: dict[str, Any] = dict(ack.get("detail") or {})
         if wait:

@@ -39,6 +39,8 @@ class TrajectoryInput:
     log: str | None = None
     from_s: float | None = None
     to_s: float | None = None
+    from_unix: float | None = None  # the same window in wall-clock time (ServoClient.record)
+    to_unix: float | None = None
     speed_scale: float = 1.0
 
 
@@ -85,8 +87,10 @@ def read_csv_rows(text: str) -> tuple[np.ndarray, str]:
     return traj.values, traj.fmt
 
 
-def read_log_window(path: Path, name: str, from_s: float | None, to_s: float | None) -> np.ndarray:
-    """The commanded joints of a session log between ``from_s`` and ``to_s`` (s after its first command)."""
+def read_log_window(path: Path, name: str, from_s: float | None, to_s: float | None,
+                    from_unix: float | None = None, to_unix: float | None = None) -> np.ndarray:
+    """The commanded joints of a session log between ``from_s`` and ``to_s`` (s after its first command),
+    or between the wall-clock times ``from_unix`` and ``to_unix`` (the header's ``opened_unix`` maps them)."""
     from servo_app.session_log import SessionLogError, read_session_log
 
     try:
@@ -101,6 +105,11 @@ def read_log_window(path: Path, name: str, from_s: float | None, to_s: float | N
     if not np.all((cmds["flags"] >> 1) & 1):
         raise InvalidRequest(f"log={name!r} holds Cartesian commands: replay takes joint-format logs")
     t = cmds["t"] - cmds["t"][0]
+    if from_unix is not None or to_unix is not None:
+        opened = float(log.header.get("opened_unix", 0.0))
+        offset = opened + float(cmds["t"][0])  # wall clock of the first command
+        from_s = None if from_unix is None else max(0.0, float(from_unix) - offset)
+        to_s = None if to_unix is None else float(to_unix) - offset
     lo = 0.0 if from_s is None else float(from_s)
     hi = float(t[-1]) if to_s is None else float(to_s)
     if not (math.isfinite(lo) and math.isfinite(hi)) or lo < 0 or hi <= lo:
@@ -146,7 +155,7 @@ def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory,
                 path = service.session_log_path(str(req.log))
             except FileNotFoundError:
                 raise InvalidRequest(f"log={req.log!r}: no such session log (GET /api/sessions lists them)") from None
-            rows = read_log_window(path, str(req.log), req.from_s, req.to_s)
+            rows = read_log_window(path, str(req.log), req.from_s, req.to_s, req.from_unix, req.to_unix)
     s = service.state()
     if s["state"] not in _PLANNABLE:
         raise CommandRejected(f"trajectory refused in {s['state']}: the plan starts where the arm rests in a "
