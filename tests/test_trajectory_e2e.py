@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_api_harness import TOKEN, Rig, running_rig
+from test_api_harness import TOKEN, Rig, running_janome_rig, running_rig
 
 from servo_app.client import ServoClient
 from servo_app.messages import LogOpened
@@ -206,3 +206,10 @@ def test_the_client_records_a_jog_and_replays_it(rig: Rig) -> None:
         s = arm.state()
         assert s.joints is not None and np.allclose(s.joints[:6], jogged[:6], atol=1e-3)
     assert rig.sim_alarms() == []
+
+
+def test_the_janome_backend_refuses_a_trajectory_by_name(tmp_path: Path) -> None:
+    with running_janome_rig(tmp_path) as (janome, _):
+        h = janome.lease()
+        r = janome.http.post("/api/trajectory", json={"joints": [[0.0, 0.0, 0.0, 0.0]]}, headers=h)
+        assert r.status_code == 422 and "not supported by the Janome backend" in r.text, r.text
