@@ -14,6 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 # ----------------------------------------------------------------------------------------- requests
 
 
@@ -94,6 +96,17 @@ class PoseTarget(Request):
 class JointTarget(Request):
     joints: tuple[float, ...]
     speed_scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class Trajectory(Request):
+    """Replay joint positions planned and checked beforehand (``servo_app.motion.trajectory``), one
+    per cycle. ``joints`` (N, dof) FANUC deg, float32 values, the first the current commanded position;
+    ``ramp_steps`` (odd): cycles of the pause/resume ramp, checked with the plan."""
+
+    joints: np.ndarray
+    ramp_steps: int
+    label: str = ""  # what was planned (for the state and the audit line)
 
 
 @dataclass(frozen=True)

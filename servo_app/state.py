@@ -74,6 +74,13 @@ _FIELDS: list[tuple[str, int]] = [
     ("vel_limit", 6),
     ("acc_limit", 6),
     ("jerk_limit", 6),
+    # A trajectory replay (servo_app.motion.trajectory.ReplayPlayer): its state (PLAYER_STATES index,
+    # 0 none), the sample played and their count, and the same in seconds.
+    ("traj_state", 1),
+    ("traj_index", 1),
+    ("traj_total", 1),
+    ("traj_time_s", 1),
+    ("traj_total_s", 1),
 ]
 
 
@@ -134,7 +141,20 @@ def decode_state(data: np.ndarray) -> dict[str, Any]:
               "io_read_mask", "ik_flags"):
         out[k] = int(out[k])
     out["latency_hist"] = [int(v) for v in out["latency_hist"]]
+    out["trajectory"] = trajectory_progress(out)
     return out
+
+
+def trajectory_progress(s: dict[str, Any]) -> dict[str, Any] | None:
+    """A replay's progress from the decoded fields (None: no replay in this stream)."""
+    from servo_app.motion.trajectory import PAUSED, PLAYER_STATES
+
+    code = int(s.get("traj_state", 0))
+    if code <= 0 or code >= len(PLAYER_STATES):
+        return None
+    return {"state": PLAYER_STATES[code], "index": int(s["traj_index"]), "total": int(s["traj_total"]),
+            "time_s": round(float(s["traj_time_s"]), 4), "total_s": round(float(s["traj_total_s"]), 4),
+            "paused": code == PAUSED}
 
 
 def command_derivatives(history: Sequence[np.ndarray], dt: float) -> dict[str, np.ndarray]:

@@ -331,6 +331,19 @@ class CartesianView(BaseModel):
     held_back_by: list[str] = Field(description="why it goes slower than asked, most specific first")
 
 
+class TrajectoryProgress(BaseModel):
+    """A trajectory replay's progress (POST /api/trajectory)."""
+
+    model_config = _OPEN
+    state: str = Field(description="playing, pausing, paused, resuming, done, or ended (left by a fast stop, "
+                                   "a fault or another motion command)")
+    index: int = Field(description="the sample being played (fractional during a pause or resume ramp: floored)")
+    total: int = Field(description="samples in the plan, one per cycle")
+    time_s: float = Field(description="the plan's time at the sample played, s")
+    total_s: float = Field(description="the plan's duration, s")
+    paused: bool = Field(description="paused at rest on the path: resume continues it")
+
+
 class InputLatency(BaseModel):
     last: float | None = None
     mean: float | None = None
@@ -456,6 +469,7 @@ class StateView(BaseModel):
     servo_starts: int | None = Field(None, description="servo processes started (a reset after one died starts one)")
     model: str | None = Field(None, description="the robot profile")
     cartesian: CartesianView | None = Field(None, description="why a Cartesian motion is held back (null: none)")
+    trajectory: TrajectoryProgress | None = Field(None, description="the replay in this stream (null: none)")
     robot: str | None = Field(None, description="the controller's (FANUC) or our listening (Janome) host:port")
     simulated: bool | None = Field(None, description="the robot is the embedded simulator")
     alarms: list[AlarmView] | None = Field(None, description="the active alarms and warnings, oldest first: "

@@ -79,6 +79,7 @@ class State:
     lease_holder: str | None = None
     model: str | None = None
     published_unix: float | None = None
+    trajectory: TrajectoryProgress | None = None  # a replay in this stream (POST /api/trajectory)
     raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
@@ -94,7 +95,27 @@ class State:
                    fault=Fault.from_json(d["fault"]) if d.get("fault") else None,
                    alarms=tuple(Alarm.from_json(a) for a in d.get("alarms") or ()),
                    lease_holder=lease.get("client") if lease.get("held") else None, model=d.get("model"),
-                   published_unix=d.get("published_unix"), raw=d)
+                   published_unix=d.get("published_unix"),
+                   trajectory=TrajectoryProgress.from_json(d["trajectory"]) if d.get("trajectory") else None,
+                   raw=d)
+
+
+@dataclass(frozen=True)
+class TrajectoryProgress:
+    """A replay's progress: ``state`` playing, pausing, paused, resuming, done or ended (left by a fast
+    stop, a fault or another command); the sample played of ``total``, and the same in seconds."""
+
+    state: str
+    index: int
+    total: int
+    time_s: float
+    total_s: float
+    paused: bool
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> TrajectoryProgress:
+        return cls(state=str(d["state"]), index=int(d["index"]), total=int(d["total"]),
+                   time_s=float(d["time_s"]), total_s=float(d["total_s"]), paused=bool(d["paused"]))
 
 
 @dataclass(frozen=True)

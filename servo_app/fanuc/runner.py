@@ -494,10 +494,20 @@ class _ServoProcess(ServoProcessHost):
                 sv.set("jerk_limit", jerk_l)
         if self.hist.n:
             self.hist.write(d)
+        replay = c.replay_player
+        if replay is not None:  # a trajectory replay's progress (servo_app.motion.trajectory)
+            d[_TRAJ] = replay.state
+            d[_TRAJ + 1] = replay.tau
+            d[_TRAJ + 2] = replay.total
+            d[_TRAJ + 3] = replay.tau * self.dt
+            d[_TRAJ + 4] = (replay.total - 1) * self.dt
+        else:
+            d[_TRAJ] = 0.0
 
 
 _Q_SERVO, _CART_SERVO, _LAT_HIST = (OFFSET[k] for k in ("q_servo", "cart_servo", "latency_hist"))
 _STATUS_INTERVAL = OFFSET["status_interval_last_ms"]
+_TRAJ = OFFSET["traj_state"]  # traj_state, traj_index, traj_total, traj_time_s, traj_total_s in a row
 assert FIELDS["latency_hist"].stop - _LAT_HIST == len(LATENCY_BUCKETS_US) + 1
 
 

@@ -83,6 +83,7 @@ class StreamSupervisor(SupervisorBase):
     REQUESTS: ClassVar[dict[type, str]] = {
         msg.Twist: "_on_twist", msg.PoseTarget: "_on_pose", msg.IoRead: "_on_io_read", msg.IoWrite: "_on_io_write",
         msg.SetTool: "_on_set_tool",
+        msg.Trajectory: "_on_trajectory",
     }
 
     def __init__(self, cycle: ServoCycle, session_config: SessionConfig | None = None,
@@ -213,6 +214,26 @@ class StreamSupervisor(SupervisorBase):
             raise InvalidRequest(f"payload_kg={payload} must be in (0, {self.cycle.profile.max_payload_kg:g}] kg")
         self.cycle.set_tool(tuple(float(v) for v in xyzwpr) if xyzwpr.any() else None, payload,
                             streaming=self.state.mode in STREAM_ALIVE)
+
+    def _on_trajectory(self, req: msg.Trajectory, now: float) -> dict[str, Any]:
+        """Replay planned samples: the values first (422: shape, finite), then the state (409: streaming,
+        at rest at the first sample), then the gate; a refusal changes nothing. The cycle checks each
+        sample again as it plays it (``ServoCycle._step_replay``)."""
+        if self.cycle.shaper is None:
+            self._motion_gate("trajectory", now=now)  # not streaming: refused with the next step
+        ramp = int(req.ramp_steps)
+        if ramp < 1 or ramp % 2 == 0:
+            raise InvalidRequest(f"ramp_steps={req.ramp_steps} must be odd and positive")
+        try:
+            q = self.cycle.check_replay(req.joints)
+        except CommandRejected as exc:
+            raise InvalidRequest(str(exc)) from None
+        why = self.cycle.replay_start_mismatch(q)
+        if why:
+            raise CommandRejected(f"trajectory refused: {why}")
+        self._target_gate("trajectory", now)
+        self.cycle.replay(q, ramp)
+        return {"samples": len(q), "duration_s": (len(q) - 1) * self.cycle.dt, "ramp_steps": ramp}
 
     def _on_io_read(self, req: msg.IoRead, now: float) -> None:
         self.session.io_read = IoRequest(_io_type(req.type), int(req.index), int(req.mask))

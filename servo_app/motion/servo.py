@@ -9,7 +9,10 @@ start. Commands arrive from the runner (which got them from the API process):
 - Cartesian: a TCP twist (base or tool frame) or a pose target, through the differential IK, whose
   per-cycle joint velocity the shaper then tracks jerk-limited;
 - stop (soft: resumable, and along the current Cartesian path where there is one; fast: shortest
-  stop) and resume.
+  stop) and resume;
+- trajectory replay: positions planned and checked beforehand (:mod:`servo_app.motion.trajectory`),
+  one per cycle through the shaper's float32 guard (:meth:`JointShaper.follow`); a soft stop pauses
+  along the path and resume continues it, a fast stop or any other command leaves it.
 
 A flange-speed guard keeps joint-space motion under the speed cap at which the controller's
 acceleration and jerk tables were evaluated (Appendix B: above it the controller's limits fall).
@@ -28,7 +31,8 @@ from servo_app.motion import cycle_kernels
 from servo_app.motion.commands import PoseTarget, Twist
 from servo_app.motion.diffik import DifferentialIK, IkResult
 from servo_app.motion.limit_tables import LimitTables, default_tables
-from servo_app.motion.shaper import JointShaper, ShaperLimits
+from servo_app.motion.shaper import JointShaper, ShaperLimits, to_f32
+from servo_app.motion.trajectory import DONE, PAUSED, ReplayPlayer
 from servo_app.robots.configuration import ArmConfiguration, ConfigurationRegion, boundary_distances
 from servo_app.robots.conventions import fanuc_deg_to_model_rad, model_rad_to_fanuc_deg, xyzwpr_to_matrix
 from servo_app.robots.kernels import flange_distance_mm, pack_dims
@@ -128,6 +132,8 @@ class ServoCycle:
         self._ahead: _Ahead | None = None  # the next command's IK, solved ahead (solve_ahead)
         self._steps = 0  # shaper steps taken: an ahead solve is good for the step after the one it followed
         self.ahead_used = self.ahead_dropped = 0  # ahead solves a command used / solved again
+        self._replay: ReplayPlayer | None = None  # a trajectory being replayed (kept when done: its progress)
+        self.replay_error = ""  # why the last replay was left before its end
 
     # ------------------------------------------------------------ MotionSource
     def begin(self, q_start: np.ndarray, tables: LimitTables | None) -> None:
@@ -154,6 +160,7 @@ class ServoCycle:
         self._pending = False
         self._speed_scale = 1.0
         self._q_prev = None
+        self._replay, self.replay_error = None, ""
         q_model = fanuc_deg_to_model_rad(np.asarray(q_start[: self.profile.dof], float), self.profile.j23_factor)
         self._ahead = None
         self.ik.reset(q_model)
@@ -208,6 +215,12 @@ class ServoCycle:
         the cycle advances by the fixed interval."""
         shaper = self._require()
         ahead, self._ahead = self._ahead, None
+        if self._replay is not None and self._replay.active:
+            self._drop(ahead)
+            q = self._step_replay(shaper, self._replay)
+            self._steps += 1
+            self._guard_flange_speed(shaper, q)
+            return q
         if self._pending and shaper.at_rest:  # at rest after a change of direction: start it now
             self._pending = False
             if self._target is not None:
@@ -281,6 +294,7 @@ class ServoCycle:
         q = self.check_joint_target(q_fanuc_deg)
         if not (np.isfinite(speed_scale) and 0.0 < speed_scale <= 1.0):
             raise CommandRejected(f"speed_scale={speed_scale} must be in (0, 1]")
+        self._leave_replay("a joint target took over")
         self._target, self._jog = (q, speed_scale), None
         self._finishing = None
         self._cart, self._cart_active = None, False
@@ -303,6 +317,7 @@ class ServoCycle:
         if bad.size:
             raise CommandRejected(f"joints[{bad[0]}]={v[bad[0]]} is not a finite number")
         shaper = self._require()
+        self._leave_replay("a jog took over")
         renewal = self._jog is not None and np.array_equal(v, self._jog)  # the same button, still held
         redirect = not renewal and not self._pending and self._redirects(shaper, v)
         self._jog, self._target = v, None
@@ -321,6 +336,7 @@ class ServoCycle:
         if self._flange_speed_bound(linear, float(np.linalg.norm(cmd.angular))) > limit:
             raise CommandRejected(f"linear speed {linear:.1f} mm/s{self._tool_note(cmd.angular)} is above the "
                                   f"flange-speed cap {limit:.0f} mm/s")
+        self._leave_replay("a twist took over")
         self._cart, self._cart_active = cmd, True
         self._jog, self._target, self._finishing = None, None, None
         self.stopped = False
@@ -340,6 +356,7 @@ class ServoCycle:
 
         if same(self._finishing) and not self.stopped:
             return  # a stream repeating the target it is finishing (a tracker whose part stopped)
+        self._leave_replay("a pose target took over")
         if not (same(self._cart) and self._cart_active):
             self._pose_held_s = 0.0
         self._finishing = None
@@ -351,6 +368,11 @@ class ServoCycle:
         shaper = self._require()
         self.stopped = True
         self._jog = None
+        if self._replay is not None and self._replay.active:
+            if not fast:  # pause along the path (the player's time-warp); resume continues it
+                self._replay.pause()
+                return
+            self._leave_replay("a fast stop left the path")
         if self._cart_active and not fast:
             self._cart = None  # the IK brakes along the current path, the shaper follows
             return
@@ -361,8 +383,93 @@ class ServoCycle:
     def resume(self) -> None:
         """Continue after a soft stop: towards the target that was interrupted, if any."""
         self.stopped = False
+        if self._replay is not None and self._replay.active:
+            self._replay.resume()
+            return
         if self._target is not None and self.shaper is not None:
             self.shaper.set_target(self._target[0], self._target[1] * self._speed_scale)
+
+    # ---------------------------------------------------------------- replay
+    def check_replay(self, samples: np.ndarray) -> np.ndarray:
+        """The samples as a float32-valued (N, dof) array if the shape is right and every value finite;
+        CommandRejected naming the first that is not.
+
+        Only what costs next to nothing is checked here (the request is handled between two cycles:
+        a 20 000-sample plan's full check took 10-25 ms, several 4 ms cycles). The planner checked
+        every sample the way the servo does; as each is played the cycle checks it again: the float32
+        guard, the joint ranges and held configuration, and the flange speed (``_step_replay``)."""
+        self._require()
+        q = np.asarray(samples, dtype=float)
+        n = self.profile.dof
+        if q.ndim != 2 or q.shape[1] != n or len(q) < 2:
+            raise CommandRejected(f"joints has shape {q.shape}, expected (N >= 2, {n})")
+        bad = np.argwhere(~np.isfinite(q))
+        if bad.size:
+            i, a = (int(x) for x in bad[0])
+            raise CommandRejected(f"joints[{i}][{a}]={q[i, a]} is not a finite number")
+        return to_f32(q)
+
+    def replay_start_mismatch(self, samples: np.ndarray) -> str:
+        """Why ``samples`` cannot start now (empty if they can): the arm must be at rest at the first."""
+        shaper = self._require()
+        if not shaper.at_rest:
+            return "the arm is moving: wait until it is at rest (GET /api/state at_rest), then send it again"
+        if not np.array_equal(to_f32(samples[0]), shaper.commanded):
+            return (f"the trajectory starts at {np.round(samples[0], 3).tolist()}, and the arm is at "
+                    f"{np.round(shaper.commanded, 3).tolist()}: it moved since the plan; send it again")
+        return ""
+
+    def replay(self, samples: np.ndarray, ramp_steps: int) -> None:
+        """Play ``samples`` (checked by :meth:`check_replay`, starting where the arm rests) one per cycle."""
+        self._require()
+        self._jog, self._target, self._finishing = None, None, None
+        self._cart, self._cart_active = None, False
+        self._pending = False
+        self.stopped = False
+        self.replay_error = ""
+        self._replay = ReplayPlayer(samples, ramp_steps)
+
+    @property
+    def replay_player(self) -> ReplayPlayer | None:
+        """The trajectory being (or last) replayed in this stream: its progress."""
+        return self._replay
+
+    def _leave_replay(self, why: str) -> None:
+        if self._replay is not None and self._replay.active:
+            self._replay.end()
+            self.replay_error = why
+
+    def _step_replay(self, shaper: JointShaper, player: ReplayPlayer) -> np.ndarray:
+        q = player.advance()
+        if player.state == PAUSED and shaper.mode != "replay":
+            return shaper.step()  # paused at rest: the shaper holds the position
+        # Not expected (the planner checked every sample the same way): a sample outside the ranges or
+        # the held configuration, or too fast for the flange-speed cap, is not sent; the arm stops.
+        why = self._replay_sample_refused(q)
+        if why:
+            player.end()
+            self.replay_error = why
+            shaper.stop("soft")
+            return shaper.step()
+        r, exact = shaper.follow(q)
+        if not exact:  # the float32 guard changed it: leave the path, stop
+            player.end()
+            self.replay_error = f"sample {player.index}: the servo's limit guard changed it; stopped"
+            shaper.stop("soft")
+        elif player.state in (PAUSED, DONE) and not shaper.guard.v1.any() and not shaper.guard.a1.any():
+            shaper.set_target(r)  # at rest on the path: the shaper holds it (and reports rest)
+        return r
+
+    def _replay_sample_refused(self, q: np.ndarray) -> str:
+        """Why the replayed position ``q`` must not be sent (empty: it may): outside the joint ranges or
+        the held configuration, or a flange speed above the cap's share from the last command."""
+        if not self._safe(q)[0]:
+            return f"sample {q.round(3).tolist()} leaves the joint ranges or the held configuration; stopped"
+        if self._q_prev is not None:
+            speed = flange_distance_mm(self._q_prev, q, self._j23, self._dims) / self.dt
+            if speed > self.cap * self.settings.flange_speed_margin:
+                return f"flange speed {speed:.0f} mm/s above the cap's share; stopped"
+        return ""
 
     # ----------------------------------------------------------------- helpers
     def _tool_offset_mm(self) -> float:
@@ -515,8 +622,8 @@ class ServoCycle:
         if self._q_prev is not None:
             self.flange_speed = flange_distance_mm(self._q_prev, q, self._j23, self._dims) / self.dt
         self._q_prev = q
-        if self._cart_active or self.stopped:
-            return
+        if self._cart_active or self.stopped or (self._replay is not None and self._replay.active):
+            return  # (a replay's flange speed was checked with its plan)
         # Predict a few cycles ahead from the shaper's velocity: braking must start before the cap.
         _, v_f, a_f = shaper.state
         predicted = cycle_kernels.predicted_flange_speed(q, v_f, a_f, self.dt, self._j23, self._dims, self._scratch)
