@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from servo_app.motion.limit_tables import LimitTables
+
 # ----------------------------------------------------------------------------------------- requests
 
 
@@ -192,6 +194,14 @@ class SafetyChanged(Event):
 class LinkPhase(Event):
     phase: str
     reason: str = ""
+
+
+@dataclass(frozen=True)
+class LimitTablesReceived(Event):
+    """The controller's limit tables (Appendix B), once a stream's start has read them: what anything
+    planned outside the servo process (a trajectory's timing) must keep, not the profile's defaults."""
+
+    tables: LimitTables
 
 
 @dataclass(frozen=True)

@@ -191,6 +191,22 @@ def test_the_payload_picks_the_limit_tables_and_the_heavy_tool_streams_clean(rig
     assert rig.state()["state"] in ("streaming", "stopped")  # a hold-to-run stop at the end, no fault
 
 
+def test_replayed_poses_are_the_active_tools_tcp(rig: Rig) -> None:
+    """POST /api/trajectory's poses are TCP poses of the active tool: the replay ends with the TCP (not
+    the flange) on the last pose, zero alarms."""
+    h = at_rest_with(rig, "gripper")
+    start = settled(rig)
+    goal = list(np.add(start["cart_servo"], [30.0, 25.0, -20.0, 0.0, 0.0, 8.0]))
+    r = rig.http.post("/api/trajectory", headers=h, json={"poses": [goal]})
+    assert r.status_code == 200, r.text
+    rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "done" and s["at_rest"], 20.0, "replayed")
+    s = settled(rig)
+    np.testing.assert_allclose(s["cart_servo"][:3], goal[:3], atol=0.2)
+    assert rotation_between(s["cart_servo"], goal) < 0.05
+    assert np.linalg.norm(np.subtract(s["flange_pose"][:3], goal[:3])) == pytest.approx(150.0, abs=0.3)
+    assert rig.sim_alarms() == []
+
+
 def test_client_set_tool_and_move_pose(rig: Rig) -> None:
     at_rest_with(rig, "flange")
     with ServoClient(rig.base_url, TOKEN, name="tool-client", take_over=True) as arm:

@@ -9,6 +9,7 @@ import math
 import subprocess
 import sys
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -18,8 +19,10 @@ from test_api_harness import TOKEN, Rig, running_janome_rig, running_rig
 
 from servo_app.client import ServoClient
 from servo_app.messages import LogOpened
+from servo_app.motion.limit_tables import AxisTable, LimitTables, default_tables
 from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.kinematics import ArmKinematics
+from servo_app.robots.profile import load_profile
 from servo_app.session_log import read_session_log
 
 pytestmark = pytest.mark.e2e
@@ -213,3 +216,38 @@ def test_the_janome_backend_refuses_a_trajectory_by_name(tmp_path: Path) -> None
         h = janome.lease()
         r = janome.http.post("/api/trajectory", json={"joints": [[0.0, 0.0, 0.0, 0.0]]}, headers=h)
         assert r.status_code == 422 and "not supported by the Janome backend" in r.text, r.text
+
+
+def _scaled(tables: LimitTables, factor: float) -> LimitTables:
+    """The same tables with every acceleration and jerk stage times ``factor`` (a controller that is
+    stricter than the profile's defaults)."""
+    def axis(t: AxisTable) -> AxisTable:
+        return AxisTable(tuple(v * factor for v in t.no_payload), tuple(v * factor for v in t.max_payload))
+
+    vel, acc, jerk = tables.tables
+    return replace(tables, tables=(vel, tuple(axis(t) for t in acc), tuple(axis(t) for t in jerk)))
+
+
+def test_a_replay_keeps_the_controllers_own_tables_when_they_are_tighter(rig: Rig, tmp_path: Path) -> None:
+    """The plan is timed for the tables the controller sent at the stream's start, not the profile's:
+    against a controller whose acceleration and jerk limits are 0.3 of the defaults the same waypoints
+    take longer and still replay to the end with zero alarms (planned for the defaults, they would ask
+    for more than this controller allows)."""
+    waypoints = [[25.0, 15.0, -5.0, 10.0, -70.0, 30.0], [-20.0, 5.0, -15.0, -10.0, -90.0, -20.0]]
+    h = at_home(rig)
+    r = rig.http.post("/api/trajectory", headers=h, json={"joints": waypoints})
+    assert r.status_code == 200, r.text
+    default_duration = r.json()["detail"]["duration_s"]
+    rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "done" and s["at_rest"], 20.0, "done")
+
+    tight = _scaled(default_tables(load_profile("lrmate200id")), 0.3)
+    with running_rig(tmp_path, sim_options={"tables": tight}) as strict:
+        h = at_home(strict)
+        assert strict.state()["tables_from_controller"]
+        r = strict.http.post("/api/trajectory", headers=h, json={"joints": waypoints})
+        assert r.status_code == 200, r.text
+        assert r.json()["detail"]["duration_s"] > 1.2 * default_duration
+        s = strict.wait(lambda s: (s.get("trajectory") or {}).get("state") == "done" and s["at_rest"], 30.0,
+                        "the replay done")
+        assert np.allclose(s["q_cmd"][:6], waypoints[-1], atol=1e-3)
+        assert strict.sim_alarms() == []

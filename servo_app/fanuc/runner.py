@@ -214,6 +214,7 @@ class _ServoProcess(ServoProcessHost):
         # Per-cycle compute times, published (solve_*_us, cycle_*_us): the motion step per command, and
         # a status's whole handling here, from its receipt to the end of the loop's housekeeping.
         self.solve_time, self.cycle_time = _TimeWindow(), _TimeWindow()
+        self._tables_reported: object = None  # the controller's tables last sent to the parent
         self.ahead_time = _TimeWindow()  # the IK solved ahead, per solve (ServoCycle.solve_ahead)
         self.sup.session.motion = _TimedMotion(self.cycle, self.solve_time)
         self._handled_status = False  # this loop iteration handled a datagram (its cycle time is due)
@@ -416,6 +417,10 @@ class _ServoProcess(ServoProcessHost):
                               "fixed_interval": True})
 
     def _on_link_phase(self, phase: str) -> None:
+        tables = self.sup.session.tables
+        if tables is not None and tables is not self._tables_reported:  # read at this start
+            self._tables_reported = tables
+            self._event(msg.LimitTablesReceived(tables=tables))
         # A start from ended or disconnected reconnects (link -> connected) before the mode moves on:
         # only a stream that has run since the log opened may close it.
         if phase in (Phase.CLOSED, Phase.FAULT, Phase.CONNECTED) and self.sup.state.mode in (

@@ -166,9 +166,15 @@ def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory,
     q_now = np.array(s["q_cmd"][:dof], dtype=float)
     cfg = service.cfg
     dt = (cfg.interval_ms or profile.interval_ms) / 1000.0
-    planner = TrajectoryPlanner.for_stream(profile, dt, default_tables(profile), q_now,
-                                           cap=cfg.flange_speed_cap, payload_kg=cfg.payload_kg,
-                                           limit_fraction=cfg.limit_fraction, speed_scale=req.speed_scale)
+    # The limits the controller checks: its own tables when this stream read them (they may be tighter
+    # than the profile's), at the active tool's payload; Cartesian waypoints are that tool's TCP.
+    received = service.last_event(msg.LimitTablesReceived) if s.get("tables_from_controller") else None
+    tables = received.tables if isinstance(received, msg.LimitTablesReceived) else default_tables(profile)
+    tool = service.tools.active
+    planner = TrajectoryPlanner.for_stream(profile, dt, tables, q_now,
+                                           cap=cfg.flange_speed_cap, payload_kg=tool.payload_kg,
+                                           limit_fraction=cfg.limit_fraction, speed_scale=req.speed_scale,
+                                           tool_xyzwpr=None if tool.is_flange else tool.xyzwpr)
     try:
         if joints is not None:
             segments = planner.joint_segments(q_now, joints, times)
