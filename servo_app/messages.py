@@ -205,6 +205,15 @@ class LimitTablesReceived(Event):
 
 
 @dataclass(frozen=True)
+class ReplayLeft(Event):
+    """A trajectory replay left before its end, and why (a fast stop, another command, a sample the
+    servo's guards would not send): shown as the replay's ``reason`` in the state."""
+
+    reason: str
+    index: int
+
+
+@dataclass(frozen=True)
 class LogOpened(Event):
     path: str
 

@@ -155,6 +155,24 @@ def test_stop_pauses_on_the_path_and_resume_finishes_it(rig: Rig) -> None:
     assert rig.sim_alarms() == []
 
 
+def test_a_jog_ends_the_replay_and_the_state_says_why(rig: Rig) -> None:
+    goal = [40.0, 20.0, 0.0, 20.0, -60.0, 60.0]
+    for took_over in ("jog", "twist"):  # each replay left reports its own reason
+        h = at_home(rig)
+        rig.post("/api/trajectory", h, {"joints": [goal], "speed_scale": 0.5})
+        rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "playing"
+                 and s["trajectory"]["index"] > s["trajectory"]["total"] // 4, 10.0, "a quarter played")
+        rig.post("/api/jog", h, {"joints": [0.0, 0.0, 0.0, 0.0, 0.0, 5.0]} if took_over == "jog"
+                 else {"linear": [5.0, 0.0, 0.0]})
+        s = rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "ended", 5.0, "the replay ended")
+        assert s["trajectory"]["reason"] == f"a {took_over} took over"
+        rig.wait(lambda s: s["at_rest"], 10.0, "at rest")
+    assert rig.sim_alarms() == []
+    # A new replay that runs to its end has no reason to give.
+    s = replay_to_end(rig, h, json={"joints": [HOME]})
+    assert "reason" not in s["trajectory"] or s["trajectory"]["reason"] is None
+
+
 @pytest.mark.parametrize(("body", "words"), [
     ({"joints": [[0.0, 0.0, 0.0, 0.0, math.nan, 0.0]]}, "joints[0][4]=nan"),
     ({"joints": [[0.0, 0.0, 0.0]]}, "joints[0] has 3 values"),

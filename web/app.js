@@ -14,7 +14,7 @@ import { ToolPanel } from "./tools.js";
 import { TargetForm } from "./target.js";
 import { Telemetry } from "./telemetry.js";
 import {
-  JointTable, renderAlarms, renderHeldBack, renderInputs, renderPose, renderStatus, renderTiming,
+  JointTable, renderAlarms, renderHeldBack, renderInputs, renderPose, renderReplay, renderStatus, renderTiming,
 } from "./views.js";
 
 const ROBOT_POLL_MS = 100; // arm view refresh (FK on the server)
@@ -240,6 +240,7 @@ function onState(s) {
   renderPose(s, ui.robot);
   tools.render(s);
   renderHeldBack(s);
+  renderReplay(s);
   renderTiming(s);
   renderAlarms(s);
   renderInputs($("#inputs-card"), s, ui.inputs);

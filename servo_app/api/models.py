@@ -342,6 +342,7 @@ class TrajectoryProgress(BaseModel):
     time_s: float = Field(description="the plan's time at the sample played, s")
     total_s: float = Field(description="the plan's duration, s")
     paused: bool = Field(description="paused at rest on the path: resume continues it")
+    reason: str | None = Field(None, description="why an ended replay left its path before the end")
 
 
 class InputLatency(BaseModel):

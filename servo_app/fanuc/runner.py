@@ -215,6 +215,7 @@ class _ServoProcess(ServoProcessHost):
         # a status's whole handling here, from its receipt to the end of the loop's housekeeping.
         self.solve_time, self.cycle_time = _TimeWindow(), _TimeWindow()
         self._tables_reported: object = None  # the controller's tables last sent to the parent
+        self._replay_left_reported: object = None  # the replay whose leaving was last sent to the parent
         self.ahead_time = _TimeWindow()  # the IK solved ahead, per solve (ServoCycle.solve_ahead)
         self.sup.session.motion = _TimedMotion(self.cycle, self.solve_time)
         self._handled_status = False  # this loop iteration handled a datagram (its cycle time is due)
@@ -500,6 +501,9 @@ class _ServoProcess(ServoProcessHost):
         if self.hist.n:
             self.hist.write(d)
         replay = c.replay_player
+        if c.replay_error and self._replay_left_reported is not replay:  # once per replay left
+            self._replay_left_reported = replay
+            self._event(msg.ReplayLeft(reason=c.replay_error, index=replay.index if replay is not None else 0))
         if replay is not None:  # a trajectory replay's progress (servo_app.motion.trajectory)
             d[_TRAJ] = replay.state
             d[_TRAJ + 1] = replay.tau

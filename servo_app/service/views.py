@@ -8,6 +8,7 @@ from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from servo_app import messages as msg
 from servo_app.motion.diffik import holding_back
 
 if TYPE_CHECKING:
@@ -108,6 +109,10 @@ class StateViews:
         s["alarms"] = svc.alarm_forwarder.alarms()
         s["alarm_history"] = svc.alarm_forwarder.history()
         s["faults"] = svc.alarm_forwarder.faults[-10:]
+        replay = s.get("trajectory")
+        if replay is not None and replay["state"] == "ended":  # why it ended before its end
+            left = svc.last_event(msg.ReplayLeft)
+            replay["reason"] = left.reason if isinstance(left, msg.ReplayLeft) else None
         consistent(s, time.time())
         if svc.inputs is not None:
             s["inputs"] = svc.inputs.summary()
