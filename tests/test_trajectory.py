@@ -92,6 +92,54 @@ def test_a_dense_path_that_turns_back_is_replayed_through_its_rows() -> None:
     assert max(distance_to_polyline(r, traj.samples) for r in rows[::10]) < 0.05
 
 
+def _recording(amplitude: np.ndarray, moving_s: float, rests: tuple[int, int, int]) -> np.ndarray:
+    """Rows one per interval, as a session log records a hand-guided stretch: ``rests`` intervals at
+    rest before, halfway and after a smooth motion by ``amplitude`` over ``moving_s``."""
+    t = np.arange(0.0, moving_s + 1e-9, DT)
+    rows = HOME + np.outer(0.5 - 0.5 * np.cos(np.pi * t / moving_s), amplitude)
+    mid = len(rows) // 2
+    return np.vstack([np.repeat(rows[:1], rests[0], axis=0), rows[:mid], np.repeat(rows[mid:mid + 1], rests[1], axis=0),
+                      rows[mid:], np.repeat(rows[-1:], rests[2], axis=0)])
+
+
+def joint_speed_peaks(q: np.ndarray) -> np.ndarray:
+    return np.abs(np.diff(q, axis=0)).max(axis=0) / DT
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(joint_offsets, st.floats(0.8, 4.0), st.tuples(*[st.integers(0, 300)] * 3))
+def test_a_recording_replays_no_faster_than_it_was_recorded(offsets: list[float], moving_s: float,
+                                                             rests: tuple[int, int, int]) -> None:
+    """A recorded stretch is replayed at its own pace (a hand-guided path at 15 deg/s was replayed at 59
+    deg/s when timed by the limits alone); its rests are not replayed as a creep; the limits hold."""
+    amplitude = np.array(offsets)
+    assume(np.abs(amplitude).max() > 1.0)
+    rows = _recording(amplitude, moving_s, rests)
+    p = planner()
+    traj = p.plan(p.dense_segments(HOME, rows, "rows"))
+    assert np.all(joint_speed_peaks(traj.samples) <= joint_speed_peaks(rows) * 1.03 + 1e-6)
+    assert traj.duration_s < moving_s * 1.5 + 0.5, "rests are skipped, the motion is not crept"
+    assert controller_alarms(traj.samples) == []
+    assert np.allclose(traj.samples[-1], rows[-1], atol=1e-4)
+    fastest = p.plan(p.dense_segments(HOME, rows, "rows", recorded_pace=False))
+    assert fastest.duration_s <= traj.duration_s + DT
+
+
+def test_dense_flange_poses_are_one_path_not_a_stop_at_every_row() -> None:
+    """A CSV of X Y Z W P R rows (the flange, as ``servo-app check`` reads them) is timed as one dense
+    path: it lasts about as long as it was recorded, without stopping at each of its 200 rows."""
+    kin = ArmKinematics(PROFILE)
+    rows = _recording(np.array([20.0, 5.0, -5.0, 10.0, 10.0, 15.0]), 1.6, (0, 0, 0))
+    poses = np.array([matrix_to_xyzwpr(kin.fk_fanuc_deg(q)) for q in rows])
+    p = planner()
+    traj = p.plan(p.dense_pose_segments(HOME, poses, "csv"))
+    assert traj.duration_s < 1.6 * 1.5 + 0.5
+    speeds = np.abs(np.diff(traj.samples, axis=0)).max(axis=1)
+    assert np.count_nonzero(speeds[5:-5] == 0.0) < 5, "no rest between the rows"
+    assert controller_alarms(traj.samples) == []
+    assert np.allclose(traj.samples[-1], rows[-1], atol=1e-3)
+
+
 def test_cartesian_waypoints_keep_the_tcp_on_the_straight_segment() -> None:
     kin = ArmKinematics(PROFILE)
     x0 = matrix_to_xyzwpr(kin.fk_fanuc_deg(HOME))

@@ -129,7 +129,12 @@ def test_a_recorded_jog_replays_from_its_session_log(rig: Rig) -> None:
     _, to_s = log_now(rig)
     rig.post("/api/target", h, {"joints": HOME})
     rig.wait(lambda s: s["at_rest"] and np.allclose(s["q_cmd"][:6], HOME, atol=1e-3), 20.0, "back at HOME")
-    s = replay_to_end(rig, h, json={"log": name, "from_s": from_s, "to_s": to_s})
+    r = rig.http.post("/api/trajectory", headers=h, json={"log": name, "from_s": from_s, "to_s": to_s})
+    assert r.status_code == 200, r.text
+    # At the recorded pace: the second of jogging takes about as long again (timed by the limits alone
+    # it took 0.3 s), and the rests around it are not replayed.
+    assert 0.95 < r.json()["detail"]["duration_s"] < 3.0, r.json()
+    s = rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "done" and s["at_rest"], 20.0, "done")
     assert np.allclose(s["q_cmd"][:6], jogged, atol=1e-3)
     assert rig.sim_alarms() == []
     check_log_passes(rig, h)
@@ -180,6 +185,7 @@ def test_a_jog_ends_the_replay_and_the_state_says_why(rig: Rig) -> None:
     ({"poses": [[3000.0, 0.0, 300.0, 180.0, 0.0, 0.0]]}, "poses[0]"),
     ({"joints": [HOME, HOME], "times": [1.0, 1.0]}, "times[1]=1.0"),
     ({"log": "no-such.srvlog"}, "log='no-such.srvlog'"),
+    ({"log": "no-such.srvlog", "pace": "fast"}, "pace"),
 ])
 def test_refusals_name_the_field_and_change_nothing(rig: Rig, body: dict[str, Any], words: str) -> None:
     h = at_home(rig)

@@ -10,7 +10,7 @@ replayed from a session log by name (``{"log": ...}``), which needs no upload.
 
 # No `from __future__ import annotations`: FastAPI reads the dependency annotations at runtime.
 import math
-from typing import Any
+from typing import Any, Literal
 
 from fastapi import APIRouter, Request
 from fastapi.concurrency import run_in_threadpool
@@ -45,6 +45,9 @@ class TrajectoryBody(BaseModel):
     from_unix: float | None = Field(None, description="with log: the window's start as wall-clock time (Unix s)")
     to_unix: float | None = Field(None, description="with log: the window's end as wall-clock time (Unix s)")
     speed_scale: float = Field(1.0, gt=0, le=1, description="share of the joint speed limits")
+    pace: Literal["recorded", "limits"] = Field("recorded", description=(
+        "with log: 'recorded' replays no faster along the path than it was recorded (times speed_scale), "
+        "'limits' as fast as the controller's limits allow"))
 
     @model_validator(mode="after")
     def _one_source(self) -> "TrajectoryBody":
@@ -59,7 +62,8 @@ class TrajectoryBody(BaseModel):
 
 
 _CSV_FORM = ("A CSV body (Content-Type: text/csv) in `servo-app check`'s form: one row per line, J1..J6 "
-             "(FANUC deg) or, with the header x,y,z,w,p,r, flange poses; `speed_scale` as a query parameter.")
+             "(FANUC deg) or, with the header x,y,z,w,p,r, flange poses; `speed_scale` and `pace` (recorded: no "
+             "faster than one row per interval; limits: as fast as the limits allow) as query parameters.")
 
 
 def _json_safe(errors: list[Any]) -> list[Any]:
@@ -78,14 +82,14 @@ def _json_safe(errors: list[Any]) -> list[Any]:
                  "application/json": {"schema": TrajectoryBody.model_json_schema()},
                  "text/csv": {"schema": {"type": "string", "description": _CSV_FORM}}}}})
 async def trajectory(request: Request, client: Controlling, calls: Calls, service: Service,
-                     speed_scale: float = 1.0) -> Ack:
+                     speed_scale: float = 1.0, pace: Literal["recorded", "limits"] = "recorded") -> Ack:
     """Plan the path from where the arm rests (an approach move first if it does not start there),
     timed by TOPP-RA with a jerk bound and checked as the controller checks a stream, then replay it
     one position per cycle. A stop pauses along the path, resume continues it; a fast stop, a fault or
     another motion command ends it. Progress: ``trajectory`` in GET /api/state. Token and lease."""
     if request.headers.get("content-type", "").split(";")[0].strip().lower() == "text/csv":
         text = (await request.body()).decode("utf-8", errors="replace")
-        req = TrajectoryInput(csv_text=text, speed_scale=speed_scale)
+        req = TrajectoryInput(csv_text=text, speed_scale=speed_scale, pace=pace)
     else:
         try:
             body = TrajectoryBody.model_validate(await request.json())
@@ -98,7 +102,7 @@ async def trajectory(request: Request, client: Controlling, calls: Calls, servic
                                            "input": None}]) from None
         req = TrajectoryInput(joints=body.joints, poses=body.poses, times=body.times, log=body.log,
                               from_s=body.from_s, to_s=body.to_s, from_unix=body.from_unix, to_unix=body.to_unix,
-                              speed_scale=body.speed_scale)
+                              speed_scale=body.speed_scale, pace=body.pace)
     detail = {"source": "csv" if req.csv_text is not None else ("log" if req.log else
                                                                   "joints" if req.joints else "poses")}
 

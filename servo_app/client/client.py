@@ -437,15 +437,19 @@ class ServoClient:
                poses: Sequence[Sequence[float]] | None = None, times: Sequence[float] | None = None,
                csv: str | None = None, log: str | None = None, from_s: float | None = None,
                to_s: float | None = None, from_unix: float | None = None, to_unix: float | None = None,
-               speed_scale: float = 1.0, wait: bool = True, timeout: float = 300.0) -> dict[str, Any]:
+               speed_scale: float = 1.0, pace: str = "recorded", wait: bool = True, timeout: float = 300.0
+               ) -> dict[str, Any]:
         """Replay a path within the controller's limits (``POST /api/trajectory``): joint waypoints
         (deg), TCP ``poses`` (X Y Z mm, W P R deg), a ``csv`` text in ``servo-app check``'s form, or a
         recorded session ``log`` by name with an optional window (s after its first command). The arm
         first moves to the path's start if it rests elsewhere. With ``wait``, returns once the replay
         is done and at rest; a stop or a fault before that raises (StoppedError, FaultError). Returns
-        the plan's summary (samples, duration_s, ramp_s, ...)."""
+        the plan's summary (samples, duration_s, ramp_s, ...). A ``csv`` or ``log`` (one row per interval)
+        replays no faster than it was recorded (``pace="recorded"``) or, with ``pace="limits"``, as fast
+        as the limits allow."""
         if csv is not None:
-            ack = self._call("POST", "/api/trajectory", lease=True, csv=csv, params={"speed_scale": speed_scale})
+            ack = self._call("POST", "/api/trajectory", lease=True, csv=csv,
+                             params={"speed_scale": speed_scale, "pace": pace})
         else:
             body: dict[str, Any] = {"speed_scale": speed_scale}
             for key, value in (("joints", joints), ("poses", poses)):
@@ -455,6 +459,7 @@ class ServoClient:
                 body["times"] = [float(t) for t in times]
             if log is not None:
                 body["log"] = log
+                body["pace"] = pace
                 if from_s is not None:
                     body["from_s"] = from_s
                 for key, t in (("to_s", to_s), ("from_unix", from_unix), ("to_unix", to_unix)):

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -245,6 +246,9 @@ class _Segment:
     duration_s: float | None = None  # requested (times), None: as fast as the limits allow
     share: float = 1.0  # share of the plan's velocity and acceleration limits (lowered on failure)
     label: str = ""
+    # A recording's pace (dense rows, one per interval): each knot's time, s. The replay's path speed
+    # between two knots stays at or below the recorded one (None: as fast as the limits allow).
+    knot_times: np.ndarray | None = None
 
 
 class TrajectoryPlanner:
@@ -308,34 +312,62 @@ class TrajectoryPlanner:
             segs.append(_Segment(_densify_line(pts[0], pts[1]), duration, label=label))
         return self._anchored(segs)
 
-    def dense_segments(self, start: np.ndarray, rows: np.ndarray, what: str) -> list[_Segment]:
-        """A dense path (CSV rows, a log's commands): split where it turns back, knots every
-        DENSE_KNOT_DEG; the approach from ``start`` to its first row first."""
+    def dense_segments(self, start: np.ndarray, rows: np.ndarray, what: str, *, recorded_pace: bool = True
+                       ) -> list[_Segment]:
+        """A dense path (CSV rows, a log's commands: one row per interval): split where it turns back,
+        knots every DENSE_KNOT_DEG; the approach from ``start`` to its first row first.
+
+        ``recorded_pace``: never faster along the path than the rows were recorded (times the speed
+        scale). A hand-guided stretch at 15 deg/s was replayed at 59 deg/s when timed only by the
+        limits: an operator beside the arm expects the motion they taught, not its fastest version."""
         self._check_inside(rows, what)
         segs = self._approach(start, rows[0])
-        for piece in _split_at_reversals(_thin(rows, DENSE_KNOT_DEG)):
-            segs.append(_Segment(piece, label=f"{what} rows"))
+        keep = _thin_indices(rows, DENSE_KNOT_DEG)
+        # The recorded time of each knot counts only rows that moved: the arm resting before, between
+        # or after motions is no pace to keep (0.25 deg over a 5 s rest would be a creep).
+        moved = np.concatenate([[0.0], np.any(np.diff(rows, axis=0) != 0.0, axis=1)])
+        knots, times = rows[keep], np.cumsum(moved)[keep] * self.limits.dt
+        for a, b in _reversal_pieces(knots):
+            piece, t = knots[a: b + 1], times[a: b + 1]
+            if len(piece) == 2:
+                piece, t = _densify_line(piece[0], piece[1]), np.array([t[0], (t[0] + t[1]) / 2.0, t[1]])
+            segs.append(_Segment(piece, label=f"{what} rows", knot_times=t if recorded_pace else None))
         return self._anchored(segs)
 
     def cartesian_segments(self, start: np.ndarray, poses: np.ndarray, times: Sequence[float] | None
                            ) -> tuple[list[_Segment], np.ndarray]:
         """Straight TCP segments between poses (X Y Z mm, W P R deg), solved in the held configuration;
         the joints of each pose are returned too (the approach goes to the first in joint space)."""
-        seed = fanuc_deg_to_model_rad(start, self.profile.j23_factor)
-        joints = np.empty((len(poses), self.dof))
-        for i, pose in enumerate(poses):
-            q = self._solve(xyzwpr_to_matrix(pose), seed)
-            if q is None:
-                raise TrajectoryRefused(f"poses[{i}]={[round(float(v), 3) for v in pose]} has no joint solution in "
-                                        f"the held configuration {self.region.reference} within the joint ranges")
-            joints[i] = model_rad_to_fanuc_deg(q, self.profile.j23_factor)
-            seed = q
+        joints = self._poses_to_joints(start, poses, "poses")
         segs = self._approach(start, joints[0])
         for i in range(1, len(poses)):
             pts = self._cartesian_line(poses[i - 1], poses[i], joints[i - 1], i)
             segs.append(_Segment(pts, None if times is None else float(times[i] - times[i - 1]),
                                  label=f"poses[{i - 1}] -> poses[{i}]" + (f" (times[{i}])" if times else "")))
         return self._anchored(segs), joints
+
+    def dense_pose_segments(self, start: np.ndarray, poses: np.ndarray, what: str, *, recorded_pace: bool = True
+                            ) -> list[_Segment]:
+        """Dense flange poses (a CSV of X Y Z W P R rows, one per interval, as ``servo-app check`` reads
+        them: the flange centre, whatever the tool): each solved in the held configuration, then timed as
+        a dense joint path (:meth:`dense_segments`), not from rest to rest between every two rows."""
+        joints = self._poses_to_joints(start, poses, what, self.flange_kin)
+        return self.dense_segments(start, joints, what, recorded_pace=recorded_pace)
+
+    def _poses_to_joints(self, start: np.ndarray, poses: np.ndarray, what: str,
+                         kin: ArmKinematics | None = None) -> np.ndarray:
+        """FANUC deg of each pose (of ``kin``'s TCP; default the tool's) in the held configuration, each
+        seeded by the previous one."""
+        seed = fanuc_deg_to_model_rad(start, self.profile.j23_factor)
+        joints = np.empty((len(poses), self.dof))
+        for i, pose in enumerate(poses):
+            q = self._solve(xyzwpr_to_matrix(pose), seed, kin)
+            if q is None:
+                raise TrajectoryRefused(f"{what}[{i}]={[round(float(v), 3) for v in pose]} has no joint solution in "
+                                        f"the held configuration {self.region.reference} within the joint ranges")
+            joints[i] = model_rad_to_fanuc_deg(q, self.profile.j23_factor)
+            seed = q
+        return joints
 
     # -- timing
     def plan(self, segments: list[_Segment]) -> TimedTrajectory:
@@ -397,10 +429,11 @@ class TrajectoryPlanner:
         vel = env.vel * VEL_SHARE * seg.share * self.speed_scale
         acc = env.acc * PLAN_ACC_SHARE * seg.share
         grid = np.linspace(0.0, ss[-1], int(min(2000, max(50, 4 * len(pts)))))
-        instance = toppra.algorithm.TOPPRA(
-            [toppra.constraint.JointVelocityConstraint(np.column_stack([-vel, vel])),
-             toppra.constraint.JointAccelerationConstraint(np.column_stack([-acc, acc]))],
-            path, gridpoints=grid, parametrizer="ParametrizeConstAccel")
+        constraints = [toppra.constraint.JointVelocityConstraint(np.column_stack([-vel, vel])),
+                       toppra.constraint.JointAccelerationConstraint(np.column_stack([-acc, acc]))]
+        if seg.knot_times is not None:
+            constraints.append(_recorded_pace(path, ss, seg.knot_times, self.speed_scale * seg.share))
+        instance = toppra.algorithm.TOPPRA(constraints, path, gridpoints=grid, parametrizer="ParametrizeConstAccel")
         _sdd, sd, _ = instance.compute_parameterization(0.0, 0.0)
         if sd is None or not np.all(np.isfinite(sd)):
             raise TrajectoryRefused(f"{seg.label}: TOPP-RA found no timing within the limits")
@@ -483,8 +516,9 @@ class TrajectoryPlanner:
                                     + (", ".join(axes) or "the wrist centre crosses the J1 axis")
                                     + " (model convention, deg)")
 
-    def _solve(self, goal: np.ndarray, seed: np.ndarray) -> np.ndarray | None:
-        sols = [s.q_model_rad for s in self.kin.ik_tcp(goal, with_turns=True, within_limits=True, seed=seed)]
+    def _solve(self, goal: np.ndarray, seed: np.ndarray, kin: ArmKinematics | None = None) -> np.ndarray | None:
+        kin = kin or self.kin
+        sols = [s.q_model_rad for s in kin.ik_tcp(goal, with_turns=True, within_limits=True, seed=seed)]
         sols = [q for q in sols if bool(self.region.contains(q)[0])]
         if not sols:
             return None
@@ -518,8 +552,8 @@ def _densify_line(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([a, (a + b) / 2.0, b], dtype=float)
 
 
-def _thin(rows: np.ndarray, min_chord: float) -> np.ndarray:
-    """Rows at least ``min_chord`` apart (the last row always kept); repeats dropped."""
+def _thin_indices(rows: np.ndarray, min_chord: float) -> list[int]:
+    """Indices of rows at least ``min_chord`` apart (the last row always kept); repeats dropped."""
     keep = [0]
     for i in range(1, len(rows)):
         if np.linalg.norm(rows[i] - rows[keep[-1]]) >= min_chord:
@@ -529,11 +563,12 @@ def _thin(rows: np.ndarray, min_chord: float) -> np.ndarray:
             keep[-1] = len(rows) - 1
         else:
             keep.append(len(rows) - 1)
-    return rows[keep]
+    return keep
 
 
-def _split_at_reversals(pts: np.ndarray) -> list[np.ndarray]:
-    """Pieces of a polyline between the points where it turns back (a dense path's cusps)."""
+def _reversal_pieces(pts: np.ndarray) -> list[tuple[int, int]]:
+    """(first, last) point indices of the pieces of a polyline between the points where it turns back
+    (a dense path's cusps)."""
     if len(pts) < 2:
         return []
     d = np.diff(pts, axis=0)
@@ -542,10 +577,27 @@ def _split_at_reversals(pts: np.ndarray) -> list[np.ndarray]:
     pieces, start = [], 0
     for c in [*cuts, len(pts) - 1]:
         if c > start:
-            piece = pts[start: c + 1]
-            pieces.append(piece if len(piece) > 2 else _densify_line(piece[0], piece[-1]))
+            pieces.append((start, c))
         start = c
     return pieces
+
+
+def _recorded_pace(path: Any, ss: np.ndarray, knot_times: np.ndarray, scale: float) -> Any:
+    """A TOPP-RA constraint: the path speed ds/dt at most the recorded one between the knots around s
+    (the slower at a knot), as joint velocity bounds |q'(s)| * sdot_max(s) for every joint: for any
+    joint that moves, |q_i' sdot| <= |q_i'| sdot_max is sdot <= sdot_max."""
+    import toppra.constraint
+
+    pace = np.diff(ss) / np.maximum(np.diff(knot_times), 1e-9) * scale  # chord per second between knots
+    at_knot = np.minimum(np.concatenate([pace[:1], pace]), np.concatenate([pace, pace[-1:]]))
+
+    def limits(s: float) -> np.ndarray:
+        i = min(max(int(np.searchsorted(ss, s, side="right")) - 1, 0), len(pace))
+        sdot = at_knot[i] if i == len(pace) or s == ss[i] else pace[i]
+        bound = np.abs(path(s, 1)) * sdot * (1.0 + 1e-9) + 1e-12
+        return np.column_stack([-bound, bound])
+
+    return toppra.constraint.JointVelocityConstraintVarying(limits)
 
 
 def _sample_constant_acceleration(grid: np.ndarray, sd: np.ndarray, dt: float) -> np.ndarray:

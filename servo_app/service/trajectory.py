@@ -42,6 +42,9 @@ class TrajectoryInput:
     from_unix: float | None = None  # the same window in wall-clock time (ServoClient.record)
     to_unix: float | None = None
     speed_scale: float = 1.0
+    # A CSV or a log (one row per interval): "recorded" replays no faster than it was recorded (times
+    # speed_scale), "limits" as fast as the limits allow.
+    pace: str = "recorded"
 
 
 def _rows(name: str, values: Sequence[Sequence[float]], width: int) -> np.ndarray:
@@ -133,6 +136,8 @@ def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory,
         raise InvalidRequest(f"give exactly one of joints, poses, a CSV body or log (got {given or 'none'})")
     if not (math.isfinite(req.speed_scale) and 0.0 < req.speed_scale <= 1.0):
         raise InvalidRequest(f"speed_scale={req.speed_scale} must be in (0, 1]")
+    if req.pace not in ("recorded", "limits"):
+        raise InvalidRequest(f"pace={req.pace!r} must be 'recorded' or 'limits'")
     profile = service.profile
     dof = profile.dof
     # The request's own values first (422), before the state (409).
@@ -184,12 +189,12 @@ def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory,
             label = f"{len(poses)} poses"
         elif fmt == "xyzwpr":
             assert rows is not None
-            segments, _ = planner.cartesian_segments(q_now, rows, None)
+            segments = planner.dense_pose_segments(q_now, rows, "csv", recorded_pace=req.pace == "recorded")
             label = f"{len(rows)} CSV poses"
         else:
             assert rows is not None
             what = "csv" if req.csv_text is not None else "log"
-            segments = planner.dense_segments(q_now, rows, what)
+            segments = planner.dense_segments(q_now, rows, what, recorded_pace=req.pace == "recorded")
             label = f"{len(rows)} rows of " + ("a CSV" if what == "csv" else f"log {req.log}")
         timed: TimedTrajectory = planner.plan(segments)
     except TrajectoryRefused as exc:
