@@ -33,6 +33,8 @@ def add_replay_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--url", default="http://127.0.0.1:8000", help="the service (default: %(default)s)")
     p.add_argument("--token", default=None, help="bearer token (default: $SERVO_APP_TOKEN)")
     p.add_argument("--speed-scale", type=float, default=1.0, help="share of the joint speed limits (0, 1]")
+    p.add_argument("--pace", choices=("recorded", "limits"), default="recorded",
+                   help="a CSV or log: no faster than recorded (default), or as fast as the limits allow")
     p.add_argument("--take-over", action="store_true", help="take the lease from another holder")
     p.add_argument("--timeout", type=float, default=600.0, help="give up waiting after this long (s)")
     p.set_defaults(handler=run_replay)
@@ -67,7 +69,7 @@ def run_replay(args: argparse.Namespace) -> int:
         with ServoClient(args.url, args.token, name="servo-app replay", take_over=args.take_over) as arm:
             kwargs = _request(path, arm)
             arm.ensure_streaming()
-            summary = arm.replay(**kwargs, speed_scale=args.speed_scale, wait=False)
+            summary = arm.replay(**kwargs, speed_scale=args.speed_scale, pace=args.pace, wait=False)
             print(f"replaying {summary.get('label', path.name)}: {summary.get('samples')} samples, "
                   f"{summary.get('duration_s')} s", flush=True)
             return _follow(arm, args.timeout)
