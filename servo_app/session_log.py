@@ -76,6 +76,21 @@ def command_record(t: float, seq: int, last_data: int, data_format: int, io: int
                         *_ZEROS[n:])
 
 
+_PAIR = struct.Struct("<" + 2 * _RECORD.format.lstrip("<"))  # a status record and one command record
+
+
+def pack_status_and_command(buf: bytearray, t_status: float, seq: int, bits: int, io: int,
+                            joints: tuple[float, ...] | list[float], t: float, command_seq: int, last_data: int,
+                            data_format: int, command_io: int, latency_us: float,
+                            values: tuple[float, ...] | list[float]) -> None:
+    """``status_record(...) + command_record(...)`` into ``buf`` (2 x 56 bytes) by one precompiled Struct:
+    a status packet and the one command that answered it, the servo process's usual pair."""
+    n, m = min(len(joints), 9), min(len(values), 9)
+    _PAIR.pack_into(buf, 0, KIND_STATUS, t_status, seq, bits, io, 0.0, *joints[:n], *_ZEROS[n:],
+                    KIND_COMMAND, t, command_seq, last_data | (data_format << 1), command_io, latency_us,
+                    *values[:m], *_ZEROS[m:])
+
+
 class SessionLogWriter:
     def __init__(self, path: Path, header: dict[str, Any]) -> None:
         self.path = path
@@ -94,6 +109,11 @@ class SessionLogWriter:
     def command(self, t: float, seq: int, last_data: int, data_format: int, io: int, latency_us: float,
                 values: tuple[float, ...] | list[float]) -> None:
         self.write_records([command_record(t, seq, last_data, data_format, io, latency_us, values)])
+
+    def write_pair(self, buf: bytearray) -> None:
+        """Two records packed by ``pack_status_and_command``, in one write."""
+        self._f.write(buf)
+        self.records += 2
 
     def write_records(self, records: list[bytes]) -> None:
         """Records made by ``status_record`` / ``command_record``, to the kernel in one write."""

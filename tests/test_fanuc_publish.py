@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from servo_app.fanuc.runner import _CommandHistory, _Latency
+from servo_app.fanuc.runner import _CommandHistory, _Latency, _TimeWindow
 from servo_app.state import FIELDS, STATE_SIZE, command_derivatives
 
 
@@ -31,3 +33,30 @@ def test_the_latency_count_goes_on_past_the_window() -> None:
     for _ in range(5000):
         lat.add(100.0, 2000.0)
     assert len(lat.samples) == 4096 and lat.count == 5000  # the refresh cadence counts commands, not samples
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.floats(0.0, 1e5, allow_nan=False) | st.sampled_from([0.0, 1.0, 250.0]), min_size=1,
+                max_size=600),
+       st.integers(0, 5000))
+def test_the_compiled_percentiles_are_numpys(samples: list[float], earlier: int) -> None:
+    """The latency window's p50/p99 and a time window's median/max, compiled, against numpy's own (ties,
+    odd and even counts, a ring that has wrapped after ``earlier`` older samples)."""
+    lat = _Latency()
+    older = [float(k % 977) for k in range(earlier)]
+    for v in older + samples:
+        lat.add(v, 1e9)
+    want = np.percentile(np.array((older + samples)[-_Latency.SIZE:]), [50, 99])
+    assert lat.percentiles() == (float(want[0]), float(want[1]))
+    window = _TimeWindow(size=256, every=len(samples))
+    for v in samples:
+        window.add(v)
+    kept = np.array(samples[-256:])
+    assert (window.p50_us, window.max_us) == (float(np.median(kept)), float(kept.max()))
+
+
+def test_a_nan_sample_makes_the_percentiles_nan_as_numpys_do() -> None:
+    lat = _Latency()
+    for v in (1.0, float("nan"), 3.0):
+        lat.add(v, 1e9)
+    assert all(np.isnan(lat.percentiles())) and np.isnan(np.percentile([1.0, np.nan, 3.0], 50))

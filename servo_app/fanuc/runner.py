@@ -14,10 +14,10 @@ from __future__ import annotations
 import bisect
 import contextlib
 import gc
+import math
 import os
 import socket
 import time
-from collections import deque
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from pathlib import Path
@@ -27,7 +27,7 @@ import numpy as np
 
 from servo_app import messages as msg
 from servo_app.fanuc.packets import ROBOT_PORT, Status
-from servo_app.fanuc.session import MotionSource, Phase, SessionConfig
+from servo_app.fanuc.session import MotionSource, Phase, SentCommand, SessionConfig
 from servo_app.fanuc.supervisor import StreamSupervisor
 from servo_app.input_slot import InputSlotReader
 from servo_app.jit import kernel
@@ -39,7 +39,7 @@ from servo_app.realtime import WakeLatencyHold, make_realtime
 from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.profile import load_profile
 from servo_app.safety import Mode
-from servo_app.session_log import command_record, status_record
+from servo_app.session_log import RECORD_SIZE, command_record, pack_status_and_command, status_record
 from servo_app.state import FIELDS, LATENCY_BUCKETS_US, MODES, OFFSET, PHASES, StateVector, write_link_counters
 
 assert all(p.value in PHASES for p in Phase)
@@ -127,37 +127,93 @@ def _write_derivatives(q: np.ndarray, newest: int, dt: float, d: np.ndarray, at_
 _Q_CMD, _VEL, _ACC, _JERK = (OFFSET[k] for k in ("q_cmd", "vel", "acc", "jerk"))
 
 
+@kernel("void(float64[::1], int64, float64[::1], float64[::1], float64[::1])")
+def _percentiles(ring: np.ndarray, n: int, quantiles: np.ndarray, scratch: np.ndarray, out: np.ndarray) -> None:
+    """``out[k] = np.percentile(ring[:n], 100 * quantiles[k])`` (linear method, numpy's own arithmetic:
+    index (n - 1) * q, its floor, and the lerp numpy uses on either side of one half), sorting a copy in
+    ``scratch``; NaN if any sample is NaN."""
+    a = scratch[:n]
+    a[:] = ring[:n]
+    a.sort()  # NaN last
+    for k in range(quantiles.size):
+        v = (n - 1) * quantiles[k]
+        if math.isnan(a[n - 1]):
+            out[k] = math.nan
+        elif v >= n - 1:
+            out[k] = a[n - 1]
+        else:
+            i = math.floor(v)
+            g = v - i
+            lo, hi = a[i], a[i + 1]
+            diff = hi - lo
+            out[k] = hi - diff * (1 - g) if g >= 0.5 else lo + diff * g
+
+
+@kernel("void(float64[::1], int64, float64[::1], float64[::1])")
+def _median_max(ring: np.ndarray, n: int, scratch: np.ndarray, out: np.ndarray) -> None:
+    """``out[0] = np.median(ring[:n])`` (an even count: the mean of the middle two, as numpy takes it),
+    ``out[1] = ring[:n].max()``; NaN if any sample is NaN."""
+    a = scratch[:n]
+    a[:] = ring[:n]
+    a.sort()  # NaN last
+    if math.isnan(a[n - 1]):
+        out[0] = out[1] = math.nan
+        return
+    m = n // 2
+    out[0] = a[m] if n % 2 else (a[m - 1] + a[m]) / 2.0
+    out[1] = a[n - 1]
+
+
+_P50_P99 = np.array([50.0, 99.0]) / 100  # as np.percentile divides them
+
+
 class _Latency:
-    """Status receipt to command send, last 4096 cycles."""
+    """Status receipt to command send, last 4096 cycles, in a preallocated ring. Its percentiles by one
+    compiled sort of a copy: over a full window 0.5-1 ms here with np.fromiter of a deque and
+    np.percentile, every 16th command for the first 1024 (a 10 s run at 8 ms never left that regime)."""
+
+    SIZE = 4096
 
     def __init__(self) -> None:
-        self.samples: deque[float] = deque(maxlen=4096)
+        self.ring = np.zeros(self.SIZE)
+        self._scratch = np.empty(self.SIZE)
+        self._out = np.zeros(2)
         self.max_us = 0.0
         self.late = 0
-        self.count = 0  # ever added (len(samples) stops at 4096)
+        self.count = 0  # ever added (the samples kept stop at 4096)
+
+    @property
+    def samples(self) -> np.ndarray:
+        """The samples kept (not in time order once the ring has wrapped)."""
+        return self.ring[: min(self.count, self.SIZE)]
 
     def add(self, us: float, late_us: float) -> None:
-        self.samples.append(us)
+        self.ring[self.count % self.SIZE] = us
         self.count += 1
-        self.max_us = max(self.max_us, us)
+        if us > self.max_us:
+            self.max_us = us
         if us > late_us:
             self.late += 1
 
     def percentiles(self) -> tuple[float, float]:
-        if not self.samples:
+        """(p50, p99) of the samples kept, as np.percentile gives them."""
+        n = min(self.count, self.SIZE)
+        if n == 0:
             return 0.0, 0.0
-        a = np.fromiter(self.samples, float)
-        p50, p99 = np.percentile(a, [50, 99])
-        return float(p50), float(p99)
+        out = self._out
+        _percentiles(self.ring, n, _P50_P99, self._scratch, out)
+        return float(out[0]), float(out[1])
 
 
 class _TimeWindow:
     """The last ``size`` samples of a per-cycle time (us) in a preallocated ring; its median and maximum
-    are refreshed every ``every`` samples (a median of 256 costs ~20 us: a few per second is plenty for
-    a display, and nothing is computed in between)."""
+    are refreshed every ``every`` samples, by one compiled call (np.median of 256 cost ~20 us: a few per
+    second is plenty for a display, and nothing is computed in between)."""
 
     def __init__(self, size: int = 256, every: int = 64) -> None:
         self.ring = np.zeros(size)
+        self._scratch = np.empty(size)
+        self._out = np.zeros(2)
         self.every = every
         self.count = 0
         self.p50_us = 0.0
@@ -168,9 +224,9 @@ class _TimeWindow:
         ring[self.count % ring.size] = us
         self.count += 1
         if self.count % self.every == 0:
-            filled = ring[: min(self.count, ring.size)]
-            self.p50_us = float(np.median(filled))
-            self.max_us = float(filled.max())
+            out = self._out
+            _median_max(ring, min(self.count, ring.size), self._scratch, out)
+            self.p50_us, self.max_us = float(out[0]), float(out[1])
 
 
 class _TimedMotion:
@@ -231,9 +287,8 @@ class _ServoProcess(ServoProcessHost):
         elif cfg.data_format != "joint":
             raise ValueError(f"data_format={cfg.data_format!r} must be 'joint' or 'cartesian'")
         self.latency = _Latency()
-        self._lat_count_published = 0
-        # Histogram over the process's life (Prometheus wants counters that only grow).
-        self.lat_hist = np.zeros(len(LATENCY_BUCKETS_US) + 1)
+        # The latency histogram (in the state vector) and sum are over the process's life: Prometheus
+        # wants counters that only grow.
         self.lat_sum_us = 0.0
         self.late_us = (cfg.late_threshold_ms or self.dt * 1000 / 2) * 1000
         self.hist = _CommandHistory(6, self.dt)  # J1..J6 (the state's 6 slots): commanded velocity, acc., jerk
@@ -243,6 +298,7 @@ class _ServoProcess(ServoProcessHost):
         self._logged_seq: int | None = None
         self._log_streamed = False
         self.settle = SettleDetector(cfg.settle_tol_deg, cfg.settle_window_s)
+        self._log_pair = bytearray(2 * RECORD_SIZE)  # a status and its command, packed in place
         self._settle_seq: int | None = None
 
     # -- main loop
@@ -292,6 +348,7 @@ class _ServoProcess(ServoProcessHost):
         cycle.stop(fast=False)
         cycle.next_command(Status(seq=1))
         self.hist.add(tuple(q0))
+        self.hist.write(self.state.data)
         self._publish_backend(self.state)
         self.hist.clear()
 
@@ -376,30 +433,74 @@ class _ServoProcess(ServoProcessHost):
     def _after_datagram(self, t_recv: float, t_sent: float, t_first: float = 0.0) -> None:
         """Log what really crossed the wire: the status just received (once per sequence number) and
         the commands just sent for it (``t_first``: when the one sent ahead left). A malformed datagram
-        leaves ``session.sent`` empty."""
+        leaves ``session.sent`` empty.
+
+        What the commands change in the state goes into the vector here, once per status, not at every
+        publish (the publish after a reply rewrote them unchanged): the latency figures, the histogram
+        bucket by offset, and the commanded position's derivatives."""
         s = self.sup.session
         st = s.last_status
         if st is None or self.log is None:
+            return
+        d = self.state.data
+        sent = s.sent
+        if len(sent) == 1 and st.seq != self._logged_seq:  # the usual status and its one command: one pack
+            self._logged_seq = st.seq
+            if self.last_status_t:
+                d[_STATUS_INTERVAL] = (t_recv - self.last_status_t) * 1000
+            self.last_status_t = t_recv
+            c = sent[0]
+            t = t_first if c.early else t_sent
+            lat_us = (t - t_recv) * 1e6
+            pack_status_and_command(self._log_pair, t_recv - self.t0, st.seq, st.status, st.read_io_value,
+                                    st.joints, t - self.t0, c.seq, c.last_data, c.data_format, c.write_io[3],
+                                    lat_us, c.values)
+            self.log.write_pair(self._log_pair)
+            self._command_sent(d, c, lat_us)
+            s.sent = []
+            self._commands_published(d, lat_us)
             return
         records = []
         if st.seq != self._logged_seq:
             self._logged_seq = st.seq
             records.append(status_record(t_recv - self.t0, st.seq, st.status, st.read_io_value, st.joints))
             if self.last_status_t:
-                self.state.data[_STATUS_INTERVAL] = (t_recv - self.last_status_t) * 1000
+                d[_STATUS_INTERVAL] = (t_recv - self.last_status_t) * 1000
             self.last_status_t = t_recv
-        for c in s.sent:
+        if not s.sent:
+            if records:
+                self.log.write_records(records)
+            return
+        lat_us = 0.0
+        for c in sent:
             t = t_first if c.early else t_sent
             lat_us = (t - t_recv) * 1e6
             records.append(command_record(t - self.t0, c.seq, c.last_data, c.data_format, c.write_io[3], lat_us,
                                           c.values))
-            self.latency.add(lat_us, self.late_us)
-            self.lat_hist[bisect.bisect_left(LATENCY_BUCKETS_US, lat_us)] += 1  # le semantics
-            self.lat_sum_us += lat_us
-            self.hist.add(c.values)
-        if records:  # the status and its answers in one write, after they left
-            self.log.write_records(records)
+            self._command_sent(d, c, lat_us)
+        self.log.write_records(records)  # the status and its answers in one write, after they left
         s.sent = []
+        self._commands_published(d, lat_us)
+
+    def _command_sent(self, d: np.ndarray, c: SentCommand, lat_us: float) -> None:
+        lat = self.latency
+        lat.add(lat_us, self.late_us)
+        d[_LAT_HIST + bisect.bisect_left(LATENCY_BUCKETS_US, lat_us)] += 1  # le semantics
+        self.lat_sum_us += lat_us
+        self.hist.add(c.values)
+        # By count: the window's length stops at 4096, where "len % 16" held at every cycle. Over a
+        # full window the percentiles cost 0.5-1 ms here (now ~0.1 ms compiled): every 256th command
+        # (1-2 s) once it holds 1024, every 16th before, is as fresh as a display or a scrape needs.
+        if lat.count % (16 if lat.count < 1024 else 256) == 0:
+            d[_LAT_P50], d[_LAT_P99] = lat.percentiles()
+
+    def _commands_published(self, d: np.ndarray, lat_us: float) -> None:
+        lat = self.latency
+        d[_LAT_SUM] = self.lat_sum_us
+        d[_LAT_LAST] = lat_us
+        d[_LAT_MAX] = lat.max_us
+        d[_LATE] = lat.late
+        self.hist.write(d)
 
     def _open_stream_log(self) -> None:
         if self.log is not None:
@@ -407,7 +508,6 @@ class _ServoProcess(ServoProcessHost):
         self._log_streamed = False
         self.t0 = time.monotonic()
         self.latency = _Latency()
-        self._lat_count_published = 0
         self.hist.clear()
         self._logged_seq = None
         stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -439,67 +539,48 @@ class _ServoProcess(ServoProcessHost):
 
     # -- publishing
     def _publish_backend(self, sv: StateVector) -> None:
-        # Straight into the vector by offset, nothing allocated: this runs once per cycle.
-        d, s, c, F = sv.data, self.sup.session, self.cycle, OFFSET
-        st = s.last_status
-        if isinstance(st, Status) and st is not self._status_published:  # its fields once per status
+        # Straight into the vector by offset, nothing allocated: this runs once per cycle. What the
+        # commands change was written as they left (_after_datagram).
+        d, c = sv.data, self.cycle
+        st = self.sup.session.last_status
+        if st is not self._status_published and isinstance(st, Status):  # its fields once per status
             self._status_published = st
             if st.seq != self._settle_seq:  # a new status: the feedback moved on (or did not)
                 self._settle_seq = st.seq
                 self.settle.add(self._t_recv, st.joints[:6])
-                d[F["status_unix"]] = time.time() - (time.monotonic() - self._t_recv)
-                d[F["status_time_ms"]] = st.timestamp_ms
-            d[F["status_seq"]] = st.seq
-            d[F["status_bits"]] = st.status
+                d[_STATUS_UNIX] = time.time() - (time.monotonic() - self._t_recv)
+                d[_STATUS_TIME] = st.timestamp_ms
+            d[_STATUS_SEQ] = st.seq
+            d[_STATUS_BITS] = st.status
             d[_Q_SERVO: _Q_SERVO + 6] = st.joints[:6]
             d[_CART_SERVO: _CART_SERVO + 6] = st.cartesian[:6]
-            d[F["io_read_value"]] = st.read_io_value
-            d[F["io_read_type"]] = st.read_io_type
-            d[F["io_read_index"]] = st.read_io_index
-            d[F["io_read_mask"]] = st.read_io_mask
-        write_link_counters(d, s.stats)
-        d[_LAT_HIST: _LAT_HIST + self.lat_hist.size] = self.lat_hist
-        d[F["latency_sum_us"]] = self.lat_sum_us
-        lat = self.latency
-        if lat.samples:
-            d[F["latency_last_us"]] = lat.samples[-1]
-            # By count: the window's length stops at 4096, where "len % 16" held at every cycle. Over a
-            # full window the percentiles cost 0.5-1 ms here: every 256th command (1-2 s) once it holds
-            # 1024, every 16th before, is as fresh as a display or a scrape needs.
-            every = 16 if lat.count < 1024 else 256
-            if lat.count % every == 0 and lat.count != self._lat_count_published:
-                self._lat_count_published = lat.count
-                p50, p99 = lat.percentiles()
-                d[F["latency_p50_us"]] = p50
-                d[F["latency_p99_us"]] = p99
-            d[F["latency_max_us"]] = lat.max_us
-            d[F["late_commands"]] = lat.late
-        d[F["late_inputs"]] = c.late_inputs
-        d[F["solve_p50_us"]] = self.solve_time.p50_us
-        d[F["solve_max_us"]] = self.solve_time.max_us
-        d[F["cycle_p50_us"]] = self.cycle_time.p50_us
-        d[F["cycle_max_us"]] = self.cycle_time.max_us
-        d[F["solve_ahead_p50_us"]] = self.ahead_time.p50_us
-        d[F["solve_ahead_max_us"]] = self.ahead_time.max_us
+            d[_IO_VALUE] = st.read_io_value
+            d[_IO_TYPE] = st.read_io_type
+            d[_IO_INDEX] = st.read_io_index
+            d[_IO_MASK] = st.read_io_mask
+        write_link_counters(d, self.sup.session.stats)
+        d[_LATE_INPUTS] = c.late_inputs
+        solve, cycle, ahead = self.solve_time, self.cycle_time, self.ahead_time
+        d[_SOLVE_P50], d[_SOLVE_MAX] = solve.p50_us, solve.max_us
+        d[_CYCLE_P50], d[_CYCLE_MAX] = cycle.p50_us, cycle.max_us
+        d[_AHEAD_P50], d[_AHEAD_MAX] = ahead.p50_us, ahead.max_us
         ik = c.last_ik if c.ik_active else None
-        d[F["ik_active"]] = ik is not None
-        d[F["ik_flags"]] = ik.flags if ik else 0.0
-        d[F["ik_scale"]] = ik.scale if ik else 1.0
-        d[F["ik_condition"]] = ik.condition if ik else 0.0
+        if ik is not None:
+            d[_IK_ACTIVE], d[_IK_FLAGS], d[_IK_SCALE], d[_IK_CONDITION] = True, ik.flags, ik.scale, ik.condition
+        else:
+            d[_IK_ACTIVE], d[_IK_FLAGS], d[_IK_SCALE], d[_IK_CONDITION] = False, 0.0, 1.0, 0.0
         if c.limits is not None:
             at_rest = c.at_rest()
-            d[F["at_rest"]] = at_rest
-            d[F["settled"]] = at_rest and self.settle.settled
-            d[F["stopped"]] = c.stopped
-            d[F["tables_from_controller"]] = c.tables_source == "controller"
+            d[_AT_REST] = at_rest
+            d[_SETTLED] = at_rest and self.settle.settled
+            d[_STOPPED] = c.stopped
+            d[_TABLES_FROM_CONTROLLER] = c.tables_source == "controller"
             if c.limits is not self._limits_published:  # set once per stream (ServoCycle.begin)
                 self._limits_published = c.limits
                 vel_l, acc_l, jerk_l = c.limits
                 sv.set("vel_limit", vel_l)
                 sv.set("acc_limit", acc_l)
                 sv.set("jerk_limit", jerk_l)
-        if self.hist.n:
-            self.hist.write(d)
         replay = c.replay_player
         if c.replay_error and self._replay_left_reported is not replay:  # once per replay left
             self._replay_left_reported = replay
@@ -517,6 +598,15 @@ class _ServoProcess(ServoProcessHost):
 _Q_SERVO, _CART_SERVO, _LAT_HIST = (OFFSET[k] for k in ("q_servo", "cart_servo", "latency_hist"))
 _STATUS_INTERVAL = OFFSET["status_interval_last_ms"]
 _TRAJ = OFFSET["traj_state"]  # traj_state, traj_index, traj_total, traj_time_s, traj_total_s in a row
+(_STATUS_UNIX, _STATUS_TIME, _STATUS_SEQ, _STATUS_BITS, _IO_VALUE, _IO_TYPE, _IO_INDEX, _IO_MASK, _LATE_INPUTS,
+ _SOLVE_P50, _SOLVE_MAX, _CYCLE_P50, _CYCLE_MAX, _AHEAD_P50, _AHEAD_MAX, _IK_ACTIVE, _IK_FLAGS, _IK_SCALE,
+ _IK_CONDITION, _AT_REST, _SETTLED, _STOPPED, _TABLES_FROM_CONTROLLER, _LAT_P50, _LAT_P99, _LAT_SUM, _LAT_LAST,
+ _LAT_MAX, _LATE) = (OFFSET[k] for k in (
+    "status_unix", "status_time_ms", "status_seq", "status_bits", "io_read_value", "io_read_type", "io_read_index",
+    "io_read_mask", "late_inputs", "solve_p50_us", "solve_max_us", "cycle_p50_us", "cycle_max_us",
+    "solve_ahead_p50_us", "solve_ahead_max_us", "ik_active", "ik_flags", "ik_scale", "ik_condition", "at_rest",
+    "settled", "stopped", "tables_from_controller", "latency_p50_us", "latency_p99_us", "latency_sum_us",
+    "latency_last_us", "latency_max_us", "late_commands"))
 assert FIELDS["latency_hist"].stop - _LAT_HIST == len(LATENCY_BUCKETS_US) + 1
 
 

@@ -27,14 +27,18 @@ MAX_AXES = 9  # J1..J9 (FANUC) or X Y Z R (Janome): the ring's width
 @kernel("int64(float64[::1], float64[:, ::1], int64[::1], float64, float64[::1], int64, float64, float64, int64)")
 def _settle_add(ts: np.ndarray, ps: np.ndarray, ring: np.ndarray, t: float, p: np.ndarray, n_axes: int,
                 window_s: float, tol: float, min_samples: int) -> int:
-    """Append sample (t, p[:n_axes]) to the ring (``ring`` = [head, count]: the oldest slot and how many
-    are kept), drop the samples before the window's start but one, and judge the window.
+    """Append sample (t, p[:n_axes]) to the ring (``ring`` = [head, count, axes]: the oldest slot, how many
+    are kept and their axis count), drop the samples before the window's start but one, and judge the
+    window. A clock that goes back or another axis count starts the watch afresh.
 
     Returns 1 settled, 0 not settled, -1 the ring is full (nothing changed: the caller grows it and
     calls again). The arithmetic is numpy's: the range per axis is max - min with NaN propagating, and
     ``range <= tol`` decides, so a NaN or an infinity anywhere in the window is never settled."""
     cap = ts.shape[0]
     head, count = ring[0], ring[1]
+    if count and (n_axes != ring[2] or t < ts[(head + count - 1) % cap]):
+        head, count = 0, 0  # a clock or an axis count that goes back: start watching afresh
+    ring[0], ring[1], ring[2] = head, count, n_axes
     if count == cap:
         # Full: free the oldest slot only if it has left the window anyway (as the loop below would).
         if count >= 2 and ts[(head + 1) % cap] <= t - window_s:
@@ -86,9 +90,8 @@ class SettleDetector:
         self.min_samples = min_samples
         self._ts = np.zeros(capacity)
         self._ps = np.zeros((capacity, MAX_AXES))
-        self._ring = np.zeros(2, dtype=np.int64)  # head, count
+        self._ring = np.zeros(3, dtype=np.int64)  # head, count, axes
         self._p = np.zeros(MAX_AXES)  # the sample being added, as the kernel takes it
-        self._n_axes = 0
         self.settled = False
 
     def reset(self) -> None:
@@ -101,24 +104,23 @@ class SettleDetector:
         n = len(position)
         if n > MAX_AXES:
             raise ValueError(f"{n} axes: at most {MAX_AXES}")
-        ts, ring = self._ts, self._ring
-        if ring[1] and (n != self._n_axes or t < ts[(ring[0] + ring[1] - 1) % ts.size]):
-            ring[:] = 0  # a clock or an axis count that goes back: start watching afresh
-        self._n_axes = n
         p = self._p
         p[:n] = position
-        r = _settle_add(ts, self._ps, ring, float(t), p, n, self.window_s, self.tol, self.min_samples)
+        # The restart checks live in the kernel too: one call per sample, ~2 us here where the checks on
+        # numpy scalars before it took 4 (once per status packet).
+        r = _settle_add(self._ts, self._ps, self._ring, float(t), p, n, self.window_s, self.tol, self.min_samples)
         if r < 0:  # more samples in the window than the ring holds (a fast link): twice the room
             self._grow()
-            r = _settle_add(self._ts, self._ps, ring, float(t), p, n, self.window_s, self.tol, self.min_samples)
+            r = _settle_add(self._ts, self._ps, self._ring, float(t), p, n, self.window_s, self.tol,
+                            self.min_samples)
         self.settled = r == 1
         return self.settled
 
     def _grow(self) -> None:
-        head, count = (int(v) for v in self._ring)
+        head, count = int(self._ring[0]), int(self._ring[1])
         order = (head + np.arange(count)) % self._ts.size
         cap = 2 * self._ts.size
         ts, ps = np.zeros(cap), np.zeros((cap, MAX_AXES))
         ts[:count], ps[:count] = self._ts[order], self._ps[order]
         self._ts, self._ps = ts, ps
-        self._ring[:] = (0, count)
+        self._ring[0], self._ring[1] = 0, count

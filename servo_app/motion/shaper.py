@@ -517,10 +517,14 @@ class JointShaper:
     def at_rest(self) -> bool:
         """Not moving, as the controller sees it (the last three positions equal) and internally, and
         no command pending."""
+        # The same terms, cheapest first and on the guard's own arrays (no copies): a moving arm fails on
+        # the first two, ~2 us here where the whole test took 13 us (the servo process asks every publish).
+        g = self.guard
+        if not self._finished or g._v.any() or g._a.any():  # any(): nonzero or NaN, as "== 0.0" fails them
+            return False
         p, v, a = self.state
-        return bool(self._finished and (self.guard.v1 == 0.0).all() and (self.guard.a1 == 0.0).all()
-                    and np.array_equal(self.guard.s1, to_f32(p))
-                    and (np.abs(v) <= _REST_TOL).all() and (np.abs(a) <= _REST_TOL).all())
+        return bool(np.array_equal(g._s, to_f32(p)) and (np.abs(v) <= _REST_TOL).all()
+                    and (np.abs(a) <= _REST_TOL).all())
 
     @property
     def mode(self) -> str:
