@@ -658,3 +658,110 @@ def shoulder_row(q: np.ndarray, a1: float, a2: float, a3: float, d4: float, shou
     d = distance if distance > 0.0 else 0.0
     h = dt * (brake_acc * (math.sqrt(horizon * horizon + 2.0 * d / brake_acc) - horizon))
     return h, distance, g1, g2
+
+
+# ------------------------------------------------------------------------ collision broad phase
+# Geom shapes the broad phase knows exactly (geom_size as MuJoCo stores it): a sphere or a capsule is
+# a segment (half length along the geom's z, 0 for a sphere) swept by its radius; a plane is the
+# half-space below its z axis. Any other shape is bounded by its bounding sphere (rbound).
+SHAPE_SEGMENT = 0
+SHAPE_PLANE = 1
+SHAPE_OTHER = 2
+
+
+@kernel("float64(float64[:, ::1], float64[:, ::1], int64, float64, int64, float64)")
+def segment_distance(xpos: np.ndarray, xmat: np.ndarray, g1: int, half1: float, g2: int, half2: float) -> float:
+    """Distance between the segments of geoms ``g1`` and ``g2`` (centre ``xpos[g]``, half length
+    ``half`` along the z column of ``xmat[g]``): the closest points by clamped parameters (Ericson,
+    Real-Time Collision Detection, 5.1.9)."""
+    p1x = xpos[g1, 0] - half1 * xmat[g1, 2]
+    p1y = xpos[g1, 1] - half1 * xmat[g1, 5]
+    p1z = xpos[g1, 2] - half1 * xmat[g1, 8]
+    d1x, d1y, d1z = 2.0 * half1 * xmat[g1, 2], 2.0 * half1 * xmat[g1, 5], 2.0 * half1 * xmat[g1, 8]
+    p2x = xpos[g2, 0] - half2 * xmat[g2, 2]
+    p2y = xpos[g2, 1] - half2 * xmat[g2, 5]
+    p2z = xpos[g2, 2] - half2 * xmat[g2, 8]
+    d2x, d2y, d2z = 2.0 * half2 * xmat[g2, 2], 2.0 * half2 * xmat[g2, 5], 2.0 * half2 * xmat[g2, 8]
+    rx, ry, rz = p1x - p2x, p1y - p2y, p1z - p2z
+    a = d1x * d1x + d1y * d1y + d1z * d1z
+    e = d2x * d2x + d2y * d2y + d2z * d2z
+    f = d2x * rx + d2y * ry + d2z * rz
+    tiny = 1e-300
+    s = 0.0
+    t = 0.0
+    if a <= tiny and e <= tiny:
+        pass
+    elif a <= tiny:
+        t = min(max(f / e, 0.0), 1.0)
+    else:
+        c = d1x * rx + d1y * ry + d1z * rz
+        if e <= tiny:
+            s = min(max(-c / a, 0.0), 1.0)
+        else:
+            b = d1x * d2x + d1y * d2y + d1z * d2z
+            denom = a * e - b * b
+            if denom > 0.0:
+                s = min(max((b * f - c * e) / denom, 0.0), 1.0)
+            t = (b * s + f) / e
+            if t < 0.0:
+                t = 0.0
+                s = min(max(-c / a, 0.0), 1.0)
+            elif t > 1.0:
+                t = 1.0
+                s = min(max((b - c) / a, 0.0), 1.0)
+    x = rx + d1x * s - d2x * t
+    y = ry + d1y * s - d2y * t
+    z = rz + d1z * s - d2z * t
+    return math.sqrt(x * x + y * y + z * z)
+
+
+@kernel("float64(float64[:, ::1], float64[:, ::1], int64, int64, float64)")
+def plane_segment_distance(xpos: np.ndarray, xmat: np.ndarray, plane: int, g: int, half: float) -> float:
+    """Signed distance from the plane geom ``plane`` (its z axis the normal) to the nearer end of geom
+    ``g``'s segment (half length ``half`` along its z axis)."""
+    nx, ny, nz = xmat[plane, 2], xmat[plane, 5], xmat[plane, 8]
+    centre = (nx * (xpos[g, 0] - xpos[plane, 0]) + ny * (xpos[g, 1] - xpos[plane, 1])
+              + nz * (xpos[g, 2] - xpos[plane, 2]))
+    along = half * abs(nx * xmat[g, 2] + ny * xmat[g, 5] + nz * xmat[g, 8])
+    return centre - along
+
+
+@kernel("int64(int64[::1], float64[::1], float64[::1], float64[::1], int64[::1], int64[::1], boolean[::1], "
+        "float64[:, ::1], float64[:, ::1], float64, float64, float64[::1], int64[::1])")
+def collision_screen(shape: np.ndarray, radius: np.ndarray, half: np.ndarray, rbound: np.ndarray, g1: np.ndarray,
+                     g2: np.ndarray, exact: np.ndarray, xpos: np.ndarray, xmat: np.ndarray, tol: float,
+                     distmax: float, lower_bound: np.ndarray, candidates: np.ndarray) -> int:
+    """A lower bound on each geom pair's distance into ``lower_bound``, and the ``exact`` pairs that
+    may be within ``distmax`` into ``candidates`` (their count returned).
+
+    ``exact`` pairs (two segments, or a plane and a segment): their distance (segments: radii
+    subtracted) less ``tol``, the allowance for the narrow phase's own error. Others: MuJoCo's
+    bounding-sphere bound (centre distance less both rbound; with a plane: the other centre's height
+    less its rbound), -inf when a geom is unbounded. Per geom: ``shape`` (``SHAPE_*``), segment
+    ``radius`` and ``half`` length, ``rbound``; per pair ``g1``, ``g2``; the geoms' world poses ``xpos``
+    and ``xmat`` (MuJoCo's ``geom_xpos``, ``geom_xmat``)."""
+    count = 0
+    for k in range(len(g1)):
+        a, b = g1[k], g2[k]
+        if exact[k]:
+            if shape[a] == SHAPE_PLANE:
+                lb = plane_segment_distance(xpos, xmat, a, b, half[b]) - radius[b]
+            elif shape[b] == SHAPE_PLANE:
+                lb = plane_segment_distance(xpos, xmat, b, a, half[a]) - radius[a]
+            else:
+                lb = segment_distance(xpos, xmat, a, half[a], b, half[b]) - radius[a] - radius[b]
+            lb -= tol
+            if lb <= distmax:
+                candidates[count] = k
+                count += 1
+        elif rbound[a] > 0.0 and rbound[b] > 0.0:
+            dx, dy, dz = xpos[a, 0] - xpos[b, 0], xpos[a, 1] - xpos[b, 1], xpos[a, 2] - xpos[b, 2]
+            lb = math.sqrt(dx * dx + dy * dy + dz * dz) - rbound[a] - rbound[b]
+        elif shape[a] == SHAPE_PLANE and rbound[b] > 0.0:
+            lb = plane_segment_distance(xpos, xmat, a, b, 0.0) - rbound[b]
+        elif shape[b] == SHAPE_PLANE and rbound[a] > 0.0:
+            lb = plane_segment_distance(xpos, xmat, b, a, 0.0) - rbound[a]
+        else:
+            lb = -math.inf
+        lower_bound[k] = lb
+    return count
