@@ -765,3 +765,46 @@ def collision_screen(shape: np.ndarray, radius: np.ndarray, half: np.ndarray, rb
             lb = -math.inf
         lower_bound[k] = lb
     return count
+
+
+@kernel("UniTuple(float64, 2)(float64[::1], float64[:, ::1], float64[:, ::1], float64, float64, float64, float64, "
+        "float64, float64, float64, boolean, float64[::1], float64, float64, float64[::1])")
+def collision_row(fromto: np.ndarray, jac1: np.ndarray, jac2: np.ndarray, dist: float, gain: float, min_dist: float,
+                  relax: float, brake_acc: float, dt: float, horizon: float, with_path: bool, u: np.ndarray,
+                  rate: float, floor: float, row: np.ndarray) -> tuple[float, float]:
+    """A collision pair's row from the narrow phase (distance ``dist``, closest points ``fromto``) and
+    the translational Jacobians ``jac1``, ``jac2`` (3 x n) of those points: the coefficients into
+    ``row``, ``(h, h_path)`` returned (see ``CollisionLimit``).
+
+    The coefficients repeat MuJoCo's operations as mink makes them (``mju_normalize3`` of
+    ``to - from``, ``jac2 - jac1``, the product with the normal summed over its rows in order,
+    skipping zero components, as ``mju_mulMatTVec``), so they equal mink's to the bit; the bounds
+    are the float arithmetic of ``braking_speed_scalar`` and ``PathBraking.decel_scalar``."""
+    nx, ny, nz = fromto[3] - fromto[0], fromto[4] - fromto[1], fromto[5] - fromto[2]
+    norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if norm < _MINVAL:
+        nx, ny, nz = 1.0, 0.0, 0.0
+    else:
+        inv = 1.0 / norm
+        nx, ny, nz = nx * inv, ny * inv, nz * inv
+    flip = dist >= 0.0  # mink's sign: the distance must not shrink (penetrating: must grow)
+    along = 0.0
+    for j in range(row.shape[0]):
+        acc = 0.0
+        if nx != 0.0:
+            acc += (jac2[0, j] - jac1[0, j]) * nx
+        if ny != 0.0:
+            acc += (jac2[1, j] - jac1[1, j]) * ny
+        if nz != 0.0:
+            acc += (jac2[2, j] - jac1[2, j]) * nz
+        row[j] = -acc if flip else acc
+        along += row[j] * u[j]
+    h0 = (gain * (dist - min_dist) / 1.0) + relax if dist > min_dist else relax
+    gap = (h0 - relax) / gain
+    t2 = horizon * horizon
+    d = gap if gap > 0.0 else 0.0
+    h = min(h0, dt * (brake_acc * (math.sqrt(t2 + 2.0 * d / brake_acc) - horizon)) + relax)
+    if not with_path:
+        return h, h0
+    acc = min(brake_acc, max(rate * abs(along), floor * brake_acc))
+    return h, min(h0, dt * (acc * (math.sqrt(t2 + 2.0 * d / acc) - horizon)) + relax)

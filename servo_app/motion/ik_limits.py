@@ -447,7 +447,7 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self._rows_set: list[int] = []  # rows fill() made active last time (reset to inactive next time)
         # Views made once for the MuJoCo kernels (the arrays are mink's scratch, kept for the limit's life).
         self._from_pt, self._to_pt = self._fromto[:3], self._fromto[3:]
-        self._jac1_flat, self._jac2_flat = self._jac1.reshape(-1), self._jac2.reshape(-1)
+        self._no_direction = np.zeros(model.nv)  # the row kernel's path direction when there is none
         self.refreshes = 0
 
     def _refresh_near(self, data: mujoco.MjData, q: np.ndarray) -> None:
@@ -547,28 +547,15 @@ class CollisionLimit(CollisionAvoidanceLimit):
                    h_path: np.ndarray) -> None:
         """Pair ``idx``'s row from the narrow phase's ``dist`` and closest points (``self._fromto``)."""
         model = self.model
-        normal, jac1, jac2 = self._normal, self._jac1, self._jac2
-        # mink's compute_contact_normal_jacobian, with MuJoCo's vector kernels on views made once
-        mujoco.mju_sub3(normal, self._to_pt, self._from_pt)
-        mujoco.mju_normalize3(normal)
-        mujoco.mj_jac(model, data, jac2, None, self._to_pt, self._pair_b2[idx])
-        mujoco.mj_jac(model, data, jac1, None, self._from_pt, self._pair_b1[idx])
-        mujoco.mju_subFrom(self._jac2_flat, self._jac1_flat)
-        row = g[idx]
-        mujoco.mju_mulMatTVec(row, jac2, normal)
-        if dist >= 0.0:  # mink's sign: the distance must not shrink (penetrating: must grow)
-            mujoco.mju_scl(row, row, -1.0)
-        gain, relax, min_dist = self.gain, self.bound_relaxation, self.minimum_distance_from_collisions
-        horizon = dt + self.lag_s
-        h0 = (gain * (dist - min_dist) / 1.0) + relax if dist > min_dist else relax
-        gap = (h0 - relax) / gain
-        h[idx] = min(h0, dt * braking_speed_scalar(gap, self.brake_acc, horizon) + relax)
+        mujoco.mj_jac(model, data, self._jac2, None, self._to_pt, self._pair_b2[idx])
+        mujoco.mj_jac(model, data, self._jac1, None, self._from_pt, self._pair_b1[idx])
         path = self.path
-        if path is not None and path.u is not None:
-            acc = path.decel_scalar(mujoco.mju_dot(row, path.u), self.brake_acc)
-            h_path[idx] = min(h0, dt * braking_speed_scalar(gap, acc, horizon) + relax)
-        else:
-            h_path[idx] = h0
+        with_path = path is not None and path.u is not None
+        u = path.u if path is not None and path.u is not None else self._no_direction
+        h[idx], h_path[idx] = kernels.collision_row(
+            self._fromto, self._jac1, self._jac2, dist, self.gain, self.minimum_distance_from_collisions,
+            self.bound_relaxation, self.brake_acc, dt, dt + self.lag_s, with_path, u,
+            path.rate if path is not None and with_path else 0.0, path.floor if path is not None else 0.0, g[idx])
         self._rows_set.append(idx)
 
 
