@@ -808,3 +808,32 @@ def collision_row(fromto: np.ndarray, jac1: np.ndarray, jac2: np.ndarray, dist: 
         return h, h0
     acc = min(brake_acc, max(rate * abs(along), floor * brake_acc))
     return h, min(h0, dt * (acc * (math.sqrt(t2 + 2.0 * d / acc) - horizon)) + relax)
+
+
+# ------------------------------------------------------------------------------------- QP data
+@kernel("boolean(float64[:, ::1], float64[::1], float64[:, ::1], float64[::1], float64, float64, float64[::1], "
+        "float64[::1])")
+def scaled_qp_data(p: np.ndarray, q: np.ndarray, g: np.ndarray, h: np.ndarray, scale: float, cap: float,
+                   q_out: np.ndarray, h_out: np.ndarray) -> bool:
+    """:class:`~servo_app.motion.qp.PersistentQP`'s data in the solver's units: ``q / scale`` into
+    ``q_out``, ``min(h / scale, cap)`` into ``h_out`` (``+inf`` rows: the solver's infinity ``cap``).
+    False when ``p``, ``q`` or ``g`` has a non-finite entry or ``h`` a NaN (outputs then undefined)."""
+    for i in range(p.shape[0]):
+        for j in range(p.shape[1]):
+            if not math.isfinite(p[i, j]):
+                return False
+    for i in range(g.shape[0]):
+        for j in range(g.shape[1]):
+            if not math.isfinite(g[i, j]):
+                return False
+    for i in range(len(q)):
+        x = q[i] / scale
+        if not math.isfinite(x):
+            return False
+        q_out[i] = x
+    for i in range(len(h)):
+        x = h[i] / scale
+        if math.isnan(x):
+            return False
+        h_out[i] = cap if cap < x else x
+    return True

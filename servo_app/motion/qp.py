@@ -28,6 +28,8 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
+from servo_app.motion import ik_kernels as kernels
+
 INF = 1e30  # OSQP_INFTY; DAQP treats +-1e30 as unbounded as well
 SolverName = Literal["osqp", "daqp"]
 SOLVERS: tuple[SolverName, ...] = ("osqp", "daqp")
@@ -69,6 +71,7 @@ class PersistentQP:
         self._p_rows, self._p_cols = self._triu[0][order], self._triu[1][order]
         self._osqp: osqp.OSQP | None = None
         self._l = np.full(m, -INF)
+        self._qs, self._hs = np.zeros(n), np.zeros(m)
         self._sense = np.zeros(m, dtype=np.intc)  # all rows inequalities, no warm start (written by DAQP)
         self._daqp = None  # daqp.Model: the workspace allocated once (daqp.solve sets one up per call)
         self._daqp_data: tuple = ()  # the arrays the workspace was last given, kept alive with it
@@ -83,17 +86,17 @@ class PersistentQP:
             raise ValueError(f"QP data shapes P{p.shape} q{q.shape} G{g.shape} h{h.shape} "
                              f"do not match the fixed size n={n}, m={m}")
         s = self.var_scale
-        qs = q / s
-        hs = np.minimum(h / s, INF)
+        p, g = np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(g, dtype=float)
+        qs, hs = self._qs, self._hs  # the solver's units, checked and scaled in one kernel (per cycle)
         self.solves += 1
-        # ndarray methods rather than np.all / np.any: the same checks with less dispatch (per cycle).
-        if not (np.isfinite(p).all() and np.isfinite(qs).all() and np.isfinite(g).all() and not np.isnan(hs).any()):
+        if not kernels.scaled_qp_data(p, np.ascontiguousarray(q, dtype=float), g, np.ascontiguousarray(h, dtype=float),
+                                      s, INF, qs, hs):
             return self._fail("non-finite data")
         if self.solver == "osqp":
             xs, status, iters, exact = self._solve_osqp(p, qs, g, hs)
         else:
             xs, status, iters, exact = self._solve_daqp(p, qs, g, hs)
-        if xs is None or not np.isfinite(xs).all():
+        if xs is None or not kernels.all_finite(xs):
             return self._fail(status, iters)
         if not exact and m and float(np.max(g @ xs - hs)) > self.settings.feasibility_tol / s:
             return self._fail(status, iters)
