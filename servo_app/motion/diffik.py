@@ -524,6 +524,8 @@ class DifferentialIK:
         sl = [slice(int(a), int(b)) for a, b in itertools.pairwise(starts)]
         g = np.zeros((m, model.nv))
         h = np.full(m, np.inf)
+        self._cfg_qpos, self._cfg_gain = np.zeros(0, dtype=np.int64), 0.0  # no rows: the kernel writes none
+        self._cfg_upper = self._cfg_lower = np.zeros(0)
         if n_cfg:
             g[sl[0]] = np.vstack([cfg_lim.projection_matrix, -cfg_lim.projection_matrix])
             idx = qpos_of_dof[cfg_lim.indices]
@@ -572,11 +574,12 @@ class DifferentialIK:
         self._d = np.zeros((2, N))  # the optimum toward the target, and the pull-back (see step)
         self._rhs = np.zeros((N, 2))
         self._zero = np.zeros(N)
-        # The row blocks' views, for the kernels that fill them.
-        self._h_cfg = h[sl[0]]
-        self._h_acc = h[sl[2]]
-        self._h_brk, self._hp_brk = h[sl[3]], self._hp[sl[3]]
-        self._h_head, self._hp_head = h[: sl[3].start], self._hp[: sl[3].start]
+        # Where the row blocks start, and views, for the kernels that fill them (limit_rows: the same
+        # path for the braking rows and the configuration guard's row).
+        if self.braking_limit.path is not self.path_braking or self.config_guard.path is not self.path_braking:
+            raise ValueError("the braking limit and the configuration guard must brake along the IK's path")
+        self._row_starts = np.array([sl[2].start, sl[3].start, sl[4].start], dtype=np.int64)
+        self._g_guard = g[sl[4].start]
         if n_col:
             self._g_col, self._h_col, self._hp_col = g[sl[5]], h[sl[5]], self._hp[sl[5]]
 
@@ -586,17 +589,19 @@ class DifferentialIK:
         ``h_path``: ``h`` with the braking rows of the limits that brake the whole path together
         (their ``h_path``). Reads the same state the limits' own rows read (the configuration's qpos,
         ``accel_limit.dq_prev``, ``path_braking``), so both stay interchangeable."""
-        g, h, hp, sl, dt = self._g, self._h, self._hp, self._sl, self.dt
+        g, h, hp, dt = self._g, self._h, self._hp, self.dt
         data = self.configuration.data
         qpos = data.qpos  # model order is qpos order (checked by _layout)
-        if self._row_counts[0]:  # mink's ConfigurationLimit: gain * (upper - q), gain * (q - lower)
-            kernels.configuration_limit_rows(self._cfg_gain, self._cfg_upper, self._cfg_lower, self._cfg_qpos,
-                                             qpos, self._h_cfg)
-        self.accel_limit.fill(dt, self._h_acc)
-        self.braking_limit.fill(qpos, dt, self._h_brk, self._hp_brk)
-        i = sl[4].start
-        h[i], hp[i] = self.config_guard.fill(qpos, dt, g[i])
-        self._hp_head[:] = self._h_head  # rows without a path version: h_path = h
+        accel, path = self.accel_limit, self.path_braking
+        with_path = path.u is not None
+        # One kernel for the rows the limits' own fill() give (mink's ConfigurationLimit: gain * (upper
+        # - q), gain * (q - lower); acceleration; braking; the configuration guard): calling them one
+        # by one, with their Python between, cost three times as much.
+        kernels.limit_rows(qpos, dt, self._cfg_gain, self._cfg_upper, self._cfg_lower, self._cfg_qpos,
+                           accel.c, accel.dq_prev, *accel.bounds(dt), accel.velocity_bound,
+                           *self.braking_limit.row_data(), with_path, path.u if path.u is not None else qpos,
+                           path.rate if with_path else 0.0, path.floor, *self.config_guard.row_data(qpos),
+                           self._g_guard, self._row_starts, h, hp)
         if self.collision_limit is not None:
             self.collision_limit.fill(data, qpos, dt, self._g_col, self._h_col, self._hp_col)
         return g, h, hp

@@ -837,3 +837,56 @@ def scaled_qp_data(p: np.ndarray, q: np.ndarray, g: np.ndarray, h: np.ndarray, s
             return False
         h_out[i] = cap if cap < x else x
     return True
+
+
+# ------------------------------------------------------------------------------ all limit rows
+@kernel("void(float64[::1], float64, "
+        "float64, float64[::1], float64[::1], int64[::1], "
+        "float64[:, ::1], float64[::1], float64[::1], float64[::1], boolean[::1], "
+        "float64[::1], float64[::1], float64[::1], int64[::1], float64, "
+        "boolean, float64[::1], float64, float64, "
+        "float64[::1], float64, float64, boolean, float64, int64[::1], float64[::1], "
+        "int64[::1], float64[::1], float64[::1])")
+def limit_rows(q: np.ndarray, dt: float,
+               cfg_gain: float, cfg_upper: np.ndarray, cfg_lower: np.ndarray, cfg_qpos: np.ndarray,
+               c: np.ndarray, dq_prev: np.ndarray, vmax: np.ndarray, da: np.ndarray, velocity_bound: np.ndarray,
+               bound: np.ndarray, brake_acc2: np.ndarray, brake: np.ndarray, cols: np.ndarray, brake_lag: float,
+               with_path: bool, u: np.ndarray, rate: float, floor: float,
+               arm: np.ndarray, shoulder_m: float, shoulder_acc: float, top: bool, guard_lag: float,
+               guard_cols: np.ndarray, g_guard: np.ndarray,
+               starts: np.ndarray, h: np.ndarray, h_path: np.ndarray) -> None:
+    """Every limit row of the diff-IK's QP but the collision rows, in one call, into ``h`` and
+    ``h_path`` (the whole arrays; ``starts``: the acceleration block's first row, the braking block's,
+    the configuration guard's row) and the guard's coefficients into ``g_guard``:
+
+    - mink's ``ConfigurationLimit`` bounds from row 0 (:func:`configuration_limit_rows`);
+    - ``AccelerationLimit`` (:func:`acceleration_rows`), ``BrakingLimit`` (:func:`braking_rows`, with
+      the path's deceleration ``with_path``: direction ``u``, ``rate``, ``floor``);
+    - ``ConfigurationGuard``'s row (:func:`shoulder_row`; ``arm``: a1, a2, a3, d4; ``guard_cols``: the
+      dof columns of q2 and q3), its path bound as ``PathBraking.decel_scalar`` and
+      ``braking_speed_scalar`` give it;
+    - ``h_path = h`` on the rows before the braking block (they have no path version).
+
+    The same kernels the limits' own ``fill`` call, so the same numbers to the bit."""
+    k = len(cfg_qpos)
+    acc_at, brk_at, guard_at = starts[0], starts[1], starts[2]
+    n = len(dq_prev)
+    configuration_limit_rows(cfg_gain, cfg_upper, cfg_lower, cfg_qpos, q, h[: 2 * k])
+    acceleration_rows(c, dq_prev, vmax, da, h[acc_at: acc_at + 2 * n], velocity_bound)
+    braking_rows(bound, brake_acc2, brake, cols, q, dt, brake_lag, with_path, u if with_path else q, rate, floor,
+                 h[brk_at: brk_at + 2 * n], h_path[brk_at: brk_at + 2 * n])
+    col2, col3 = guard_cols[0], guard_cols[1]
+    hg, distance, g1, g2 = shoulder_row(q, arm[0], arm[1], arm[2], arm[3], shoulder_m, shoulder_acc, top, dt,
+                                        guard_lag, col2, col3, g_guard)
+    h[guard_at] = hg
+    if with_path:
+        x = rate * abs(g1 * u[col2] + g2 * u[col3])
+        fc = floor * shoulder_acc
+        acc = min(shoulder_acc, max(x, fc))
+        horizon = dt + guard_lag
+        d = distance if distance > 0.0 else 0.0
+        h_path[guard_at] = dt * (acc * (math.sqrt(horizon * horizon + 2.0 * d / acc) - horizon))
+    else:
+        h_path[guard_at] = hg
+    for i in range(brk_at):
+        h_path[i] = h[i]

@@ -166,12 +166,18 @@ class AccelerationLimit(Limit):
 
         The lower bounds negated are the upper bounds of ``-p``: ``-max(min(-v, p + a), p - a) ==
         min(max(v, -p - a), -p + a)`` (negation is exact)."""
+        vmax, da = self.bounds(dt)
+        kernels.acceleration_rows(self.c, self.dq_prev, vmax, da, h, self.velocity_bound)
+
+    def bounds(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(vel * dt, acc * dt**2)`` as the reference rounds them, computed when ``dt`` changes (and
+        ``h_velocity`` with them): the per-cycle inputs of the rows' kernel."""
         if self._dt != dt:
             self._dt = dt
             self._vmax = self.vel * dt
             self._da = self.acc * dt * dt  # as the reference rounds it
             self.h_velocity = np.concatenate([self._vmax, self._vmax])
-        kernels.acceleration_rows(self.c, self.dq_prev, self._vmax, self._da, h, self.velocity_bound)
+        return self._vmax, self._da
 
 
 class BrakingLimit(Limit):
@@ -246,6 +252,11 @@ class BrakingLimit(Limit):
         kernels.braking_rows(self._bound, self._acc, self.brake_acc, self._cols_i64, q, dt, self.lag_s, with_path,
                              u, rate, floor, h, h_path)
 
+    def row_data(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+        """What :func:`~servo_app.motion.ik_kernels.braking_rows` takes from this limit: the bounds
+        (upper, then lower negated), the deceleration per row and per joint, the dof columns, ``lag_s``."""
+        return self._bound, self._acc, self.brake_acc, self._cols_i64, self.lag_s
+
 
 @dataclass(frozen=True)
 class ConfigurationMargins:
@@ -294,6 +305,8 @@ class ConfigurationGuard(Limit):
         self._cols = _dof_columns(model)
         self._g = np.zeros((1, model.nv))
         self.h_path = np.full(1, np.inf)
+        self._arm = np.array([kin.a1, kin.a2, kin.a3, kin.d4], dtype=float)  # the arm's (a tool moves only the TCP)
+        self._guard_cols = np.ascontiguousarray(self._cols[1:3], dtype=np.int64)
         self.reference: ArmConfiguration | None = None
         if q_ref is not None:
             self.reset(q_ref)
@@ -342,6 +355,16 @@ class ConfigurationGuard(Limit):
             acc = self.path.decel_scalar(g1 * float(u[self._cols[1]]) + g2 * float(u[self._cols[2]]), acc)
             h_path = dt * braking_speed_scalar(distance, acc, dt + self.lag_s)
         return h, h_path
+
+    def row_data(self, q: np.ndarray) -> tuple[np.ndarray, float, float, bool, float, np.ndarray]:
+        """What :func:`~servo_app.motion.ik_kernels.shoulder_row` takes from this limit at the joints
+        ``q`` (latched as the reference if none is): the arm's a1, a2, a3, d4, the shoulder margin, its
+        braking deceleration, the side (Top), ``lag_s``, the dof columns of q2 and q3."""
+        if self.reference is None:
+            self.reset(q)
+        assert self.reference is not None
+        return (self._arm, self.margins.shoulder_m, self.margins.shoulder_brake_acc, self.reference.top, self.lag_s,
+                self._guard_cols)
 
 
 class CollisionLimit(CollisionAvoidanceLimit):
