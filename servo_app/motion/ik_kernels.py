@@ -767,19 +767,49 @@ def collision_screen(shape: np.ndarray, radius: np.ndarray, half: np.ndarray, rb
     return count
 
 
-@kernel("UniTuple(float64, 2)(float64[::1], float64[:, ::1], float64[:, ::1], float64, float64, float64, float64, "
-        "float64, float64, float64, boolean, float64[::1], float64, float64, float64[::1])")
-def collision_row(fromto: np.ndarray, jac1: np.ndarray, jac2: np.ndarray, dist: float, gain: float, min_dist: float,
-                  relax: float, brake_acc: float, dt: float, horizon: float, with_path: bool, u: np.ndarray,
-                  rate: float, floor: float, row: np.ndarray) -> tuple[float, float]:
-    """A collision pair's row from the narrow phase (distance ``dist``, closest points ``fromto``) and
-    the translational Jacobians ``jac1``, ``jac2`` (3 x n) of those points: the coefficients into
-    ``row``, ``(h, h_path)`` returned (see ``CollisionLimit``).
+@kernel("void(float64[:, ::1], float64[:, ::1], float64[:, ::1], int64[:, ::1], int64[::1], float64[::1], int64)")
+def point_jacobian(out: np.ndarray, cdof: np.ndarray, subtree_com: np.ndarray, tree: np.ndarray,
+                   dof_parentid: np.ndarray, point: np.ndarray, body: int) -> None:
+    """The translational Jacobian (3 x nv) of the world ``point`` fixed to ``body`` into ``out``, as
+    ``mj_jac`` makes it (the same operations: equal to the bit): per dof up the chain,
+    ``cdof[3:] + cdof[:3] x (point - subtree_com[root])``. ``cdof`` and ``subtree_com`` from ``mj_comPos``;
+    ``tree`` rows (per body): ``body_rootid``, ``body_dofnum``, ``body_dofadr``, ``body_parentid``."""
+    for r in range(3):
+        for j in range(out.shape[1]):
+            out[r, j] = 0.0
+    root = tree[0, body]
+    ox = point[0] - subtree_com[root, 0]
+    oy = point[1] - subtree_com[root, 1]
+    oz = point[2] - subtree_com[root, 2]
+    while body > 0 and tree[1, body] == 0:  # fixed bodies move with their parent
+        body = tree[3, body]
+    if body == 0:
+        return
+    i = tree[2, body] + tree[1, body] - 1
+    while i >= 0:
+        a0, a1, a2 = cdof[i, 0], cdof[i, 1], cdof[i, 2]
+        out[0, i] = cdof[i, 3] + (a1 * oz - a2 * oy)
+        out[1, i] = cdof[i, 4] + (a2 * ox - a0 * oz)
+        out[2, i] = cdof[i, 5] + (a0 * oy - a1 * ox)
+        i = dof_parentid[i]
 
-    The coefficients repeat MuJoCo's operations as mink makes them (``mju_normalize3`` of
-    ``to - from``, ``jac2 - jac1``, the product with the normal summed over its rows in order,
-    skipping zero components, as ``mju_mulMatTVec``), so they equal mink's to the bit; the bounds
-    are the float arithmetic of ``braking_speed_scalar`` and ``PathBraking.decel_scalar``."""
+
+@kernel("UniTuple(float64, 2)(float64[::1], float64[:, ::1], float64[:, ::1], int64[:, ::1], int64[::1], int64, "
+        "int64, float64[:, ::1], float64[:, ::1], float64, float64, float64, float64, float64, float64, float64, "
+        "boolean, float64[::1], float64, float64, float64[::1])")
+def collision_row(fromto: np.ndarray, cdof: np.ndarray, subtree_com: np.ndarray, tree: np.ndarray,
+                  dof_parentid: np.ndarray, body1: int, body2: int, jac1: np.ndarray, jac2: np.ndarray, dist: float,
+                  gain: float, min_dist: float, relax: float, brake_acc: float, dt: float, horizon: float,
+                  with_path: bool, u: np.ndarray, rate: float, floor: float, row: np.ndarray) -> tuple[float, float]:
+    """A collision pair's row from the narrow phase (distance ``dist``, closest points ``fromto``, on
+    ``body1`` and ``body2``): the coefficients into ``row``, ``(h, h_path)`` returned (see
+    ``CollisionLimit``). ``jac1``, ``jac2``: scratch (3 x nv); the rest as :func:`point_jacobian`.
+
+    The coefficients repeat mink's operations as MuJoCo makes them (``mju_normalize3`` of
+    ``to - from``, ``mj_jac`` at both points, ``jac2 - jac1``, the product with the normal summed
+    over its rows in order, skipping zero components, as ``mju_mulMatTVec``), so they equal mink's
+    to the bit; the bounds are the float arithmetic of ``braking_speed_scalar`` and
+    ``PathBraking.decel_scalar``."""
     nx, ny, nz = fromto[3] - fromto[0], fromto[4] - fromto[1], fromto[5] - fromto[2]
     norm = math.sqrt(nx * nx + ny * ny + nz * nz)
     if norm < _MINVAL:
@@ -787,6 +817,8 @@ def collision_row(fromto: np.ndarray, jac1: np.ndarray, jac2: np.ndarray, dist: 
     else:
         inv = 1.0 / norm
         nx, ny, nz = nx * inv, ny * inv, nz * inv
+    point_jacobian(jac2, cdof, subtree_com, tree, dof_parentid, fromto[3:], body2)
+    point_jacobian(jac1, cdof, subtree_com, tree, dof_parentid, fromto[:3], body1)
     flip = dist >= 0.0  # mink's sign: the distance must not shrink (penetrating: must grow)
     along = 0.0
     for j in range(row.shape[0]):

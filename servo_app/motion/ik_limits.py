@@ -468,9 +468,11 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self._near_dist: list[float] = []  # ... and their distance then
         self._near_q = np.zeros((0, model.nv))
         self._rows_set: list[int] = []  # rows fill() made active last time (reset to inactive next time)
-        # Views made once for the MuJoCo kernels (the arrays are mink's scratch, kept for the limit's life).
-        self._from_pt, self._to_pt = self._fromto[:3], self._fromto[3:]
         self._no_direction = np.zeros(model.nv)  # the row kernel's path direction when there is none
+        # The kinematic tree as the row kernel's point Jacobians (mj_jac's) walk it.
+        self._tree = np.ascontiguousarray(np.vstack([model.body_rootid, model.body_dofnum, model.body_dofadr,
+                                                     model.body_parentid]), dtype=np.int64)
+        self._dof_parentid = np.ascontiguousarray(model.dof_parentid, dtype=np.int64)
         self.refreshes = 0
 
     def _refresh_near(self, data: mujoco.MjData, q: np.ndarray) -> None:
@@ -512,7 +514,7 @@ class CollisionLimit(CollisionAvoidanceLimit):
     def fill(self, data: mujoco.MjData, q: np.ndarray, dt: float, g: np.ndarray, h: np.ndarray,
              h_path: np.ndarray) -> None:
         """``compute_qp_inequalities``' rows and ``h_path`` written into ``g`` (pairs x nv), ``h`` and
-        ``h_path`` (kinematics of ``data`` at the joints ``q`` must be current)."""
+        ``h_path`` (``data`` at the joints ``q``: ``mj_kinematics`` and ``mj_comPos`` current)."""
         for idx in self._rows_set:  # last cycle's rows back to inactive (G = 0, h = inf)
             g[idx] = 0.0
             h[idx] = math.inf
@@ -568,15 +570,14 @@ class CollisionLimit(CollisionAvoidanceLimit):
 
     def _write_row(self, idx: int, dist: float, data: mujoco.MjData, dt: float, g: np.ndarray, h: np.ndarray,
                    h_path: np.ndarray) -> None:
-        """Pair ``idx``'s row from the narrow phase's ``dist`` and closest points (``self._fromto``)."""
-        model = self.model
-        mujoco.mj_jac(model, data, self._jac2, None, self._to_pt, self._pair_b2[idx])
-        mujoco.mj_jac(model, data, self._jac1, None, self._from_pt, self._pair_b1[idx])
+        """Pair ``idx``'s row from the narrow phase's ``dist`` and closest points (``self._fromto``);
+        ``data``'s ``cdof`` and ``subtree_com`` must be current (``mj_comPos``), as for ``mj_jac``."""
         path = self.path
         with_path = path is not None and path.u is not None
         u = path.u if path is not None and path.u is not None else self._no_direction
         h[idx], h_path[idx] = kernels.collision_row(
-            self._fromto, self._jac1, self._jac2, dist, self.gain, self.minimum_distance_from_collisions,
+            self._fromto, data.cdof, data.subtree_com, self._tree, self._dof_parentid, self._pair_b1[idx],
+            self._pair_b2[idx], self._jac1, self._jac2, dist, self.gain, self.minimum_distance_from_collisions,
             self.bound_relaxation, self.brake_acc, dt, dt + self.lag_s, with_path, u,
             path.rate if path is not None and with_path else 0.0, path.floor if path is not None else 0.0, g[idx])
         self._rows_set.append(idx)
