@@ -727,12 +727,15 @@ def plane_segment_distance(xpos: np.ndarray, xmat: np.ndarray, plane: int, g: in
 
 
 @kernel("int64(int64[::1], float64[::1], float64[::1], float64[::1], int64[::1], int64[::1], boolean[::1], "
-        "float64[:, ::1], float64[:, ::1], float64, float64, float64[::1], int64[::1])")
+        "float64[:, ::1], float64[:, ::1], float64, float64, float64[::1], int64[::1], float64[:, ::1], float64[::1], "
+        "float64[::1])")
 def collision_screen(shape: np.ndarray, radius: np.ndarray, half: np.ndarray, rbound: np.ndarray, g1: np.ndarray,
                      g2: np.ndarray, exact: np.ndarray, xpos: np.ndarray, xmat: np.ndarray, tol: float,
-                     distmax: float, lower_bound: np.ndarray, candidates: np.ndarray) -> int:
+                     distmax: float, lower_bound: np.ndarray, candidates: np.ndarray, g: np.ndarray, h: np.ndarray,
+                     h_path: np.ndarray) -> int:
     """A lower bound on each geom pair's distance into ``lower_bound``, and the ``exact`` pairs that
-    may be within ``distmax`` into ``candidates`` (their count returned).
+    may be within ``distmax`` into ``candidates`` (their count returned). Every pair's row is reset to
+    inactive (``g`` row 0, ``h = h_path = inf``) for :func:`collision_rows` to fill.
 
     ``exact`` pairs (two segments, or a plane and a segment): their distance (segments: radii
     subtracted) less ``tol``, the allowance for the narrow phase's own error. Others: MuJoCo's
@@ -742,6 +745,10 @@ def collision_screen(shape: np.ndarray, radius: np.ndarray, half: np.ndarray, rb
     and ``xmat`` (MuJoCo's ``geom_xpos``, ``geom_xmat``)."""
     count = 0
     for k in range(len(g1)):
+        for j in range(g.shape[1]):
+            g[k, j] = 0.0
+        h[k] = math.inf
+        h_path[k] = math.inf
         a, b = g1[k], g2[k]
         if exact[k]:
             if shape[a] == SHAPE_PLANE:
@@ -840,6 +847,23 @@ def collision_row(fromto: np.ndarray, cdof: np.ndarray, subtree_com: np.ndarray,
         return h, h0
     acc = min(brake_acc, max(rate * abs(along), floor * brake_acc))
     return h, min(h0, dt * (acc * (math.sqrt(t2 + 2.0 * d / acc) - horizon)) + relax)
+
+
+@kernel("void(int64, int64[::1], float64[::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], int64[:, ::1], "
+        "int64[::1], int64[::1], int64[::1], float64[:, ::1], float64[:, ::1], float64, float64, float64, float64, "
+        "float64, float64, boolean, float64[::1], float64, float64, float64[:, ::1], float64[::1], float64[::1])")
+def collision_rows(count: int, pairs: np.ndarray, dists: np.ndarray, fromtos: np.ndarray, cdof: np.ndarray,
+                   subtree_com: np.ndarray, tree: np.ndarray, dof_parentid: np.ndarray, body1: np.ndarray,
+                   body2: np.ndarray, jac1: np.ndarray, jac2: np.ndarray, gain: float, min_dist: float, relax: float,
+                   brake_acc: float, dt: float, horizon: float, with_path: bool, u: np.ndarray, rate: float,
+                   floor: float, g: np.ndarray, h: np.ndarray, h_path: np.ndarray) -> None:
+    """:func:`collision_row` for the first ``count`` of ``pairs`` (their narrow phases' ``dists`` and
+    ``fromtos``; bodies per pair ``body1``, ``body2``), into their rows of ``g``, ``h`` and ``h_path``."""
+    for k in range(count):
+        idx = pairs[k]
+        h[idx], h_path[idx] = collision_row(fromtos[k], cdof, subtree_com, tree, dof_parentid, body1[idx],
+                                            body2[idx], jac1, jac2, dists[k], gain, min_dist, relax, brake_acc, dt,
+                                            horizon, with_path, u, rate, floor, g[idx])
 
 
 # ------------------------------------------------------------------------------------- QP data

@@ -467,7 +467,12 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self._near: list[int] = []  # cached pairs within detection distance + margin at the last refresh
         self._near_dist: list[float] = []  # ... and their distance then
         self._near_q = np.zeros((0, model.nv))
-        self._rows_set: list[int] = []  # rows fill() made active last time (reset to inactive next time)
+        # fill()'s narrow phase results (per pair with a row): the pair, its distance, its closest points.
+        self._row_pairs = np.zeros(len(pairs), dtype=np.int64)
+        self._dists = np.zeros(len(pairs))
+        self._fromtos = np.zeros((len(pairs), 6))
+        self._pair_b1_arr = np.array(self._pair_b1, dtype=np.int64)
+        self._pair_b2_arr = np.array(self._pair_b2, dtype=np.int64)
         self._no_direction = np.zeros(model.nv)  # the row kernel's path direction when there is none
         # The kinematic tree as the row kernel's point Jacobians (mj_jac's) walk it.
         self._tree = np.ascontiguousarray(np.vstack([model.body_rootid, model.body_dofnum, model.body_dofadr,
@@ -514,32 +519,50 @@ class CollisionLimit(CollisionAvoidanceLimit):
     def fill(self, data: mujoco.MjData, q: np.ndarray, dt: float, g: np.ndarray, h: np.ndarray,
              h_path: np.ndarray) -> None:
         """``compute_qp_inequalities``' rows and ``h_path`` written into ``g`` (pairs x nv), ``h`` and
-        ``h_path`` (``data`` at the joints ``q``: ``mj_kinematics`` and ``mj_comPos`` current)."""
-        for idx in self._rows_set:  # last cycle's rows back to inactive (G = 0, h = inf)
-            g[idx] = 0.0
-            h[idx] = math.inf
-            h_path[idx] = math.inf
-        self._rows_set = []
+        ``h_path`` (``data`` at the joints ``q``: ``mj_kinematics`` and ``mj_comPos`` current).
+
+        The screen resets every row and names the exactly known pairs within reach; the narrow phase
+        runs on those (and on the cached pairs the cache cannot rule out); the pairs it finds within
+        detection distance get their rows from one kernel."""
         if not self.max_num_contacts:
             return
         model = self.model
         distmax = self.collision_detection_distance
-        fromto = self._fromto
         count = kernels.collision_screen(self._geom_shape, self._geom_radius, self._geom_half, self._geom_rbound,
                                          self._pair_g1_arr, self._pair_g2_arr, self._exact, data.geom_xpos,
                                          data.geom_xmat, self.screen_tolerance, distmax, self._lower_bound,
-                                         self._candidates)
-        for idx in self._candidates[:count].tolist():  # the reference's narrow phase, for these pairs only
+                                         self._candidates, g, h, h_path)
+        rows = 0  # pairs with a row: their index, distance and closest points (the reference's call)
+        row_pairs, dists, fromtos = self._row_pairs, self._dists, self._fromtos
+        for idx in self._candidates[:count].tolist():
+            fromto = fromtos[rows]
             dist = mujoco.mj_geomDistance(model, data, self._pair_g1[idx], self._pair_g2[idx], distmax, fromto)
             if abs(dist - distmax) >= 1e-12:
-                self._write_row(idx, dist, data, dt, g, h, h_path)
+                row_pairs[rows], dists[rows] = idx, dist
+                rows += 1
+        if self._cached or self._q_refresh is None:  # the first fill sets the cache up, even an empty one
+            rows = self._cached_rows(data, q, rows)
+        if rows:
+            path = self.path
+            with_path = path is not None and path.u is not None
+            kernels.collision_rows(
+                rows, row_pairs, dists, fromtos, data.cdof, data.subtree_com, self._tree, self._dof_parentid,
+                self._pair_b1_arr, self._pair_b2_arr, self._jac1, self._jac2, self.gain,
+                self.minimum_distance_from_collisions, self.bound_relaxation, self.brake_acc, dt, dt + self.lag_s,
+                with_path, path.u if path is not None and path.u is not None else self._no_direction,
+                path.rate if path is not None and with_path else 0.0, path.floor if path is not None else 0.0,
+                g, h, h_path)
+
+    def _cached_rows(self, data: mujoco.MjData, q: np.ndarray, rows: int) -> int:
+        """The cached pairs' narrow phases: the pairs found within detection distance appended to the
+        rows (from ``rows`` on); the new count returned. Per pair, a bound on how much its distance can
+        have changed since q_refresh: the joints between its two geoms, each turned by
+        ``|q - q_refresh|`` (weights: _geom_joint_bounds); a far pair that could be within detection
+        distance now calls for a refresh."""
+        model = self.model
+        distmax = self.collision_detection_distance
         qr = self._q_refresh
-        # Cached pairs. Per pair, a bound on how much its distance can have changed since q_refresh: the
-        # joints between its two geoms, each turned by |q - q_refresh| (weights: _geom_joint_bounds); a
-        # far pair that could be within detection distance now calls for a refresh.
         refresh = qr is None or len(qr) != len(q) or not self._cache_ok
-        if not self._cached and not refresh:
-            return
         qa = np.array(q, dtype=float)
         drift = self._drift
         if not refresh:
@@ -551,12 +574,14 @@ class CollisionLimit(CollisionAvoidanceLimit):
         else:
             drift = drift.tolist()  # floats: read once per near pair below
         near_dist, near_q = self._near_dist, self._near_q
+        row_pairs, dists, fromtos = self._row_pairs, self._dists, self._fromtos
         wide = distmax + (self.cache_margin if self._cache_ok else 0.0)
         for k, idx in enumerate(self._near):
             # The pair was at near_dist[k] at the joints near_q[k]: it has changed by at most drift[k].
             if near_dist[k] - drift[k] > distmax:
                 continue  # still beyond detection distance: no row, as the narrow phase would find
             g1, g2 = self._pair_g1[idx], self._pair_g2[idx]
+            fromto = fromtos[rows]
             dist = mujoco.mj_geomDistance(model, data, g1, g2, wide, fromto)
             if dist >= distmax:  # no row; remember how far it is, to skip it while it cannot be near
                 near_dist[k] = dist
@@ -566,21 +591,9 @@ class CollisionLimit(CollisionAvoidanceLimit):
                 dist = mujoco.mj_geomDistance(model, data, g1, g2, distmax, fromto)
                 if abs(dist - distmax) < 1e-12:
                     continue
-            self._write_row(idx, dist, data, dt, g, h, h_path)
-
-    def _write_row(self, idx: int, dist: float, data: mujoco.MjData, dt: float, g: np.ndarray, h: np.ndarray,
-                   h_path: np.ndarray) -> None:
-        """Pair ``idx``'s row from the narrow phase's ``dist`` and closest points (``self._fromto``);
-        ``data``'s ``cdof`` and ``subtree_com`` must be current (``mj_comPos``), as for ``mj_jac``."""
-        path = self.path
-        with_path = path is not None and path.u is not None
-        u = path.u if path is not None and path.u is not None else self._no_direction
-        h[idx], h_path[idx] = kernels.collision_row(
-            self._fromto, data.cdof, data.subtree_com, self._tree, self._dof_parentid, self._pair_b1[idx],
-            self._pair_b2[idx], self._jac1, self._jac2, dist, self.gain, self.minimum_distance_from_collisions,
-            self.bound_relaxation, self.brake_acc, dt, dt + self.lag_s, with_path, u,
-            path.rate if path is not None and with_path else 0.0, path.floor if path is not None else 0.0, g[idx])
-        self._rows_set.append(idx)
+            row_pairs[rows], dists[rows] = idx, dist
+            rows += 1
+        return rows
 
 
 exact_kinds = ([kernels.SHAPE_SEGMENT, kernels.SHAPE_SEGMENT], [kernels.SHAPE_SEGMENT, kernels.SHAPE_PLANE])
