@@ -63,6 +63,7 @@ from servo_app.motion.ik_limits import (
     braking_speed,
     default_collision_pairs,
     fanuc_rate_matrix,
+    jacobian_tree,
 )
 from servo_app.motion.qp import PersistentQP, QpSettings, SolverName
 from servo_app.robots.configuration import ArmConfiguration
@@ -555,7 +556,13 @@ class DifferentialIK:
         # Scratch of the cycle (no allocation there): the TCP's world Jacobian (and views of its
         # linear and angular rows for mj_jacSite), the flange's, the objective and its optimum.
         self._jac_world = np.zeros((6, model.nv))
-        self._jac_world_lin, self._jac_world_ang = self._jac_world[:3], self._jac_world[3:]
+        # The configuration's MjData arrays the kernels read, as views made once (each attribute read
+        # of an MjData makes a new array object), and the tree its Jacobians walk (mj_jac's).
+        data = self.configuration.data
+        self._view = types.SimpleNamespace(qpos=data.qpos, site_xmat=data.site_xmat, site_xpos=data.site_xpos,
+                                           cdof=data.cdof, subtree_com=data.subtree_com)
+        self._tree, self._dof_parentid = jacobian_tree(model)
+        self._site_bodyid = model.site_bodyid
         self._jac_flange = np.zeros((6, model.nv))
         self._jac_flange_lin, self._jac_flange_ang = self._jac_flange[:3], self._jac_flange[3:]
         self._cond_work = np.zeros((6, model.nv))
@@ -591,7 +598,7 @@ class DifferentialIK:
         ``accel_limit.dq_prev``, ``path_braking``), so both stay interchangeable."""
         g, h, hp, dt = self._g, self._h, self._hp, self.dt
         data = self.configuration.data
-        qpos = data.qpos  # model order is qpos order (checked by _layout)
+        qpos = self._view.qpos  # model order is qpos order (checked by _layout)
         accel, path = self.accel_limit, self.path_braking
         with_path = path.u is not None
         # One kernel for the rows the limits' own fill() give (mink's ConfigurationLimit: gain * (upper
@@ -626,19 +633,18 @@ class DifferentialIK:
         """(P, c) of mink's frame task toward ``target`` plus the posture task, with our damping, at
         the current configuration, in one kernel; its optimum is left in ``self._d`` (row 0), and
         with a reference pose ``ref`` the pull-back toward it (row 1; see ``step``)."""
-        data = self.configuration.data
+        view = self._view
         sid = self._site_id
-        mujoco.mj_jacSite(self.model, data, self._jac_world_lin, self._jac_world_ang, sid)
         pt = self.posture_task
         if pt.target_q is not self._posture_src:  # set_target stores a new array: model order, once
             assert pt.target_q is not None
             self._posture_src = pt.target_q
             self._posture_goal = np.ascontiguousarray(pt.target_q[self._qadr], dtype=float)
-        ok = kernels.cartesian_objective(
-            data.site_xmat[sid], data.site_xpos[sid], self._jac_world, target, ref if ref is not None else target,
-            ref is not None, self._frame_cost, self._frame_gain, self._posture_cost, self._posture_gain,
-            self._posture_goal, data.qpos, self.settings.damping, self._correction_gain, self._p, self._c,
-            self._c_frame, self._weighted_jac, self._d)
+        ok = kernels.site_objective(
+            view.cdof, view.subtree_com, self._tree, self._dof_parentid, int(self._site_bodyid[sid]), view.site_xmat,
+            view.site_xpos, sid, self._jac_world, target, ref if ref is not None else target, ref is not None,
+            self._frame_cost, self._frame_gain, self._posture_cost, self._posture_gain, self._posture_goal, view.qpos,
+            self.settings.damping, self._correction_gain, self._p, self._c, self._c_frame, self._weighted_jac, self._d)
         if not ok:
             raise np.linalg.LinAlgError("the IK objective's Hessian is not positive definite")
         return self._p, self._c

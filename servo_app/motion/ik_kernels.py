@@ -866,6 +866,39 @@ def collision_rows(count: int, pairs: np.ndarray, dists: np.ndarray, fromtos: np
                                             horizon, with_path, u, rate, floor, g[idx])
 
 
+@kernel("boolean(float64[:, ::1], float64[:, ::1], int64[:, ::1], int64[::1], int64, float64[:, ::1], "
+        "float64[:, ::1], int64, float64[:, ::1], float64[::1], float64[::1], boolean, float64[::1], float64, "
+        "float64[::1], float64, float64[::1], float64[::1], float64, float64, float64[:, ::1], float64[::1], "
+        "float64[::1], float64[:, ::1], float64[:, ::1])")
+def site_objective(cdof: np.ndarray, subtree_com: np.ndarray, tree: np.ndarray, dof_parentid: np.ndarray,
+                   body: int, site_xmat: np.ndarray, site_xpos: np.ndarray, site: int, jac_world: np.ndarray,
+                   target: np.ndarray, ref: np.ndarray, with_ref: bool, frame_cost: np.ndarray, frame_gain: float,
+                   posture_cost: np.ndarray, posture_gain: float, posture_goal: np.ndarray, q: np.ndarray,
+                   damping: float, correction_gain: float, p: np.ndarray, c: np.ndarray, c_frame: np.ndarray,
+                   wjac: np.ndarray, d: np.ndarray) -> bool:
+    """:func:`cartesian_objective` of the frame task on ``site`` (of ``body``), its world Jacobian made
+    here into ``jac_world`` as ``mj_jacSite`` makes it (:func:`point_jacobian` at the site for the
+    linear rows, ``cdof``'s angular part for the angular rows: equal to the bit)."""
+    point_jacobian(jac_world[:3], cdof, subtree_com, tree, dof_parentid, site_xpos[site], body)
+    for j in range(jac_world.shape[1]):
+        jac_world[3, j] = 0.0
+        jac_world[4, j] = 0.0
+        jac_world[5, j] = 0.0
+    b = body
+    while b > 0 and tree[1, b] == 0:
+        b = tree[3, b]
+    if b > 0:
+        i = tree[2, b] + tree[1, b] - 1
+        while i >= 0:
+            jac_world[3, i] = cdof[i, 0]
+            jac_world[4, i] = cdof[i, 1]
+            jac_world[5, i] = cdof[i, 2]
+            i = dof_parentid[i]
+    return cartesian_objective(site_xmat[site], site_xpos[site], jac_world, target, ref, with_ref, frame_cost,
+                               frame_gain, posture_cost, posture_gain, posture_goal, q, damping, correction_gain,
+                               p, c, c_frame, wjac, d)
+
+
 # ------------------------------------------------------------------------------------- QP data
 @kernel("boolean(float64[:, ::1], float64[::1], float64[:, ::1], float64[::1], float64, float64, float64[::1], "
         "float64[::1])")

@@ -474,10 +474,8 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self._pair_b1_arr = np.array(self._pair_b1, dtype=np.int64)
         self._pair_b2_arr = np.array(self._pair_b2, dtype=np.int64)
         self._no_direction = np.zeros(model.nv)  # the row kernel's path direction when there is none
-        # The kinematic tree as the row kernel's point Jacobians (mj_jac's) walk it.
-        self._tree = np.ascontiguousarray(np.vstack([model.body_rootid, model.body_dofnum, model.body_dofadr,
-                                                     model.body_parentid]), dtype=np.int64)
-        self._dof_parentid = np.ascontiguousarray(model.dof_parentid, dtype=np.int64)
+        self._tree, self._dof_parentid = jacobian_tree(model)  # for the row kernel's point Jacobians
+        self._views: tuple[mujoco.MjData | None, tuple[np.ndarray, ...]] = (None, ())
         self.refreshes = 0
 
     def _refresh_near(self, data: mujoco.MjData, q: np.ndarray) -> None:
@@ -528,10 +526,13 @@ class CollisionLimit(CollisionAvoidanceLimit):
             return
         model = self.model
         distmax = self.collision_detection_distance
+        if self._views[0] is not data:  # data's arrays as views made once (an attribute read makes a new one)
+            self._views = (data, (data.geom_xpos, data.geom_xmat, data.cdof, data.subtree_com))
+        geom_xpos, geom_xmat, cdof, subtree_com = self._views[1]
         count = kernels.collision_screen(self._geom_shape, self._geom_radius, self._geom_half, self._geom_rbound,
-                                         self._pair_g1_arr, self._pair_g2_arr, self._exact, data.geom_xpos,
-                                         data.geom_xmat, self.screen_tolerance, distmax, self._lower_bound,
-                                         self._candidates, g, h, h_path)
+                                         self._pair_g1_arr, self._pair_g2_arr, self._exact, geom_xpos, geom_xmat,
+                                         self.screen_tolerance, distmax, self._lower_bound, self._candidates, g, h,
+                                         h_path)
         rows = 0  # pairs with a row: their index, distance and closest points (the reference's call)
         row_pairs, dists, fromtos = self._row_pairs, self._dists, self._fromtos
         for idx in self._candidates[:count].tolist():
@@ -546,7 +547,7 @@ class CollisionLimit(CollisionAvoidanceLimit):
             path = self.path
             with_path = path is not None and path.u is not None
             kernels.collision_rows(
-                rows, row_pairs, dists, fromtos, data.cdof, data.subtree_com, self._tree, self._dof_parentid,
+                rows, row_pairs, dists, fromtos, cdof, subtree_com, self._tree, self._dof_parentid,
                 self._pair_b1_arr, self._pair_b2_arr, self._jac1, self._jac2, self.gain,
                 self.minimum_distance_from_collisions, self.bound_relaxation, self.brake_acc, dt, dt + self.lag_s,
                 with_path, path.u if path is not None and path.u is not None else self._no_direction,
@@ -615,6 +616,13 @@ def _geom_shapes(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray, np.ndar
         elif kind == int(mujoco.mjtGeom.mjGEOM_PLANE):
             shape[k] = kernels.SHAPE_PLANE
     return shape, radius, half
+
+
+def jacobian_tree(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """The kinematic tree as :func:`~servo_app.motion.ik_kernels.point_jacobian` walks it (``mj_jac``'s
+    walk): rows ``body_rootid``, ``body_dofnum``, ``body_dofadr``, ``body_parentid``; and ``dof_parentid``."""
+    tree = np.vstack([model.body_rootid, model.body_dofnum, model.body_dofadr, model.body_parentid])
+    return np.ascontiguousarray(tree, dtype=np.int64), np.ascontiguousarray(model.dof_parentid, dtype=np.int64)
 
 
 def _geom_joint_bounds(model: mujoco.MjModel) -> np.ndarray:
