@@ -32,8 +32,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 from results import write_section  # noqa: E402
 
-sys.path.insert(0, str(ROOT))
-
+# servo_app from PYTHONPATH (or the installed package), not from this file's tree: bench/ab.py runs this
+# script in the base revision's tree too, with that tree on PYTHONPATH.
 from servo_app.motion.commands import Twist  # noqa: E402
 from servo_app.motion.diffik import DifferentialIK  # noqa: E402
 from servo_app.motion.qp import PersistentQP  # noqa: E402
