@@ -639,7 +639,7 @@ class DifferentialIK:
         if pt.target_q is not self._posture_src:  # set_target stores a new array: model order, once
             assert pt.target_q is not None
             self._posture_src = pt.target_q
-            self._posture_goal = np.ascontiguousarray(pt.target_q[self._qadr], dtype=float)
+            self._posture_goal = np.ascontiguousarray(pt.target_q, dtype=float)  # qpos order is model order
         ok = kernels.site_objective(
             view.cdof, view.subtree_com, self._tree, self._dof_parentid, int(self._site_bodyid[sid]), view.site_xmat,
             view.site_xpos, sid, self._jac_world, target, ref if ref is not None else target, ref is not None,
