@@ -471,6 +471,7 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self._row_pairs = np.zeros(len(pairs), dtype=np.int64)
         self._dists = np.zeros(len(pairs))
         self._fromtos = np.zeros((len(pairs), 6))
+        self._fromto_rows = list(self._fromtos)  # its rows as views made once, for mj_geomDistance
         self._pair_b1_arr = np.array(self._pair_b1, dtype=np.int64)
         self._pair_b2_arr = np.array(self._pair_b2, dtype=np.int64)
         self._no_direction = np.zeros(model.nv)  # the row kernel's path direction when there is none
@@ -534,10 +535,10 @@ class CollisionLimit(CollisionAvoidanceLimit):
                                          self.screen_tolerance, distmax, self._lower_bound, self._candidates, g, h,
                                          h_path)
         rows = 0  # pairs with a row: their index, distance and closest points (the reference's call)
-        row_pairs, dists, fromtos = self._row_pairs, self._dists, self._fromtos
-        for idx in self._candidates[:count].tolist():
-            fromto = fromtos[rows]
-            dist = mujoco.mj_geomDistance(model, data, self._pair_g1[idx], self._pair_g2[idx], distmax, fromto)
+        row_pairs, dists, fromto_of = self._row_pairs, self._dists, self._fromto_rows
+        for idx in self._candidates[:count].tolist() if count else ():
+            dist = mujoco.mj_geomDistance(model, data, self._pair_g1[idx], self._pair_g2[idx], distmax,
+                                          fromto_of[rows])
             if abs(dist - distmax) >= 1e-12:
                 row_pairs[rows], dists[rows] = idx, dist
                 rows += 1
@@ -547,7 +548,7 @@ class CollisionLimit(CollisionAvoidanceLimit):
             path = self.path
             with_path = path is not None and path.u is not None
             kernels.collision_rows(
-                rows, row_pairs, dists, fromtos, cdof, subtree_com, self._tree, self._dof_parentid,
+                rows, row_pairs, dists, self._fromtos, cdof, subtree_com, self._tree, self._dof_parentid,
                 self._pair_b1_arr, self._pair_b2_arr, self._jac1, self._jac2, self.gain,
                 self.minimum_distance_from_collisions, self.bound_relaxation, self.brake_acc, dt, dt + self.lag_s,
                 with_path, path.u if path is not None and path.u is not None else self._no_direction,
@@ -575,14 +576,14 @@ class CollisionLimit(CollisionAvoidanceLimit):
         else:
             drift = drift.tolist()  # floats: read once per near pair below
         near_dist, near_q = self._near_dist, self._near_q
-        row_pairs, dists, fromtos = self._row_pairs, self._dists, self._fromtos
+        row_pairs, dists, fromto_of = self._row_pairs, self._dists, self._fromto_rows
         wide = distmax + (self.cache_margin if self._cache_ok else 0.0)
         for k, idx in enumerate(self._near):
             # The pair was at near_dist[k] at the joints near_q[k]: it has changed by at most drift[k].
             if near_dist[k] - drift[k] > distmax:
                 continue  # still beyond detection distance: no row, as the narrow phase would find
             g1, g2 = self._pair_g1[idx], self._pair_g2[idx]
-            fromto = fromtos[rows]
+            fromto = fromto_of[rows]
             dist = mujoco.mj_geomDistance(model, data, g1, g2, wide, fromto)
             if dist >= distmax:  # no row; remember how far it is, to skip it while it cannot be near
                 near_dist[k] = dist
