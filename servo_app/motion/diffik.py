@@ -553,8 +553,8 @@ class DifferentialIK:
             flags[sl[5]] = int(IkFlag.COLLISION)
         self._row_flags = flags
         self._mark_configuration_rows()
-        # Scratch of the cycle (no allocation there): the TCP's world Jacobian (and views of its
-        # linear and angular rows for mj_jacSite), the flange's, the objective and its optimum.
+        # Scratch of the cycle (no allocation there): the TCP's world Jacobian, the flange's (and views
+        # of its linear and angular rows for mj_jacSite), the objective and its optimum.
         self._jac_world = np.zeros((6, model.nv))
         # The configuration's MjData arrays the kernels read, as views made once (each attribute read
         # of an MjData makes a new array object), and the tree its Jacobians walk (mj_jac's).
@@ -581,8 +581,8 @@ class DifferentialIK:
         self._d = np.zeros((2, N))  # the optimum toward the target, and the pull-back (see step)
         self._rhs = np.zeros((N, 2))
         self._zero = np.zeros(N)
-        # Where the row blocks start, and views, for the kernels that fill them (limit_rows: the same
-        # path for the braking rows and the configuration guard's row).
+        # Where the row blocks start, for the kernel that fills them (limit_rows: the same path for the
+        # braking rows and the configuration guard's row), and the guard's row of G.
         if self.braking_limit.path is not self.path_braking or self.config_guard.path is not self.path_braking:
             raise ValueError("the braking limit and the configuration guard must brake along the IK's path")
         self._row_starts = np.array([sl[2].start, sl[3].start, sl[4].start], dtype=np.int64)

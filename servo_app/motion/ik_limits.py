@@ -424,8 +424,9 @@ class CollisionLimit(CollisionAvoidanceLimit):
     #   (near: within detection distance + cache_margin, measured again whenever they could be within
     #   detection distance; far: a lower bound kept) and is due when a far pair could come near.
 
-    # The narrow phase's distance may differ from the closed form by its own tolerance (MuJoCo's
-    # convex solver converges to ccd_tolerance, 1e-6 m by default): screen with ten times that.
+    # The narrow phase agrees with the closed forms to 1e-15 m here (MuJoCo's own capsule and plane
+    # functions); a convex solver would stop within ccd_tolerance (1e-6 m by default): screen with
+    # ten times that.
     screen_tolerance = 1e-5  # m
 
     def _init_near_cache(self, model: mujoco.MjModel, margin: float) -> None:
@@ -441,7 +442,7 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self._geom_rbound = np.ascontiguousarray(model.geom_rbound, dtype=float)
         # Pairs the screen knows exactly: two segments, or a plane and a segment.
         shape = self._geom_shape
-        self._exact = np.array([sorted((int(shape[a]), int(shape[b]))) in exact_kinds for a, b in pairs], dtype=bool)
+        self._exact = np.array([sorted((int(shape[a]), int(shape[b]))) in _EXACT_KINDS for a, b in pairs], dtype=bool)
         self._lower_bound = np.zeros(len(pairs))
         self._candidates = np.zeros(len(pairs), dtype=np.int64)
         # The cache covers the pairs the screen cannot decide (indices into the pairs).
@@ -598,7 +599,7 @@ class CollisionLimit(CollisionAvoidanceLimit):
         return rows
 
 
-exact_kinds = ([kernels.SHAPE_SEGMENT, kernels.SHAPE_SEGMENT], [kernels.SHAPE_SEGMENT, kernels.SHAPE_PLANE])
+_EXACT_KINDS = ([kernels.SHAPE_SEGMENT, kernels.SHAPE_SEGMENT], [kernels.SHAPE_SEGMENT, kernels.SHAPE_PLANE])
 
 
 def _geom_shapes(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
