@@ -4,11 +4,13 @@ Why: between its MuJoCo calls and the solve, the IK cycle was hundreds of numpy 
 (1-2 us each here); each kernel below replaces a group of them with one call (~0.5 us). Pure math,
 no I/O, every output written into arrays the caller allocated once.
 
-Numbers: the limit rows (:func:`acceleration_rows`, :func:`braking_rows`, :func:`configuration_limit_rows`)
-repeat the reference's float operations in its order, so they equal mink's / the limits'
-``compute_qp_inequalities`` to the bit (``tests/test_diffik_equivalence.py``). The rest (objective,
-solve, condition number, poses) equals the numpy / MuJoCo / mink code it replaces within rounding
-(``tests/test_ik_kernels.py`` compares each with a numpy oracle).
+Numbers: the limit rows (:func:`acceleration_rows`, :func:`braking_rows`, :func:`configuration_limit_rows`,
+:func:`limit_rows`, :func:`collision_rows`) repeat the reference's float operations in its order, so they
+equal mink's / the limits' ``compute_qp_inequalities`` to the bit (``tests/test_diffik_equivalence.py``),
+and so do the Jacobians :func:`point_jacobian` / :func:`site_objective` make (``mj_jac``'s operations).
+The rest (objective, solve, condition number, poses, distances, path bounds) equals the numpy /
+MuJoCo / mink code it replaces within rounding (``tests/test_ik_kernels.py`` and
+``tests/test_ik_collision_kernels.py`` compare each with an oracle).
 
 Poses are 7-vectors as mink's SE3 stores them: unit quaternion (w x y z), then position (m).
 """
