@@ -17,8 +17,9 @@ session log (every status received and every command sent, time-stamped by the s
   jog): the motion step per command (``solve_p50_us`` / ``solve_max_us``: IK, shaper, guards) and a
   status's whole handling in the servo process (``cycle_p50_us`` / ``cycle_max_us``: decode, safety,
   send, log, publish, requests), each a median and maximum over its last 256 cycles; their difference
-  is what the live path costs beside the motion step. Other keys naming a solve, cycle or compute
-  time with a unit are shown as they come; none: "-".
+  is what the live path costs beside the motion step. The IK solved ahead, between status packets
+  (``solve_ahead_p50_us`` / ``solve_ahead_max_us``), is in neither and shown as "+ ahead". Other
+  keys naming a solve, cycle or compute time with a unit are shown as they come; none: "-".
 
 Prints a table (``--json``: a JSON document instead); ``--write`` writes its section of
 bench/RESULTS.md with the command line. Works under ``bench/ab.py`` (table rows, then a verdict line).
@@ -61,7 +62,8 @@ HEADER = ("| run | interval ms | commands | p50 us | p99 us | p99.9 us | max us 
           "| first command us | solve us p50 / max | cycle us p50 / max | beside solve us p50 | servo CPU % |")
 # /api/state keys that carry a per-cycle compute time, whatever the servo process calls them.
 TIMING_KEY = re.compile(r"(solve|cycle|compute).*(_us|_ms|_s)$")
-KNOWN_TIMING = {"solve_p50_us", "solve_max_us", "cycle_p50_us", "cycle_max_us"}
+KNOWN_TIMING = {"solve_p50_us", "solve_max_us", "cycle_p50_us", "cycle_max_us", "solve_ahead_p50_us",
+                "solve_ahead_max_us"}
 BIT0, BIT1 = StatusBit.WAITING_FOR_COMMAND, StatusBit.COMMAND_RECEIVED
 
 
@@ -97,6 +99,9 @@ class Run:
         others = "; ".join(f"{k} {np.percentile(v, 50):.0f} / {max(v):.0f}" for k, v in self.timing.items()
                            if v and k not in KNOWN_TIMING)
         solve_col = f"{solve[0]:.0f} / {solve[1]:.0f}" if solve else (others or "-")
+        ahead = self.window("solve_ahead")
+        if ahead:  # the IK solved between status packets, outside the status -> command path
+            solve_col += f" (+ ahead {ahead[0]:.0f} / {ahead[1]:.0f})"
         cycle_col = f"{cycle[0]:.0f} / {cycle[1]:.0f}" if cycle else "-"
         return (f"| jog ±X {SPEED_MM_S:g} mm/s, {self.seconds:g} s | {self.interval_ms} | {self.commands} "
                 f"| {self.p50_us:.0f} | {self.p99_us:.0f} | {self.p999_us:.0f} | {self.max_us:.0f} | {self.late} "
@@ -291,7 +296,7 @@ def main(argv: list[str] | None = None) -> int:
             f"session log; first command = from the ready status it answers to its send; servo CPU = its "
             f"utime + stime over the jog window; solve = the motion step per command, cycle = a status's "
             f"whole handling in the servo process, as it publishes them (sampled from /api/state; '-': none "
-            f"published); beside solve = cycle - solve.\n\n"
+            f"published; + ahead: the IK solved between status packets, in neither); beside solve = cycle - solve.\n\n"
             f"{HEADER}\n{'|---' * HEADER.count(' | ')}|---|\n" + "\n".join(rows) + f"\n\n{verdict}."
         )
         print("wrote", write_section("live_latency", cmd, text))

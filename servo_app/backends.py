@@ -80,6 +80,8 @@ class RobotBackend(ABC):
     listens: ClassVar[bool] = False
     #: The console may jog in Cartesian space (twists, pose targets).
     cartesian_jog: ClassVar[bool] = False
+    #: The embedded simulator takes ``set_payload`` (the active tool's payload, servo_app.service.tools).
+    simulator_payload: ClassVar[bool] = False
     #: I/O type -> assigned points that clients may read and write (empty: no I/O).
     default_io_allow: ClassVar[dict[str, int]] = {}
 

@@ -67,6 +67,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_check_parser(sub)
 
+    from servo_app.replay_cli import add_replay_parser
+
+    add_replay_parser(sub)
+
     p = sub.add_parser("export", help="convert a session log (.srvlog) to MCAP with ROS 2 types (Foxglove)")
     p.add_argument("file", help="a session log written by `servo-app run` (var/sessions/*.srvlog)")
     p.add_argument("--mcap", required=True, metavar="OUT", help="the MCAP file to write")

@@ -14,6 +14,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
+from servo_app.motion.limit_tables import LimitTables
+
 # ----------------------------------------------------------------------------------------- requests
 
 
@@ -97,6 +101,17 @@ class JointTarget(Request):
 
 
 @dataclass(frozen=True)
+class Trajectory(Request):
+    """Replay joint positions planned and checked beforehand (``servo_app.motion.trajectory``), one
+    per cycle. ``joints`` (N, dof) FANUC deg, float32 values, the first the current commanded position;
+    ``ramp_steps`` (odd): cycles of the pause/resume ramp, checked with the plan."""
+
+    joints: np.ndarray
+    ramp_steps: int
+    label: str = ""  # what was planned (for the state and the audit line)
+
+
+@dataclass(frozen=True)
 class ConfigureInputs(Request):
     """Hand the arm to the input sources (or take it back)."""
 
@@ -121,6 +136,16 @@ class IoWrite(Request):
     index: int
     mask: int
     value: int
+
+
+@dataclass(frozen=True)
+class SetTool(Request):
+    """Make this tool the TCP (offset from the flange: X Y Z mm, W P R deg) and its payload the limit
+    tables' (kg; None: the maximum). Only at rest; refused otherwise, changing nothing."""
+
+    name: str
+    xyzwpr: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    payload_kg: float | None = None
 
 
 @dataclass(frozen=True)
@@ -169,6 +194,23 @@ class SafetyChanged(Event):
 class LinkPhase(Event):
     phase: str
     reason: str = ""
+
+
+@dataclass(frozen=True)
+class LimitTablesReceived(Event):
+    """The controller's limit tables (Appendix B), once a stream's start has read them: what anything
+    planned outside the servo process (a trajectory's timing) must keep, not the profile's defaults."""
+
+    tables: LimitTables
+
+
+@dataclass(frozen=True)
+class ReplayLeft(Event):
+    """A trajectory replay left before its end, and why (a fast stop, another command, a sample the
+    servo's guards would not send): shown as the replay's ``reason`` in the state."""
+
+    reason: str
+    index: int
 
 
 @dataclass(frozen=True)

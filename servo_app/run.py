@@ -12,6 +12,7 @@ from typing import Any
 from servo_app.api.auth import resolve_token
 from servo_app.inputs.errors import ConfigError
 from servo_app.realtime import make_realtime
+from servo_app.robots.tool import ToolError
 from servo_app.service import ServiceConfig, ServoService
 
 
@@ -33,6 +34,11 @@ def add_run_parser(sub: Any) -> None:
     p.add_argument("--cors-origin", action="append", default=[], help="allow this origin (CORS closed by default)")
     p.add_argument("--inputs", type=Path, default=None, metavar="FILE",
                    help="inputs TOML: adapters, feeds and [[applications]] (examples in configs/inputs/)")
+    p.add_argument("--tools", type=Path, default=None, metavar="FILE",
+                   help="tools TOML: [tools.NAME] xyzwpr = [X, Y, Z, W, P, R] (mm, deg from the flange), payload_kg "
+                        "(docs/tools.md; example in configs/tools/)")
+    p.add_argument("--tool", default=None, metavar="NAME",
+                   help="the active tool at start (default: the file's 'active', else the flange)")
     p.add_argument("--mcap", action="store_true",
                    help="also write each session log as MCAP (ROS 2 types, for Foxglove) beside it, live")
     p.add_argument("--zenoh", nargs="?", const="", default=None, metavar="CONFIG",
@@ -76,13 +82,17 @@ def run(args: argparse.Namespace) -> int:
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
-    service = ServoService(ServiceConfig(robot=args.robot, model=args.model, interval_ms=args.interval_ms,
-                                         lead=args.lead, var_dir=args.var_dir, payload_kg=args.payload_kg,
-                                         inputs_config=args.inputs, mcap_live=args.mcap))
     try:
+        service = ServoService(ServiceConfig(robot=args.robot, model=args.model, interval_ms=args.interval_ms,
+                                             lead=args.lead, var_dir=args.var_dir, payload_kg=args.payload_kg,
+                                             inputs_config=args.inputs, mcap_live=args.mcap, tools_file=args.tools,
+                                             tool=args.tool))
         service.open()
     except ConfigError as exc:  # nothing is started yet: the inputs file is read first
         print(f"servo_app: invalid inputs configuration:\n{exc}", flush=True)
+        return 2
+    except ToolError as exc:  # the tools file is read before anything starts (open closes what it started)
+        print(f"servo_app: invalid tools configuration: {exc}", flush=True)
         return 2
     report_input_failures(service)
     target = "embedded simulator" if service.sim else args.robot

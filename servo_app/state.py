@@ -41,6 +41,9 @@ _FIELDS: list[tuple[str, int]] = [
     ("solve_max_us", 1),
     ("cycle_p50_us", 1),
     ("cycle_max_us", 1),
+    # The IK solved ahead between status packets (ServoCycle.solve_ahead), per solve: not in solve_*.
+    ("solve_ahead_p50_us", 1),
+    ("solve_ahead_max_us", 1),
     ("ik_active", 1),  # the last cycle was a Cartesian one (twist, pose target, braking on its path)
     ("ik_flags", 1),  # its IkFlag bits
     ("ik_scale", 1),  # the share of the commanded motion it delivered
@@ -71,6 +74,13 @@ _FIELDS: list[tuple[str, int]] = [
     ("vel_limit", 6),
     ("acc_limit", 6),
     ("jerk_limit", 6),
+    # A trajectory replay (servo_app.motion.trajectory.ReplayPlayer): its state (PLAYER_STATES index,
+    # 0 none), the sample played and their count, and the same in seconds.
+    ("traj_state", 1),
+    ("traj_index", 1),
+    ("traj_total", 1),
+    ("traj_time_s", 1),
+    ("traj_total_s", 1),
 ]
 
 
@@ -131,7 +141,20 @@ def decode_state(data: np.ndarray) -> dict[str, Any]:
               "io_read_mask", "ik_flags"):
         out[k] = int(out[k])
     out["latency_hist"] = [int(v) for v in out["latency_hist"]]
+    out["trajectory"] = trajectory_progress(out)
     return out
+
+
+def trajectory_progress(s: dict[str, Any]) -> dict[str, Any] | None:
+    """A replay's progress from the decoded fields (None: no replay in this stream)."""
+    from servo_app.motion.trajectory import PAUSED, PLAYER_STATES
+
+    code = int(s.get("traj_state", 0))
+    if code <= 0 or code >= len(PLAYER_STATES):
+        return None
+    return {"state": PLAYER_STATES[code], "index": int(s["traj_index"]), "total": int(s["traj_total"]),
+            "time_s": round(float(s["traj_time_s"]), 4), "total_s": round(float(s["traj_total_s"]), 4),
+            "paused": code == PAUSED}
 
 
 def command_derivatives(history: Sequence[np.ndarray], dt: float) -> dict[str, np.ndarray]:

@@ -126,13 +126,20 @@ def test_sigterm_mid_motion_decelerates_and_ends_cleanly(rig: tuple[FanucSimulat
     assert sp.process.pid is not None
     os.kill(sp.process.pid, signal.SIGTERM)
     sp.process.join(10)
-    assert sp.process.exitcode == 0
+    # The handle's reader thread also waits for the process: whichever reaps it first, the exit code
+    # lands a moment later, and the reader marks the handle dead only once it has it.
     deadline = time.monotonic() + 5.0
     while sp.alive and time.monotonic() < deadline:  # the reader thread takes the last events off the pipe
         time.sleep(0.01)
+    assert not sp.alive
+    assert sp.process.exitcode == 0, sp.exit_cause
     kinds = [e.view.get("state") for e in sp.events if isinstance(e, SafetyChanged)]
     assert "stopping" in kinds and kinds[-1] == "ended"
     assert sim.alarms == [], [e.message for e in sim.alarms]
+    # The stop-status packet went out before the exit; the simulator's thread takes it off its socket.
+    deadline = time.monotonic() + 2.0
+    while sim.controller.status_output_on and time.monotonic() < deadline:
+        time.sleep(0.005)
     assert not sim.controller.status_output_on
 
 

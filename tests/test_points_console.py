@@ -31,6 +31,9 @@ def test_teach_go_to_and_delete_from_the_points_card(page: Any, fanuc: Service) 
     assert page.text_content("#point-message") == "taught bench_1"
     taught = fanuc.get("/api/points")[0]
     assert taught["name"] == "bench_1" and taught["taught_by"].startswith("pytest@")
+    # The pose is the active tool's TCP: the list says which tool.
+    assert taught["tool"] == "flange"
+    assert page.text_content("#point-list li[data-point='bench_1'] .point-tool") == "@flange"
 
     # Somewhere else, then back with "Go to".
     q_away = [30.0, 10.0, -10.0, 0.0, -70.0, 20.0]

@@ -10,10 +10,11 @@ import { installKeys } from "./keys.js";
 import { Lease } from "./lease.js";
 import { LogsPanel } from "./logs.js";
 import { PointsPanel } from "./points.js";
+import { ToolPanel } from "./tools.js";
 import { TargetForm } from "./target.js";
 import { Telemetry } from "./telemetry.js";
 import {
-  JointTable, renderAlarms, renderHeldBack, renderInputs, renderPose, renderStatus, renderTiming,
+  JointTable, renderAlarms, renderHeldBack, renderInputs, renderPose, renderReplay, renderStatus, renderTiming,
 } from "./views.js";
 
 const ROBOT_POLL_MS = 100; // arm view refresh (FK on the server)
@@ -65,6 +66,7 @@ const logs = new LogsPanel({ api, root: $("#logs-card"), limits: () => ui.limits
 const arm = new ArmView($("#arm-side"), $("#arm-top"));
 const joints = new JointTable($("#joint-rows"));
 const points = new PointsPanel({ api, root: $("#points-card"), onRender: () => refreshControls() });
+const tools = new ToolPanel({ api, root: $("#arm-card"), canControl: () => api.signedIn && lease.held });
 const target = new TargetForm({ api, root: $("#target-form"), telemetry: () => ui.tel, robot: () => ui.robot });
 const lease = new Lease({
   api,
@@ -236,7 +238,9 @@ function onState(s) {
   renderStatus(s, ui.telemetryUp);
   if (lease.held) $("#lease-holder").textContent = `control: you (${api.operator})`;
   renderPose(s, ui.robot);
+  tools.render(s);
   renderHeldBack(s);
+  renderReplay(s);
   renderTiming(s);
   renderAlarms(s);
   renderInputs($("#inputs-card"), s, ui.inputs);
@@ -343,6 +347,7 @@ function main() {
   loadRobot();
   logs.refresh();
   points.refresh();
+  tools.refresh();
   pollInputs();
 }
 

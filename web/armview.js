@@ -3,9 +3,10 @@
 // picture does not jump as the arm moves. Works for any backend: it only draws named points.
 
 const COLORS = { grid: "#222b36", axis: "#56657a", link: "#e8edf3", joint: "#4fb3ff", flange: "#ffcc4d",
-  tool: "#ff8a3d", text: "#9fb0c3", box: "#3d4a5c" };
+  tool: "#ff8a3d", text: "#9fb0c3", box: "#3d4a5c", tcp: "#ff3df5", triad: ["#ff5c5c", "#5cff7a", "#5ca8ff"] };
 const GRID_MM = 100;
 const TOOL_MM = 60; // length of the drawn tool direction
+const TRIAD_MM = 40; // length of the TCP's drawn x, y, z axes
 
 export class ArmView {
   constructor(sideCanvas, topCanvas) {
@@ -91,8 +92,40 @@ export class ArmView {
     g.beginPath();
     g.arc(fx, fy, 5, 0, 2 * Math.PI);
     g.fill();
+    this.drawTcp(g, robot.tcp, [fx, fy], px, view);
     g.fillStyle = COLORS.text;
     g.fillText(view.title, 8, 16);
+  }
+
+  /** The active tool's TCP: a line from the flange, its x y z triad and a dot (in its own colour). The
+   * canvas's data-tcp says where it was drawn (CSS px) and for which tool, for tests and tools. */
+  drawTcp(g, tcp, flangeAt, px, view) {
+    if (!tcp) {
+      delete view.canvas.dataset.tcp;
+      return;
+    }
+    const [tx, ty] = px(tcp.xyz_mm);
+    g.lineWidth = 2;
+    g.strokeStyle = COLORS.tcp;
+    g.setLineDash([5, 3]);
+    g.beginPath();
+    g.moveTo(flangeAt[0], flangeAt[1]);
+    g.lineTo(tx, ty);
+    g.stroke();
+    g.setLineDash([]);
+    tcp.axes.forEach((axis, i) => {
+      const [ex, ey] = px(tcp.xyz_mm.map((v, k) => v + TRIAD_MM * axis[k]));
+      g.strokeStyle = COLORS.triad[i];
+      g.beginPath();
+      g.moveTo(tx, ty);
+      g.lineTo(ex, ey);
+      g.stroke();
+    });
+    g.fillStyle = COLORS.tcp;
+    g.beginPath();
+    g.arc(tx, ty, 4, 0, 2 * Math.PI);
+    g.fill();
+    view.canvas.dataset.tcp = JSON.stringify({ tool: tcp.tool, x: tx, y: ty });
   }
 
   grid(g, view, { h0, h1, v0, v1, sx, sy }) {

@@ -30,6 +30,9 @@ export class PointsPanel {
         el("b", {}, p.name),
         el("span", { class: "muted small-text", title: `joints ${p.joints.map((q) => fmt(q, 2)).join(" ")}` },
           p.xyzwpr.length ? p.xyzwpr.slice(0, 3).map((v) => fmt(v, 1)).join(" ") : p.joints.map((q) => fmt(q, 1)).join(" ")),
+        // The pose is that tool's TCP: a point taught with another tool shows where that tool's tip was.
+        p.tool ? el("span", { class: "muted small-text point-tool", title: "the tool whose TCP the pose is" },
+          `@${p.tool}`) : false,
         el("button", { type: "button", class: "small", "data-needs": "lease", "aria-label": `go to ${p.name}`,
           onclick: () => this.goTo(p.name) }, "Go to"),
         el("button", { type: "button", class: "small", "data-needs": "lease", "aria-label": `delete ${p.name}`,

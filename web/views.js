@@ -59,6 +59,20 @@ export function renderHeldBack(s) {
   }
 }
 
+/** A trajectory replay's progress (POST /api/trajectory): played share, time, and why it ended early. */
+export function renderReplay(s) {
+  const t = s.trajectory;
+  const row = $("#replay-row");
+  row.hidden = !t;
+  if (!t) return;
+  const share = t.total_s > 0 ? Math.min(1, t.time_s / t.total_s) : 1;
+  $("#replay-progress").value = share;
+  row.dataset.state = t.state;
+  const what = t.state === "ended" ? `ended: ${t.reason || "left before its end"}`
+    : t.state === "paused" ? "paused (resume continues it)" : t.state;
+  setText($("#replay-info"), `${fmt(share * 100, 0)} % · ${fmt(t.time_s, 1)} / ${fmt(t.total_s, 1)} s · ${what}`);
+}
+
 /** Where each pose name lives in ``cart_servo``, which is always X Y Z W P R (a Janome's R, the
  * rotation about Z, is in slot 5 like FANUC's R: its 4-name row showed slot 3, W, as R). */
 const POSE_SLOT = { X: 0, Y: 1, Z: 2, W: 3, P: 4, R: 5 };

@@ -35,7 +35,7 @@ from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import Scope
 
-from servo_app.api import io, lease, logs, motion, points, session, state, telemetry
+from servo_app.api import io, lease, logs, motion, points, session, state, telemetry, tools, trajectory
 from servo_app.api.auth import AuditLog, LeaseManager, RateLimiter
 from servo_app.api.body_limit import MAX_BODY_BYTES, BodyLimit
 from servo_app.api.calls import ServiceCalls
@@ -147,7 +147,7 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
     app.add_exception_handler(RequestValidationError, _invalid_request)
     app.add_exception_handler(StarletteHTTPException, _http_error)
 
-    for module in (session, motion, lease, state, io, logs, telemetry, points):
+    for module in (session, motion, lease, state, io, logs, telemetry, points, tools, trajectory):
         app.include_router(module.router)
 
     if getattr(service, "inputs", None) is not None:  # servo-app run --inputs: feeds, sources, applications

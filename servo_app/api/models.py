@@ -108,6 +108,24 @@ class IoWrite(BaseModel):
     value: int = Field(ge=0, le=0xFFFF)
 
 
+class SelectTool(BaseModel):
+    model_config = _CLOSED
+    name: str = Field(min_length=1, max_length=64, description="a tool of GET /api/tools")
+
+
+class DefineTool(BaseModel):
+    model_config = _CLOSED
+    name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+    xyzwpr: list[float] = Field(min_length=6, max_length=6,
+                                description="the TCP from the flange: X Y Z mm, W P R deg (FANUC UTOOL data)")
+    payload_kg: float = Field(gt=0, description="the tool's weight; at most the robot's maximum payload")
+
+    @field_validator("xyzwpr")
+    @classmethod
+    def _fin(cls, v: list[float]) -> list[float]:
+        return _finite("xyzwpr", v)
+
+
 # ----------------------------------------------------------------------------------------- responses
 
 
@@ -192,6 +210,8 @@ class LimitsView(BaseModel):
     jerk_deg_s3: list[float] | None = None
     max_flange_speed_mm_s: float | None = None
     io_allow: dict[str, list[int]] | None = Field(None, description="I/O type -> [first, last] point allowed")
+    tool: str | None = Field(None, description="the active tool, whose payload the tables are taken at")
+    payload_kg: float | None = Field(None, description="the active tool's payload (null: the maximum)")
     # Janome
     axes: list[str] | None = Field(None, description="Janome: X Y Z R")
     axis_min: list[float] | None = None
@@ -225,6 +245,14 @@ class ViewBox(BaseModel):
     max: list[float]
 
 
+class TcpPoint(BaseModel):
+    """The active tool's TCP for the arm view."""
+
+    tool: str
+    xyz_mm: list[float]
+    axes: list[list[float]] = Field(description="the TCP's x, y, z axes (unit vectors, world)")
+
+
 class RobotView(BaseModel):
     """What the web console draws: the axes and a stick figure of the current position."""
 
@@ -251,6 +279,7 @@ class RobotView(BaseModel):
     max_flange_speed_mm_s: float | None = None
     q_fanuc_deg: list[float] | None = None
     q_model_deg: list[float] | None = None
+    tcp: TcpPoint | None = Field(None, description="the active tool's TCP, drawn from the flange (FANUC)")
 
 
 # ---------------------------------------------------------------------------------------- the state
@@ -302,6 +331,20 @@ class CartesianView(BaseModel):
     held_back_by: list[str] = Field(description="why it goes slower than asked, most specific first")
 
 
+class TrajectoryProgress(BaseModel):
+    """A trajectory replay's progress (POST /api/trajectory)."""
+
+    model_config = _OPEN
+    state: str = Field(description="playing, pausing, paused, resuming, done, or ended (left by a fast stop, "
+                                   "a fault or another motion command)")
+    index: int = Field(description="the sample being played (fractional during a pause or resume ramp: floored)")
+    total: int = Field(description="samples in the plan, one per cycle")
+    time_s: float = Field(description="the plan's time at the sample played, s")
+    total_s: float = Field(description="the plan's duration, s")
+    paused: bool = Field(description="paused at rest on the path: resume continues it")
+    reason: str | None = Field(None, description="why an ended replay left its path before the end")
+
+
 class InputLatency(BaseModel):
     last: float | None = None
     mean: float | None = None
@@ -325,6 +368,21 @@ class InputsSummary(BaseModel):
     active: str | None = Field(None, description="the source commanding now")
     owner: str | None = Field(None, description="the one source allowed to command; null: all, by priority")
     sources: list[InputSourceSummary] = []
+
+
+class ToolView(BaseModel):
+    """A tool: the TCP relative to the flange and the payload the limit tables are taken at."""
+
+    name: str
+    xyzwpr: list[float] = Field(description="the TCP from the flange: X Y Z mm, W P R deg")
+    payload_kg: float | None = Field(description="kg; null: the robot's maximum (the controller's assumption)")
+
+
+class ToolsView(BaseModel):
+    """``GET /api/tools``: every tool (the built-in flange first) and the active one."""
+
+    active: str
+    tools: list[ToolView]
 
 
 class StateView(BaseModel):
@@ -379,7 +437,11 @@ class StateView(BaseModel):
     tables_from_controller: bool | None = Field(None, description="the limits come from the controller")
     q_cmd: list[float] | None = Field(None, description="commanded position: FANUC J1..J6 deg, Janome X Y Z R 0 0")
     q_servo: list[float] | None = Field(None, description="position the robot reports")
-    cart_servo: list[float] | None = Field(None, description="TCP pose the robot reports: X Y Z mm, W P R deg")
+    cart_servo: list[float] | None = Field(None, description="the active tool's TCP pose from the robot's "
+                                                            "feedback: X Y Z mm, W P R deg (world)")
+    flange_pose: list[float] | None = Field(None, description="the flange pose the robot reports: X Y Z mm, "
+                                                             "W P R deg")
+    tool: ToolView | None = Field(None, description="the active tool (GET /api/tools)")
     vel: list[float] | None = Field(None, description="commanded velocity per axis (/s)")
     acc: list[float] | None = Field(None, description="commanded acceleration per axis (/s^2)")
     jerk: list[float] | None = Field(None, description="commanded jerk per axis (/s^3)")
@@ -408,6 +470,7 @@ class StateView(BaseModel):
     servo_starts: int | None = Field(None, description="servo processes started (a reset after one died starts one)")
     model: str | None = Field(None, description="the robot profile")
     cartesian: CartesianView | None = Field(None, description="why a Cartesian motion is held back (null: none)")
+    trajectory: TrajectoryProgress | None = Field(None, description="the replay in this stream (null: none)")
     robot: str | None = Field(None, description="the controller's (FANUC) or our listening (Janome) host:port")
     simulated: bool | None = Field(None, description="the robot is the embedded simulator")
     alarms: list[AlarmView] | None = Field(None, description="the active alarms and warnings, oldest first: "

@@ -40,6 +40,7 @@ class PointView(BaseModel):
     joints: list[float] = Field(description="commanded joints at teach time: deg (FANUC J1..J6), or mm and "
                                             "deg (Janome X Y Z R); what moving to the point goes back to")
     xyzwpr: list[float] = Field(description="the TCP pose the controller reported: X Y Z mm, W P R deg (world)")
+    tool: str | None = Field(None, description="the tool whose TCP that pose is (points taught before tools: none)")
     model: str = Field(description="the robot profile it was taught on")
     backend: str = Field(description="the robot backend's registered name")
     taught_unix: float = Field(description="when it was taught (Unix s)")
@@ -68,7 +69,8 @@ def _capture(service: ServoService, name: str, client: str) -> dict[str, Any]:
                               "match its joints; wait until GET /api/state shows settled, then teach again")
     dof = len(service.backend.axes())
     point = {"name": name, "joints": [float(q) for q in s["q_cmd"][:dof]],
-             "xyzwpr": [float(v) for v in s.get("cart_servo") or []], "model": service.profile.name,
+             "xyzwpr": [float(v) for v in s.get("cart_servo") or []], "tool": service.tools.active.name,
+             "model": service.profile.name,
              "backend": service.backend.name, "taught_unix": time.time(), "taught_by": client}
     service.points.save(point)
     return point

@@ -11,7 +11,7 @@ I/O, telemetry and teach points, with typed errors. Depends on httpx and websock
         arm.teach("above_part")
 """
 
-from servo_app.client.client import JogHold, ServoClient
+from servo_app.client.client import JogHold, Recording, ServoClient
 from servo_app.client.errors import (
     AuthError,
     FaultError,
@@ -22,7 +22,23 @@ from servo_app.client.errors import (
     TimeoutError,
 )
 from servo_app.client.frames import offset_in_tool
-from servo_app.client.state import Alarm, Fault, Point, State
+from servo_app.client.state import Alarm, Fault, Point, State, Tool
 
-__all__ = ["Alarm", "AuthError", "Fault", "FaultError", "JogHold", "LeaseError", "Point", "RefusedError",
-           "ServoClient", "ServoError", "State", "StoppedError", "TimeoutError", "offset_in_tool"]
+__all__ = [
+    "Alarm",
+    "AuthError",
+    "Fault",
+    "FaultError",
+    "JogHold",
+    "LeaseError",
+    "Point",
+    "Recording",
+    "RefusedError",
+    "ServoClient",
+    "ServoError",
+    "State",
+    "StoppedError",
+    "TimeoutError",
+    "Tool",
+    "offset_in_tool",
+]

@@ -21,6 +21,7 @@ import re
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
 from urllib.parse import quote
@@ -38,7 +39,7 @@ from servo_app.client.errors import (
     StoppedError,
     TimeoutError,
 )
-from servo_app.client.state import Point, State
+from servo_app.client.state import Point, State, Tool
 
 # The server's lease refusals (servo_app.api.auth.LeaseManager) all speak of control or the lease;
 # the state's refusals never do.
@@ -143,6 +144,20 @@ class JogHold:
             self.release(wait=False)
 
 
+@dataclass
+class Recording:
+    """A stretch recorded by :meth:`ServoClient.record`: its session log and wall-clock window."""
+
+    log: str
+    start_unix: float
+    end_unix: float | None = None
+
+    @property
+    def window(self) -> dict[str, Any]:
+        """``ServoClient.replay``'s keyword arguments for this stretch."""
+        return {"log": self.log, "from_unix": self.start_unix, "to_unix": self.end_unix}
+
+
 class ServoClient:
     """A session with a running service. As a context manager it holds the control lease for the
     block (``take_over=True`` displaces another holder, whose motion the service stops first).
@@ -229,9 +244,14 @@ class ServoClient:
         return {**self._auth, "X-Lease-Id": self.lease_id}
 
     def _call(self, method: str, path: str, body: Any = None, *, lease: bool = False,
-              params: dict[str, Any] | None = None) -> Any:
+              params: dict[str, Any] | None = None, csv: str | None = None) -> Any:
+        headers = self._headers(lease)
         try:
-            r = self._http.request(method, path, json=body, params=params, headers=self._headers(lease))
+            if csv is not None:  # a CSV body (POST /api/trajectory)
+                r = self._http.request(method, path, content=csv.encode(), params=params,
+                                       headers={**headers, "Content-Type": "text/csv"})
+            else:
+                r = self._http.request(method, path, json=body, params=params, headers=headers)
         except httpx.TimeoutException as exc:
             raise TimeoutError(f"{method} {path}: no answer from {self.url} ({exc})") from None
         except httpx.TransportError as exc:
@@ -390,13 +410,72 @@ class ServoClient:
 
     def move_pose(self, xyzwpr: Sequence[float], linear_speed: float = 100.0, angular_speed: float = 30.0,
                   wait: bool = True, timeout: float = 60.0) -> State | None:
-        """Go to a TCP pose (X Y Z mm, W P R deg, world frame) at the given flange speeds."""
+        """Go to a pose of the active tool's TCP (X Y Z mm, W P R deg, world frame; see :meth:`set_tool`)
+        in a straight line at the given TCP speeds."""
         body = {"xyzwpr": [float(v) for v in xyzwpr], "linear_speed": linear_speed, "angular_speed": angular_speed}
         return self._move("/api/target", body, wait, timeout)
 
+    def session_logs(self) -> list[dict[str, Any]]:
+        """The service's session logs, newest first: name, bytes, modified_unix."""
+        return list(self._call("GET", "/api/sessions"))
+
+    @contextlib.contextmanager
+    def record(self) -> Iterator[Recording]:
+        """Record what the arm does in the block (jogging, teleoperation, hand guiding: every stream is
+        logged per cycle); afterwards ``replay(**recording.window)`` replays that stretch. Needs a
+        running stream (its session log is the newest)."""
+        logs = self.session_logs()
+        if not logs:
+            raise ServoError("no session log: start a stream first (ensure_streaming())")
+        rec = Recording(log=str(logs[0]["name"]), start_unix=time.time())
+        try:
+            yield rec
+        finally:
+            rec.end_unix = time.time()
+
+    def replay(self, joints: Sequence[Sequence[float]] | None = None, *,
+               poses: Sequence[Sequence[float]] | None = None, times: Sequence[float] | None = None,
+               csv: str | None = None, log: str | None = None, from_s: float | None = None,
+               to_s: float | None = None, from_unix: float | None = None, to_unix: float | None = None,
+               speed_scale: float = 1.0, pace: str = "recorded", wait: bool = True, timeout: float = 300.0
+               ) -> dict[str, Any]:
+        """Replay a path within the controller's limits (``POST /api/trajectory``): joint waypoints
+        (deg), TCP ``poses`` (X Y Z mm, W P R deg), a ``csv`` text in ``servo-app check``'s form, or a
+        recorded session ``log`` by name with an optional window (s after its first command). The arm
+        first moves to the path's start if it rests elsewhere. With ``wait``, returns once the replay
+        is done and at rest; a stop or a fault before that raises (StoppedError, FaultError). Returns
+        the plan's summary (samples, duration_s, ramp_s, ...). A ``csv`` or ``log`` (one row per interval)
+        replays no faster than it was recorded (``pace="recorded"``) or, with ``pace="limits"``, as fast
+        as the limits allow."""
+        if csv is not None:
+            ack = self._call("POST", "/api/trajectory", lease=True, csv=csv,
+                             params={"speed_scale": speed_scale, "pace": pace})
+        else:
+            body: dict[str, Any] = {"speed_scale": speed_scale}
+            for key, value in (("joints", joints), ("poses", poses)):
+                if value is not None:
+                    body[key] = [[float(v) for v in row] for row in value]
+            if times is not None:
+                body["times"] = [float(t) for t in times]
+            if log is not None:
+                body["log"] = log
+                body["pace"] = pace
+                if from_s is not None:
+                    body["from_s"] = from_s
+                for key, t in (("to_s", to_s), ("from_unix", from_unix), ("to_unix", to_unix)):
+                    if t is not None:
+                        body[key] = t
+            ack = self._post("/api/trajectory", body)
+        summary: dict[str, Any] = dict(ack.get("detail") or {})
+        if wait:
+            self._wait(lambda s: s.trajectory is not None and s.trajectory.state == "done" and s.at_rest,
+                       timeout, "the replay", moving=True)
+        return summary
+
     def jog(self, linear: Sequence[float] = (0.0, 0.0, 0.0), angular: Sequence[float] = (0.0, 0.0, 0.0),
             frame: str = "base", duration: float | None = None) -> JogHold:
-        """A Cartesian jog (mm/s, deg/s; ``frame`` "base" or "tool"). Without ``duration``: a context
+        """A Cartesian jog of the active tool's TCP (mm/s, deg/s; rotations turn about the TCP).
+        ``frame`` "base": along and about the world axes; "tool": the TCP's own axes. Without ``duration``: a context
         manager that holds it until the block ends (``with arm.jog(linear=(20, 0, 0)): ...``); with
         one: held that long, then released, returning once the arm is at rest."""
         body = {"linear": [float(v) for v in linear], "angular": [float(v) for v in angular], "frame": frame}
@@ -412,6 +491,24 @@ class ServoClient:
             held._failed.wait(duration)  # the duration, or less if a renewal is refused
             held.release()
         return held
+
+    # ------------------------------------------------------------------ tools
+    def tools(self) -> list[Tool]:
+        """The cell's tools (the built-in ``flange`` first); the active one is ``state().tool``."""
+        return [Tool.from_json(t) for t in self._call("GET", "/api/tools")["tools"]]
+
+    def set_tool(self, name: str) -> Tool:
+        """Make ``name`` the TCP of jogs, pose targets and the reported pose, and its payload the limit
+        tables'. Only at rest: waits until the arm has settled if a stream runs (a refusal raises
+        RefusedError and changes nothing; an unknown name: RefusedError with status 404)."""
+        if self.state().state in ("streaming", "stopping", "stopped", "ending"):
+            self.wait_settled()
+        return Tool.from_json(self._call("PUT", "/api/tool", {"name": name}, lease=True))
+
+    def define_tool(self, name: str, xyzwpr: Sequence[float], payload_kg: float) -> Tool:
+        """Add a tool until the service stops (the tools file keeps it: servo-app run --tools)."""
+        body = {"name": name, "xyzwpr": [float(v) for v in xyzwpr], "payload_kg": float(payload_kg)}
+        return Tool.from_json(self._post("/api/tools", body))
 
     # -------------------------------------------------------------------- I/O
     def io_read(self, io_type: str, index: int) -> bool:

@@ -31,6 +31,7 @@ class FanucBackend(RobotBackend):
     default_port = ROBOT_PORT
     default_model = "lrmate200id"
     cartesian_jog = True
+    simulator_payload = True
     default_io_allow = DEFAULT_IO_ALLOW
 
     @classmethod

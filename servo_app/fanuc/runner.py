@@ -214,6 +214,9 @@ class _ServoProcess(ServoProcessHost):
         # Per-cycle compute times, published (solve_*_us, cycle_*_us): the motion step per command, and
         # a status's whole handling here, from its receipt to the end of the loop's housekeeping.
         self.solve_time, self.cycle_time = _TimeWindow(), _TimeWindow()
+        self._tables_reported: object = None  # the controller's tables last sent to the parent
+        self._replay_left_reported: object = None  # the replay whose leaving was last sent to the parent
+        self.ahead_time = _TimeWindow()  # the IK solved ahead, per solve (ServoCycle.solve_ahead)
         self.sup.session.motion = _TimedMotion(self.cycle, self.solve_time)
         self._handled_status = False  # this loop iteration handled a datagram (its cycle time is due)
         self.inputs = InputSlotReader(cfg.input_slot) if cfg.input_slot else None
@@ -333,6 +336,14 @@ class _ServoProcess(ServoProcessHost):
         if self._handled_status:
             self._handled_status = False
             self.cycle_time.add((time.monotonic() - self._t_recv) * 1e6)
+        # Last of all, once this loop has read every request, signal and input it will read before the
+        # next status packet: the next command's IK, so that the status finds it solved. The command
+        # itself (shaper, guards) is still made on the status, from what holds then; a command changed
+        # on the status (input slot, safety, hold-to-run) is solved afresh there, as without this.
+        if self.sup.session.streaming_motion:
+            t = time.perf_counter()
+            if self.cycle.solve_ahead():
+                self.ahead_time.add((time.perf_counter() - t) * 1e6)
 
     def _deliver_signal(self, sig: int, now: float) -> None:
         self._send(self.sup.signal(sig, now))
@@ -407,6 +418,10 @@ class _ServoProcess(ServoProcessHost):
                               "fixed_interval": True})
 
     def _on_link_phase(self, phase: str) -> None:
+        tables = self.sup.session.tables
+        if tables is not None and tables is not self._tables_reported:  # read at this start
+            self._tables_reported = tables
+            self._event(msg.LimitTablesReceived(tables=tables))
         # A start from ended or disconnected reconnects (link -> connected) before the mode moves on:
         # only a stream that has run since the log opened may close it.
         if phase in (Phase.CLOSED, Phase.FAULT, Phase.CONNECTED) and self.sup.state.mode in (
@@ -464,6 +479,8 @@ class _ServoProcess(ServoProcessHost):
         d[F["solve_max_us"]] = self.solve_time.max_us
         d[F["cycle_p50_us"]] = self.cycle_time.p50_us
         d[F["cycle_max_us"]] = self.cycle_time.max_us
+        d[F["solve_ahead_p50_us"]] = self.ahead_time.p50_us
+        d[F["solve_ahead_max_us"]] = self.ahead_time.max_us
         ik = c.last_ik if c.ik_active else None
         d[F["ik_active"]] = ik is not None
         d[F["ik_flags"]] = ik.flags if ik else 0.0
@@ -483,10 +500,23 @@ class _ServoProcess(ServoProcessHost):
                 sv.set("jerk_limit", jerk_l)
         if self.hist.n:
             self.hist.write(d)
+        replay = c.replay_player
+        if c.replay_error and self._replay_left_reported is not replay:  # once per replay left
+            self._replay_left_reported = replay
+            self._event(msg.ReplayLeft(reason=c.replay_error, index=replay.index if replay is not None else 0))
+        if replay is not None:  # a trajectory replay's progress (servo_app.motion.trajectory)
+            d[_TRAJ] = replay.state
+            d[_TRAJ + 1] = replay.tau
+            d[_TRAJ + 2] = replay.total
+            d[_TRAJ + 3] = replay.tau * self.dt
+            d[_TRAJ + 4] = (replay.total - 1) * self.dt
+        else:
+            d[_TRAJ] = 0.0
 
 
 _Q_SERVO, _CART_SERVO, _LAT_HIST = (OFFSET[k] for k in ("q_servo", "cart_servo", "latency_hist"))
 _STATUS_INTERVAL = OFFSET["status_interval_last_ms"]
+_TRAJ = OFFSET["traj_state"]  # traj_state, traj_index, traj_total, traj_time_s, traj_total_s in a row
 assert FIELDS["latency_hist"].stop - _LAT_HIST == len(LATENCY_BUCKETS_US) + 1
 
 

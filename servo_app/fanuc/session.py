@@ -241,6 +241,11 @@ class StreamSession:
     def output_on(self) -> bool:
         return self.phase not in (Phase.IDLE, Phase.CLOSED)
 
+    @property
+    def streaming_motion(self) -> bool:
+        """Streaming, the motion source set up, and commands from it still to come (no last data yet)."""
+        return self.phase == Phase.STREAMING and self._begin_with is None and not self._last_data_sent
+
     def begin_motion(self) -> None:
         """Set the motion source up for the stream that began (``MotionSource.begin``), if not yet done.
 

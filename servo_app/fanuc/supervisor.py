@@ -35,6 +35,7 @@ from servo_app.motion.servo import ServoCycle
 from servo_app.robots.profile import RobotProfile
 from servo_app.safety import (
     SEND_FIRST_COMMAND,
+    STREAM_ALIVE,
     ControllerAlarm,
     Mode,
     SafetyState,
@@ -45,7 +46,7 @@ from servo_app.safety import (
     StatusReceived,
     transition,
 )
-from servo_app.supervision import SupervisorBase, check_count, check_speeds, next_step
+from servo_app.supervision import SupervisorBase, axis_values, check_count, check_speeds, next_step
 
 # The status bits a StatusReceived event carries (bit 0, bit 1, SYSRDY, moving).
 _STATUS_EVENT_BITS = int(StatusBit.WAITING_FOR_COMMAND | StatusBit.COMMAND_RECEIVED | StatusBit.SYSRDY
@@ -81,6 +82,8 @@ def check_pose_plausible(xyzwpr: tuple[float, ...], profile: RobotProfile,
 class StreamSupervisor(SupervisorBase):
     REQUESTS: ClassVar[dict[type, str]] = {
         msg.Twist: "_on_twist", msg.PoseTarget: "_on_pose", msg.IoRead: "_on_io_read", msg.IoWrite: "_on_io_write",
+        msg.SetTool: "_on_set_tool",
+        msg.Trajectory: "_on_trajectory",
     }
 
     def __init__(self, cycle: ServoCycle, session_config: SessionConfig | None = None,
@@ -200,6 +203,37 @@ class StreamSupervisor(SupervisorBase):
         check_pose_plausible(pose.xyzwpr, self.cycle.profile, self.cycle.settings.tool_xyzwpr)
         self._target_gate("pose target", now)
         self.cycle.pose_target(pose)
+
+    def _on_set_tool(self, req: msg.SetTool, now: float) -> None:
+        """The cycle's TCP and payload (ServoCycle.set_tool: at rest only, else refused unchanged). The
+        service checked the values (servo_app.robots.tool); counts and finiteness again here."""
+        xyzwpr = axis_values("xyzwpr", req.xyzwpr)
+        check_count("xyzwpr", xyzwpr, 6, "X Y Z in mm, W P R in deg")
+        payload = req.payload_kg
+        if payload is not None and not (math.isfinite(payload) and 0.0 < payload <= self.cycle.profile.max_payload_kg):
+            raise InvalidRequest(f"payload_kg={payload} must be in (0, {self.cycle.profile.max_payload_kg:g}] kg")
+        self.cycle.set_tool(tuple(float(v) for v in xyzwpr) if xyzwpr.any() else None, payload,
+                            streaming=self.state.mode in STREAM_ALIVE)
+
+    def _on_trajectory(self, req: msg.Trajectory, now: float) -> dict[str, Any]:
+        """Replay planned samples: the values first (422: shape, finite), then the state (409: streaming,
+        at rest at the first sample), then the gate; a refusal changes nothing. The cycle checks each
+        sample again as it plays it (``ServoCycle._step_replay``)."""
+        if self.cycle.shaper is None:
+            self._motion_gate("trajectory", now=now)  # not streaming: refused with the next step
+        ramp = int(req.ramp_steps)
+        if ramp < 1 or ramp % 2 == 0:
+            raise InvalidRequest(f"ramp_steps={req.ramp_steps} must be odd and positive")
+        try:
+            q = self.cycle.check_replay(req.joints)
+        except CommandRejected as exc:
+            raise InvalidRequest(str(exc)) from None
+        why = self.cycle.replay_start_mismatch(q)
+        if why:
+            raise CommandRejected(f"trajectory refused: {why}")
+        self._target_gate("trajectory", now)
+        self.cycle.replay(q, ramp)
+        return {"samples": len(q), "duration_s": (len(q) - 1) * self.cycle.dt, "ramp_steps": ramp}
 
     def _on_io_read(self, req: msg.IoRead, now: float) -> None:
         self.session.io_read = IoRequest(_io_type(req.type), int(req.index), int(req.mask))

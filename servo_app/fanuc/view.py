@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from servo_app.robots.conventions import fanuc_deg_to_model_rad
+from servo_app.robots.conventions import fanuc_deg_to_model_rad, matrix_to_xyzwpr
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import RobotProfile
 
@@ -42,7 +42,8 @@ def arm_points(kin: ArmKinematics, q_fanuc_deg: Sequence[float]) -> list[dict[st
         {"name": "J4", "xyz_mm": world(x3 + sf * kin.a3, z3 + cf * kin.a3)},
         {"name": "J5", "xyz_mm": [float(v) * 1000.0 for v in kin.wrist_centre(q)]},
         {"name": "flange", "xyz_mm": [float(v) for v in flange],
-         "approach": [float(v) for v in approach]},
+         "approach": [float(v) for v in approach],
+         "xyzwpr": [float(v) for v in matrix_to_xyzwpr(pose)]},  # the tool's TCP is drawn from it
     ]
 
 
@@ -62,7 +63,7 @@ def fanuc_view(profile: RobotProfile, q_fanuc_deg: Sequence[float]) -> dict[str,
         "joint_names": names,
         "axis_label": "Joint",
         "pose_names": ["X", "Y", "Z", "W", "P", "R"],
-        "pose_caption": "flange X Y Z (mm), W P R (°): controller feedback",
+        "pose_caption": "TCP X Y Z (mm), W P R (°): controller feedback (its flange pose times the active tool)",
         # Ranges are in the model convention (J3's FANUC range moves with J2): j23_factor converts.
         "axes": [{"name": n, "unit": "deg", "min": lo, "max": hi, "speed": v} for n, lo, hi, v in
                  zip(names, profile.joint_min_deg, profile.joint_max_deg, profile.vel_limit, strict=True)],

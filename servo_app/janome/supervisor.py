@@ -61,7 +61,8 @@ UNSUPPORTED = "not supported by the Janome backend"
 
 class JanomeSupervisor(SupervisorBase):
     max_hold_s = float("inf")  # the robot's own move time bounds a step, not the hold
-    REQUESTS: ClassVar[dict[type, str]] = {msg.Twist: "_on_twist", msg.PoseTarget: "_on_pose"}
+    REQUESTS: ClassVar[dict[type, str]] = {msg.Twist: "_on_twist", msg.PoseTarget: "_on_pose",
+                                           msg.SetTool: "_on_set_tool"}
 
     def __init__(self, motion: JanomeMotion, session_config: SessionConfig | None = None,
                  hold_s: float = 0.5, start_timeout_s: float = float("inf")) -> None:
@@ -147,6 +148,13 @@ class JanomeSupervisor(SupervisorBase):
         self.motion.check_target(target, scale, "xyzwpr (X, Y, Z, R)")
         self._target_gate("pose target", now)
         self.motion.set_target(target, scale)
+
+    def _on_set_tool(self, req: msg.SetTool, now: float) -> None:
+        """Only the flange: the point job moves the robot's own tool point, with no tool offset of ours.
+        A payload is accepted and unused: the protocol has none (the robot's own setting holds)."""
+        if any(float(v) != 0.0 for v in req.xyzwpr):
+            raise InvalidRequest(f"{UNSUPPORTED}: tool {req.name!r} xyzwpr={[float(v) for v in req.xyzwpr]}; the "
+                                 f"{self.motion.profile.display_name} moves its own tool point: use the flange tool")
 
     def _pose_speed_scale(self, target: np.ndarray, linear: float, angular: float) -> float:
         """The share of the axis speeds that keeps the move within ``linear`` mm/s (X Y Z) and

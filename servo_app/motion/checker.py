@@ -140,7 +140,6 @@ class ControllerLimitChecker:
         self.tables = tables
         self.dt = float(interval_s)
         self.flange_xyz_mm = flange_xyz_mm
-        self.payload_kg = payload_kg
         self.warn_frac = warn_lim_pct / 100.0
         self.j23_factor = j23_factor
         self.check_max_spd = check_max_spd
@@ -148,17 +147,25 @@ class ControllerLimitChecker:
         self.n = n
         self.vmax = float(tables.vmax)
         self.s_low = self.vmax / 20.0
-        # Stage values for this payload, once: the hot path only evaluates them at Vpeak.
-        self._stages = [tables.stage_values(k, payload_kg)[:n] for k in (VEL, ACC, JERK)]
-        self.vel_lim = self._stages[VEL][:, 0].copy()
-        self.acc1 = self._stages[ACC][:, 0].copy()
-        self.jrk1 = self._stages[JERK][:, 0].copy()
-        self.first_jump = self.vel_lim * self.dt * first_jump_cycles
-        self.jump = self.vel_lim * self.dt * jump_cycles
+        self._jump_cycles = (first_jump_cycles, jump_cycles)
+        self.set_payload(payload_kg)
         self.q_min = None if joint_min_deg is None else np.asarray(joint_min_deg, float)[:n]
         self.q_max = None if joint_max_deg is None else np.asarray(joint_max_deg, float)[:n]
         self.n_check = max(1, round(tables.check_time_s / self.dt))
         self.reset()
+
+    def set_payload(self, payload_kg: float | None) -> None:
+        """Judge against the tables at this payload (None: the maximum), as a controller does after a
+        PAYLOAD instruction changed its payload schedule."""
+        self.payload_kg = payload_kg
+        n = self.n
+        # Stage values for this payload, once: the hot path only evaluates them at Vpeak.
+        self._stages = [self.tables.stage_values(k, payload_kg)[:n] for k in (VEL, ACC, JERK)]
+        self.vel_lim = self._stages[VEL][:, 0].copy()
+        self.acc1 = self._stages[ACC][:, 0].copy()
+        self.jrk1 = self._stages[JERK][:, 0].copy()
+        self.first_jump = self.vel_lim * self.dt * self._jump_cycles[0]
+        self.jump = self.vel_lim * self.dt * self._jump_cycles[1]
 
     @classmethod
     def for_profile(cls, profile: RobotProfile, flange_xyz_mm: FlangeFn | None = None, *,

@@ -69,7 +69,7 @@ from servo_app.motion.qp import PersistentQP, QpSettings, SolverName
 from servo_app.robots.configuration import ArmConfiguration
 from servo_app.robots.conventions import ArrayLike, fanuc_deg_to_model_rad, model_rad_to_fanuc_deg, xyzwpr_to_matrix
 from servo_app.robots.kinematics import ArmKinematics
-from servo_app.robots.model import FLANGE_SITE, JOINT_NAMES, TCP_SITE, load_model
+from servo_app.robots.model import FLANGE_SITE, JOINT_NAMES, TCP_SITE, load_model, set_model_tool
 from servo_app.robots.profile import RobotProfile
 
 N = 6
@@ -320,6 +320,26 @@ class DifferentialIK:
         if self.qp is not None:
             self.qp.reset()
 
+    def set_tool(self, tool_xyzwpr: ArrayLike | None) -> None:
+        """Another tool (TCP offset from the flange, FANUC units; None: the flange). Call it at rest
+        (the caller's to ensure: :meth:`ServoCycle.set_tool` refuses otherwise): it starts from rest.
+
+        The ``tcp`` site moves in the compiled model (``site_pos``/``site_quat``: the same numbers a
+        model compiled with that tool has) and the analytic kinematics take the new tool matrix, so
+        the frame task, tool-frame twists (rotation about the TCP, the TCP's axes), pose targets and
+        their finish follow at the next step, with nothing rebuilt (the QP layout, the limits and
+        the persistent solver stay). The Cartesian reference is dropped: it was a pose of the old TCP."""
+        if self.site != TCP_SITE:
+            raise ValueError(f"this IK's model has no {TCP_SITE!r} site: its tool is the flange")
+        set_model_tool(self.model, tool_xyzwpr)
+        self.kin.set_tool(tool_xyzwpr)
+        self._dq_prev = np.zeros(N)
+        self._ref = None
+        self._last_xi = None
+        self._mode = ""
+        self.frame_target = None
+        self._before = None
+
     def step(self, q_model_rad: ArrayLike, command: Command | None, *, dq_prev: ArrayLike | None = None
              ) -> IkResult:
         """One cycle from the commanded joints ``q`` (model rad). ``command=None``: no live command,
@@ -470,6 +490,12 @@ class DifferentialIK:
             raise RuntimeError("step_again() needs a step() since the last reset()")
         self._dq_prev, self._ref, self._last_xi, self._mode = self._before
         return self.step(q_model_rad, command, dq_prev=dq_prev)
+
+    def undo_step(self) -> None:
+        """Forget the last step(): the next one starts from where it started (the servo cycle solves
+        a command ahead, and drops that solve when the command it needs is no longer the same)."""
+        if self._before is not None:
+            self._dq_prev, self._ref, self._last_xi, self._mode = self._before
 
     def objective(self, tasks: list[mink.Task]) -> tuple[np.ndarray, np.ndarray]:
         """mink's QP objective (P, c) for ``tasks`` at the current configuration, with our damping

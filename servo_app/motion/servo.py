@@ -9,7 +9,10 @@ start. Commands arrive from the runner (which got them from the API process):
 - Cartesian: a TCP twist (base or tool frame) or a pose target, through the differential IK, whose
   per-cycle joint velocity the shaper then tracks jerk-limited;
 - stop (soft: resumable, and along the current Cartesian path where there is one; fast: shortest
-  stop) and resume.
+  stop) and resume;
+- trajectory replay: positions planned and checked beforehand (:mod:`servo_app.motion.trajectory`),
+  one per cycle through the shaper's float32 guard (:meth:`JointShaper.follow`); a soft stop pauses
+  along the path and resume continues it, a fast stop or any other command leaves it.
 
 A flange-speed guard keeps joint-space motion under the speed cap at which the controller's
 acceleration and jerk tables were evaluated (Appendix B: above it the controller's limits fall).
@@ -28,7 +31,8 @@ from servo_app.motion import cycle_kernels
 from servo_app.motion.commands import PoseTarget, Twist
 from servo_app.motion.diffik import DifferentialIK, IkResult
 from servo_app.motion.limit_tables import LimitTables, default_tables
-from servo_app.motion.shaper import JointShaper, ShaperLimits
+from servo_app.motion.shaper import JointShaper, ShaperLimits, to_f32
+from servo_app.motion.trajectory import DONE, PAUSED, ReplayPlayer
 from servo_app.robots.configuration import ArmConfiguration, ConfigurationRegion, boundary_distances
 from servo_app.robots.conventions import fanuc_deg_to_model_rad, model_rad_to_fanuc_deg, xyzwpr_to_matrix
 from servo_app.robots.kernels import flange_distance_mm, pack_dims
@@ -36,6 +40,28 @@ from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import RobotProfile
 
 CREEP_DEG_S = 1e-3  # joint speed below which a Cartesian motion is held still (~10 um/s at the flange)
+
+
+@dataclass
+class _Ahead:
+    """The IK of the next command, solved ahead (:meth:`ServoCycle.solve_ahead`): its result, the
+    command it was solved for, the shaper step it starts after, and the start it was solved from."""
+
+    result: IkResult
+    command: Twist | None
+    steps: int
+    q_f: np.ndarray
+    v_f: np.ndarray
+    q_m: np.ndarray
+    dq_prev: np.ndarray
+
+
+def _same_motion(a: Twist | PoseTarget | None, b: Twist | PoseTarget | None) -> bool:
+    """Would the IK solve ``a`` and ``b`` alike? (A renewal of a twist is a new object with a new stamp.)"""
+    if a is b:
+        return True
+    return (isinstance(a, Twist) and isinstance(b, Twist) and a.linear == b.linear and a.angular == b.angular
+            and a.frame == b.frame)
 
 
 @dataclass
@@ -67,6 +93,7 @@ class ServoCycle:
         self._horizon = 0.0
         self.tables_source = "profile"
         self._profile_tables: LimitTables | None = None  # default_tables(profile), built once
+        self._tables: LimitTables | None = None  # the tables of the stream that began last
         self._limits_for: tuple[object, ...] | None = None  # (tables, cap, payload) self.limits were built for
         lo = np.asarray(profile.joint_min_deg) + self.settings.joint_margin_deg
         hi = np.asarray(profile.joint_max_deg) - self.settings.joint_margin_deg
@@ -102,6 +129,11 @@ class ServoCycle:
         # cycle then solves again from the same start (see _steer_ik); it must stop doing so in time.
         self.late_command: Callable[[], None] | None = None
         self.late_inputs = 0  # solves again for a command that arrived during the solve
+        self._ahead: _Ahead | None = None  # the next command's IK, solved ahead (solve_ahead)
+        self._steps = 0  # shaper steps taken: an ahead solve is good for the step after the one it followed
+        self.ahead_used = self.ahead_dropped = 0  # ahead solves a command used / solved again
+        self._replay: ReplayPlayer | None = None  # a trajectory being replayed (kept when done: its progress)
+        self.replay_error = ""  # why the last replay was left before its end
 
     # ------------------------------------------------------------ MotionSource
     def begin(self, q_start: np.ndarray, tables: LimitTables | None) -> None:
@@ -114,14 +146,8 @@ class ServoCycle:
             self.tables_source = "profile"
         else:
             self.tables_source = "controller"
-        cap = self.settings.flange_speed_cap or tables.vmax
-        self.cap = cap
-        key = (tables, cap, self.settings.payload_kg)
-        if self._limits_for is None or any(a is not b for a, b in zip(self._limits_for, key, strict=True)):
-            self.limits = tuple(x[: self.profile.dof] for x in tables.for_cap(cap, self.settings.payload_kg))  # type: ignore[assignment]
-            self._limits_for = key
-        assert self.limits is not None
-        vel, acc, jerk = self.limits
+        self._tables = tables
+        vel, acc, jerk = self._limits_of(tables)
         self.shaper = JointShaper(ShaperLimits(vel, acc, jerk, fraction=self.settings.limit_fraction),
                                   self.dt, np.asarray(q_start[: self.profile.dof], dtype=float))
         # A jog target runs this far ahead: always beyond the braking distance at full speed.
@@ -134,7 +160,9 @@ class ServoCycle:
         self._pending = False
         self._speed_scale = 1.0
         self._q_prev = None
+        self._replay, self.replay_error = None, ""
         q_model = fanuc_deg_to_model_rad(np.asarray(q_start[: self.profile.dof], float), self.profile.j23_factor)
+        self._ahead = None
         self.ik.reset(q_model)
         # A stream may begin closer than the margin to a boundary: keep at least what it had there.
         start = boundary_distances(q_model, self.kin)
@@ -145,21 +173,96 @@ class ServoCycle:
         self._region_packed = self._region.packed
         self.configuration = self._region.reference
 
+    def _limits_of(self, tables: LimitTables) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The (vel, acc, jerk) limits of ``tables`` at the cap and the payload (Appendix B), built
+        again only when one of them changed (``self.limits``, which the runner publishes)."""
+        cap = self.settings.flange_speed_cap or tables.vmax
+        self.cap = cap
+        key = (tables, cap, self.settings.payload_kg)
+        if self._limits_for is None or any(a is not b for a, b in zip(self._limits_for, key, strict=True)):
+            self.limits = tuple(x[: self.profile.dof] for x in tables.for_cap(cap, self.settings.payload_kg))  # type: ignore[assignment]
+            self._limits_for = key
+        assert self.limits is not None
+        return self.limits
+
+    def set_tool(self, tool_xyzwpr: tuple[float, ...] | None, payload_kg: float | None, streaming: bool = True
+                 ) -> None:
+        """Another tool: the TCP the IK, pose targets and tool-frame twists use, and the payload of the
+        limit tables (Appendix B). While a stream is alive (``streaming``), only at rest with no motion
+        held (a jog against a limit, a twist, a pose target): CommandRejected otherwise, and nothing
+        changes; the shaper's limits are then rebuilt for the payload (at rest its state fits any
+        limits). Without a stream the next one's ``begin`` builds them. A target interrupted by a soft
+        stop is dropped (a pose target was a pose of the old TCP): resume has nothing to continue."""
+        moving = (not self.at_rest() or self._cart_active or self._jog is not None or self._pending)
+        if streaming and moving:
+            raise CommandRejected("tool change refused: the arm is moving; wait until it is at rest "
+                                  "(GET /api/state shows at_rest and settled), then change the tool")
+        tool = None if tool_xyzwpr is None else tuple(float(v) for v in tool_xyzwpr)
+        self.ik.set_tool(tool)
+        self.settings.tool_xyzwpr = tool
+        self.settings.payload_kg = payload_kg
+        self._target, self._cart, self._finishing = None, None, None
+        self._jog, self._cart_active, self._pending = None, False, False
+        if self._tables is None:
+            return  # no stream yet: its begin builds the limits
+        vel, acc, jerk = self._limits_of(self._tables)  # published at once, streaming or not
+        if self.shaper is not None and streaming:
+            self.shaper.set_limits(ShaperLimits(vel, acc, jerk, fraction=self.settings.limit_fraction))
+            self._horizon = float(np.max(2.0 * (vel / acc + acc / jerk))) + 0.1
+
     def next_command(self, status: object) -> np.ndarray:
         """The next commanded joint position; ``status`` (the controller's latest status) is not read:
         the cycle advances by the fixed interval."""
         shaper = self._require()
+        ahead, self._ahead = self._ahead, None
+        if self._replay is not None and self._replay.active:
+            self._drop(ahead)
+            q = self._step_replay(shaper, self._replay)
+            self._steps += 1
+            self._guard_flange_speed(shaper, q)
+            return q
         if self._pending and shaper.at_rest:  # at rest after a change of direction: start it now
             self._pending = False
             if self._target is not None:
                 shaper.set_target(self._target[0], self._target[1] * self._speed_scale)
         if self._cart_active:
-            self._steer_ik(shaper)
-        elif self._jog is not None and not self.stopped and not self._pending:
-            self._steer_jog(shaper, self._jog)
+            self._steer_ik(shaper, ahead)
+        else:
+            self._drop(ahead)
+            if self._jog is not None and not self.stopped and not self._pending:
+                self._steer_jog(shaper, self._jog)
         q = shaper.step()
+        self._steps += 1
         self._guard_flange_speed(shaper, q)
         return q
+
+    def solve_ahead(self) -> bool:
+        """Solve the next command's IK now, between status packets, for a twist or a brake along its
+        path (True if it did). ``next_command`` uses the result if the command is still the same
+        motion and the shaper has not stepped since; otherwise it solves again from the same start
+        (``DifferentialIK.step_again``): what it would have computed anyway. Nothing else is advanced:
+        the shaper steps, and every guard runs, when the command is made.
+
+        Why: at 8 ms the IK solved on the status packet's arrival took 370-410 us with caches cold after
+        the wait (170 us in a loop), most of the 510-610 us from status to command (issue 15). A pose
+        target is not solved ahead: whether its IK runs at all is decided when the command is made
+        (``_finish_pose``)."""
+        shaper = self.shaper
+        cart = self._cart
+        if shaper is None or not self._cart_active or self._ahead is not None or isinstance(cart, PoseTarget):
+            return False
+        q_f, v_f, _ = shaper.state
+        q_m, dq_prev = np.empty(len(q_f)), np.empty(len(q_f))
+        cycle_kernels.ik_start(q_f, v_f, self._j23, self.dt, q_m, dq_prev)
+        res = self.ik.step(q_m, cart, dq_prev=dq_prev)
+        self._ahead = _Ahead(res, cart, self._steps, q_f, v_f, q_m, dq_prev)
+        return True
+
+    def _drop(self, ahead: _Ahead | None) -> None:
+        """An ahead solve no command uses: the IK forgets it."""
+        if ahead is not None:
+            self.ik.undo_step()
+            self.ahead_dropped += 1
 
     @property
     def ik_active(self) -> bool:
@@ -191,6 +294,7 @@ class ServoCycle:
         q = self.check_joint_target(q_fanuc_deg)
         if not (np.isfinite(speed_scale) and 0.0 < speed_scale <= 1.0):
             raise CommandRejected(f"speed_scale={speed_scale} must be in (0, 1]")
+        self._leave_replay("a joint target took over")
         self._target, self._jog = (q, speed_scale), None
         self._finishing = None
         self._cart, self._cart_active = None, False
@@ -213,6 +317,7 @@ class ServoCycle:
         if bad.size:
             raise CommandRejected(f"joints[{bad[0]}]={v[bad[0]]} is not a finite number")
         shaper = self._require()
+        self._leave_replay("a jog took over")
         renewal = self._jog is not None and np.array_equal(v, self._jog)  # the same button, still held
         redirect = not renewal and not self._pending and self._redirects(shaper, v)
         self._jog, self._target = v, None
@@ -226,10 +331,12 @@ class ServoCycle:
     def twist(self, cmd: Twist) -> None:
         """Move the TCP at a twist (base or tool frame) until replaced, stopped or the hold runs out."""
         self._require()
-        speed = float(np.linalg.norm(cmd.linear))
-        if speed > self.cap * self.settings.flange_speed_margin:
-            raise CommandRejected(f"linear speed {speed:.1f} mm/s is above the flange-speed cap "
-                                  f"{self.cap * self.settings.flange_speed_margin:.0f} mm/s")
+        linear = float(np.linalg.norm(cmd.linear))
+        limit = self.cap * self.settings.flange_speed_margin
+        if self._flange_speed_bound(linear, float(np.linalg.norm(cmd.angular))) > limit:
+            raise CommandRejected(f"linear speed {linear:.1f} mm/s{self._tool_note(cmd.angular)} is above the "
+                                  f"flange-speed cap {limit:.0f} mm/s")
+        self._leave_replay("a twist took over")
         self._cart, self._cart_active = cmd, True
         self._jog, self._target, self._finishing = None, None, None
         self.stopped = False
@@ -238,9 +345,10 @@ class ServoCycle:
         """Reach a TCP pose in a straight line at the command's speed caps (same configuration); the
         last millimetres of a target held still run as a joint move (:meth:`_finish_pose`)."""
         self._require()
-        if cmd.linear_speed > self.cap * self.settings.flange_speed_margin:
-            raise CommandRejected(f"linear_speed={cmd.linear_speed} mm/s is above the flange-speed cap "
-                                  f"{self.cap * self.settings.flange_speed_margin:.0f} mm/s")
+        limit = self.cap * self.settings.flange_speed_margin
+        if self._flange_speed_bound(cmd.linear_speed, cmd.angular_speed) > limit:
+            raise CommandRejected(f"linear_speed={cmd.linear_speed} mm/s{self._tool_note(cmd.angular_speed)} is "
+                                  f"above the flange-speed cap {limit:.0f} mm/s")
 
         def same(other: Twist | PoseTarget | None) -> bool:
             return (isinstance(other, PoseTarget) and other.xyzwpr == cmd.xyzwpr
@@ -248,6 +356,7 @@ class ServoCycle:
 
         if same(self._finishing) and not self.stopped:
             return  # a stream repeating the target it is finishing (a tracker whose part stopped)
+        self._leave_replay("a pose target took over")
         if not (same(self._cart) and self._cart_active):
             self._pose_held_s = 0.0
         self._finishing = None
@@ -259,6 +368,11 @@ class ServoCycle:
         shaper = self._require()
         self.stopped = True
         self._jog = None
+        if self._replay is not None and self._replay.active:
+            if not fast:  # pause along the path (the player's time-warp); resume continues it
+                self._replay.pause()
+                return
+            self._leave_replay("a fast stop left the path")
         if self._cart_active and not fast:
             self._cart = None  # the IK brakes along the current path, the shaper follows
             return
@@ -269,10 +383,110 @@ class ServoCycle:
     def resume(self) -> None:
         """Continue after a soft stop: towards the target that was interrupted, if any."""
         self.stopped = False
+        if self._replay is not None and self._replay.active:
+            self._replay.resume()
+            return
         if self._target is not None and self.shaper is not None:
             self.shaper.set_target(self._target[0], self._target[1] * self._speed_scale)
 
+    # ---------------------------------------------------------------- replay
+    def check_replay(self, samples: np.ndarray) -> np.ndarray:
+        """The samples as a float32-valued (N, dof) array if the shape is right and every value finite;
+        CommandRejected naming the first that is not.
+
+        Only what costs next to nothing is checked here (the request is handled between two cycles:
+        a 20 000-sample plan's full check took 10-25 ms, several 4 ms cycles). The planner checked
+        every sample the way the servo does; as each is played the cycle checks it again: the float32
+        guard, the joint ranges and held configuration, and the flange speed (``_step_replay``)."""
+        self._require()
+        q = np.asarray(samples, dtype=float)
+        n = self.profile.dof
+        if q.ndim != 2 or q.shape[1] != n or len(q) < 2:
+            raise CommandRejected(f"joints has shape {q.shape}, expected (N >= 2, {n})")
+        bad = np.argwhere(~np.isfinite(q))
+        if bad.size:
+            i, a = (int(x) for x in bad[0])
+            raise CommandRejected(f"joints[{i}][{a}]={q[i, a]} is not a finite number")
+        return to_f32(q)
+
+    def replay_start_mismatch(self, samples: np.ndarray) -> str:
+        """Why ``samples`` cannot start now (empty if they can): the arm must be at rest at the first."""
+        shaper = self._require()
+        if not shaper.at_rest:
+            return "the arm is moving: wait until it is at rest (GET /api/state at_rest), then send it again"
+        if not np.array_equal(to_f32(samples[0]), shaper.commanded):
+            return (f"the trajectory starts at {np.round(samples[0], 3).tolist()}, and the arm is at "
+                    f"{np.round(shaper.commanded, 3).tolist()}: it moved since the plan; send it again")
+        return ""
+
+    def replay(self, samples: np.ndarray, ramp_steps: int) -> None:
+        """Play ``samples`` (checked by :meth:`check_replay`, starting where the arm rests) one per cycle."""
+        self._require()
+        self._jog, self._target, self._finishing = None, None, None
+        self._cart, self._cart_active = None, False
+        self._pending = False
+        self.stopped = False
+        self.replay_error = ""
+        self._replay = ReplayPlayer(samples, ramp_steps)
+
+    @property
+    def replay_player(self) -> ReplayPlayer | None:
+        """The trajectory being (or last) replayed in this stream: its progress."""
+        return self._replay
+
+    def _leave_replay(self, why: str) -> None:
+        if self._replay is not None and self._replay.active:
+            self._replay.end()
+            self.replay_error = why
+
+    def _step_replay(self, shaper: JointShaper, player: ReplayPlayer) -> np.ndarray:
+        q = player.advance()
+        if player.state == PAUSED and shaper.mode != "replay":
+            return shaper.step()  # paused at rest: the shaper holds the position
+        # Not expected (the planner checked every sample the same way): a sample outside the ranges or
+        # the held configuration, or too fast for the flange-speed cap, is not sent; the arm stops.
+        why = self._replay_sample_refused(q)
+        if why:
+            player.end()
+            self.replay_error = why
+            shaper.stop("soft")
+            return shaper.step()
+        r, exact = shaper.follow(q)
+        if not exact:  # the float32 guard changed it: leave the path, stop
+            player.end()
+            self.replay_error = f"sample {player.index}: the servo's limit guard changed it; stopped"
+            shaper.stop("soft")
+        elif player.state in (PAUSED, DONE) and not shaper.guard.v1.any() and not shaper.guard.a1.any():
+            shaper.set_target(r)  # at rest on the path: the shaper holds it (and reports rest)
+        return r
+
+    def _replay_sample_refused(self, q: np.ndarray) -> str:
+        """Why the replayed position ``q`` must not be sent (empty: it may): outside the joint ranges or
+        the held configuration, or a flange speed above the cap's share from the last command."""
+        if not self._safe(q)[0]:
+            return f"sample {q.round(3).tolist()} leaves the joint ranges or the held configuration; stopped"
+        if self._q_prev is not None:
+            speed = flange_distance_mm(self._q_prev, q, self._j23, self._dims) / self.dt
+            if speed > self.cap * self.settings.flange_speed_margin:
+                return f"flange speed {speed:.0f} mm/s above the cap's share; stopped"
+        return ""
+
     # ----------------------------------------------------------------- helpers
+    def _tool_offset_mm(self) -> float:
+        tool = self.settings.tool_xyzwpr
+        return math.hypot(*tool[:3]) if tool else 0.0
+
+    def _flange_speed_bound(self, linear_mm_s: float, angular_deg_s: float) -> float:
+        """The most the flange can move for a TCP at ``linear_mm_s`` turning at ``angular_deg_s``: the
+        controller's speed cap and Appendix B tables are the flange's, and a turn about a TCP r mm away
+        swings the flange at up to |w| r on top (a 2 m tool at 90 deg/s: +3.1 m/s)."""
+        return linear_mm_s + math.radians(angular_deg_s) * self._tool_offset_mm()
+
+    def _tool_note(self, angular: float | tuple[float, ...]) -> str:
+        r = self._tool_offset_mm()
+        w = float(np.linalg.norm(angular))
+        return f" + {w:g} deg/s about a TCP {r:.0f} mm from the flange (the flange moves up to the sum)" if r else ""
+
     def _stop_shaper(self, shaper: JointShaper, mode: str) -> None:
         """Time-optimal stop when its path stays in range and configuration, else along the line."""
         if shaper.at_rest:
@@ -301,15 +515,24 @@ class ServoCycle:
             return False
         return nd < 1e-9 or float(np.dot(v, direction)) < 0.999 * nv * nd
 
-    def _steer_ik(self, shaper: JointShaper) -> None:
+    def _steer_ik(self, shaper: JointShaper, ahead: _Ahead | None = None) -> None:
         if isinstance(self._cart, PoseTarget) and self._finish_pose(shaper, self._cart):
+            self._drop(ahead)
             return
-        q_f, v_f, _ = shaper.state
-        # The start in the model convention and what the shaper delivers, model rad/cycle (new arrays
-        # each cycle: the IK may keep them).
-        q_m, dq_prev = np.empty(len(q_f)), np.empty(len(q_f))
-        cycle_kernels.ik_start(q_f, v_f, self._j23, self.dt, q_m, dq_prev)
-        res = self.ik.step(q_m, self._cart, dq_prev=dq_prev)
+        if ahead is not None and ahead.steps == self._steps and _same_motion(ahead.command, self._cart):
+            q_f, v_f, q_m, dq_prev, res = ahead.q_f, ahead.v_f, ahead.q_m, ahead.dq_prev, ahead.result
+            self.ahead_used += 1
+        else:
+            q_f, v_f, _ = shaper.state
+            # The start in the model convention and what the shaper delivers, model rad/cycle (new
+            # arrays each cycle: the IK may keep them).
+            q_m, dq_prev = np.empty(len(q_f)), np.empty(len(q_f))
+            cycle_kernels.ik_start(q_f, v_f, self._j23, self.dt, q_m, dq_prev)
+            if ahead is not None:  # solved ahead for another command: from the same start again
+                self.ahead_dropped += 1
+                res = self.ik.step_again(q_m, self._cart, dq_prev=dq_prev)
+            else:
+                res = self.ik.step(q_m, self._cart, dq_prev=dq_prev)
         while self.late_command is not None:
             # A command that arrived while the IK solved still makes this cycle's packet: the input
             # is read as late as the cycle allows, not only when the status packet arrived. The hook
@@ -399,8 +622,8 @@ class ServoCycle:
         if self._q_prev is not None:
             self.flange_speed = flange_distance_mm(self._q_prev, q, self._j23, self._dims) / self.dt
         self._q_prev = q
-        if self._cart_active or self.stopped:
-            return
+        if self._cart_active or self.stopped or (self._replay is not None and self._replay.active):
+            return  # (a replay's flange speed was checked with its plan)
         # Predict a few cycles ahead from the shaper's velocity: braking must start before the cap.
         _, v_f, a_f = shaper.state
         predicted = cycle_kernels.predicted_flange_speed(q, v_f, a_f, self.dt, self._j23, self._dims, self._scratch)

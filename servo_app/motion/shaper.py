@@ -460,6 +460,20 @@ class JointShaper:
         self._select_plan(mode, 1.0)
         self._set_velocity_mode(np.zeros(self.n), f"stop-{mode}")
 
+    def follow(self, q: ArrayLike) -> tuple[np.ndarray, bool]:
+        """Emit a precomputed, pre-checked position (trajectory replay) through the guard, and continue
+        ruckig from what was emitted (the parabola through the last three outputs): a stop or another
+        command afterwards starts from the true q, v, a. Returns the position sent and whether it was
+        sent unchanged (False: the guard had to replace it; the caller should leave the replay)."""
+        self._hold_first = False
+        self._try_switch_guard()
+        r, changed = self.guard.filter(np.ascontiguousarray(q, dtype=np.float64), self._guard_env)
+        self._resync(np.ones(self.n, dtype=bool))
+        self._mode = "replay"
+        self._target_key = None
+        self._finished = False
+        return r, not (changed is not _NO_CHANGE[self.n] and changed.any())
+
     # -- the cycle -------------------------------------------------------------------------------
 
     def step(self) -> np.ndarray:
@@ -510,7 +524,7 @@ class JointShaper:
 
     @property
     def mode(self) -> str:
-        """"position", "velocity", "stop-soft" or "stop-fast"."""
+        """"position", "velocity", "stop-soft", "stop-fast" or "replay" (:meth:`follow`)."""
         return self._mode
 
     @property
@@ -519,6 +533,10 @@ class JointShaper:
         ones, the fast limits during a fast stop)."""
         e = self._guard_env
         return e.vel, e.acc, e.jerk
+
+    def envelope(self, mode: StopMode = "soft") -> Envelope:
+        """The limits of ``mode`` resolved for this cycle time (what the guard checks in that mode)."""
+        return self._env[mode]
 
     def check_limits(self, mode: StopMode = "soft") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(vel, acc, jerk) the emitted finite differences respect in ``mode``."""

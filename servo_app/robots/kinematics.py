@@ -49,6 +49,10 @@ class ArmKinematics:
         self.j23_factor = profile.j23_factor
         self.q_min = np.array(profile.joint_min_rad)
         self.q_max = np.array(profile.joint_max_rad)
+        self.set_tool(tool_xyzwpr)
+
+    def set_tool(self, tool_xyzwpr: ArrayLike | None) -> None:
+        """Another tool (TCP) for the ``*_tcp`` methods; None: the flange."""
         self.tool = np.eye(4) if tool_xyzwpr is None else xyzwpr_to_matrix(tool_xyzwpr)
         self.tool_inv = np.linalg.inv(self.tool)
 

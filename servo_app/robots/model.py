@@ -70,6 +70,25 @@ def set_tool(spec: mujoco.MjSpec, tool_xyzwpr: ArrayLike | None) -> mujoco.MjsSi
     return site
 
 
+def set_model_tool(model: mujoco.MjModel, tool_xyzwpr: ArrayLike | None) -> None:
+    """Move a compiled model's ``tcp`` site to ``flange @ tool`` in place: what :func:`set_tool`
+    and a recompile give (both sites hang on the same body), without rebuilding the model, so a
+    running IK keeps its model, data and every array derived from them."""
+    flange, tcp = model.site(FLANGE_SITE), model.site(TCP_SITE)
+    if int(model.site_bodyid[tcp.id]) != int(model.site_bodyid[flange.id]):
+        raise ValueError(f"the {TCP_SITE!r} site is not on the flange's body")
+    mat = np.zeros(9)
+    mujoco.mju_quat2Mat(mat, flange.quat)
+    flange_t = np.eye(4)
+    flange_t[:3, :3] = mat.reshape(3, 3)
+    flange_t[:3, 3] = flange.pos
+    t = flange_t @ (np.eye(4) if tool_xyzwpr is None else xyzwpr_to_matrix(tool_xyzwpr))
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(t[:3, :3]).reshape(9))
+    model.site_pos[tcp.id] = t[:3, 3]
+    model.site_quat[tcp.id] = quat
+
+
 def load_model(profile: RobotProfile, tool_xyzwpr: ArrayLike | None = None, *, verify: bool = True
                ) -> mujoco.MjModel:
     """Compiled MjModel of the profile's MJCF with the profile's joint ranges and a ``tcp`` site.

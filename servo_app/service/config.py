@@ -40,6 +40,8 @@ class ServiceConfig:
     start_timeout_s: float = 5.0
     mcap_live: bool = False  # write NAME.mcap beside each session log as it is written (servo-app run --mcap)
     inputs_config: Path | None = None  # inputs TOML (servo-app run --inputs): adapters, feeds, applications
+    tools_file: Path | None = None  # tools TOML (servo-app run --tools): [tools.NAME] xyzwpr, payload_kg
+    tool: str | None = None  # the active tool at start (servo-app run --tool); None: the file's, else the flange
 
     @property
     def log_dir(self) -> Path:

@@ -28,10 +28,12 @@ from servo_app import messages as msg
 from servo_app.backends import ProcessOptions, RobotBackend, open_backend
 from servo_app.errors import CommandRejected
 from servo_app.process_handle import ServoProcessHandle, describe_exit
+from servo_app.robots.tool import Tool, ToolError
 from servo_app.service.alarms import AlarmForwarder
 from servo_app.service.config import ServiceConfig
 from servo_app.service.io import StreamIo
 from servo_app.service.points import PointStore
+from servo_app.service.tools import ActiveTool, load_tool_set
 from servo_app.service.views import StateViews
 
 
@@ -63,13 +65,15 @@ class ServoService:
         self.io = StreamIo(self.backend, self.request, self.state_vector, cfg.lead)
         self.views = StateViews(self)
         self.points = PointStore(cfg.var_dir / "points.json")  # teach points (servo_app.api.points)
+        self.tools = ActiveTool(load_tool_set(cfg, self.profile), getattr(self.profile, "max_payload_kg", None),
+                                self.request, self.state_vector, self._set_simulator_payload)
 
     @property
     def options(self) -> ProcessOptions:
         c = self.cfg
         return ProcessOptions(interval_ms=c.interval_ms, lead=c.lead, log_dir=str(c.log_dir),
                               limit_fraction=c.limit_fraction, flange_speed_cap=c.flange_speed_cap,
-                              payload_kg=c.payload_kg, start_timeout_s=c.start_timeout_s,
+                              payload_kg=self.tools.active.payload_kg, start_timeout_s=c.start_timeout_s,
                               input_slot=self.inputs.slot_name if self.inputs is not None else None)
 
     @property
@@ -90,8 +94,15 @@ class ServoService:
             self.sim = self.backend.start_simulator(target, sim_options, self.cfg.sim_realtime_priority)
             target = replace(target, host=self.sim.address[0], port=self.sim.address[1])
         self.robot_address = (target.host, target.port)
+        if self.sim is not None:
+            self._set_simulator_payload(self.tools.active.payload_kg)
         with self._lifecycle:
             self._spawn()
+        try:
+            self.tools.apply_to_new_process()
+        except ToolError:
+            self.close()
+            raise
         if target.embedded and not self.backend.simulator_first:  # the robot connects to us: it comes second
             assert self.robot_address is not None
             self.sim = self.backend.start_simulator(replace(target, host=self.robot_address[0],
@@ -258,6 +269,16 @@ class ServoService:
         with self._lifecycle:
             if not self.servo_alive:
                 self._spawn()
+                self.tools.apply_to_new_process()  # accepted by the first process: the backend takes it
+
+    def _set_simulator_payload(self, payload_kg: float | None) -> None:
+        """The embedded controller's payload, where its backend has one (a real controller's is its
+        TP program's PAYLOAD[]: docs/tools.md)."""
+        if self.sim is not None and self.backend.simulator_payload:
+            self.sim_call("set_payload", payload_kg)
+
+    def set_tool(self, name: str) -> Tool:
+        return self.tools.select(name)
 
     def send(self, req: msg.Request) -> None:
         """Fire-and-forget: no reply is asked for (the servo process validates and drops bad ones)."""

@@ -8,6 +8,7 @@ from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from servo_app import messages as msg
 from servo_app.motion.diffik import holding_back
 
 if TYPE_CHECKING:
@@ -81,7 +82,7 @@ class StateViews:
         if svc.servo_fault is not None:
             s["state"], s["link"], s["settled"] = "fault", "fault", False
         s["alarm_counts"], s["fault_counts"] = svc.alarm_forwarder.counts()
-        return s
+        return svc.tools.decorate(s)  # the pose is the active TCP's (servo_app.service.tools)
 
     def state(self) -> dict[str, Any]:
         svc = self.service
@@ -97,6 +98,7 @@ class StateViews:
                      settled=False)
             s["servo_process"] = svc.servo_fault["message"].removeprefix("servo process ")
         s["servo_starts"] = svc.servo_starts
+        svc.tools.decorate(s)  # the active tool; the pose is its TCP's, the flange's beside it
         s["backend"] = svc.backend.name
         s["model"] = svc.profile.name
         # Why a Cartesian motion goes slower than asked, or stops short (None: no Cartesian motion).
@@ -107,6 +109,10 @@ class StateViews:
         s["alarms"] = svc.alarm_forwarder.alarms()
         s["alarm_history"] = svc.alarm_forwarder.history()
         s["faults"] = svc.alarm_forwarder.faults[-10:]
+        replay = s.get("trajectory")
+        if replay is not None and replay["state"] == "ended":  # why it ended before its end
+            left = svc.last_event(msg.ReplayLeft)
+            replay["reason"] = left.reason if isinstance(left, msg.ReplayLeft) else None
         consistent(s, time.time())
         if svc.inputs is not None:
             s["inputs"] = svc.inputs.summary()
@@ -120,7 +126,10 @@ class StateViews:
 
     def limits(self) -> dict[str, Any]:
         svc = self.service
-        return svc.backend.limits(svc.stream.state() if svc.stream else {}, svc.options)
+        out = svc.backend.limits(svc.stream.state() if svc.stream else {}, svc.options)
+        tool = svc.tools.active  # its payload picks the tables' interpolation (Appendix B)
+        out.update(tool=tool.name, payload_kg=tool.payload_kg)
+        return out
 
     def robot(self) -> dict[str, Any]:
         """Arm geometry for the console: the backend's axes, ranges and drawing of the current position."""
@@ -129,7 +138,7 @@ class StateViews:
         q = st.get("q_servo") if st.get("status_received") else st.get("q_cmd")
         view = svc.backend.robot_view(q or [0.0] * 6)
         view["cartesian_jog"] = svc.backend.cartesian_jog
-        return view
+        return svc.tools.decorate_robot(view)  # the active tool's TCP, drawn from the flange
 
     def session_logs(self) -> list[dict[str, Any]]:
         d = self.service.cfg.log_dir

@@ -514,6 +514,13 @@ class FanucControllerModel:
         if changed and self.program is ProgramState.WAITING:
             self._alarm("MOTN-606")
 
+    def set_payload(self, payload_kg: float | None) -> None:
+        """The payload the limit checker judges at (None: the maximum), as a PAYLOAD[] instruction sets
+        it on a controller; the service sets it when the active tool changes (servo_app.robots.tool)."""
+        if payload_kg is not None and not 0.0 < payload_kg <= self.profile.max_payload_kg:
+            raise ValueError(f"payload_kg={payload_kg} must be in (0, {self.profile.max_payload_kg:g}]")
+        self.checker.set_payload(payload_kg)
+
     def set_override(self, pct: int) -> None:
         """Override 1..100 %; changing it while the program runs posts MOTN-606 (61.9)."""
         if not 1 <= pct <= 100:

@@ -293,6 +293,10 @@ class FanucSimulator:
         with self.lock:
             self.controller.set_mode(mode)
 
+    def set_payload(self, payload_kg: float | None) -> None:
+        with self.lock:
+            self.controller.set_payload(payload_kg)
+
     def set_override(self, pct: int) -> None:
         with self.lock:
             self.controller.set_override(pct)

@@ -15,7 +15,8 @@ from typing import Any
 
 from servo_app.realtime import single_threaded_blas
 
-_CALLS = {"reset", "start_program", "abort_program", "set_mode", "set_override", "set_joints", "jog_to"}
+_CALLS = {"reset", "start_program", "abort_program", "set_mode", "set_override", "set_joints", "jog_to",
+          "set_payload"}
 
 
 def _event_dict(ev: Any) -> dict[str, Any]:

@@ -1,0 +1,114 @@
+"""``POST /api/trajectory``: replay joint or Cartesian waypoints, a CSV or a recorded session log, timed
+so that every controller limit holds (``docs/trajectory.md``). Token and lease.
+
+The body is JSON (:class:`TrajectoryBody`) or, with ``Content-Type: text/csv``, a CSV in the form
+``servo-app check`` reads. The request is validated and planned completely (in a worker thread: the
+timing takes up to a few hundred ms) before anything moves; a refusal changes nothing: 422 names the
+field and value, 409 says what to do first. The 64 KiB body limit holds here too: a longer path is
+replayed from a session log by name (``{"log": ...}``), which needs no upload.
+"""
+
+# No `from __future__ import annotations`: FastAPI reads the dependency annotations at runtime.
+import math
+from typing import Any, Literal
+
+from fastapi import APIRouter, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.exceptions import RequestValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from servo_app.api.deps import Calls, Controlling, Service
+from servo_app.api.models import REFUSALS, Ack
+from servo_app.service.trajectory import TrajectoryInput, plan_trajectory
+
+router = APIRouter(tags=["motion"])
+
+MAX_WAYPOINTS = 10_000
+
+
+class TrajectoryBody(BaseModel):
+    """One of ``joints``, ``poses`` or ``log``; ``times`` only with waypoints."""
+
+    model_config = ConfigDict(extra="forbid")
+    joints: list[list[float]] | None = Field(None, max_length=MAX_WAYPOINTS, description=(
+        "joint waypoints, FANUC J1..J6 deg: straight joint-space segments, at rest at each waypoint"))
+    poses: list[list[float]] | None = Field(None, max_length=MAX_WAYPOINTS, description=(
+        "TCP waypoints X Y Z mm, W P R deg (world): straight Cartesian segments in the held configuration"))
+    times: list[float] | None = Field(None, max_length=MAX_WAYPOINTS, description=(
+        "s at which each waypoint is reached (increasing; times[0] at the first waypoint, after the "
+        "approach); a segment that cannot be done that fast within the limits is refused (422), a slower "
+        "one is stretched to the time given"))
+    log: str | None = Field(None, max_length=255, description=(
+        "a recorded session log's name (GET /api/sessions): replay its commanded path (record and replay)"))
+    from_s: float | None = Field(None, description="with log: start of the window, s after its first command")
+    to_s: float | None = Field(None, description="with log: end of the window (default: the log's end)")
+    from_unix: float | None = Field(None, description="with log: the window's start as wall-clock time (Unix s)")
+    to_unix: float | None = Field(None, description="with log: the window's end as wall-clock time (Unix s)")
+    speed_scale: float = Field(1.0, gt=0, le=1, description="share of the joint speed limits")
+    pace: Literal["recorded", "limits"] = Field("recorded", description=(
+        "with log: 'recorded' replays no faster along the path than it was recorded (times speed_scale), "
+        "'limits' as fast as the controller's limits allow"))
+
+    @model_validator(mode="after")
+    def _one_source(self) -> "TrajectoryBody":
+        given = [k for k in ("joints", "poses", "log") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError(f"give exactly one of joints, poses or log (got {given or 'none'}); "
+                             "or send a CSV body with Content-Type: text/csv")
+        window = (self.from_s, self.to_s, self.from_unix, self.to_unix)
+        if any(v is not None for v in window) and self.log is None:
+            raise ValueError("from_s, to_s, from_unix and to_unix select a window of a log: give log too")
+        return self
+
+
+_CSV_FORM = ("A CSV body (Content-Type: text/csv) in `servo-app check`'s form: one row per line, J1..J6 "
+             "(FANUC deg) or, with the header x,y,z,w,p,r, flange poses; `speed_scale` and `pace` (recorded: no "
+             "faster than one row per interval; limits: as fast as the limits allow) as query parameters.")
+
+
+def _json_safe(errors: list[Any]) -> list[Any]:
+    out = []
+    for e in errors:
+        e = dict(e)
+        e.pop("ctx", None)
+        if isinstance(e.get("input"), float) and not math.isfinite(e["input"]):
+            e["input"] = str(e["input"])
+        out.append(e)
+    return out
+
+
+@router.post("/api/trajectory", summary="Replay waypoints, a CSV or a session log within the limits",
+             responses=REFUSALS, openapi_extra={"requestBody": {"required": True, "content": {
+                 "application/json": {"schema": TrajectoryBody.model_json_schema()},
+                 "text/csv": {"schema": {"type": "string", "description": _CSV_FORM}}}}})
+async def trajectory(request: Request, client: Controlling, calls: Calls, service: Service,
+                     speed_scale: float = 1.0, pace: Literal["recorded", "limits"] = "recorded") -> Ack:
+    """Plan the path from where the arm rests (an approach move first if it does not start there),
+    timed by TOPP-RA with a jerk bound and checked as the controller checks a stream, then replay it
+    one position per cycle. A stop pauses along the path, resume continues it; a fast stop, a fault or
+    another motion command ends it. Progress: ``trajectory`` in GET /api/state. Token and lease."""
+    if request.headers.get("content-type", "").split(";")[0].strip().lower() == "text/csv":
+        text = (await request.body()).decode("utf-8", errors="replace")
+        req = TrajectoryInput(csv_text=text, speed_scale=speed_scale, pace=pace)
+    else:
+        try:
+            body = TrajectoryBody.model_validate(await request.json())
+        except ValidationError as exc:
+            errors = [{**e, "loc": ("body", *e["loc"])} for e in exc.errors()]
+            raise RequestValidationError(_json_safe(errors)) from None
+        except ValueError as exc:
+            raise RequestValidationError([{"type": "json_invalid", "loc": ("body",),
+                                           "msg": f"the body is not JSON ({exc}): send JSON or text/csv",
+                                           "input": None}]) from None
+        req = TrajectoryInput(joints=body.joints, poses=body.poses, times=body.times, log=body.log,
+                              from_s=body.from_s, to_s=body.to_s, from_unix=body.from_unix, to_unix=body.to_unix,
+                              speed_scale=body.speed_scale, pace=body.pace)
+    detail = {"source": "csv" if req.csv_text is not None else ("log" if req.log else
+                                                                  "joints" if req.joints else "poses")}
+
+    def plan_and_send() -> dict[str, Any]:
+        message, summary = plan_trajectory(service, req)
+        reply = service.request(message)
+        return {**summary, **(reply or {})}
+
+    return await run_in_threadpool(calls.call, client, "trajectory", plan_and_send, detail)

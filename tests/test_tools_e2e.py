@@ -1,0 +1,268 @@
+"""Tools (TCP frames) end to end: a running service (uvicorn, the servo process, the embedded FANUC
+simulator on loopback) with a tools file; jogs, pose targets, the displayed pose, the tool change's
+refusals, the payload's limits, the client; zero controller alarms throughout. The Janome backend's
+refusal and the command line's check of a bad file too."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_api_harness import AUTH, TOKEN, Rig, running_rig
+
+from servo_app.client import RefusedError, ServoClient
+from servo_app.robots.conventions import xyzwpr_to_matrix
+from servo_app.robots.tool import ToolError
+from servo_app.service import ServiceConfig, ServoService
+
+pytestmark = pytest.mark.e2e
+
+TOOLS = """
+active = "gripper"
+
+[tools.gripper]
+xyzwpr = [0, 0, 150, 0, 0, 0]
+payload_kg = 2.5
+
+[tools.tilted]
+xyzwpr = [0, 0, 150, 0, 30, 0]
+payload_kg = 1.0
+
+[tools.heavy]
+xyzwpr = [0, 0, 120, 0, 0, 0]
+payload_kg = 7.0
+"""
+GRIPPER = [0.0, 0.0, 150.0, 0.0, 0.0, 0.0]
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+    d = tmp_path_factory.mktemp("tools")
+    (d / "tools.toml").write_text(TOOLS)
+    with running_rig(d, tools_file=d / "tools.toml") as r:
+        yield r
+
+
+def at_rest_with(rig: Rig, tool: str) -> dict[str, str]:
+    """The lease, a stream and the arm settled with ``tool`` active (an earlier test may have left it
+    moving or with another tool)."""
+    h = rig.streaming("tools")
+    rig.wait(lambda s: s["at_rest"] and s["settled"], 15.0, "settled")
+    r = rig.http.put("/api/tool", json={"name": tool}, headers=h)
+    assert r.status_code == 200, r.text
+    return h
+
+
+def settled(rig: Rig) -> dict:
+    return rig.wait_at_rest_settled(10.0)
+
+
+def hold_twist(rig: Rig, h: dict[str, str], seconds: float, **twist: object) -> list[dict]:
+    """Renew a twist jog for ``seconds`` and collect the state on the way (the TCP and the flange)."""
+    states = []
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        r = rig.http.post("/api/jog", json={"hold_ms": 300, **twist}, headers=h)
+        assert r.status_code == 200, r.text
+        states.append(rig.state())
+        time.sleep(0.04)
+    states.append(settled(rig))
+    return states
+
+
+def rotation_between(a: list[float], b: list[float]) -> float:
+    ra, rb = xyzwpr_to_matrix(a)[:3, :3], xyzwpr_to_matrix(b)[:3, :3]
+    return float(np.degrees(np.arccos(np.clip((np.trace(ra.T @ rb) - 1) / 2, -1, 1))))
+
+
+def test_tools_listed_with_the_active_one_in_the_state(rig: Rig) -> None:
+    tools = rig.http.get("/api/tools").json()
+    assert [t["name"] for t in tools["tools"]] == ["flange", "gripper", "tilted", "heavy"]
+    assert tools["tools"][0] == {"name": "flange", "xyzwpr": [0.0] * 6, "payload_kg": None}
+    at_rest_with(rig, "gripper")
+    s = rig.state()
+    assert s["tool"] == {"name": "gripper", "xyzwpr": GRIPPER, "payload_kg": 2.5}
+    assert rig.http.get("/api/tools").json()["active"] == "gripper"
+    # The displayed pose is the TCP: the flange the controller reports times the tool.
+    tcp = xyzwpr_to_matrix(s["flange_pose"]) @ xyzwpr_to_matrix(GRIPPER)
+    np.testing.assert_allclose(xyzwpr_to_matrix(s["cart_servo"]), tcp, atol=1e-6)
+    assert np.linalg.norm(np.subtract(s["cart_servo"][:3], s["flange_pose"][:3])) == pytest.approx(150.0, abs=1e-3)
+
+
+@pytest.mark.parametrize("axis", [0, 2])
+def test_turning_about_the_tool_keeps_the_tcp_still(rig: Rig, axis: int) -> None:
+    h = at_rest_with(rig, "gripper")
+    start = settled(rig)
+    angular = [0.0, 0.0, 0.0]
+    angular[axis] = 15.0
+    states = hold_twist(rig, h, 1.2, linear=[0.0, 0.0, 0.0], angular=angular, frame="tool")
+    p0 = np.array(start["cart_servo"][:3])
+    drift = max(float(np.linalg.norm(np.array(s["cart_servo"][:3]) - p0)) for s in states)
+    assert drift < 1.0, f"the TCP moved {drift:.2f} mm"
+    end = states[-1]
+    assert rotation_between(start["flange_pose"], end["flange_pose"]) > 8.0, "the flange turned"
+    if axis == 0:  # about x the flange swings round the TCP; about z (the flange's own axis) it turns in place
+        assert np.linalg.norm(np.subtract(end["flange_pose"][:3], start["flange_pose"][:3])) > 10.0
+    assert rig.sim_alarms() == []
+
+
+def test_a_linear_tool_jog_moves_the_tcp_along_the_tools_axis(rig: Rig) -> None:
+    h = at_rest_with(rig, "tilted")
+    start = settled(rig)
+    states = hold_twist(rig, h, 1.0, linear=[0.0, 0.0, 40.0], angular=[0.0, 0.0, 0.0], frame="tool")
+    axis = xyzwpr_to_matrix(start["cart_servo"])[:3, 2]
+    flange_axis = xyzwpr_to_matrix(start["flange_pose"])[:3, 2]
+    assert float(axis @ flange_axis) < 0.9, "the tilted tool's z is not the flange's"
+    moved = np.subtract(states[-1]["cart_servo"][:3], start["cart_servo"][:3])
+    along = float(moved @ axis)
+    assert along > 20.0
+    assert np.linalg.norm(moved - along * axis) < 1.0, moved
+    assert rotation_between(start["cart_servo"], states[-1]["cart_servo"]) < 0.1
+    assert rig.sim_alarms() == []
+
+
+def test_a_pose_target_reaches_the_tcp_pose(rig: Rig) -> None:
+    h = at_rest_with(rig, "gripper")
+    start = settled(rig)
+    goal = list(np.add(start["cart_servo"], [40.0, -30.0, 20.0, 0.0, 0.0, 10.0]))
+    rig.post("/api/target", h, {"xyzwpr": goal, "linear_speed": 150.0, "angular_speed": 45.0})
+    rig.wait(lambda s: s["at_rest"], 15.0, "at the target")
+    s = settled(rig)
+    np.testing.assert_allclose(s["cart_servo"][:3], goal[:3], atol=0.2)
+    assert rotation_between(s["cart_servo"], goal) < 0.05
+    tcp_of_flange = xyzwpr_to_matrix(s["flange_pose"]) @ xyzwpr_to_matrix(GRIPPER)
+    np.testing.assert_allclose(tcp_of_flange[:3, 3] * 1000, goal[:3], atol=0.2)
+    assert np.linalg.norm(np.subtract(s["flange_pose"][:3], goal[:3])) == pytest.approx(150.0, abs=0.3)
+    assert rig.sim_alarms() == []
+
+
+def test_a_tool_change_while_jogging_is_refused_and_changes_nothing(rig: Rig) -> None:
+    h = at_rest_with(rig, "gripper")
+    limits = rig.http.get("/api/limits").json()
+    rig.post("/api/jog", h, {"joints": [15.0, 0, 0, 0, 0, 0], "hold_ms": 1500})
+    rig.wait(lambda s: not s["at_rest"], 5.0, "moving")
+    r = rig.http.put("/api/tool", json={"name": "tilted"}, headers=h)
+    assert r.status_code == 409, r.text
+    assert "moving" in r.json()["detail"]
+    s = rig.state()
+    assert s["tool"]["name"] == "gripper" and rig.http.get("/api/tools").json()["active"] == "gripper"
+    assert rig.http.get("/api/limits").json() == limits
+    rig.post("/api/session/stop", h)
+    rig.wait(lambda s: s["at_rest"] and s["settled"], 10.0, "settled")
+    # Unknown: 404 naming the defined tools; without the lease: refused; neither changes anything.
+    r = rig.http.put("/api/tool", json={"name": "hammer"}, headers=h)
+    assert r.status_code == 404 and "gripper" in r.json()["detail"]
+    assert rig.http.put("/api/tool", json={"name": "tilted"}, headers=AUTH).status_code == 409
+    assert rig.state()["tool"]["name"] == "gripper"
+    # At rest: taken, and the next jog turns about the new TCP.
+    r = rig.http.put("/api/tool", json={"name": "tilted"}, headers=h)
+    assert r.status_code == 200 and r.json()["name"] == "tilted"
+    rig.post("/api/session/resume", h)  # the stop before it (a soft stop: taken at rest too)
+    rig.wait_state("streaming")
+    s0 = settled(rig)
+    assert s0["tool"]["name"] == "tilted"
+    states = hold_twist(rig, h, 0.8, linear=[0.0, 0.0, 0.0], angular=[0.0, 12.0, 0.0], frame="tool")
+    drift = max(float(np.linalg.norm(np.subtract(s["cart_servo"][:3], s0["cart_servo"][:3]))) for s in states)
+    assert drift < 1.0
+    assert rig.sim_alarms() == []
+
+
+def test_the_payload_picks_the_limit_tables_and_the_heavy_tool_streams_clean(rig: Rig) -> None:
+    h = at_rest_with(rig, "tilted")  # 1 kg
+    light = rig.http.get("/api/limits").json()
+    assert light["tool"] == "tilted" and light["payload_kg"] == 1.0
+    rig.http.put("/api/tool", json={"name": "heavy"}, headers=h).raise_for_status()  # 7 kg: the maximum
+    heavy = rig.http.get("/api/limits").json()
+    assert heavy["payload_kg"] == 7.0
+    assert np.all(np.array(heavy["acc_deg_s2"]) <= np.array(light["acc_deg_s2"]))
+    assert np.any(np.array(heavy["acc_deg_s2"]) < np.array(light["acc_deg_s2"]))
+    s = rig.state()
+    np.testing.assert_allclose(s["acc_limit"], heavy["acc_deg_s2"])  # the stream's own limits follow
+    # A brisk joint jog out and back with the heavy tool: the controller's checker (at 7 kg) stays quiet.
+    rig.jog_for(h, [60.0, -30.0, 40.0, 0.0, 0.0, 90.0], 0.6)
+    rig.jog_for(h, [-60.0, 30.0, -40.0, 0.0, 0.0, -90.0], 0.6)
+    settled(rig)
+    assert rig.sim_alarms() == []
+    assert rig.state()["state"] in ("streaming", "stopped")  # a hold-to-run stop at the end, no fault
+
+
+def test_replayed_poses_are_the_active_tools_tcp(rig: Rig) -> None:
+    """POST /api/trajectory's poses are TCP poses of the active tool: the replay ends with the TCP (not
+    the flange) on the last pose, zero alarms."""
+    h = at_rest_with(rig, "gripper")
+    start = settled(rig)
+    goal = list(np.add(start["cart_servo"], [30.0, 25.0, -20.0, 0.0, 0.0, 8.0]))
+    r = rig.http.post("/api/trajectory", headers=h, json={"poses": [goal]})
+    assert r.status_code == 200, r.text
+    rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "done" and s["at_rest"], 20.0, "replayed")
+    s = settled(rig)
+    np.testing.assert_allclose(s["cart_servo"][:3], goal[:3], atol=0.2)
+    assert rotation_between(s["cart_servo"], goal) < 0.05
+    assert np.linalg.norm(np.subtract(s["flange_pose"][:3], goal[:3])) == pytest.approx(150.0, abs=0.3)
+    assert rig.sim_alarms() == []
+
+
+def test_client_set_tool_and_move_pose(rig: Rig) -> None:
+    at_rest_with(rig, "flange")
+    with ServoClient(rig.base_url, TOKEN, name="tool-client", take_over=True) as arm:
+        arm.ensure_streaming()
+        assert [t.name for t in arm.tools()] == ["flange", "gripper", "tilted", "heavy"]
+        tool = arm.set_tool("gripper")
+        assert tool.name == "gripper" and tool.xyzwpr == tuple(GRIPPER) and tool.payload_kg == 2.5
+        s = arm.wait_settled()
+        assert s.tool is not None and s.tool.name == "gripper" and s.pose is not None and s.flange_pose is not None
+        goal = [s.pose[0] + 25.0, s.pose[1], s.pose[2] - 20.0, *s.pose[3:]]
+        arm.move_pose(goal, linear_speed=150.0)
+        s = arm.wait_settled()
+        np.testing.assert_allclose(s.pose[:3], goal[:3], atol=0.2)  # type: ignore[index]
+        with pytest.raises(RefusedError) as exc:
+            arm.set_tool("hammer")
+        assert exc.value.status == 404
+        defined = arm.define_tool("probe", [0, 10, 90, 0, 0, 0], 0.5)
+        assert defined.name == "probe" and "probe" in [t.name for t in arm.tools()]
+        with pytest.raises(RefusedError, match="maximum payload"):
+            arm.define_tool("anvil", [0, 0, 50, 0, 0, 0], 9.0)
+    assert rig.sim_alarms() == []
+
+
+def test_a_taught_point_keeps_the_tcp_pose_and_the_tool(rig: Rig) -> None:
+    h = at_rest_with(rig, "gripper")
+    s = settled(rig)
+    point = rig.post("/api/points/tool_corner", h).json()
+    assert point["tool"] == "gripper"
+    np.testing.assert_allclose(point["xyzwpr"], s["cart_servo"], atol=1e-3)
+
+
+# ------------------------------------------------------------------------ the configuration's checks
+def test_a_payload_above_the_maximum_is_refused_at_start(tmp_path: Path) -> None:
+    bad = tmp_path / "tools.toml"
+    bad.write_text('[tools.anvil]\nxyzwpr = [0, 0, 80, 0, 0, 0]\npayload_kg = 12\n')
+    with pytest.raises(ToolError, match=r"tools.anvil.payload_kg=12 kg is above the robot's maximum payload of 7 kg"):
+        ServoService(ServiceConfig(var_dir=tmp_path, tools_file=bad))
+    p = subprocess.run([sys.executable, "-m", "servo_app.cli", "run", "--tools", str(bad), "--var-dir",
+                        str(tmp_path), "--http-port", "0", "--token", TOKEN], capture_output=True, text=True,
+                       timeout=60)
+    assert p.returncode == 2, (p.stdout, p.stderr)
+    assert "tools.anvil.payload_kg=12" in p.stdout
+
+
+def test_janome_refuses_a_tool_offset(tmp_path: Path) -> None:
+    tools = tmp_path / "tools.toml"
+    tools.write_text(TOOLS)
+    cfg = ServiceConfig(robot="janome:127.0.0.1:0", model="jr3000", var_dir=tmp_path, tools_file=tools)
+    with pytest.raises(ToolError, match="not supported by the Janome backend"):
+        ServoService(cfg).open()  # the file's active gripper
+    cfg.tool = "flange"
+    service = ServoService(cfg)
+    service.open()
+    try:
+        with pytest.raises(Exception, match="not supported by the Janome backend: tool 'gripper'"):
+            service.set_tool("gripper")
+        assert service.tools.active.name == "flange"
+    finally:
+        service.close()

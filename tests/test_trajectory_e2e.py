@@ -1,0 +1,277 @@
+"""POST /api/trajectory, the client's replay and ``servo-app replay`` end to end: uvicorn, the servo
+process and the simulator on loopback. Every replay ends at its last waypoint with zero alarms, and its
+session log passes ``servo-app check``."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from test_api_harness import TOKEN, Rig, running_janome_rig, running_rig
+
+from servo_app.client import ServoClient
+from servo_app.messages import LogOpened
+from servo_app.motion.limit_tables import AxisTable, LimitTables, default_tables
+from servo_app.robots.conventions import matrix_to_xyzwpr
+from servo_app.robots.kinematics import ArmKinematics
+from servo_app.robots.profile import load_profile
+from servo_app.session_log import read_session_log
+
+pytestmark = pytest.mark.e2e
+
+HOME = [0.0, 10.0, -10.0, 0.0, -80.0, 0.0]  # wrist bent: away from every configuration boundary
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+    with running_rig(tmp_path_factory.mktemp("trajectory")) as r:
+        yield r
+
+
+def at_home(rig: Rig) -> dict[str, str]:
+    """A running stream with the arm at rest at HOME (a joint target, if it is elsewhere)."""
+    h = rig.streaming("trajectory")
+    s = rig.wait(lambda s: s["at_rest"], 15.0, "at rest")
+    if not np.allclose(s["q_cmd"][:6], HOME, atol=1e-3):
+        rig.post("/api/target", h, {"joints": HOME})
+        rig.wait(lambda s: s["at_rest"] and np.allclose(s["q_cmd"][:6], HOME, atol=1e-3), 20.0, "at HOME")
+    return h
+
+
+def replay_to_end(rig: Rig, headers: dict[str, str], timeout: float = 20.0, **post: Any) -> dict[str, Any]:
+    r = rig.http.post("/api/trajectory", headers=headers, **post)
+    assert r.status_code == 200, r.text
+    return rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "done" and s["at_rest"], timeout,
+                    "the replay done")
+
+
+def log_now(rig: Rig) -> tuple[str, float]:
+    """The stream's session log (being written) and the time of its newest command (s after its first)."""
+    ev = rig.service.last_event(LogOpened)
+    assert isinstance(ev, LogOpened)
+    t = read_session_log(Path(ev.path)).commands["t"]
+    return Path(ev.path).name, float(t[-1] - t[0])
+
+
+def check_log_passes(rig: Rig, headers: dict[str, str]) -> np.ndarray:
+    """End the stream, then run ``servo-app check`` on its session log; the commanded joints."""
+    rig.end_and_wait(headers)
+    log = rig.latest_log()
+    path = rig.var_dir / "download.srvlog"
+    r = subprocess.run([sys.executable, "-m", "servo_app.cli", "check", str(path)], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0, r.stdout + r.stderr
+    return log.commands["values"][:, :6].astype(float)
+
+
+def test_joint_waypoints_replay_to_the_end_and_the_log_passes_the_check(rig: Rig) -> None:
+    h = at_home(rig)
+    waypoints = [[20.0, 15.0, -5.0, 10.0, -70.0, 30.0], [-15.0, 5.0, -15.0, -10.0, -90.0, -20.0]]
+    s = replay_to_end(rig, h, json={"joints": waypoints})
+    assert np.allclose(s["q_cmd"][:6], waypoints[-1], atol=1e-3)
+    assert s["trajectory"]["index"] == s["trajectory"]["total"] - 1
+    assert rig.sim_alarms() == []
+    check_log_passes(rig, h)
+
+
+def test_cartesian_waypoints_keep_the_tcp_on_the_straight_segments(rig: Rig) -> None:
+    h = at_home(rig)
+    kin = ArmKinematics(rig.service.profile)
+    x0 = matrix_to_xyzwpr(kin.fk_fanuc_deg(np.array(HOME)))
+    poses = [x0, x0 + np.array([60.0, 40.0, -30.0, 0.0, 0.0, 10.0]), x0 + np.array([0.0, -50.0, 20.0, 5.0, 0.0, 0.0])]
+    _, started = log_now(rig)
+    s = replay_to_end(rig, h, json={"poses": [p.tolist() for p in poses]})
+    assert rig.sim_alarms() == []
+    rig.end_and_wait(h)
+    log = rig.latest_log()
+    cmds = log.commands[log.commands["t"] - log.commands["t"][0] >= started]
+    xyz = np.array([kin.fk_fanuc_deg(row)[:3, 3] * 1000.0 for row in cmds["values"][:, :6].astype(float)])
+    corners = np.array([p[:3] for p in poses])
+    assert max(distance_to_polyline(p, corners) for p in xyz) < 1.0
+    assert np.allclose(kin.fk_fanuc_deg(np.array(s["q_cmd"][:6]))[:3, 3] * 1000.0, poses[-1][:3], atol=0.05)
+    r = subprocess.run([sys.executable, "-m", "servo_app.cli", "check", str(rig.var_dir / "download.srvlog")],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stdout + r.stderr
+
+
+def distance_to_polyline(point: np.ndarray, line: np.ndarray) -> float:
+    a, b = line[:-1], line[1:]
+    d = b - a
+    t = np.clip(np.einsum("ij,ij->i", point - a, d) / np.einsum("ij,ij->i", d, d), 0.0, 1.0)
+    return float(np.min(np.linalg.norm(a + t[:, None] * d - point, axis=1)))
+
+
+def test_a_csv_body_replays_its_rows(rig: Rig) -> None:
+    h = at_home(rig)
+    t = np.linspace(0.0, 1.0, 200)[:, None]
+    rows = np.array(HOME) + np.hstack([20.0 * np.sin(np.pi * t), 5.0 * t, np.zeros((200, 3)), -10.0 * t])
+    text = "j1,j2,j3,j4,j5,j6\n" + "\n".join(",".join(f"{v:.5f}" for v in r) for r in rows)
+    r = rig.http.post("/api/trajectory", content=text.encode(), headers={**h, "Content-Type": "text/csv"})
+    assert r.status_code == 200, r.text
+    s = rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "done" and s["at_rest"], 20.0, "done")
+    assert np.allclose(s["q_cmd"][:6], rows[-1], atol=1e-3)
+    assert rig.sim_alarms() == []
+
+
+def test_a_recorded_jog_replays_from_its_session_log(rig: Rig) -> None:
+    h = at_home(rig)
+    name, from_s = log_now(rig)
+    rig.jog_for(h, [10.0, 0.0, 5.0, 0.0, 0.0, 15.0], 1.0)  # the teleoperated stretch: recorded per cycle
+    jogged = rig.wait_at_rest_settled(5.0)["q_cmd"][:6]
+    _, to_s = log_now(rig)
+    rig.post("/api/target", h, {"joints": HOME})
+    rig.wait(lambda s: s["at_rest"] and np.allclose(s["q_cmd"][:6], HOME, atol=1e-3), 20.0, "back at HOME")
+    r = rig.http.post("/api/trajectory", headers=h, json={"log": name, "from_s": from_s, "to_s": to_s})
+    assert r.status_code == 200, r.text
+    # At the recorded pace: the second of jogging takes about as long again (timed by the limits alone
+    # it took 0.3 s), and the rests around it are not replayed.
+    assert 0.95 < r.json()["detail"]["duration_s"] < 3.0, r.json()
+    s = rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "done" and s["at_rest"], 20.0, "done")
+    assert np.allclose(s["q_cmd"][:6], jogged, atol=1e-3)
+    assert rig.sim_alarms() == []
+    check_log_passes(rig, h)
+
+
+def test_stop_pauses_on_the_path_and_resume_finishes_it(rig: Rig) -> None:
+    h = at_home(rig)
+    goal = [40.0, 20.0, 0.0, 20.0, -60.0, 60.0]
+    rig.post("/api/trajectory", h, {"joints": [goal], "speed_scale": 0.5})
+    rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "playing"
+             and s["trajectory"]["index"] > s["trajectory"]["total"] // 4, 10.0, "a quarter played")
+    rig.post("/api/session/stop", h)
+    s = rig.wait(lambda s: s["state"] == "stopped" and s["at_rest"], 10.0, "paused")
+    assert s["trajectory"]["state"] == "paused" and s["trajectory"]["paused"]
+    q = np.array(s["q_cmd"][:6])
+    # on the straight joint-space line from HOME to the goal
+    d = np.array(goal) - np.array(HOME)
+    k = float((q - HOME) @ d / (d @ d))
+    assert 0.0 < k < 1.0 and np.abs(np.array(HOME) + k * d - q).max() < 1e-3
+    rig.post("/api/session/resume", h)
+    s = rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "done" and s["at_rest"], 20.0, "done")
+    assert np.allclose(s["q_cmd"][:6], goal, atol=1e-3)
+    assert rig.sim_alarms() == []
+
+
+def test_a_jog_ends_the_replay_and_the_state_says_why(rig: Rig) -> None:
+    goal = [40.0, 20.0, 0.0, 20.0, -60.0, 60.0]
+    for took_over in ("jog", "twist"):  # each replay left reports its own reason
+        h = at_home(rig)
+        rig.post("/api/trajectory", h, {"joints": [goal], "speed_scale": 0.5})
+        rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "playing"
+                 and s["trajectory"]["index"] > s["trajectory"]["total"] // 4, 10.0, "a quarter played")
+        rig.post("/api/jog", h, {"joints": [0.0, 0.0, 0.0, 0.0, 0.0, 5.0]} if took_over == "jog"
+                 else {"linear": [5.0, 0.0, 0.0]})
+        s = rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "ended", 5.0, "the replay ended")
+        assert s["trajectory"]["reason"] == f"a {took_over} took over"
+        rig.wait(lambda s: s["at_rest"], 10.0, "at rest")
+    assert rig.sim_alarms() == []
+    # A new replay that runs to its end has no reason to give.
+    s = replay_to_end(rig, h, json={"joints": [HOME]})
+    assert "reason" not in s["trajectory"] or s["trajectory"]["reason"] is None
+
+
+@pytest.mark.parametrize(("body", "words"), [
+    ({"joints": [[0.0, 0.0, 0.0, 0.0, math.nan, 0.0]]}, "joints[0][4]=nan"),
+    ({"joints": [[0.0, 0.0, 0.0]]}, "joints[0] has 3 values"),
+    ({"joints": [[0.0, 0.0, 0.0, 0.0, -80.0, 500.0]]}, "joints[0]"),
+    ({"poses": [[3000.0, 0.0, 300.0, 180.0, 0.0, 0.0]]}, "poses[0]"),
+    ({"joints": [HOME, HOME], "times": [1.0, 1.0]}, "times[1]=1.0"),
+    ({"log": "no-such.srvlog"}, "log='no-such.srvlog'"),
+    ({"log": "no-such.srvlog", "pace": "fast"}, "pace"),
+])
+def test_refusals_name_the_field_and_change_nothing(rig: Rig, body: dict[str, Any], words: str) -> None:
+    h = at_home(rig)
+    before = rig.state()
+    # NaN as Python's json writes it (httpx's encoder refuses it: a hand-written body, as curl would send)
+    r = rig.http.post("/api/trajectory", content=json.dumps(body).encode(),
+                      headers={**h, "Content-Type": "application/json"})
+    assert r.status_code == 422, r.text
+    assert words in r.text, r.text
+    after = rig.state()
+    assert after["state"] == before["state"] == "streaming"
+    assert after["q_cmd"] == before["q_cmd"] and after["at_rest"]
+    assert (after.get("trajectory") or {}).get("state") in (None, "done", "ended")
+
+
+def test_the_client_replays_and_servo_app_replay_runs_a_csv_file(rig: Rig, tmp_path: Path) -> None:
+    at_home(rig)
+    with ServoClient(rig.base_url, TOKEN, take_over=True) as arm:
+        arm.ensure_streaming()  # taking the lease over stopped the rig's stream: resume it
+        summary = arm.replay([[10.0, 10.0, -10.0, 0.0, -80.0, 10.0]])
+        assert summary["samples"] > 10 and arm.state().trajectory is not None
+        assert arm.state().trajectory.state == "done"  # type: ignore[union-attr]
+    last = [-10.0, 15.0, -5.0, 5.0, -75.0, -15.0]
+    csv = tmp_path / "path.csv"
+    csv.write_text(f"# J1..J6\n{','.join(map(str, HOME))}\n{','.join(map(str, last))}\n")
+    r = subprocess.run([sys.executable, "-m", "servo_app.cli", "replay", str(csv), "--url", rig.base_url,
+                        "--token", TOKEN, "--take-over"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "done" in r.stdout
+    s = rig.state()
+    assert np.allclose(s["q_cmd"][:6], last, atol=1e-3) and rig.sim_alarms() == []
+
+
+def test_the_client_records_a_jog_and_replays_it(rig: Rig) -> None:
+    at_home(rig)
+    with ServoClient(rig.base_url, TOKEN, take_over=True) as arm:
+        arm.ensure_streaming()
+        with arm.record() as rec:
+            arm.jog_joints([0.0, 8.0, 0.0, -10.0, 0.0, 10.0], duration=0.8)  # released: waits for rest
+        jogged = arm.state().joints
+        assert jogged is not None and rec.end_unix is not None
+        arm.move_joints(HOME)
+        summary = arm.replay(**rec.window)
+        assert summary["samples"] > 10
+        s = arm.state()
+        assert s.joints is not None and np.allclose(s.joints[:6], jogged[:6], atol=1e-3)
+    assert rig.sim_alarms() == []
+
+
+def test_the_janome_backend_refuses_a_trajectory_by_name(tmp_path: Path) -> None:
+    with running_janome_rig(tmp_path) as (janome, _):
+        h = janome.lease()
+        r = janome.http.post("/api/trajectory", json={"joints": [[0.0, 0.0, 0.0, 0.0]]}, headers=h)
+        assert r.status_code == 422 and "not supported by the Janome backend" in r.text, r.text
+
+
+def _scaled(tables: LimitTables, factor: float) -> LimitTables:
+    """The same tables with every acceleration and jerk stage times ``factor`` (a controller that is
+    stricter than the profile's defaults)."""
+    def axis(t: AxisTable) -> AxisTable:
+        return AxisTable(tuple(v * factor for v in t.no_payload), tuple(v * factor for v in t.max_payload))
+
+    vel, acc, jerk = tables.tables
+    return replace(tables, tables=(vel, tuple(axis(t) for t in acc), tuple(axis(t) for t in jerk)))
+
+
+def test_a_replay_keeps_the_controllers_own_tables_when_they_are_tighter(rig: Rig, tmp_path: Path) -> None:
+    """The plan is timed for the tables the controller sent at the stream's start, not the profile's:
+    against a controller whose acceleration and jerk limits are 0.3 of the defaults the same waypoints
+    take longer and still replay to the end with zero alarms (planned for the defaults, they would ask
+    for more than this controller allows)."""
+    waypoints = [[25.0, 15.0, -5.0, 10.0, -70.0, 30.0], [-20.0, 5.0, -15.0, -10.0, -90.0, -20.0]]
+    h = at_home(rig)
+    r = rig.http.post("/api/trajectory", headers=h, json={"joints": waypoints})
+    assert r.status_code == 200, r.text
+    default_duration = r.json()["detail"]["duration_s"]
+    rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "done" and s["at_rest"], 20.0, "done")
+
+    tight = _scaled(default_tables(load_profile("lrmate200id")), 0.3)
+    with running_rig(tmp_path, sim_options={"tables": tight}) as strict:
+        h = at_home(strict)
+        assert strict.state()["tables_from_controller"]
+        r = strict.http.post("/api/trajectory", headers=h, json={"joints": waypoints})
+        assert r.status_code == 200, r.text
+        assert r.json()["detail"]["duration_s"] > 1.2 * default_duration
+        s = strict.wait(lambda s: (s.get("trajectory") or {}).get("state") == "done" and s["at_rest"], 30.0,
+                        "the replay done")
+        assert np.allclose(s["q_cmd"][:6], waypoints[-1], atol=1e-3)
+        assert strict.sim_alarms() == []
