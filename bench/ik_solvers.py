@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import shlex
 import sys
 import time
 import warnings
@@ -186,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     text = table(results)
     print(text)
     if not args.no_write:
-        command = ".venv/bin/python bench/ik_solvers.py " + " ".join(argv if argv is not None else sys.argv[1:])
+        command = ".venv/bin/python bench/ik_solvers.py " + shlex.join(argv if argv is not None else sys.argv[1:])
         print(f"written to {write_results(text, command.strip(), args.section)}")
     return 0
 
