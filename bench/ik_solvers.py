@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import shlex
 import sys
 import time
 import warnings
@@ -32,8 +33,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 from results import write_section  # noqa: E402
 
-sys.path.insert(0, str(ROOT))
-
+# servo_app from PYTHONPATH (or the installed package), not from this file's tree: bench/ab.py runs this
+# script in the base revision's tree too, with that tree on PYTHONPATH.
 from servo_app.motion.commands import Twist  # noqa: E402
 from servo_app.motion.diffik import DifferentialIK  # noqa: E402
 from servo_app.motion.qp import PersistentQP  # noqa: E402
@@ -186,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     text = table(results)
     print(text)
     if not args.no_write:
-        command = ".venv/bin/python bench/ik_solvers.py " + " ".join(argv if argv is not None else sys.argv[1:])
+        command = ".venv/bin/python bench/ik_solvers.py " + shlex.join(argv if argv is not None else sys.argv[1:])
         print(f"written to {write_results(text, command.strip(), args.section)}")
     return 0
 

@@ -63,6 +63,7 @@ from servo_app.motion.ik_limits import (
     braking_speed,
     default_collision_pairs,
     fanuc_rate_matrix,
+    jacobian_tree,
 )
 from servo_app.motion.qp import PersistentQP, QpSettings, SolverName
 from servo_app.robots.configuration import ArmConfiguration
@@ -550,6 +551,8 @@ class DifferentialIK:
         sl = [slice(int(a), int(b)) for a, b in itertools.pairwise(starts)]
         g = np.zeros((m, model.nv))
         h = np.full(m, np.inf)
+        self._cfg_qpos, self._cfg_gain = np.zeros(0, dtype=np.int64), 0.0  # no rows: the kernel writes none
+        self._cfg_upper = self._cfg_lower = np.zeros(0)
         if n_cfg:
             g[sl[0]] = np.vstack([cfg_lim.projection_matrix, -cfg_lim.projection_matrix])
             idx = qpos_of_dof[cfg_lim.indices]
@@ -576,10 +579,16 @@ class DifferentialIK:
             flags[sl[5]] = int(IkFlag.COLLISION)
         self._row_flags = flags
         self._mark_configuration_rows()
-        # Scratch of the cycle (no allocation there): the TCP's world Jacobian (and views of its
-        # linear and angular rows for mj_jacSite), the flange's, the objective and its optimum.
+        # Scratch of the cycle (no allocation there): the TCP's world Jacobian, the flange's (and views
+        # of its linear and angular rows for mj_jacSite), the objective and its optimum.
         self._jac_world = np.zeros((6, model.nv))
-        self._jac_world_lin, self._jac_world_ang = self._jac_world[:3], self._jac_world[3:]
+        # The configuration's MjData arrays the kernels read, as views made once (each attribute read
+        # of an MjData makes a new array object), and the tree its Jacobians walk (mj_jac's).
+        data = self.configuration.data
+        self._view = types.SimpleNamespace(qpos=data.qpos, site_xmat=data.site_xmat, site_xpos=data.site_xpos,
+                                           cdof=data.cdof, subtree_com=data.subtree_com)
+        self._tree, self._dof_parentid = jacobian_tree(model)
+        self._site_bodyid = model.site_bodyid
         self._jac_flange = np.zeros((6, model.nv))
         self._jac_flange_lin, self._jac_flange_ang = self._jac_flange[:3], self._jac_flange[3:]
         self._cond_work = np.zeros((6, model.nv))
@@ -598,11 +607,12 @@ class DifferentialIK:
         self._d = np.zeros((2, N))  # the optimum toward the target, and the pull-back (see step)
         self._rhs = np.zeros((N, 2))
         self._zero = np.zeros(N)
-        # The row blocks' views, for the kernels that fill them.
-        self._h_cfg = h[sl[0]]
-        self._h_acc = h[sl[2]]
-        self._h_brk, self._hp_brk = h[sl[3]], self._hp[sl[3]]
-        self._h_head, self._hp_head = h[: sl[3].start], self._hp[: sl[3].start]
+        # Where the row blocks start, for the kernel that fills them (limit_rows: the same path for the
+        # braking rows and the configuration guard's row), and the guard's row of G.
+        if self.braking_limit.path is not self.path_braking or self.config_guard.path is not self.path_braking:
+            raise ValueError("the braking limit and the configuration guard must brake along the IK's path")
+        self._row_starts = np.array([sl[2].start, sl[3].start, sl[4].start], dtype=np.int64)
+        self._g_guard = g[sl[4].start]
         if n_col:
             self._g_col, self._h_col, self._hp_col = g[sl[5]], h[sl[5]], self._hp[sl[5]]
 
@@ -612,17 +622,19 @@ class DifferentialIK:
         ``h_path``: ``h`` with the braking rows of the limits that brake the whole path together
         (their ``h_path``). Reads the same state the limits' own rows read (the configuration's qpos,
         ``accel_limit.dq_prev``, ``path_braking``), so both stay interchangeable."""
-        g, h, hp, sl, dt = self._g, self._h, self._hp, self._sl, self.dt
+        g, h, hp, dt = self._g, self._h, self._hp, self.dt
         data = self.configuration.data
-        qpos = data.qpos  # model order is qpos order (checked by _layout)
-        if self._row_counts[0]:  # mink's ConfigurationLimit: gain * (upper - q), gain * (q - lower)
-            kernels.configuration_limit_rows(self._cfg_gain, self._cfg_upper, self._cfg_lower, self._cfg_qpos,
-                                             qpos, self._h_cfg)
-        self.accel_limit.fill(dt, self._h_acc)
-        self.braking_limit.fill(qpos, dt, self._h_brk, self._hp_brk)
-        i = sl[4].start
-        h[i], hp[i] = self.config_guard.fill(qpos, dt, g[i])
-        self._hp_head[:] = self._h_head  # rows without a path version: h_path = h
+        qpos = self._view.qpos  # model order is qpos order (checked by _layout)
+        accel, path = self.accel_limit, self.path_braking
+        with_path = path.u is not None
+        # One kernel for the rows the limits' own fill() give (mink's ConfigurationLimit: gain * (upper
+        # - q), gain * (q - lower); acceleration; braking; the configuration guard): calling them one
+        # by one, with their Python between, cost three times as much.
+        kernels.limit_rows(qpos, dt, self._cfg_gain, self._cfg_upper, self._cfg_lower, self._cfg_qpos,
+                           accel.c, accel.dq_prev, *accel.bounds(dt), accel.velocity_bound,
+                           *self.braking_limit.row_data(), with_path, path.u if path.u is not None else qpos,
+                           path.rate if with_path else 0.0, path.floor, *self.config_guard.row_data(qpos),
+                           self._g_guard, self._row_starts, h, hp)
         if self.collision_limit is not None:
             self.collision_limit.fill(data, qpos, dt, self._g_col, self._h_col, self._hp_col)
         return g, h, hp
@@ -647,19 +659,18 @@ class DifferentialIK:
         """(P, c) of mink's frame task toward ``target`` plus the posture task, with our damping, at
         the current configuration, in one kernel; its optimum is left in ``self._d`` (row 0), and
         with a reference pose ``ref`` the pull-back toward it (row 1; see ``step``)."""
-        data = self.configuration.data
+        view = self._view
         sid = self._site_id
-        mujoco.mj_jacSite(self.model, data, self._jac_world_lin, self._jac_world_ang, sid)
         pt = self.posture_task
         if pt.target_q is not self._posture_src:  # set_target stores a new array: model order, once
             assert pt.target_q is not None
             self._posture_src = pt.target_q
-            self._posture_goal = np.ascontiguousarray(pt.target_q[self._qadr], dtype=float)
-        ok = kernels.cartesian_objective(
-            data.site_xmat[sid], data.site_xpos[sid], self._jac_world, target, ref if ref is not None else target,
-            ref is not None, self._frame_cost, self._frame_gain, self._posture_cost, self._posture_gain,
-            self._posture_goal, data.qpos, self.settings.damping, self._correction_gain, self._p, self._c,
-            self._c_frame, self._weighted_jac, self._d)
+            self._posture_goal = np.ascontiguousarray(pt.target_q, dtype=float)  # qpos order is model order
+        ok = kernels.site_objective(
+            view.cdof, view.subtree_com, self._tree, self._dof_parentid, int(self._site_bodyid[sid]), view.site_xmat,
+            view.site_xpos, sid, self._jac_world, target, ref if ref is not None else target, ref is not None,
+            self._frame_cost, self._frame_gain, self._posture_cost, self._posture_gain, self._posture_goal, view.qpos,
+            self.settings.damping, self._correction_gain, self._p, self._c, self._c_frame, self._weighted_jac, self._d)
         if not ok:
             raise np.linalg.LinAlgError("the IK objective's Hessian is not positive definite")
         return self._p, self._c

@@ -4,11 +4,13 @@ Why: between its MuJoCo calls and the solve, the IK cycle was hundreds of numpy 
 (1-2 us each here); each kernel below replaces a group of them with one call (~0.5 us). Pure math,
 no I/O, every output written into arrays the caller allocated once.
 
-Numbers: the limit rows (:func:`acceleration_rows`, :func:`braking_rows`, :func:`configuration_limit_rows`)
-repeat the reference's float operations in its order, so they equal mink's / the limits'
-``compute_qp_inequalities`` to the bit (``tests/test_diffik_equivalence.py``). The rest (objective,
-solve, condition number, poses) equals the numpy / MuJoCo / mink code it replaces within rounding
-(``tests/test_ik_kernels.py`` compares each with a numpy oracle).
+Numbers: the limit rows (:func:`acceleration_rows`, :func:`braking_rows`, :func:`configuration_limit_rows`,
+:func:`limit_rows`, :func:`collision_rows`) repeat the reference's float operations in its order, so they
+equal mink's / the limits' ``compute_qp_inequalities`` to the bit (``tests/test_diffik_equivalence.py``),
+and so do the Jacobians :func:`point_jacobian` / :func:`site_objective` make (``mj_jac``'s operations).
+The rest (objective, solve, condition number, poses, distances, path bounds) equals the numpy /
+MuJoCo / mink code it replaces within rounding (``tests/test_ik_kernels.py`` and
+``tests/test_ik_collision_kernels.py`` compare each with an oracle).
 
 Poses are 7-vectors as mink's SE3 stores them: unit quaternion (w x y z), then position (m).
 """
@@ -658,3 +660,324 @@ def shoulder_row(q: np.ndarray, a1: float, a2: float, a3: float, d4: float, shou
     d = distance if distance > 0.0 else 0.0
     h = dt * (brake_acc * (math.sqrt(horizon * horizon + 2.0 * d / brake_acc) - horizon))
     return h, distance, g1, g2
+
+
+# ------------------------------------------------------------------------ collision broad phase
+# Geom shapes the broad phase knows exactly (geom_size as MuJoCo stores it): a sphere or a capsule is
+# a segment (half length along the geom's z, 0 for a sphere) swept by its radius; a plane is the
+# half-space below its z axis. Any other shape is bounded by its bounding sphere (rbound).
+SHAPE_SEGMENT = 0
+SHAPE_PLANE = 1
+SHAPE_OTHER = 2
+
+
+@kernel("float64(float64[:, ::1], float64[:, ::1], int64, float64, int64, float64)")
+def segment_distance(xpos: np.ndarray, xmat: np.ndarray, g1: int, half1: float, g2: int, half2: float) -> float:
+    """Distance between the segments of geoms ``g1`` and ``g2`` (centre ``xpos[g]``, half length
+    ``half`` along the z column of ``xmat[g]``): the closest points by clamped parameters (Ericson,
+    Real-Time Collision Detection, 5.1.9)."""
+    p1x = xpos[g1, 0] - half1 * xmat[g1, 2]
+    p1y = xpos[g1, 1] - half1 * xmat[g1, 5]
+    p1z = xpos[g1, 2] - half1 * xmat[g1, 8]
+    d1x, d1y, d1z = 2.0 * half1 * xmat[g1, 2], 2.0 * half1 * xmat[g1, 5], 2.0 * half1 * xmat[g1, 8]
+    p2x = xpos[g2, 0] - half2 * xmat[g2, 2]
+    p2y = xpos[g2, 1] - half2 * xmat[g2, 5]
+    p2z = xpos[g2, 2] - half2 * xmat[g2, 8]
+    d2x, d2y, d2z = 2.0 * half2 * xmat[g2, 2], 2.0 * half2 * xmat[g2, 5], 2.0 * half2 * xmat[g2, 8]
+    rx, ry, rz = p1x - p2x, p1y - p2y, p1z - p2z
+    a = d1x * d1x + d1y * d1y + d1z * d1z
+    e = d2x * d2x + d2y * d2y + d2z * d2z
+    f = d2x * rx + d2y * ry + d2z * rz
+    tiny = 1e-300
+    s = 0.0
+    t = 0.0
+    if a <= tiny and e <= tiny:
+        pass
+    elif a <= tiny:
+        t = min(max(f / e, 0.0), 1.0)
+    else:
+        c = d1x * rx + d1y * ry + d1z * rz
+        if e <= tiny:
+            s = min(max(-c / a, 0.0), 1.0)
+        else:
+            b = d1x * d2x + d1y * d2y + d1z * d2z
+            denom = a * e - b * b
+            if denom > 0.0:
+                s = min(max((b * f - c * e) / denom, 0.0), 1.0)
+            t = (b * s + f) / e
+            if t < 0.0:
+                t = 0.0
+                s = min(max(-c / a, 0.0), 1.0)
+            elif t > 1.0:
+                t = 1.0
+                s = min(max((b - c) / a, 0.0), 1.0)
+    x = rx + d1x * s - d2x * t
+    y = ry + d1y * s - d2y * t
+    z = rz + d1z * s - d2z * t
+    return math.sqrt(x * x + y * y + z * z)
+
+
+@kernel("float64(float64[:, ::1], float64[:, ::1], int64, int64, float64)")
+def plane_segment_distance(xpos: np.ndarray, xmat: np.ndarray, plane: int, g: int, half: float) -> float:
+    """Signed distance from the plane geom ``plane`` (its z axis the normal) to the nearer end of geom
+    ``g``'s segment (half length ``half`` along its z axis)."""
+    nx, ny, nz = xmat[plane, 2], xmat[plane, 5], xmat[plane, 8]
+    centre = (nx * (xpos[g, 0] - xpos[plane, 0]) + ny * (xpos[g, 1] - xpos[plane, 1])
+              + nz * (xpos[g, 2] - xpos[plane, 2]))
+    along = half * abs(nx * xmat[g, 2] + ny * xmat[g, 5] + nz * xmat[g, 8])
+    return centre - along
+
+
+@kernel("int64(int64[::1], float64[::1], float64[::1], float64[::1], int64[::1], int64[::1], boolean[::1], "
+        "float64[:, ::1], float64[:, ::1], float64, float64, float64[::1], int64[::1], float64[:, ::1], float64[::1], "
+        "float64[::1])")
+def collision_screen(shape: np.ndarray, radius: np.ndarray, half: np.ndarray, rbound: np.ndarray, g1: np.ndarray,
+                     g2: np.ndarray, exact: np.ndarray, xpos: np.ndarray, xmat: np.ndarray, tol: float,
+                     distmax: float, lower_bound: np.ndarray, candidates: np.ndarray, g: np.ndarray, h: np.ndarray,
+                     h_path: np.ndarray) -> int:
+    """A lower bound on each geom pair's distance into ``lower_bound``, and the ``exact`` pairs that
+    may be within ``distmax`` into ``candidates`` (their count returned). Every pair's row is reset to
+    inactive (``g`` row 0, ``h = h_path = inf``) for :func:`collision_rows` to fill.
+
+    ``exact`` pairs (two segments, or a plane and a segment): their distance (segments: radii
+    subtracted) less ``tol``, the allowance for the narrow phase's own error. Others: MuJoCo's
+    bounding-sphere bound (centre distance less both rbound; with a plane: the other centre's height
+    less its rbound), -inf when a geom is unbounded. Per geom: ``shape`` (``SHAPE_*``), segment
+    ``radius`` and ``half`` length, ``rbound``; per pair ``g1``, ``g2``; the geoms' world poses ``xpos``
+    and ``xmat`` (MuJoCo's ``geom_xpos``, ``geom_xmat``)."""
+    count = 0
+    for k in range(len(g1)):
+        for j in range(g.shape[1]):
+            g[k, j] = 0.0
+        h[k] = math.inf
+        h_path[k] = math.inf
+        a, b = g1[k], g2[k]
+        if exact[k]:
+            if shape[a] == SHAPE_PLANE:
+                lb = plane_segment_distance(xpos, xmat, a, b, half[b]) - radius[b]
+            elif shape[b] == SHAPE_PLANE:
+                lb = plane_segment_distance(xpos, xmat, b, a, half[a]) - radius[a]
+            else:
+                lb = segment_distance(xpos, xmat, a, half[a], b, half[b]) - radius[a] - radius[b]
+            lb -= tol
+            if lb <= distmax:
+                candidates[count] = k
+                count += 1
+        elif rbound[a] > 0.0 and rbound[b] > 0.0:
+            dx, dy, dz = xpos[a, 0] - xpos[b, 0], xpos[a, 1] - xpos[b, 1], xpos[a, 2] - xpos[b, 2]
+            lb = math.sqrt(dx * dx + dy * dy + dz * dz) - rbound[a] - rbound[b]
+        elif shape[a] == SHAPE_PLANE and rbound[b] > 0.0:
+            lb = plane_segment_distance(xpos, xmat, a, b, 0.0) - rbound[b]
+        elif shape[b] == SHAPE_PLANE and rbound[a] > 0.0:
+            lb = plane_segment_distance(xpos, xmat, b, a, 0.0) - rbound[a]
+        else:
+            lb = -math.inf
+        lower_bound[k] = lb
+    return count
+
+
+@kernel("void(float64[:, ::1], float64[:, ::1], float64[:, ::1], int64[:, ::1], int64[::1], float64[::1], int64)")
+def point_jacobian(out: np.ndarray, cdof: np.ndarray, subtree_com: np.ndarray, tree: np.ndarray,
+                   dof_parentid: np.ndarray, point: np.ndarray, body: int) -> None:
+    """The translational Jacobian (3 x nv) of the world ``point`` fixed to ``body`` into ``out``, as
+    ``mj_jac`` makes it (the same operations: equal to the bit): per dof up the chain,
+    ``cdof[3:] + cdof[:3] x (point - subtree_com[root])``. ``cdof`` and ``subtree_com`` from ``mj_comPos``;
+    ``tree`` rows (per body): ``body_rootid``, ``body_dofnum``, ``body_dofadr``, ``body_parentid``."""
+    for r in range(3):
+        for j in range(out.shape[1]):
+            out[r, j] = 0.0
+    root = tree[0, body]
+    ox = point[0] - subtree_com[root, 0]
+    oy = point[1] - subtree_com[root, 1]
+    oz = point[2] - subtree_com[root, 2]
+    while body > 0 and tree[1, body] == 0:  # fixed bodies move with their parent
+        body = tree[3, body]
+    if body == 0:
+        return
+    i = tree[2, body] + tree[1, body] - 1
+    while i >= 0:
+        a0, a1, a2 = cdof[i, 0], cdof[i, 1], cdof[i, 2]
+        out[0, i] = cdof[i, 3] + (a1 * oz - a2 * oy)
+        out[1, i] = cdof[i, 4] + (a2 * ox - a0 * oz)
+        out[2, i] = cdof[i, 5] + (a0 * oy - a1 * ox)
+        i = dof_parentid[i]
+
+
+@kernel("UniTuple(float64, 2)(float64[::1], float64[:, ::1], float64[:, ::1], int64[:, ::1], int64[::1], int64, "
+        "int64, float64[:, ::1], float64[:, ::1], float64, float64, float64, float64, float64, float64, float64, "
+        "boolean, float64[::1], float64, float64, float64[::1])")
+def collision_row(fromto: np.ndarray, cdof: np.ndarray, subtree_com: np.ndarray, tree: np.ndarray,
+                  dof_parentid: np.ndarray, body1: int, body2: int, jac1: np.ndarray, jac2: np.ndarray, dist: float,
+                  gain: float, min_dist: float, relax: float, brake_acc: float, dt: float, horizon: float,
+                  with_path: bool, u: np.ndarray, rate: float, floor: float, row: np.ndarray) -> tuple[float, float]:
+    """A collision pair's row from the narrow phase (distance ``dist``, closest points ``fromto``, on
+    ``body1`` and ``body2``): the coefficients into ``row``, ``(h, h_path)`` returned (see
+    ``CollisionLimit``). ``jac1``, ``jac2``: scratch (3 x nv); the rest as :func:`point_jacobian`.
+
+    The coefficients repeat mink's operations as MuJoCo makes them (``mju_normalize3`` of
+    ``to - from``, ``mj_jac`` at both points, ``jac2 - jac1``, the product with the normal summed
+    over its rows in order, skipping zero components, as ``mju_mulMatTVec``), so they equal mink's
+    to the bit; the bounds are the float arithmetic of ``braking_speed_scalar`` and
+    ``PathBraking.decel_scalar``."""
+    nx, ny, nz = fromto[3] - fromto[0], fromto[4] - fromto[1], fromto[5] - fromto[2]
+    norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if norm < _MINVAL:
+        nx, ny, nz = 1.0, 0.0, 0.0
+    else:
+        inv = 1.0 / norm
+        nx, ny, nz = nx * inv, ny * inv, nz * inv
+    point_jacobian(jac2, cdof, subtree_com, tree, dof_parentid, fromto[3:], body2)
+    point_jacobian(jac1, cdof, subtree_com, tree, dof_parentid, fromto[:3], body1)
+    flip = dist >= 0.0  # mink's sign: the distance must not shrink (penetrating: must grow)
+    along = 0.0
+    for j in range(row.shape[0]):
+        acc = 0.0
+        if nx != 0.0:
+            acc += (jac2[0, j] - jac1[0, j]) * nx
+        if ny != 0.0:
+            acc += (jac2[1, j] - jac1[1, j]) * ny
+        if nz != 0.0:
+            acc += (jac2[2, j] - jac1[2, j]) * nz
+        row[j] = -acc if flip else acc
+        along += row[j] * u[j]
+    h0 = (gain * (dist - min_dist) / 1.0) + relax if dist > min_dist else relax
+    gap = (h0 - relax) / gain
+    t2 = horizon * horizon
+    d = gap if gap > 0.0 else 0.0
+    h = min(h0, dt * (brake_acc * (math.sqrt(t2 + 2.0 * d / brake_acc) - horizon)) + relax)
+    if not with_path:
+        return h, h0
+    acc = min(brake_acc, max(rate * abs(along), floor * brake_acc))
+    return h, min(h0, dt * (acc * (math.sqrt(t2 + 2.0 * d / acc) - horizon)) + relax)
+
+
+@kernel("void(int64, int64[::1], float64[::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], int64[:, ::1], "
+        "int64[::1], int64[::1], int64[::1], float64[:, ::1], float64[:, ::1], float64, float64, float64, float64, "
+        "float64, float64, boolean, float64[::1], float64, float64, float64[:, ::1], float64[::1], float64[::1])")
+def collision_rows(count: int, pairs: np.ndarray, dists: np.ndarray, fromtos: np.ndarray, cdof: np.ndarray,
+                   subtree_com: np.ndarray, tree: np.ndarray, dof_parentid: np.ndarray, body1: np.ndarray,
+                   body2: np.ndarray, jac1: np.ndarray, jac2: np.ndarray, gain: float, min_dist: float, relax: float,
+                   brake_acc: float, dt: float, horizon: float, with_path: bool, u: np.ndarray, rate: float,
+                   floor: float, g: np.ndarray, h: np.ndarray, h_path: np.ndarray) -> None:
+    """:func:`collision_row` for the first ``count`` of ``pairs`` (their narrow phases' ``dists`` and
+    ``fromtos``; bodies per pair ``body1``, ``body2``), into their rows of ``g``, ``h`` and ``h_path``."""
+    for k in range(count):
+        idx = pairs[k]
+        h[idx], h_path[idx] = collision_row(fromtos[k], cdof, subtree_com, tree, dof_parentid, body1[idx],
+                                            body2[idx], jac1, jac2, dists[k], gain, min_dist, relax, brake_acc, dt,
+                                            horizon, with_path, u, rate, floor, g[idx])
+
+
+@kernel("boolean(float64[:, ::1], float64[:, ::1], int64[:, ::1], int64[::1], int64, float64[:, ::1], "
+        "float64[:, ::1], int64, float64[:, ::1], float64[::1], float64[::1], boolean, float64[::1], float64, "
+        "float64[::1], float64, float64[::1], float64[::1], float64, float64, float64[:, ::1], float64[::1], "
+        "float64[::1], float64[:, ::1], float64[:, ::1])")
+def site_objective(cdof: np.ndarray, subtree_com: np.ndarray, tree: np.ndarray, dof_parentid: np.ndarray,
+                   body: int, site_xmat: np.ndarray, site_xpos: np.ndarray, site: int, jac_world: np.ndarray,
+                   target: np.ndarray, ref: np.ndarray, with_ref: bool, frame_cost: np.ndarray, frame_gain: float,
+                   posture_cost: np.ndarray, posture_gain: float, posture_goal: np.ndarray, q: np.ndarray,
+                   damping: float, correction_gain: float, p: np.ndarray, c: np.ndarray, c_frame: np.ndarray,
+                   wjac: np.ndarray, d: np.ndarray) -> bool:
+    """:func:`cartesian_objective` of the frame task on ``site`` (of ``body``), its world Jacobian made
+    here into ``jac_world`` as ``mj_jacSite`` makes it (:func:`point_jacobian` at the site for the
+    linear rows, ``cdof``'s angular part for the angular rows: equal to the bit)."""
+    point_jacobian(jac_world[:3], cdof, subtree_com, tree, dof_parentid, site_xpos[site], body)
+    for j in range(jac_world.shape[1]):
+        jac_world[3, j] = 0.0
+        jac_world[4, j] = 0.0
+        jac_world[5, j] = 0.0
+    b = body
+    while b > 0 and tree[1, b] == 0:
+        b = tree[3, b]
+    if b > 0:
+        i = tree[2, b] + tree[1, b] - 1
+        while i >= 0:
+            jac_world[3, i] = cdof[i, 0]
+            jac_world[4, i] = cdof[i, 1]
+            jac_world[5, i] = cdof[i, 2]
+            i = dof_parentid[i]
+    return cartesian_objective(site_xmat[site], site_xpos[site], jac_world, target, ref, with_ref, frame_cost,
+                               frame_gain, posture_cost, posture_gain, posture_goal, q, damping, correction_gain,
+                               p, c, c_frame, wjac, d)
+
+
+# ------------------------------------------------------------------------------------- QP data
+@kernel("boolean(float64[:, ::1], float64[::1], float64[:, ::1], float64[::1], float64, float64, float64[::1], "
+        "float64[::1])")
+def scaled_qp_data(p: np.ndarray, q: np.ndarray, g: np.ndarray, h: np.ndarray, scale: float, cap: float,
+                   q_out: np.ndarray, h_out: np.ndarray) -> bool:
+    """:class:`~servo_app.motion.qp.PersistentQP`'s data in the solver's units: ``q / scale`` into
+    ``q_out``, ``min(h / scale, cap)`` into ``h_out`` (``+inf`` rows: the solver's infinity ``cap``).
+    False when ``p``, ``q`` or ``g`` has a non-finite entry or ``h`` a NaN (outputs then undefined)."""
+    for i in range(p.shape[0]):
+        for j in range(p.shape[1]):
+            if not math.isfinite(p[i, j]):
+                return False
+    for i in range(g.shape[0]):
+        for j in range(g.shape[1]):
+            if not math.isfinite(g[i, j]):
+                return False
+    for i in range(len(q)):
+        x = q[i] / scale
+        if not math.isfinite(x):
+            return False
+        q_out[i] = x
+    for i in range(len(h)):
+        x = h[i] / scale
+        if math.isnan(x):
+            return False
+        h_out[i] = cap if cap < x else x
+    return True
+
+
+# ------------------------------------------------------------------------------ all limit rows
+@kernel("void(float64[::1], float64, "
+        "float64, float64[::1], float64[::1], int64[::1], "
+        "float64[:, ::1], float64[::1], float64[::1], float64[::1], boolean[::1], "
+        "float64[::1], float64[::1], float64[::1], int64[::1], float64, "
+        "boolean, float64[::1], float64, float64, "
+        "float64[::1], float64, float64, boolean, float64, int64[::1], float64[::1], "
+        "int64[::1], float64[::1], float64[::1])")
+def limit_rows(q: np.ndarray, dt: float,
+               cfg_gain: float, cfg_upper: np.ndarray, cfg_lower: np.ndarray, cfg_qpos: np.ndarray,
+               c: np.ndarray, dq_prev: np.ndarray, vmax: np.ndarray, da: np.ndarray, velocity_bound: np.ndarray,
+               bound: np.ndarray, brake_acc2: np.ndarray, brake: np.ndarray, cols: np.ndarray, brake_lag: float,
+               with_path: bool, u: np.ndarray, rate: float, floor: float,
+               arm: np.ndarray, shoulder_m: float, shoulder_acc: float, top: bool, guard_lag: float,
+               guard_cols: np.ndarray, g_guard: np.ndarray,
+               starts: np.ndarray, h: np.ndarray, h_path: np.ndarray) -> None:
+    """Every limit row of the diff-IK's QP but the collision rows, in one call, into ``h`` and
+    ``h_path`` (the whole arrays; ``starts``: the acceleration block's first row, the braking block's,
+    the configuration guard's row) and the guard's coefficients into ``g_guard``:
+
+    - mink's ``ConfigurationLimit`` bounds from row 0 (:func:`configuration_limit_rows`);
+    - ``AccelerationLimit`` (:func:`acceleration_rows`), ``BrakingLimit`` (:func:`braking_rows`, with
+      the path's deceleration ``with_path``: direction ``u``, ``rate``, ``floor``);
+    - ``ConfigurationGuard``'s row (:func:`shoulder_row`; ``arm``: a1, a2, a3, d4; ``guard_cols``: the
+      dof columns of q2 and q3), its path bound as ``PathBraking.decel_scalar`` and
+      ``braking_speed_scalar`` give it;
+    - ``h_path = h`` on the rows before the braking block (they have no path version).
+
+    The same kernels the limits' own ``fill`` call, so the same numbers to the bit."""
+    k = len(cfg_qpos)
+    acc_at, brk_at, guard_at = starts[0], starts[1], starts[2]
+    n = len(dq_prev)
+    configuration_limit_rows(cfg_gain, cfg_upper, cfg_lower, cfg_qpos, q, h[: 2 * k])
+    acceleration_rows(c, dq_prev, vmax, da, h[acc_at: acc_at + 2 * n], velocity_bound)
+    braking_rows(bound, brake_acc2, brake, cols, q, dt, brake_lag, with_path, u if with_path else q, rate, floor,
+                 h[brk_at: brk_at + 2 * n], h_path[brk_at: brk_at + 2 * n])
+    col2, col3 = guard_cols[0], guard_cols[1]
+    hg, distance, g1, g2 = shoulder_row(q, arm[0], arm[1], arm[2], arm[3], shoulder_m, shoulder_acc, top, dt,
+                                        guard_lag, col2, col3, g_guard)
+    h[guard_at] = hg
+    if with_path:
+        x = rate * abs(g1 * u[col2] + g2 * u[col3])
+        fc = floor * shoulder_acc
+        acc = min(shoulder_acc, max(x, fc))
+        horizon = dt + guard_lag
+        d = distance if distance > 0.0 else 0.0
+        h_path[guard_at] = dt * (acc * (math.sqrt(horizon * horizon + 2.0 * d / acc) - horizon))
+    else:
+        h_path[guard_at] = hg
+    for i in range(brk_at):
+        h_path[i] = h[i]

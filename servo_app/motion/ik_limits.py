@@ -166,12 +166,18 @@ class AccelerationLimit(Limit):
 
         The lower bounds negated are the upper bounds of ``-p``: ``-max(min(-v, p + a), p - a) ==
         min(max(v, -p - a), -p + a)`` (negation is exact)."""
+        vmax, da = self.bounds(dt)
+        kernels.acceleration_rows(self.c, self.dq_prev, vmax, da, h, self.velocity_bound)
+
+    def bounds(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(vel * dt, acc * dt**2)`` as the reference rounds them, computed when ``dt`` changes (and
+        ``h_velocity`` with them): the per-cycle inputs of the rows' kernel."""
         if self._dt != dt:
             self._dt = dt
             self._vmax = self.vel * dt
             self._da = self.acc * dt * dt  # as the reference rounds it
             self.h_velocity = np.concatenate([self._vmax, self._vmax])
-        kernels.acceleration_rows(self.c, self.dq_prev, self._vmax, self._da, h, self.velocity_bound)
+        return self._vmax, self._da
 
 
 class BrakingLimit(Limit):
@@ -246,6 +252,11 @@ class BrakingLimit(Limit):
         kernels.braking_rows(self._bound, self._acc, self.brake_acc, self._cols_i64, q, dt, self.lag_s, with_path,
                              u, rate, floor, h, h_path)
 
+    def row_data(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+        """What :func:`~servo_app.motion.ik_kernels.braking_rows` takes from this limit: the bounds
+        (upper, then lower negated), the deceleration per row and per joint, the dof columns, ``lag_s``."""
+        return self._bound, self._acc, self.brake_acc, self._cols_i64, self.lag_s
+
 
 @dataclass(frozen=True)
 class ConfigurationMargins:
@@ -294,6 +305,8 @@ class ConfigurationGuard(Limit):
         self._cols = _dof_columns(model)
         self._g = np.zeros((1, model.nv))
         self.h_path = np.full(1, np.inf)
+        self._arm = np.array([kin.a1, kin.a2, kin.a3, kin.d4], dtype=float)  # the arm's (a tool moves only the TCP)
+        self._guard_cols = np.ascontiguousarray(self._cols[1:3], dtype=np.int64)
         self.reference: ArmConfiguration | None = None
         if q_ref is not None:
             self.reset(q_ref)
@@ -343,6 +356,16 @@ class ConfigurationGuard(Limit):
             h_path = dt * braking_speed_scalar(distance, acc, dt + self.lag_s)
         return h, h_path
 
+    def row_data(self, q: np.ndarray) -> tuple[np.ndarray, float, float, bool, float, np.ndarray]:
+        """What :func:`~servo_app.motion.ik_kernels.shoulder_row` takes from this limit at the joints
+        ``q`` (latched as the reference if none is): the arm's a1, a2, a3, d4, the shoulder margin, its
+        braking deceleration, the side (Top), ``lag_s``, the dof columns of q2 and q3."""
+        if self.reference is None:
+            self.reset(q)
+        assert self.reference is not None
+        return (self._arm, self.margins.shoulder_m, self.margins.shoulder_brake_acc, self.reference.top, self.lag_s,
+                self._guard_cols)
+
 
 class CollisionLimit(CollisionAvoidanceLimit):
     """mink's collision avoidance with the per-step units fixed and a braking allowance.
@@ -385,32 +408,56 @@ class CollisionLimit(CollisionAvoidanceLimit):
 
     # ------------------------------------------------------------------ fast rows (the servo cycle)
     # compute_qp_inequalities() runs the narrow phase (mj_geomDistance) on every pair that survives a
-    # bounding-sphere test, each cycle. fill() gives the same rows from far fewer narrow phases. A
-    # pair's distance changes by at most sum_j w_j |dq_j| when the joints move by dq (w_j: how far
-    # joint j's axis is from the geom it turns, 0 for joints upstream of both geoms, which turn the
-    # pair together; see _geom_joint_bounds). So a pair known to be at distance d at joints q0 cannot
-    # be within detection distance while d - sum_j w_j |q_j - q0_j| exceeds it, and needs no narrow
-    # phase: its row is inactive, as the reference's narrow phase would find. A refresh classifies all
-    # pairs (near: within detection distance + cache_margin, measured again whenever they could be
-    # within detection distance; far: a lower bound kept) and is due when a far pair could come near.
+    # bounding-sphere test, each cycle. fill() gives the same rows from far fewer narrow phases:
+    #
+    # - Pairs whose distance is known in closed form (spheres and capsules are segments swept by a
+    #   radius, a plane is a half-space: the arm models' geoms) are screened each cycle by one kernel
+    #   (kernels.collision_screen, ~2 us for all pairs): only those within detection distance (less an
+    #   allowance for the narrow phase's own error) get the reference's narrow phase, which then
+    #   gives the row. No state is kept, so a jump across the workspace costs nothing more.
+    # - Other pairs (boxes, meshes of a cell) are screened by a cache. A pair's distance changes by at
+    #   most sum_j w_j |dq_j| when the joints move by dq (w_j: how far joint j's axis is from the geom
+    #   it turns, 0 for joints upstream of both geoms, which turn the pair together; see
+    #   _geom_joint_bounds). So a pair known to be at distance d at joints q0 cannot be within
+    #   detection distance while d - sum_j w_j |q_j - q0_j| exceeds it, and needs no narrow phase: its
+    #   row is inactive, as the reference's narrow phase would find. A refresh classifies those pairs
+    #   (near: within detection distance + cache_margin, measured again whenever they could be within
+    #   detection distance; far: a lower bound kept) and is due when a far pair could come near.
+
+    # The narrow phase agrees with the closed forms to 1e-15 m here (MuJoCo's own capsule and plane
+    # functions); a convex solver would stop within ccd_tolerance (1e-6 m by default): screen with
+    # ten times that.
+    screen_tolerance = 1e-5  # m
 
     def _init_near_cache(self, model: mujoco.MjModel, margin: float) -> None:
-        pairs = np.array(self.geom_id_pairs, dtype=int).reshape(-1, 2)
+        pairs = np.array(self.geom_id_pairs, dtype=np.int64).reshape(-1, 2)
         self._pair_g1: list[int] = [int(g) for g in pairs[:, 0]]
         self._pair_g2: list[int] = [int(g) for g in pairs[:, 1]]
         self._pair_b1: list[int] = [int(model.geom_bodyid[g]) for g in self._pair_g1]
         self._pair_b2: list[int] = [int(model.geom_bodyid[g]) for g in self._pair_g2]
-        # Per pair and joint: how fast the pair's distance can change with that joint. A joint
+        # The screen kernel's inputs: each geom's shape, segment radius and half length, rbound.
+        self._pair_g1_arr = np.ascontiguousarray(pairs[:, 0])
+        self._pair_g2_arr = np.ascontiguousarray(pairs[:, 1])
+        self._geom_shape, self._geom_radius, self._geom_half = _geom_shapes(model)
+        self._geom_rbound = np.ascontiguousarray(model.geom_rbound, dtype=float)
+        # Pairs the screen knows exactly: two segments, or a plane and a segment.
+        shape = self._geom_shape
+        self._exact = np.array([sorted((int(shape[a]), int(shape[b]))) in _EXACT_KINDS for a, b in pairs], dtype=bool)
+        self._lower_bound = np.zeros(len(pairs))
+        self._candidates = np.zeros(len(pairs), dtype=np.int64)
+        # The cache covers the pairs the screen cannot decide (indices into the pairs).
+        self._cached: list[int] = [int(i) for i in np.flatnonzero(~self._exact)]
+        # Per cached pair and joint: how fast the pair's distance can change with that joint. A joint
         # upstream of both geoms turns them together (no change): only the joints between them count.
         per_joint = _geom_joint_bounds(model)
         weights = np.zeros((len(pairs), model.nv))
-        for i, (g1, g2) in enumerate(pairs):
-            r1, r2 = per_joint[g1], per_joint[g2]
+        for i in self._cached:
+            r1, r2 = per_joint[pairs[i, 0]], per_joint[pairs[i, 1]]
             both = (r1 > 0.0) & (r2 > 0.0)
             weights[i] = np.where(both, 0.0, r1 + r2)
         self._pair_weights = weights
         # Unbounded geoms (rbound 0 on a moving body, e.g. a height field carried by the arm) cannot be
-        # bounded: then every pair is checked every cycle (margin 0: refresh each call).
+        # bounded: then every cached pair is checked every cycle (margin 0: refresh each call).
         self._cache_ok = bool(np.all(np.isfinite(weights))) and margin > 0.0
         self.cache_margin = margin
         self._q_refresh: list[float] | None = None
@@ -418,42 +465,37 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self._near_weights = self._far_weights = np.zeros((0, model.nv))
         self._far_slack = np.zeros(0)
         self._drift = np.zeros(0)
-        self._near: list[int] = []  # pairs within detection distance + margin at the last refresh
+        self._near: list[int] = []  # cached pairs within detection distance + margin at the last refresh
         self._near_dist: list[float] = []  # ... and their distance then
         self._near_q = np.zeros((0, model.nv))
-        self._rows_set: list[int] = []  # rows fill() made active last time (reset to inactive next time)
-        # Views made once for the MuJoCo kernels (the arrays are mink's scratch, kept for the limit's life).
-        self._from_pt, self._to_pt = self._fromto[:3], self._fromto[3:]
-        self._jac1_flat, self._jac2_flat = self._jac1.reshape(-1), self._jac2.reshape(-1)
+        # fill()'s narrow phase results (per pair with a row): the pair, its distance, its closest points.
+        self._row_pairs = np.zeros(len(pairs), dtype=np.int64)
+        self._dists = np.zeros(len(pairs))
+        self._fromtos = np.zeros((len(pairs), 6))
+        self._fromto_rows = list(self._fromtos)  # its rows as views made once, for mj_geomDistance
+        self._pair_b1_arr = np.array(self._pair_b1, dtype=np.int64)
+        self._pair_b2_arr = np.array(self._pair_b2, dtype=np.int64)
+        self._no_direction = np.zeros(model.nv)  # the row kernel's path direction when there is none
+        self._tree, self._dof_parentid = jacobian_tree(model)  # for the row kernel's point Jacobians
+        self._views: tuple[mujoco.MjData | None, tuple[np.ndarray, ...]] = (None, ())
         self.refreshes = 0
 
     def _refresh_near(self, data: mujoco.MjData, q: np.ndarray) -> None:
-        """Classify every pair at the joints ``q``: near (within detection distance + margin: its
+        """Classify every cached pair at the joints ``q``: near (within detection distance + margin: its
         narrow phase runs each cycle, unless it is still provably beyond detection distance) or far,
-        with a lower bound on its distance (bounding spheres, or the narrow phase's cap). The next
-        refresh is due when the joints have moved enough for the closest far pair to reach
-        detection distance."""
+        with a lower bound on its distance (bounding spheres from the screen, or the narrow phase's
+        cap). The next refresh is due when the joints have moved enough for the closest far pair to
+        reach detection distance. ``self._lower_bound`` must be this cycle's screen."""
         model = self.model
         detect = self.collision_detection_distance
         distmax = detect + (self.cache_margin if self._cache_ok else 0.0)
         fromto = self._fromto
-        n = self.max_num_contacts
-        bound = np.full(n, -np.inf)  # lower bound on each pair's distance now (-inf: none known)
-        xpos = data.geom_xpos
-        # mink's bounding-sphere partition (CollisionAvoidanceLimit._init_broadphase; older mink has none:
-        # then every pair gets the narrow phase at a refresh).
-        if len(getattr(self, "_ss_idx", ())):
-            diff = xpos[self._ss_g1] - xpos[self._ss_g2]
-            bound[self._ss_idx] = np.sqrt(np.einsum("ij,ij->i", diff, diff)) - self._ss_rsum
-        if len(getattr(self, "_pg_idx", ())):
-            normal = data.geom_xmat[self._pg_plane][:, [2, 5, 8]]
-            diff = xpos[self._pg_other] - xpos[self._pg_plane]
-            bound[self._pg_idx] = np.einsum("ij,ij->i", normal, diff) - self._pg_rother
+        bound = self._lower_bound
         near: list[int] = []
         near_dist: list[float] = []
         far: list[int] = []
         far_lb: list[float] = []
-        for idx in range(n):
+        for idx in self._cached:
             lb = float(bound[idx])
             if lb <= distmax:
                 dist = mujoco.mj_geomDistance(model, data, self._pair_g1[idx], self._pair_g2[idx], distmax, fromto)
@@ -477,18 +519,52 @@ class CollisionLimit(CollisionAvoidanceLimit):
     def fill(self, data: mujoco.MjData, q: np.ndarray, dt: float, g: np.ndarray, h: np.ndarray,
              h_path: np.ndarray) -> None:
         """``compute_qp_inequalities``' rows and ``h_path`` written into ``g`` (pairs x nv), ``h`` and
-        ``h_path`` (kinematics of ``data`` at the joints ``q`` must be current)."""
-        for idx in self._rows_set:  # last cycle's rows back to inactive (G = 0, h = inf)
-            g[idx] = 0.0
-            h[idx] = math.inf
-            h_path[idx] = math.inf
-        self._rows_set = []
+        ``h_path`` (``data`` at the joints ``q``: ``mj_kinematics`` and ``mj_comPos`` current).
+
+        The screen resets every row and names the exactly known pairs within reach; the narrow phase
+        runs on those (and on the cached pairs the cache cannot rule out); the pairs it finds within
+        detection distance get their rows from one kernel."""
         if not self.max_num_contacts:
             return
+        model = self.model
+        distmax = self.collision_detection_distance
+        if self._views[0] is not data:  # data's arrays as views made once (an attribute read makes a new one)
+            self._views = (data, (data.geom_xpos, data.geom_xmat, data.cdof, data.subtree_com))
+        geom_xpos, geom_xmat, cdof, subtree_com = self._views[1]
+        count = kernels.collision_screen(self._geom_shape, self._geom_radius, self._geom_half, self._geom_rbound,
+                                         self._pair_g1_arr, self._pair_g2_arr, self._exact, geom_xpos, geom_xmat,
+                                         self.screen_tolerance, distmax, self._lower_bound, self._candidates, g, h,
+                                         h_path)
+        rows = 0  # pairs with a row: their index, distance and closest points (the reference's call)
+        row_pairs, dists, fromto_of = self._row_pairs, self._dists, self._fromto_rows
+        for idx in self._candidates[:count].tolist() if count else ():
+            dist = mujoco.mj_geomDistance(model, data, self._pair_g1[idx], self._pair_g2[idx], distmax,
+                                          fromto_of[rows])
+            if abs(dist - distmax) >= 1e-12:
+                row_pairs[rows], dists[rows] = idx, dist
+                rows += 1
+        if self._cached or self._q_refresh is None:  # the first fill sets the cache up, even an empty one
+            rows = self._cached_rows(data, q, rows)
+        if rows:
+            path = self.path
+            with_path = path is not None and path.u is not None
+            kernels.collision_rows(
+                rows, row_pairs, dists, self._fromtos, cdof, subtree_com, self._tree, self._dof_parentid,
+                self._pair_b1_arr, self._pair_b2_arr, self._jac1, self._jac2, self.gain,
+                self.minimum_distance_from_collisions, self.bound_relaxation, self.brake_acc, dt, dt + self.lag_s,
+                with_path, path.u if path is not None and path.u is not None else self._no_direction,
+                path.rate if path is not None and with_path else 0.0, path.floor if path is not None else 0.0,
+                g, h, h_path)
+
+    def _cached_rows(self, data: mujoco.MjData, q: np.ndarray, rows: int) -> int:
+        """The cached pairs' narrow phases: the pairs found within detection distance appended to the
+        rows (from ``rows`` on); the new count returned. Per pair, a bound on how much its distance can
+        have changed since q_refresh: the joints between its two geoms, each turned by
+        ``|q - q_refresh|`` (weights: _geom_joint_bounds); a far pair that could be within detection
+        distance now calls for a refresh."""
+        model = self.model
+        distmax = self.collision_detection_distance
         qr = self._q_refresh
-        # Per pair, a bound on how much its distance can have changed since q_refresh: the joints
-        # between its two geoms, each turned by |q - q_refresh| (weights: _geom_joint_bounds); a far
-        # pair that could be within detection distance now calls for a refresh.
         refresh = qr is None or len(qr) != len(q) or not self._cache_ok
         qa = np.array(q, dtype=float)
         drift = self._drift
@@ -500,22 +576,15 @@ class CollisionLimit(CollisionAvoidanceLimit):
             drift = [0.0] * len(self._near)
         else:
             drift = drift.tolist()  # floats: read once per near pair below
-        model = self.model
-        distmax = self.collision_detection_distance
-        min_dist = self.minimum_distance_from_collisions
-        gain, relax = self.gain, self.bound_relaxation
-        normal, jac1, jac2 = self._normal, self._jac1, self._jac2
-        fromto, from_pt, to_pt = self._fromto, self._from_pt, self._to_pt
-        jac1_flat, jac2_flat = self._jac1_flat, self._jac2_flat
-        horizon = dt + self.lag_s
-        u = self.path.u if self.path is not None else None
         near_dist, near_q = self._near_dist, self._near_q
+        row_pairs, dists, fromto_of = self._row_pairs, self._dists, self._fromto_rows
         wide = distmax + (self.cache_margin if self._cache_ok else 0.0)
         for k, idx in enumerate(self._near):
             # The pair was at near_dist[k] at the joints near_q[k]: it has changed by at most drift[k].
             if near_dist[k] - drift[k] > distmax:
                 continue  # still beyond detection distance: no row, as the narrow phase would find
             g1, g2 = self._pair_g1[idx], self._pair_g2[idx]
+            fromto = fromto_of[rows]
             dist = mujoco.mj_geomDistance(model, data, g1, g2, wide, fromto)
             if dist >= distmax:  # no row; remember how far it is, to skip it while it cannot be near
                 near_dist[k] = dist
@@ -525,25 +594,37 @@ class CollisionLimit(CollisionAvoidanceLimit):
                 dist = mujoco.mj_geomDistance(model, data, g1, g2, distmax, fromto)
                 if abs(dist - distmax) < 1e-12:
                     continue
-            # mink's compute_contact_normal_jacobian, with MuJoCo's vector kernels on views made once
-            mujoco.mju_sub3(normal, to_pt, from_pt)
-            mujoco.mju_normalize3(normal)
-            mujoco.mj_jac(model, data, jac2, None, to_pt, self._pair_b2[idx])
-            mujoco.mj_jac(model, data, jac1, None, from_pt, self._pair_b1[idx])
-            mujoco.mju_subFrom(jac2_flat, jac1_flat)
-            row = g[idx]
-            mujoco.mju_mulMatTVec(row, jac2, normal)
-            if dist >= 0.0:  # mink's sign: the distance must not shrink (penetrating: must grow)
-                mujoco.mju_scl(row, row, -1.0)
-            h0 = (gain * (dist - min_dist) / 1.0) + relax if dist > min_dist else relax
-            gap = (h0 - relax) / gain
-            h[idx] = min(h0, dt * braking_speed_scalar(gap, self.brake_acc, horizon) + relax)
-            if u is not None and self.path is not None:
-                acc = self.path.decel_scalar(mujoco.mju_dot(row, u), self.brake_acc)
-                h_path[idx] = min(h0, dt * braking_speed_scalar(gap, acc, horizon) + relax)
-            else:
-                h_path[idx] = h0
-            self._rows_set.append(idx)
+            row_pairs[rows], dists[rows] = idx, dist
+            rows += 1
+        return rows
+
+
+_EXACT_KINDS = ([kernels.SHAPE_SEGMENT, kernels.SHAPE_SEGMENT], [kernels.SHAPE_SEGMENT, kernels.SHAPE_PLANE])
+
+
+def _geom_shapes(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per geom, for :func:`~servo_app.motion.ik_kernels.collision_screen`: its shape (spheres and
+    capsules are segments, planes half-spaces, anything else ``SHAPE_OTHER``), the segment's radius and
+    half length (MuJoCo's ``geom_size``: a capsule's half length along its z axis, 0 for a sphere)."""
+    shape = np.full(model.ngeom, kernels.SHAPE_OTHER, dtype=np.int64)
+    radius = np.zeros(model.ngeom)
+    half = np.zeros(model.ngeom)
+    for k in range(model.ngeom):
+        kind = int(model.geom_type[k])
+        if kind in (int(mujoco.mjtGeom.mjGEOM_SPHERE), int(mujoco.mjtGeom.mjGEOM_CAPSULE)):
+            shape[k] = kernels.SHAPE_SEGMENT
+            radius[k] = float(model.geom_size[k, 0])
+            half[k] = float(model.geom_size[k, 1]) if kind == int(mujoco.mjtGeom.mjGEOM_CAPSULE) else 0.0
+        elif kind == int(mujoco.mjtGeom.mjGEOM_PLANE):
+            shape[k] = kernels.SHAPE_PLANE
+    return shape, radius, half
+
+
+def jacobian_tree(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """The kinematic tree as :func:`~servo_app.motion.ik_kernels.point_jacobian` walks it (``mj_jac``'s
+    walk): rows ``body_rootid``, ``body_dofnum``, ``body_dofadr``, ``body_parentid``; and ``dof_parentid``."""
+    tree = np.vstack([model.body_rootid, model.body_dofnum, model.body_dofadr, model.body_parentid])
+    return np.ascontiguousarray(tree, dtype=np.int64), np.ascontiguousarray(model.dof_parentid, dtype=np.int64)
 
 
 def _geom_joint_bounds(model: mujoco.MjModel) -> np.ndarray:
