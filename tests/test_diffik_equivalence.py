@@ -30,13 +30,13 @@ from diffik_reference import DifferentialIK as ReferenceIK
 DT = 0.008
 PROFILE = load_profile("lrmate200id")
 # Increment tolerance, rad per cycle. The line, the blend and the stop are closed-form (equal to
-# rounding); a QP fallback is equal within the solver's tolerance: DAQP exact; OSQP stops on residuals
-# of eps 1e-6, and two IKs whose warm starts have drifted apart (each solves the QP in its own cycles)
-# land up to 1.3e-6 rad/cycle apart (hypothesis seed 9; ~1 run in 40 at 1e-6), hence 5e-6.
-TOL = {"daqp": 1e-9, "osqp": 5e-6}
-# The delivered share of the command, a function of that increment: DAQP to rounding; OSQP's 5e-6
-# rad/cycle against increments of ~1e-3 rad/cycle.
-SCALE_TOL = {"daqp": 1e-6, "osqp": 1e-3}
+# rounding); a QP fallback is equal within the solver's tolerance (DAQP exact, OSQP eps 1e-6 on
+# velocities: 1e-6 rad/s * dt, with margin) -- where it converged: an OSQP answer at its iteration
+# limit has no tolerance to compare within, and two IKs whose warm starts drifted apart (each solves
+# the QP in its own cycles) stop at different iterates (hypothesis seeds 9 and 53: 1.3e-6 and 5.8e-4
+# rad/cycle apart). Such an answer must still keep every limit row (checked below).
+TOL = {"daqp": 1e-9, "osqp": 1e-6}
+SCALE_TOL = {"daqp": 1e-6, "osqp": 1e-4}
 ROW_TOL = 1e-9  # rad (or m) per cycle: a limit row "holds" within this ...
 # ... or, for an OSQP fallback, within the violation PersistentQP accepts (QpSettings.feasibility_tol),
 # as the reference's own answer does.
@@ -112,13 +112,17 @@ def test_same_increment_as_the_reference(pairs, solver: str, collision: bool, sc
             assert a.mode == b.mode
             assert math.isclose(a.condition, b.condition, rel_tol=1e-9), (a.condition, b.condition)
             failed = bool(a.flags & IkFlag.SOLVER_FAILED) or bool(int(b.flags) & int(IkFlag.SOLVER_FAILED))
-            if not failed:
+            unconverged = "maximum iterations" in f"{a.solver_status} {b.solver_status}"
+            if not failed and not unconverged:
                 assert np.max(np.abs(a.dq - b.dq)) <= TOL[solver], (a.dq - b.dq, a.flags, b.flags)
                 if bool(a.flags & IkFlag.QP_FALLBACK) == bool(int(b.flags) & int(IkFlag.QP_FALLBACK)) and \
                         solver == "daqp":
                     assert int(a.flags) == int(b.flags), (a.flags, b.flags)
+                # The delivered share is dq's projection on the command: DAQP to rounding; OSQP's 1e-6
+                # rad/cycle in dq moves it by up to ~1e-5 near a singularity (seeds 61, 66: 1.7e-6, 5.8e-6).
                 assert math.isclose(a.scale, b.scale, rel_tol=SCALE_TOL[solver], abs_tol=SCALE_TOL[solver]), (
                     a.scale, b.scale)
+            if not failed:
                 # Every limit row of the reference at this state holds for the new increment.
                 g, h = ref.inequalities()
                 tol = QP_ROW_TOL[solver] if a.flags & IkFlag.QP_FALLBACK else ROW_TOL
