@@ -106,6 +106,19 @@ def flange_distance_mm(q0_fanuc_deg: np.ndarray, q1_fanuc_deg: np.ndarray, j23_f
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
+@kernel("void(float64[:, ::1], float64, float64[::1], float64, float64[::1])")
+def flange_speeds_mm_s(q_fanuc_deg: np.ndarray, j23_factor: float, dims: np.ndarray, dt: float,
+                       out: np.ndarray) -> None:
+    """Flange-centre speed (mm/s) from each row of FANUC joints (deg) to the next, ``dt`` apart, into
+    ``out`` (one fewer than the rows): a whole plan at once, each point as the checker computes it."""
+    x0, y0, z0 = flange_point_mm(q_fanuc_deg[0], j23_factor, dims)
+    for i in range(1, q_fanuc_deg.shape[0]):
+        x1, y1, z1 = flange_point_mm(q_fanuc_deg[i], j23_factor, dims)
+        dx, dy, dz = x1 - x0, y1 - y0, z1 - z0
+        out[i - 1] = math.sqrt(dx * dx + dy * dy + dz * dz) / dt
+        x0, y0, z0 = x1, y1, z1
+
+
 @kernel("void(float64[::1], float64, float64[::1])")
 def fanuc_deg_to_model_rad_into(q_fanuc_deg: np.ndarray, j23_factor: float, out: np.ndarray) -> None:
     """``conventions.fanuc_deg_to_model_rad`` of a joint vector, into ``out``."""
