@@ -6,7 +6,7 @@ import math
 import mujoco
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from servo_app.errors import CommandRejected
@@ -120,6 +120,9 @@ def test_kinematics_tool_change_round_trips_through_ik_tcp(tool: tuple[float, ..
 
 @settings(max_examples=40, deadline=None)
 @given(offsets, offsets, joints)
+# A first tool turned 180 deg about W compiles a site in its body's frame (site_sameframe), which the
+# kinematics then skipped after the move.
+@example(first=(0.0, 0.0, 0.0, 180.0, 0.0, 0.0), tool=(0.0, 0.0, 0.0, 0.0, 90.0, 0.0), q=[0.0] * 6)
 def test_site_update_equals_a_model_compiled_with_that_tool(first: tuple[float, ...], tool: tuple[float, ...],
                                                             q: list[float]):
     moved = load_model(PROFILE, first, verify=False)

@@ -87,6 +87,10 @@ def set_model_tool(model: mujoco.MjModel, tool_xyzwpr: ArrayLike | None) -> None
     mujoco.mju_mat2Quat(quat, np.ascontiguousarray(t[:3, :3]).reshape(9))
     model.site_pos[tcp.id] = t[:3, 3]
     model.site_quat[tcp.id] = quat
+    # The compiler marks a site whose frame coincides with its body's (site_sameframe) and kinematics
+    # then skips site_pos/site_quat: a model compiled with a tool turned 180 deg about W kept that
+    # flag, and the moved site's pose came out turned 180 deg (tests/test_tools.py). Not the same now.
+    model.site_sameframe[tcp.id] = mujoco.mjtSameFrame.mjSAMEFRAME_NONE
 
 
 def load_model(profile: RobotProfile, tool_xyzwpr: ArrayLike | None = None, *, verify: bool = True
