@@ -165,9 +165,14 @@ def load_tools(text: str, *, max_payload_kg: float | None, flange_payload_kg: fl
 
 
 # ------------------------------------------------------------------------------------- pose math
+def tcp_matrix(flange_xyzwpr: ArrayLike, tool_xyzwpr: ArrayLike) -> np.ndarray:
+    """The TCP's 4x4 pose (world, metres) for a flange pose and a tool (both FANUC units)."""
+    return xyzwpr_to_matrix(flange_xyzwpr) @ xyzwpr_to_matrix(tool_xyzwpr)
+
+
 def tcp_pose(flange_xyzwpr: ArrayLike, tool_xyzwpr: ArrayLike) -> np.ndarray:
     """The TCP's X Y Z W P R (world) for a flange pose and a tool (both FANUC units)."""
-    return matrix_to_xyzwpr(xyzwpr_to_matrix(flange_xyzwpr) @ xyzwpr_to_matrix(tool_xyzwpr))
+    return matrix_to_xyzwpr(tcp_matrix(flange_xyzwpr, tool_xyzwpr))
 
 
 def flange_pose(tcp_xyzwpr: ArrayLike, tool_xyzwpr: ArrayLike) -> np.ndarray:

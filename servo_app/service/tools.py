@@ -20,8 +20,7 @@ from typing import Any
 
 from servo_app import messages as msg
 from servo_app.errors import CommandRejected
-from servo_app.robots.conventions import xyzwpr_to_matrix
-from servo_app.robots.tool import FLANGE, Tool, ToolError, ToolSet, check_tool, load_tools, tcp_pose
+from servo_app.robots.tool import FLANGE, Tool, ToolError, ToolSet, check_tool, load_tools, tcp_matrix, tcp_pose
 from servo_app.service.config import ServiceConfig
 
 # Modes in which a stream is alive: a tool change then waits for the controller's feedback to settle.
@@ -136,7 +135,7 @@ class ActiveTool:
         flange = next((p for p in view.get("points", ()) if p.get("name") == "flange" and "xyzwpr" in p), None)
         if flange is None:
             return view
-        t = xyzwpr_to_matrix(flange["xyzwpr"]) @ xyzwpr_to_matrix(tool.xyzwpr)
+        t = tcp_matrix(flange["xyzwpr"], tool.xyzwpr)
         view["tcp"] = {"tool": tool.name, "xyz_mm": [float(v) * 1000.0 for v in t[:3, 3]],
                        "axes": [[float(v) for v in t[:3, i]] for i in range(3)]}
         return view
