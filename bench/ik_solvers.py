@@ -9,9 +9,12 @@ limits incl. collisions) at teleop states of two kinds:
 Reported per solver: time per cycle p50/p99, building the problem included on both sides (mink's
 ``solve_ik`` builds its tasks' and limits' objects every call; ours is ``DifferentialIK.qp_problem``,
 what the servo cycle builds, timed on its own row as well), and the largest difference from the exact
-reference (DAQP through mink) in rad/s (p99 and max). The last lines give the speed-up of our build
-plus solve over ``mink.solve_ik`` (ratio of the p50s). The table is printed and written to
-bench/RESULTS.md under "## ik_solvers" (other sections are kept).
+reference (DAQP through mink) in rad/s (p99 and max). Each state's solvers run in a rotating order
+(ours, mink DAQP, mink OSQP; then starting with the next): the first to run after a state was made
+meets caches the state's making left cold (random states: mink's objective and the condition number;
+stream states: the IK's own step, which warms ours), and each solver comes first equally often.
+The last lines give the speed-up of our build plus solve over ``mink.solve_ik`` (ratio of the p50s).
+The table is printed and written to bench/RESULTS.md under "## ik_solvers" (other sections are kept).
 
     .venv/bin/python bench/ik_solvers.py [--states 2000] [--seed 0] [--no-write] [--section NAME]
 """
@@ -102,28 +105,56 @@ def run(kind: str, n: int, seed: int) -> dict[str, dict[str, float]]:
     diffs: dict[str, list[float]] = {k: [] for k in times}
     fails: dict[str, int] = dict.fromkeys(times, 0)
     m = 0
+
+    Timings = dict[str, float]
+    Answers = dict[str, np.ndarray | None]
+
+    def ours(tasks, target: np.ndarray) -> tuple[Timings, Answers]:
+        # The cycle's order: build, then solve. Both persistent solvers get the same build.
+        assert ours_osqp is not None and ours_daqp is not None
+        t0 = time.perf_counter_ns()
+        p, c, g, h = ik.qp_problem(target)
+        build = (time.perf_counter_ns() - t0) / 1000.0
+        sd, t_sd = timed(ours_daqp.solve, p, c, g, h)
+        so, t_so = timed(ours_osqp.solve, p, c, g, h)
+        return ({"build (ours)": build, "build + persistent DAQP": build + t_sd,
+                 "build + persistent OSQP": build + t_so},
+                {"build + persistent DAQP": sd.x if sd.ok else None,
+                 "build + persistent OSQP": so.x if so.ok else None})
+
+    def mink_daqp(tasks, target: np.ndarray) -> tuple[Timings, Answers]:
+        x, t = timed(_mink, ik, tasks, "daqp")
+        return {"mink.solve_ik daqp": t}, {"mink.solve_ik daqp": x}
+
+    def mink_osqp(tasks, target: np.ndarray) -> tuple[Timings, Answers]:
+        x, t = timed(_mink, ik, tasks, "osqp")
+        return {"mink.solve_ik osqp": t}, {"mink.solve_ik osqp": x}
+
     gc.disable()
     try:
-        for tasks, target in gen:
-            t0 = time.perf_counter_ns()
-            p, c, g, h = ik.qp_problem(target)
-            t1 = time.perf_counter_ns()
-            build = (t1 - t0) / 1000.0
-            times["build (ours)"].append(build)
-            m = g.shape[0]
+        for k, (tasks, target) in enumerate(gen):
             if ours_osqp is None or ours_daqp is None:
+                m = ik.qp_problem(target)[2].shape[0]
                 ours_osqp = PersistentQP(6, m, "osqp", var_scale=DT)
                 ours_daqp = PersistentQP(6, m, "daqp", var_scale=DT)
+            # Each state's solvers in a rotating order: whichever runs first after the state was made
+            # (by other code) meets colder caches, and each solver comes first equally often.
+            units = (ours, mink_daqp, mink_osqp)
+            units = units[k % 3:] + units[:k % 3]
+            spent: dict[str, float] = {}
+            answers: dict[str, np.ndarray | None] = {}
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                ref, t_ref = timed(_mink, ik, tasks, "daqp")
-                mo, t_mo = timed(_mink, ik, tasks, "osqp")
-            so, t_so = timed(ours_osqp.solve, p, c, g, h)
-            sd, t_sd = timed(ours_daqp.solve, p, c, g, h)
-            for name, x, t in (("build + persistent OSQP", so.x if so.ok else None, build + t_so),
-                               ("build + persistent DAQP", sd.x if sd.ok else None, build + t_sd),
-                               ("mink.solve_ik osqp", mo, t_mo), ("mink.solve_ik daqp", ref, t_ref)):
+                for unit in units:
+                    t, x = unit(tasks, target)
+                    spent.update(t)
+                    answers.update(x)
+            ref = answers["mink.solve_ik daqp"]
+            for name, t in spent.items():
                 times[name].append(t)
+                if name == "build (ours)":
+                    continue
+                x = answers[name]
                 if x is None:
                     fails[name] += 1
                 elif ref is not None:
