@@ -47,6 +47,20 @@ def test_quaternion_product_and_rotation_between_match_mujoco(a: np.ndarray, b: 
     np.testing.assert_allclose(rot, w, rtol=1e-9, atol=1e-12)
 
 
+speeds3 = st.tuples(*[st.floats(-4000.0, 4000.0, allow_nan=False)] * 3)
+
+
+@given(linear=speeds3, angular=speeds3)
+def test_twist_in_si_units_is_numpys_to_the_bit(linear: tuple[float, float, float],
+                                                angular: tuple[float, float, float]) -> None:
+    ref = np.array((*linear, *angular), dtype=float)  # the reading the kernel replaced
+    ref[:3] /= 1000.0
+    np.radians(ref[3:], out=ref[3:])
+    out = np.empty(6)
+    k.twist_si(linear, angular, out)
+    assert out.tobytes() == ref.tobytes()
+
+
 @given(pose=poses, xi=vec6, s=st.floats(-2.0, 2.0), dt=st.sampled_from([0.004, 0.008, 1.0]))
 def test_advance_matches_mujoco(pose: np.ndarray, xi: np.ndarray, s: float, dt: float) -> None:
     xi_dt = s * xi * dt

@@ -348,15 +348,24 @@ class DifferentialIK:
         q = self._checked(q_model_rad, "q_model_rad")
         if not self._started:
             self.reset(q)
+        return self.step_owned(q, command, None if dq_prev is None else self._checked(dq_prev, "dq_prev"))
+
+    def step_owned(self, q: np.ndarray, command: Command | None, dq_prev: np.ndarray | None = None) -> IkResult:
+        """:meth:`step` for arrays the caller made for this call and hands over (the servo cycle's
+        start, converted from the shaper's state by a kernel): float64, shape (6,), finite, never
+        changed afterwards by the caller. They are neither copied nor checked again (the IK may keep
+        them: ``step_again`` starts from them)."""
+        if not self._started:
+            self.reset(q)
         # Everything step() changes (the rows and targets it sets are rebuilt by every step).
         self._before = (self._dq_prev, self._ref, self._last_xi, self._mode)
         if dq_prev is not None:
-            self._dq_prev = self._checked(dq_prev, "dq_prev")
+            self._dq_prev = dq_prev
         st, dt = self.settings, self.dt
-        cfg = self.configuration
+        data = self.configuration.data
         self._kinematics(q)
         self.accel_limit.set_previous(self._dq_prev)
-        kappa = self._condition(cfg.data)
+        kappa = self._condition(data)
         flags = _B.NEAR_SINGULARITY if kappa > st.singularity_slow else 0  # int bits: IntFlag | costs us
         s_sing = 1.0
         xi: np.ndarray | None = None  # base-frame twist the frame task follows (Cartesian modes)
@@ -366,10 +375,11 @@ class DifferentialIK:
         target: np.ndarray | None = None  # the frame task's target pose (Cartesian modes)
         joint_goal = q  # the joint task's target (joint modes)
 
-        if isinstance(command, Twist | PoseTarget) or cartesian_stop:
-            tcp = self._site_pose(cfg.data, self._site_id)
-            if isinstance(command, Twist):
-                mode, xi = "twist", self._twist_base(command, tcp)
+        is_twist = isinstance(command, Twist)  # (the jog's command: one check, not a union's)
+        if is_twist or isinstance(command, PoseTarget) or cartesian_stop:
+            tcp = self._tcp_pose()
+            if is_twist:
+                mode, xi = "twist", self._twist_base(command, tcp)  # type: ignore[arg-type]
             elif isinstance(command, PoseTarget):
                 mode = "pose"
                 xi, arrived = self._pose_twist(command, tcp)
@@ -426,7 +436,7 @@ class DifferentialIK:
             # on its target); d = the line plus this cycle's share of the pull-back d_corr.
             with_ref = xi is not None and asks_motion and self._ref is not None
             p, c = self._cartesian_objective(target, self._ref if with_ref else None)
-            d, d_corr = self._d[0].copy(), self._d[1].copy()
+            d, d_corr = self._d  # views of the optimum: read (never written) until the next objective
         else:
             p, c = self._joint_objective(q, joint_goal)
             rhs = self._rhs
@@ -587,6 +597,7 @@ class DifferentialIK:
         data = self.configuration.data
         self._view = types.SimpleNamespace(qpos=data.qpos, site_xmat=data.site_xmat, site_xpos=data.site_xpos,
                                            cdof=data.cdof, subtree_com=data.subtree_com)
+        self._neq = int(model.neq)  # (a tool change moves a site: the model keeps its equality constraints)
         self._tree, self._dof_parentid = jacobian_tree(model)
         self._site_bodyid = model.site_bodyid
         self._jac_flange = np.zeros((6, model.nv))
@@ -642,10 +653,10 @@ class DifferentialIK:
     def _kinematics(self, q: np.ndarray) -> None:
         """The configuration at ``q``: what ``Configuration.update`` does, without copying qpos."""
         data = self.configuration.data
-        data.qpos[:] = q  # the arm's joints are the whole qpos, in model order (checked by _layout)
+        self._view.qpos[:] = q  # the arm's joints are the whole qpos, in model order (checked by _layout)
         mujoco.mj_kinematics(self.model, data)
         mujoco.mj_comPos(self.model, data)
-        if self.model.neq > 0:
+        if self._neq > 0:
             mujoco.mj_makeConstraint(self.model, data)
 
     def _posture_terms(self, task: mink.PostureTask, cost: np.ndarray, goal: np.ndarray) -> np.ndarray:
@@ -716,9 +727,8 @@ class DifferentialIK:
 
     # -------------------------------------------------------------------------- desired motion
     def _twist_base(self, cmd: Twist, tcp: np.ndarray) -> np.ndarray:
-        xi = np.array((*cmd.linear, *cmd.angular), dtype=float)  # one array, converted in place
-        xi[:3] /= 1000.0
-        np.radians(xi[3:], out=xi[3:])
+        xi = np.empty(6)
+        kernels.twist_si(cmd.linear, cmd.angular, xi)  # m/s, rad/s: numpy's operations in one call
         if cmd.frame == "tool":
             for part in (xi[:3], xi[3:]):
                 mujoco.mju_rotVecQuat(part, part.copy(), tcp[:4])
@@ -823,11 +833,13 @@ class DifferentialIK:
                                          self.accel_limit.velocity_bound, self.settings.binding_tol,
                                          _B.VELOCITY_LIMIT, _B.ACCEL_LIMIT))
 
-    def _site_pose(self, data: mujoco.MjData, site_id: int) -> np.ndarray:
-        """The site's pose as mink stores an SE3: quaternion (w x y z), then position."""
+    def _tcp_pose(self) -> np.ndarray:
+        """The TCP site's pose as mink stores an SE3: quaternion (w x y z), then position (read through
+        the views of the configuration's arrays made once)."""
         pose = np.empty(7)
-        mujoco.mju_mat2Quat(pose[:4], data.site_xmat[site_id])
-        pose[4:] = data.site_xpos[site_id]
+        view, site_id = self._view, self._site_id
+        mujoco.mju_mat2Quat(pose[:4], view.site_xmat[site_id])
+        pose[4:] = view.site_xpos[site_id]
         return pose
 
     def _along_track(self, ref: np.ndarray, tcp: np.ndarray, xi: np.ndarray) -> np.ndarray:

@@ -23,6 +23,8 @@ import numpy as np
 
 from servo_app.jit import kernel
 
+_DEG_TO_RAD = math.pi / 180.0  # numpy's radians() multiplies by this constant
+
 _MINVAL = 1e-15  # MuJoCo's mjMINVAL: its vector normalisations treat shorter vectors as zero
 _LIE_EPS = 1e-10  # mink's _lie_ops_c EPS: small-angle series below it
 
@@ -56,6 +58,16 @@ def rotation_between(out: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
     if speed > math.pi:  # the angle beyond pi: the other way round
         speed -= 2.0 * math.pi
     out[0], out[1], out[2] = x * speed, y * speed, z * speed
+
+
+@kernel("void(UniTuple(float64, 3), UniTuple(float64, 3), float64[::1])")
+def twist_si(linear_mm_s: tuple[float, float, float], angular_deg_s: tuple[float, float, float],
+             out: np.ndarray) -> None:
+    """A twist in SI units into ``out`` (6): ``linear / 1000.0`` (m/s), then ``np.radians(angular)``
+    (rad/s: numpy multiplies by pi / 180, this constant)."""
+    for i in range(3):
+        out[i] = linear_mm_s[i] / 1000.0
+        out[3 + i] = angular_deg_s[i] * _DEG_TO_RAD
 
 
 @kernel("void(float64[::1], float64[::1], float64[::1], float64, float64)")

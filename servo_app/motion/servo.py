@@ -254,7 +254,7 @@ class ServoCycle:
         q_f, v_f, _ = shaper.state
         q_m, dq_prev = np.empty(len(q_f)), np.empty(len(q_f))
         cycle_kernels.ik_start(q_f, v_f, self._j23, self.dt, q_m, dq_prev)
-        res = self.ik.step(q_m, cart, dq_prev=dq_prev)
+        res = self.ik.step_owned(q_m, cart, dq_prev)  # (arrays made here for it)
         self._ahead = _Ahead(res, cart, self._steps, q_f, v_f, q_m, dq_prev)
         return True
 
@@ -532,7 +532,7 @@ class ServoCycle:
                 self.ahead_dropped += 1
                 res = self.ik.step_again(q_m, self._cart, dq_prev=dq_prev)
             else:
-                res = self.ik.step(q_m, self._cart, dq_prev=dq_prev)
+                res = self.ik.step_owned(q_m, self._cart, dq_prev)
         while self.late_command is not None:
             # A command that arrived while the IK solved still makes this cycle's packet: the input
             # is read as late as the cycle allows, not only when the status packet arrived. The hook
