@@ -106,6 +106,7 @@ class ServoCycle:
         # Scratch for the kernels: the cycle allocates nothing for them.
         self._scratch = np.empty(profile.dof)
         self._jog_goal = np.empty(profile.dof)
+        self._ik_velocity = np.empty(profile.dof)  # _guard_ik_velocity's output, handed to the shaper
         # The shaper's soft limits as the guards use them, for the limits they were derived from.
         self._soft_for: ShaperLimits | None = None
         self._soft_vel = self._brake = np.empty(0)
@@ -600,11 +601,12 @@ class ServoCycle:
         let the IK approach a boundary (a target out of reach) ever more slowly: below CREEP_DEG_S it
         only creeps, and the arm is held still and at rest instead.
         """
-        self._soft_limits(shaper)
-        v = np.empty(len(q))
+        if shaper.limits is not self._soft_for:
+            self._soft_limits(shaper)
+        v = self._ik_velocity  # (set_velocity copies it into ruckig's input)
         self.limit_scale = cycle_kernels.guard_ik_velocity(
-            q, np.ascontiguousarray(velocity_model, dtype=np.float64), v_now, self._stop_lag, self._brake, self._j23,
-            self._region_packed, CREEP_DEG_S, self._scratch, v)
+            q, velocity_model, v_now, self._stop_lag, self._brake, self._j23, self._region_packed, CREEP_DEG_S,
+            self._scratch, v)
         return v
 
     def _soft_limits(self, shaper: JointShaper) -> None:
