@@ -61,6 +61,21 @@ def test_twist_in_si_units_is_numpys_to_the_bit(linear: tuple[float, float, floa
     assert out.tobytes() == ref.tobytes()
 
 
+@given(dq=arrays(np.float64, 6, elements=st.floats(-1e3, 1e3)), q=vec6, dt=st.sampled_from([0.004, 0.008, 0.1]),
+       bad=st.sampled_from([None, math.nan, math.inf, -math.inf]), at=st.integers(0, 5))
+def test_step_outputs_are_numpys_to_the_bit_and_refuse_non_finite(dq: np.ndarray, q: np.ndarray, dt: float,
+                                                                  bad: float | None, at: int) -> None:
+    if bad is not None:
+        dq[at] = bad
+    out = np.full((3, 6), 7.0)
+    ok = k.step_outputs(dq, q, dt, out)
+    if bad is not None:
+        assert not ok and (out == 7.0).all()  # untouched
+        return
+    assert ok
+    assert out.tobytes() == np.array([dq, q + dq, dq / dt]).tobytes()
+
+
 @given(pose=poses, xi=vec6, s=st.floats(-2.0, 2.0), dt=st.sampled_from([0.004, 0.008, 1.0]))
 def test_advance_matches_mujoco(pose: np.ndarray, xi: np.ndarray, s: float, dt: float) -> None:
     xi_dt = s * xi * dt

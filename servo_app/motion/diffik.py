@@ -387,24 +387,29 @@ class DifferentialIK:
                 mode, xi = "stop", np.zeros(6)
                 flags |= _B.NO_COMMAND
             cartesian_mode = mode if mode != "stop" else self._mode
-            if self._mode != cartesian_mode or self._ref is None or not self._near(self._ref, tcp):
+            if (self._mode != cartesian_mode or self._ref is None
+                    or not kernels.poses_near(self._ref, tcp, st.reference_tolerance_m, self._reach)):
                 self._ref = tcp
             elif cartesian_mode == "twist" and self._last_xi is not None:
                 self._ref = self._along_track(self._ref, tcp, self._last_xi)
             if kernels.any_nonzero(xi):
-                s_sing = self._singularity_factor(q, xi, kappa)
-                if s_sing < 1.0:
+                asks_motion = True
+                if kappa > st.singularity_slow:  # (below, the factor is 1)
+                    s_sing = self._singularity_factor(q, xi, kappa)
+                if s_sing < 1.0:  # (xi is this step's own array: scaled only when slowed, x * 1.0 being x)
                     flags |= _B.SINGULARITY_SLOWDOWN
-                xi = xi * s_sing
+                    xi = xi * s_sing
+                    asks_motion = kernels.any_nonzero(xi)
                 s_goal = 1.0
                 self._last_xi = xi
             elif self._last_xi is not None and moving:
                 xi, s_goal = self._last_xi, 0.0  # brake along the last commanded Cartesian line
+                asks_motion = kernels.any_nonzero(xi)
             else:
                 s_goal, self._last_xi = 0.0, None
+                asks_motion = False  # (xi is zero)
             target = _advance(self._ref, xi, 1.0, dt)
             self.frame_target = target
-            asks_motion = kernels.any_nonzero(xi)
             state_mode = cartesian_mode
         else:
             self._ref = None
@@ -484,11 +489,14 @@ class DifferentialIK:
         dd = float(d @ d)
         scale = min(max(float(dq @ d) / dd, 0.0), 1.0) * s_sing if s_goal == 1.0 and dd > 0.0 else 0.0
         flags |= self._binding_flags(g, h, dq)
-        if not kernels.all_finite(dq):  # defensive: every branch above is finite by construction
+        # The copy of dq kept as the next cycle's start, q + dq and dq / dt, in one kernel call.
+        out = np.empty((3, N))
+        if not kernels.step_outputs(dq, q, dt, out):  # defensive: every branch above is finite by construction
             dq = np.zeros(N)
             flags |= _B.SOLVER_FAILED
-        self._dq_prev = dq.copy()
-        return IkResult(dq=dq, q_next=q + dq, velocity=dq / dt, scale=float(scale), flags=_ik_flag(flags),
+            kernels.step_outputs(dq, q, dt, out)
+        self._dq_prev, q_next, velocity = out
+        return IkResult(dq=dq, q_next=q_next, velocity=velocity, scale=float(scale), flags=_ik_flag(flags),
                         condition=kappa, mode=mode, solver_status=solver_status)
 
     def step_again(self, q_model_rad: ArrayLike, command: Command | None, *, dq_prev: ArrayLike | None = None
@@ -850,9 +858,6 @@ class DifferentialIK:
         (+20 %) and swung back: only the error across the line is the IK's to correct."""
         out = np.empty(7)
         return out if kernels.along_track(out, ref, tcp, xi, self._track_weights) else ref
-
-    def _near(self, a: np.ndarray, b: np.ndarray) -> bool:
-        return bool(kernels.poses_near(a, b, self.settings.reference_tolerance_m, self._reach))
 
     def _full_q(self, q: np.ndarray) -> np.ndarray:
         full = self.configuration.data.qpos.copy()

@@ -637,6 +637,21 @@ def any_nonzero(v: np.ndarray) -> bool:
     return False
 
 
+@kernel("boolean(float64[::1], float64[::1], float64, float64[:, ::1])")
+def step_outputs(dq: np.ndarray, q: np.ndarray, dt: float, out: np.ndarray) -> bool:
+    """A diff-IK step's arrays from its increment ``dq`` at the joints ``q``, into the rows of ``out``
+    (3 x n): ``dq`` (a copy), ``q + dq``, ``dq / dt``; False (``out`` untouched) if ``dq`` is not finite."""
+    n = dq.shape[0]
+    for i in range(n):
+        if not math.isfinite(dq[i]):
+            return False
+    for i in range(n):
+        out[0, i] = dq[i]
+        out[1, i] = q[i] + dq[i]
+        out[2, i] = dq[i] / dt
+    return True
+
+
 @kernel("boolean(float64[::1])")
 def all_finite(v: np.ndarray) -> bool:
     """``np.isfinite(v).all()`` for a float vector."""
