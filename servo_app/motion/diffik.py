@@ -99,6 +99,7 @@ class IkFlag(enum.IntFlag):
 
 # The flags as plain ints for the cycle: IntFlag's operators run Python code (several us each here).
 _B = types.SimpleNamespace(**{f.name: int(f) for f in IkFlag if f.name})
+_VELOCITY_LIMIT_BIT, _ACCEL_LIMIT_BIT = int(IkFlag.VELOCITY_LIMIT), int(IkFlag.ACCEL_LIMIT)
 
 _FLAG_OF: dict[int, IkFlag] = {}  # IkFlag(bits) by bits: the enum's constructor costs microseconds
 
@@ -587,6 +588,7 @@ class DifferentialIK:
         self._sl = sl
         self._row_counts = counts
         self._accel_rows, self._braking_rows = sl[2], sl[3]
+        self._accel_lo, self._accel_hi = sl[2].start, sl[2].stop  # (the binding kernel's ints)
         flags = np.zeros(m, dtype=np.int64)
         flags[sl[0]] = int(IkFlag.JOINT_LIMIT)
         flags[sl[1]] = int(IkFlag.VELOCITY_LIMIT)
@@ -607,7 +609,9 @@ class DifferentialIK:
                                            cdof=data.cdof, subtree_com=data.subtree_com)
         self._neq = int(model.neq)  # (a tool change moves a site: the model keeps its equality constraints)
         self._tree, self._dof_parentid = jacobian_tree(model)
-        self._site_bodyid = model.site_bodyid
+        self._site_body = int(model.site_bodyid[self._site_id])  # (a tool change moves the site, not its body)
+        # The TCP site's rows of those arrays, as views made once (for its pose each Cartesian cycle).
+        self._tcp_xmat, self._tcp_xpos = data.site_xmat[self._site_id], data.site_xpos[self._site_id]
         self._jac_flange = np.zeros((6, model.nv))
         self._jac_flange_lin, self._jac_flange_ang = self._jac_flange[:3], self._jac_flange[3:]
         self._cond_work = np.zeros((6, model.nv))
@@ -686,7 +690,7 @@ class DifferentialIK:
             self._posture_src = pt.target_q
             self._posture_goal = np.ascontiguousarray(pt.target_q, dtype=float)  # qpos order is model order
         ok = kernels.site_objective(
-            view.cdof, view.subtree_com, self._tree, self._dof_parentid, int(self._site_bodyid[sid]), view.site_xmat,
+            view.cdof, view.subtree_com, self._tree, self._dof_parentid, self._site_body, view.site_xmat,
             view.site_xpos, sid, self._jac_world, target, ref if ref is not None else target, ref is not None,
             self._frame_cost, self._frame_gain, self._posture_cost, self._posture_gain, self._posture_goal, view.qpos,
             self.settings.damping, self._correction_gain, self._p, self._c, self._c_frame, self._weighted_jac, self._d)
@@ -833,21 +837,19 @@ class DifferentialIK:
                                                            int(IkFlag.JOINT_LIMIT))
 
     def _binding_flags(self, g: np.ndarray, h: np.ndarray, dq: np.ndarray) -> int:
-        assert self._row_flags is not None and self._accel_rows is not None
         # Binding within binding_tol + 1e-6 |h|; inactive rows (h = inf) never bind. An acceleration
         # row whose bound is the velocity one raises VELOCITY_LIMIT, and ACCEL_LIMIT stays only if a
         # row bound by acceleration binds.
-        return int(kernels.binding_flags(g, h, dq, self._row_flags, self._accel_rows.start, self._accel_rows.stop,
-                                         self.accel_limit.velocity_bound, self.settings.binding_tol,
-                                         _B.VELOCITY_LIMIT, _B.ACCEL_LIMIT))
+        return kernels.binding_flags(g, h, dq, self._row_flags, self._accel_lo, self._accel_hi,  # type: ignore[no-any-return]
+                                     self.accel_limit.velocity_bound, self.settings.binding_tol,
+                                     _VELOCITY_LIMIT_BIT, _ACCEL_LIMIT_BIT)
 
     def _tcp_pose(self) -> np.ndarray:
         """The TCP site's pose as mink stores an SE3: quaternion (w x y z), then position (read through
         the views of the configuration's arrays made once)."""
         pose = np.empty(7)
-        view, site_id = self._view, self._site_id
-        mujoco.mju_mat2Quat(pose[:4], view.site_xmat[site_id])
-        pose[4:] = view.site_xpos[site_id]
+        mujoco.mju_mat2Quat(pose[:4], self._tcp_xmat)
+        pose[4:] = self._tcp_xpos
         return pose
 
     def _along_track(self, ref: np.ndarray, tcp: np.ndarray, xi: np.ndarray) -> np.ndarray:
@@ -889,10 +891,13 @@ def _scale_interval(direction: np.ndarray, g: np.ndarray, h: np.ndarray, shift: 
 def _path_scale(direction: np.ndarray, s_goal: float, g: np.ndarray, h: np.ndarray,
                 shift: np.ndarray | None = None) -> float | None:
     """The ``s`` nearest ``s_goal`` with ``g @ (s * direction + shift) <= h``, or None if there is none."""
-    interval = _scale_interval(direction, g, h, shift)
-    if interval is None:
+    if shift is None:  # (_scale_interval's kernel call, without its call: this runs every Cartesian cycle)
+        lo, hi = kernels.scale_interval(direction, g, h, direction, 0.0)
+    else:
+        lo, hi = kernels.scale_interval(direction, g, h, shift, 1.0)
+    if math.isnan(lo):
         return None
-    s = min(max(s_goal, interval[0]), interval[1])
+    s = min(max(s_goal, lo), hi)
     return s if math.isfinite(s) else None
 
 

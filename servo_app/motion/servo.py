@@ -252,7 +252,7 @@ class ServoCycle:
         cart = self._cart
         if shaper is None or not self._cart_active or self._ahead is not None or isinstance(cart, PoseTarget):
             return False
-        q_f, v_f, _ = shaper.state
+        q_f, v_f = shaper.position_velocity()
         q_m, dq_prev = np.empty(len(q_f)), np.empty(len(q_f))
         cycle_kernels.ik_start(q_f, v_f, self._j23, self.dt, q_m, dq_prev)
         res = self.ik.step_owned(q_m, cart, dq_prev)  # (arrays made here for it)
@@ -524,7 +524,7 @@ class ServoCycle:
             q_f, v_f, q_m, dq_prev, res = ahead.q_f, ahead.v_f, ahead.q_m, ahead.dq_prev, ahead.result
             self.ahead_used += 1
         else:
-            q_f, v_f, _ = shaper.state
+            q_f, v_f = shaper.position_velocity()
             # The start in the model convention and what the shaper delivers, model rad/cycle (new
             # arrays each cycle: the IK may keep them).
             q_m, dq_prev = np.empty(len(q_f)), np.empty(len(q_f))

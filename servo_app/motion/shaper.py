@@ -512,6 +512,11 @@ class JointShaper:
         return (np.asarray(self._inp.current_position), np.asarray(self._inp.current_velocity),
                 np.asarray(self._inp.current_acceleration))
 
+    def position_velocity(self) -> tuple[np.ndarray, np.ndarray]:
+        """``state``'s position and velocity alone (the IK's start each Cartesian cycle)."""
+        inp = self._inp
+        return np.asarray(inp.current_position), np.asarray(inp.current_velocity)
+
     @property
     def commanded(self) -> np.ndarray:
         """The last position emitted (float32 values): the one to re-seed from."""
