@@ -211,6 +211,34 @@ def test_binding_flags_match_numpy(gh: tuple[np.ndarray, np.ndarray], dq: np.nda
         assert k.binding_flags(g, h, dq, flags, lo, hi, vb, 1e-9, 1 << 6, 1 << 7) == expected
 
 
+@given(a=arrays(np.float64, 6, elements=st.floats(-1e6, 1e6)), b=arrays(np.float64, 6, elements=st.floats(-1e6, 1e6)))
+def test_dot_sums_in_index_order_like_numpy(a: np.ndarray, b: np.ndarray) -> None:
+    in_order = 0.0
+    for x, y in zip(a.tolist(), b.tolist(), strict=True):  # Python floats: IEEE, no fused multiply-add
+        in_order += x * y
+    assert k.dot(a, b) == in_order
+    assert math.isclose(k.dot(a, b), float(a @ b), rel_tol=1e-12, abs_tol=1e-300)  # numpy's (BLAS) dot
+
+
+@given(gh=rows, dq=vec6, d=vec6, s_goal=st.sampled_from([0.0, 1.0]), s_sing=st.floats(0.0, 1.0), q=vec6,
+       dt=st.sampled_from([0.004, 0.008]), vb=arrays(np.bool_, 12))
+def test_step_result_is_the_steps_own_arithmetic(gh: tuple[np.ndarray, np.ndarray], dq: np.ndarray, d: np.ndarray,
+                                                 s_goal: float, s_sing: float, q: np.ndarray, dt: float,
+                                                 vb: np.ndarray) -> None:
+    """The reading step_result replaced: Python's min/max over the dots, and the two kernels it calls."""
+    g, h = gh
+    flags = (1 << (np.arange(len(h)) % 5)).astype(np.int64)
+    lo, hi = min(2, len(h)), min(14, len(h))
+    dd = k.dot(d, d)
+    expected = min(max(k.dot(dq, d) / dd, 0.0), 1.0) * s_sing if s_goal == 1.0 and dd > 0.0 else 0.0
+    out, ref = np.empty((3, 6)), np.empty((3, 6))
+    scale, bits, finite = k.step_result(dq, d, s_goal, s_sing, q, dt, g, h, flags, lo, hi, vb, 1e-9, 1 << 6, 1 << 7,
+                                        out)
+    assert scale == expected or (math.isnan(scale) and math.isnan(expected))
+    assert bits == k.binding_flags(g, h, dq, flags, lo, hi, vb, 1e-9, 1 << 6, 1 << 7)
+    assert finite == k.step_outputs(dq, q, dt, ref) and out.tobytes() == ref.tobytes()
+
+
 @given(prev=vec6, j23=st.floats(-1.0, 1.0), dt=st.sampled_from([0.004, 0.008]))
 def test_acceleration_rows_equal_the_numpy_formula(prev: np.ndarray, j23: float, dt: float) -> None:
     c = fanuc_rate_matrix(j23)

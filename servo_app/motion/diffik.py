@@ -365,7 +365,8 @@ class DifferentialIK:
         st, dt = self.settings, self.dt
         data = self.configuration.data
         self._kinematics(q)
-        self.accel_limit.set_previous(self._dq_prev)
+        # (set_previous without its copy: the IK's dq_prev is never changed in place, only replaced)
+        self.accel_limit.dq_prev = self._dq_prev
         kappa = self._condition(data)
         flags = _B.NEAR_SINGULARITY if kappa > st.singularity_slow else 0  # int bits: IntFlag | costs us
         s_sing = 1.0
@@ -487,17 +488,22 @@ class DifferentialIK:
             else:
                 dq = self._decelerate()
                 flags |= _B.SOLVER_FAILED
-        dd = float(d @ d)
-        scale = min(max(float(dq @ d) / dd, 0.0), 1.0) * s_sing if s_goal == 1.0 and dd > 0.0 else 0.0
-        flags |= self._binding_flags(g, h, dq)
-        # The copy of dq kept as the next cycle's start, q + dq and dq / dt, in one kernel call.
+        # In one kernel call: the share of the command delivered, the flags of the rows dq binds (within
+        # binding_tol + 1e-6 |h|; inactive rows, h = inf, never bind; an acceleration row whose bound is
+        # the velocity one raises VELOCITY_LIMIT, and ACCEL_LIMIT stays only if a row bound by
+        # acceleration binds), and the rows of out: the copy of dq kept as the next cycle's start,
+        # q + dq, dq / dt.
         out = np.empty((3, N))
-        if not kernels.step_outputs(dq, q, dt, out):  # defensive: every branch above is finite by construction
+        scale, bits, finite = kernels.step_result(
+            dq, d, s_goal, s_sing, q, dt, g, h, self._row_flags, self._accel_lo, self._accel_hi,
+            self.accel_limit.velocity_bound, st.binding_tol, _VELOCITY_LIMIT_BIT, _ACCEL_LIMIT_BIT, out)
+        flags |= bits
+        if not finite:  # defensive: every branch above is finite by construction
             dq = np.zeros(N)
             flags |= _B.SOLVER_FAILED
             kernels.step_outputs(dq, q, dt, out)
         self._dq_prev, q_next, velocity = out
-        return IkResult(dq=dq, q_next=q_next, velocity=velocity, scale=float(scale), flags=_ik_flag(flags),
+        return IkResult(dq=dq, q_next=q_next, velocity=velocity, scale=scale, flags=_ik_flag(flags),
                         condition=kappa, mode=mode, solver_status=solver_status)
 
     def step_again(self, q_model_rad: ArrayLike, command: Command | None, *, dq_prev: ArrayLike | None = None
@@ -835,14 +841,6 @@ class DifferentialIK:
         if self._row_flags is not None and self._braking_rows is not None:
             self._row_flags[self._braking_rows] = np.where(self.braking_limit.restricted, int(IkFlag.CONFIGURATION),
                                                            int(IkFlag.JOINT_LIMIT))
-
-    def _binding_flags(self, g: np.ndarray, h: np.ndarray, dq: np.ndarray) -> int:
-        # Binding within binding_tol + 1e-6 |h|; inactive rows (h = inf) never bind. An acceleration
-        # row whose bound is the velocity one raises VELOCITY_LIMIT, and ACCEL_LIMIT stays only if a
-        # row bound by acceleration binds.
-        return kernels.binding_flags(g, h, dq, self._row_flags, self._accel_lo, self._accel_hi,  # type: ignore[no-any-return]
-                                     self.accel_limit.velocity_bound, self.settings.binding_tol,
-                                     _VELOCITY_LIMIT_BIT, _ACCEL_LIMIT_BIT)
 
     def _tcp_pose(self) -> np.ndarray:
         """The TCP site's pose as mink stores an SE3: quaternion (w x y z), then position (read through
