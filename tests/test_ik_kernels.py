@@ -47,7 +47,7 @@ def test_quaternion_product_and_rotation_between_match_mujoco(a: np.ndarray, b: 
     np.testing.assert_allclose(rot, w, rtol=1e-9, atol=1e-12)
 
 
-speeds3 = st.tuples(*[st.floats(-4000.0, 4000.0, allow_nan=False)] * 3)
+speeds3 = st.tuples(*[st.one_of(st.floats(-4000.0, 4000.0, allow_nan=False), st.just(0.0), st.just(-0.0))] * 3)
 
 
 @given(linear=speeds3, angular=speeds3)
@@ -57,8 +57,9 @@ def test_twist_in_si_units_is_numpys_to_the_bit(linear: tuple[float, float, floa
     ref[:3] /= 1000.0
     np.radians(ref[3:], out=ref[3:])
     out = np.empty(6)
-    k.twist_si(linear, angular, out)
+    moves = k.twist_si(linear, angular, out)
     assert out.tobytes() == ref.tobytes()
+    assert moves == bool(ref.any())
 
 
 @given(dq=arrays(np.float64, 6, elements=st.floats(-1e3, 1e3)), q=vec6, dt=st.sampled_from([0.004, 0.008, 0.1]),
@@ -209,6 +210,13 @@ def test_binding_flags_match_numpy(gh: tuple[np.ndarray, np.ndarray], dq: np.nda
         tie = np.isfinite(h) & (np.abs(slack - (1e-9 + 1e-6 * np.abs(h))) < 1e-12)
     if not tie.any():  # away from a tie at the tolerance (rounding of g @ dq)
         assert k.binding_flags(g, h, dq, flags, lo, hi, vb, 1e-9, 1 << 6, 1 << 7) == expected
+
+
+@given(s=st.floats(-1e3, 1e3), direction=vec6, shift=vec6)
+def test_line_point_is_numpys_to_the_bit(s: float, direction: np.ndarray, shift: np.ndarray) -> None:
+    out = np.empty(6)
+    k.line_point(s, direction, shift, out)
+    assert out.tobytes() == (s * direction + shift).tobytes()
 
 
 @given(a=arrays(np.float64, 6, elements=st.floats(-1e6, 1e6)), b=arrays(np.float64, 6, elements=st.floats(-1e6, 1e6)))

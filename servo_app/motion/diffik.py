@@ -381,12 +381,14 @@ class DifferentialIK:
         if is_twist or isinstance(command, PoseTarget) or cartesian_stop:
             tcp = self._tcp_pose()
             if is_twist:
-                mode, xi = "twist", self._twist_base(command, tcp)  # type: ignore[arg-type]
+                mode = "twist"
+                xi, xi_moves = self._twist_base(command, tcp)  # type: ignore[arg-type]
             elif isinstance(command, PoseTarget):
                 mode = "pose"
                 xi, arrived = self._pose_twist(command, tcp)
+                xi_moves = kernels.any_nonzero(xi)
             else:
-                mode, xi = "stop", np.zeros(6)
+                mode, xi, xi_moves = "stop", np.zeros(6), False
                 flags |= _B.NO_COMMAND
             cartesian_mode = mode if mode != "stop" else self._mode
             if (self._mode != cartesian_mode or self._ref is None
@@ -394,7 +396,7 @@ class DifferentialIK:
                 self._ref = tcp
             elif cartesian_mode == "twist" and self._last_xi is not None:
                 self._ref = self._along_track(self._ref, tcp, self._last_xi)
-            if kernels.any_nonzero(xi):
+            if xi_moves:
                 asks_motion = True
                 if kappa > st.singularity_slow:  # (below, the factor is 1)
                     s_sing = self._singularity_factor(q, xi, kappa)
@@ -463,7 +465,8 @@ class DifferentialIK:
             d_corr = np.zeros(N)  # the correction does not fit this cycle: the line alone
             s = _path_scale(direction, s_goal, g, h_path)
         if s is not None:  # 1. on the line
-            dq = s * direction + d_corr
+            dq = np.empty(N)
+            kernels.line_point(s, direction, d_corr, dq)  # s * direction + d_corr
             if xi is not None and self._ref is not None and asks_motion:
                 self._ref = _advance(self._ref, xi, s, dt)  # the reference follows what was achieved
             if s_goal == 0.0 and s == 0.0:
@@ -744,13 +747,15 @@ class DifferentialIK:
         return self._condition_at(q)
 
     # -------------------------------------------------------------------------- desired motion
-    def _twist_base(self, cmd: Twist, tcp: np.ndarray) -> np.ndarray:
+    def _twist_base(self, cmd: Twist, tcp: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The twist in the base frame, m/s and rad/s, and whether it is not zero (``xi.any()``)."""
         xi = np.empty(6)
-        kernels.twist_si(cmd.linear, cmd.angular, xi)  # m/s, rad/s: numpy's operations in one call
+        moves = kernels.twist_si(cmd.linear, cmd.angular, xi)  # numpy's operations in one call
         if cmd.frame == "tool":
             for part in (xi[:3], xi[3:]):
                 mujoco.mju_rotVecQuat(part, part.copy(), tcp[:4])
-        return xi
+            moves = kernels.any_nonzero(xi)
+        return xi, moves
 
     def _pose_twist(self, cmd: PoseTarget, tcp: np.ndarray) -> tuple[np.ndarray, bool]:
         """Straight-line P-control: one rate for translation and rotation (they arrive together),

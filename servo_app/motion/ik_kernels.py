@@ -60,14 +60,18 @@ def rotation_between(out: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
     out[0], out[1], out[2] = x * speed, y * speed, z * speed
 
 
-@kernel("void(UniTuple(float64, 3), UniTuple(float64, 3), float64[::1])")
+@kernel("boolean(UniTuple(float64, 3), UniTuple(float64, 3), float64[::1])")
 def twist_si(linear_mm_s: tuple[float, float, float], angular_deg_s: tuple[float, float, float],
-             out: np.ndarray) -> None:
+             out: np.ndarray) -> bool:
     """A twist in SI units into ``out`` (6): ``linear / 1000.0`` (m/s), then ``np.radians(angular)``
-    (rad/s: numpy multiplies by pi / 180, this constant)."""
+    (rad/s: numpy multiplies by pi / 180, this constant); returns ``out.any()``."""
     for i in range(3):
         out[i] = linear_mm_s[i] / 1000.0
         out[3 + i] = angular_deg_s[i] * _DEG_TO_RAD
+    for x in out:  # noqa: SIM110 - a loop numba compiles (no generator expression)
+        if x != 0.0:
+            return True
+    return False
 
 
 @kernel("void(float64[::1], float64[::1], float64[::1], float64, float64)")
@@ -650,6 +654,13 @@ def step_outputs(dq: np.ndarray, q: np.ndarray, dt: float, out: np.ndarray) -> b
         out[1, i] = q[i] + dq[i]
         out[2, i] = dq[i] / dt
     return True
+
+
+@kernel("void(float64, float64[::1], float64[::1], float64[::1])")
+def line_point(s: float, direction: np.ndarray, shift: np.ndarray, out: np.ndarray) -> None:
+    """``s * direction + shift`` into ``out``: numpy's two operations per entry, in its order."""
+    for i in range(direction.shape[0]):
+        out[i] = s * direction[i] + shift[i]
 
 
 @kernel("float64(float64[::1], float64[::1])")
