@@ -47,6 +47,36 @@ def test_quaternion_product_and_rotation_between_match_mujoco(a: np.ndarray, b: 
     np.testing.assert_allclose(rot, w, rtol=1e-9, atol=1e-12)
 
 
+speeds3 = st.tuples(*[st.one_of(st.floats(-4000.0, 4000.0, allow_nan=False), st.just(0.0), st.just(-0.0))] * 3)
+
+
+@given(linear=speeds3, angular=speeds3)
+def test_twist_in_si_units_is_numpys_to_the_bit(linear: tuple[float, float, float],
+                                                angular: tuple[float, float, float]) -> None:
+    ref = np.array((*linear, *angular), dtype=float)  # the reading the kernel replaced
+    ref[:3] /= 1000.0
+    np.radians(ref[3:], out=ref[3:])
+    out = np.empty(6)
+    moves = k.twist_si(linear, angular, out)
+    assert out.tobytes() == ref.tobytes()
+    assert moves == bool(ref.any())
+
+
+@given(dq=arrays(np.float64, 6, elements=st.floats(-1e3, 1e3)), q=vec6, dt=st.sampled_from([0.004, 0.008, 0.1]),
+       bad=st.sampled_from([None, math.nan, math.inf, -math.inf]), at=st.integers(0, 5))
+def test_step_outputs_are_numpys_to_the_bit_and_refuse_non_finite(dq: np.ndarray, q: np.ndarray, dt: float,
+                                                                  bad: float | None, at: int) -> None:
+    if bad is not None:
+        dq[at] = bad
+    out = np.full((3, 6), 7.0)
+    ok = k.step_outputs(dq, q, dt, out)
+    if bad is not None:
+        assert not ok and (out == 7.0).all()  # untouched
+        return
+    assert ok
+    assert out.tobytes() == np.array([dq, q + dq, dq / dt]).tobytes()
+
+
 @given(pose=poses, xi=vec6, s=st.floats(-2.0, 2.0), dt=st.sampled_from([0.004, 0.008, 1.0]))
 def test_advance_matches_mujoco(pose: np.ndarray, xi: np.ndarray, s: float, dt: float) -> None:
     xi_dt = s * xi * dt
@@ -180,6 +210,41 @@ def test_binding_flags_match_numpy(gh: tuple[np.ndarray, np.ndarray], dq: np.nda
         tie = np.isfinite(h) & (np.abs(slack - (1e-9 + 1e-6 * np.abs(h))) < 1e-12)
     if not tie.any():  # away from a tie at the tolerance (rounding of g @ dq)
         assert k.binding_flags(g, h, dq, flags, lo, hi, vb, 1e-9, 1 << 6, 1 << 7) == expected
+
+
+@given(s=st.floats(-1e3, 1e3), direction=vec6, shift=vec6)
+def test_line_point_is_numpys_to_the_bit(s: float, direction: np.ndarray, shift: np.ndarray) -> None:
+    out = np.empty(6)
+    k.line_point(s, direction, shift, out)
+    assert out.tobytes() == (s * direction + shift).tobytes()
+
+
+@given(a=arrays(np.float64, 6, elements=st.floats(-1e6, 1e6)), b=arrays(np.float64, 6, elements=st.floats(-1e6, 1e6)))
+def test_dot_sums_in_index_order_like_numpy(a: np.ndarray, b: np.ndarray) -> None:
+    in_order = 0.0
+    for x, y in zip(a.tolist(), b.tolist(), strict=True):  # Python floats: IEEE, no fused multiply-add
+        in_order += x * y
+    assert k.dot(a, b) == in_order
+    assert math.isclose(k.dot(a, b), float(a @ b), rel_tol=1e-12, abs_tol=1e-300)  # numpy's (BLAS) dot
+
+
+@given(gh=rows, dq=vec6, d=vec6, s_goal=st.sampled_from([0.0, 1.0]), s_sing=st.floats(0.0, 1.0), q=vec6,
+       dt=st.sampled_from([0.004, 0.008]), vb=arrays(np.bool_, 12))
+def test_step_result_is_the_steps_own_arithmetic(gh: tuple[np.ndarray, np.ndarray], dq: np.ndarray, d: np.ndarray,
+                                                 s_goal: float, s_sing: float, q: np.ndarray, dt: float,
+                                                 vb: np.ndarray) -> None:
+    """The reading step_result replaced: Python's min/max over the dots, and the two kernels it calls."""
+    g, h = gh
+    flags = (1 << (np.arange(len(h)) % 5)).astype(np.int64)
+    lo, hi = min(2, len(h)), min(14, len(h))
+    dd = k.dot(d, d)
+    expected = min(max(k.dot(dq, d) / dd, 0.0), 1.0) * s_sing if s_goal == 1.0 and dd > 0.0 else 0.0
+    out, ref = np.empty((3, 6)), np.empty((3, 6))
+    scale, bits, finite = k.step_result(dq, d, s_goal, s_sing, q, dt, g, h, flags, lo, hi, vb, 1e-9, 1 << 6, 1 << 7,
+                                        out)
+    assert scale == expected or (math.isnan(scale) and math.isnan(expected))
+    assert bits == k.binding_flags(g, h, dq, flags, lo, hi, vb, 1e-9, 1 << 6, 1 << 7)
+    assert finite == k.step_outputs(dq, q, dt, ref) and out.tobytes() == ref.tobytes()
 
 
 @given(prev=vec6, j23=st.floats(-1.0, 1.0), dt=st.sampled_from([0.004, 0.008]))

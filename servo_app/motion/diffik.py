@@ -99,6 +99,7 @@ class IkFlag(enum.IntFlag):
 
 # The flags as plain ints for the cycle: IntFlag's operators run Python code (several us each here).
 _B = types.SimpleNamespace(**{f.name: int(f) for f in IkFlag if f.name})
+_VELOCITY_LIMIT_BIT, _ACCEL_LIMIT_BIT = int(IkFlag.VELOCITY_LIMIT), int(IkFlag.ACCEL_LIMIT)
 
 _FLAG_OF: dict[int, IkFlag] = {}  # IkFlag(bits) by bits: the enum's constructor costs microseconds
 
@@ -348,15 +349,25 @@ class DifferentialIK:
         q = self._checked(q_model_rad, "q_model_rad")
         if not self._started:
             self.reset(q)
+        return self.step_owned(q, command, None if dq_prev is None else self._checked(dq_prev, "dq_prev"))
+
+    def step_owned(self, q: np.ndarray, command: Command | None, dq_prev: np.ndarray | None = None) -> IkResult:
+        """:meth:`step` for arrays the caller made for this call and hands over (the servo cycle's
+        start, converted from the shaper's state by a kernel): float64, shape (6,), finite, never
+        changed afterwards by the caller. They are neither copied nor checked again (the IK may keep
+        them: ``step_again`` starts from them)."""
+        if not self._started:
+            self.reset(q)
         # Everything step() changes (the rows and targets it sets are rebuilt by every step).
         self._before = (self._dq_prev, self._ref, self._last_xi, self._mode)
         if dq_prev is not None:
-            self._dq_prev = self._checked(dq_prev, "dq_prev")
+            self._dq_prev = dq_prev
         st, dt = self.settings, self.dt
-        cfg = self.configuration
+        data = self.configuration.data
         self._kinematics(q)
-        self.accel_limit.set_previous(self._dq_prev)
-        kappa = self._condition(cfg.data)
+        # (set_previous without its copy: the IK's dq_prev is never changed in place, only replaced)
+        self.accel_limit.dq_prev = self._dq_prev
+        kappa = self._condition(data)
         flags = _B.NEAR_SINGULARITY if kappa > st.singularity_slow else 0  # int bits: IntFlag | costs us
         s_sing = 1.0
         xi: np.ndarray | None = None  # base-frame twist the frame task follows (Cartesian modes)
@@ -366,35 +377,43 @@ class DifferentialIK:
         target: np.ndarray | None = None  # the frame task's target pose (Cartesian modes)
         joint_goal = q  # the joint task's target (joint modes)
 
-        if isinstance(command, Twist | PoseTarget) or cartesian_stop:
-            tcp = self._site_pose(cfg.data, self._site_id)
-            if isinstance(command, Twist):
-                mode, xi = "twist", self._twist_base(command, tcp)
+        is_twist = isinstance(command, Twist)  # (the jog's command: one check, not a union's)
+        if is_twist or isinstance(command, PoseTarget) or cartesian_stop:
+            tcp = self._tcp_pose()
+            if is_twist:
+                mode = "twist"
+                xi, xi_moves = self._twist_base(command, tcp)  # type: ignore[arg-type]
             elif isinstance(command, PoseTarget):
                 mode = "pose"
                 xi, arrived = self._pose_twist(command, tcp)
+                xi_moves = kernels.any_nonzero(xi)
             else:
-                mode, xi = "stop", np.zeros(6)
+                mode, xi, xi_moves = "stop", np.zeros(6), False
                 flags |= _B.NO_COMMAND
             cartesian_mode = mode if mode != "stop" else self._mode
-            if self._mode != cartesian_mode or self._ref is None or not self._near(self._ref, tcp):
+            if (self._mode != cartesian_mode or self._ref is None
+                    or not kernels.poses_near(self._ref, tcp, st.reference_tolerance_m, self._reach)):
                 self._ref = tcp
             elif cartesian_mode == "twist" and self._last_xi is not None:
                 self._ref = self._along_track(self._ref, tcp, self._last_xi)
-            if kernels.any_nonzero(xi):
-                s_sing = self._singularity_factor(q, xi, kappa)
-                if s_sing < 1.0:
+            if xi_moves:
+                asks_motion = True
+                if kappa > st.singularity_slow:  # (below, the factor is 1)
+                    s_sing = self._singularity_factor(q, xi, kappa)
+                if s_sing < 1.0:  # (xi is this step's own array: scaled only when slowed, x * 1.0 being x)
                     flags |= _B.SINGULARITY_SLOWDOWN
-                xi = xi * s_sing
+                    xi = xi * s_sing
+                    asks_motion = kernels.any_nonzero(xi)
                 s_goal = 1.0
                 self._last_xi = xi
             elif self._last_xi is not None and moving:
                 xi, s_goal = self._last_xi, 0.0  # brake along the last commanded Cartesian line
+                asks_motion = kernels.any_nonzero(xi)
             else:
                 s_goal, self._last_xi = 0.0, None
+                asks_motion = False  # (xi is zero)
             target = _advance(self._ref, xi, 1.0, dt)
             self.frame_target = target
-            asks_motion = kernels.any_nonzero(xi)
             state_mode = cartesian_mode
         else:
             self._ref = None
@@ -426,7 +445,7 @@ class DifferentialIK:
             # on its target); d = the line plus this cycle's share of the pull-back d_corr.
             with_ref = xi is not None and asks_motion and self._ref is not None
             p, c = self._cartesian_objective(target, self._ref if with_ref else None)
-            d, d_corr = self._d[0].copy(), self._d[1].copy()
+            d, d_corr = self._d  # views of the optimum: read (never written) until the next objective
         else:
             p, c = self._joint_objective(q, joint_goal)
             rhs = self._rhs
@@ -446,7 +465,8 @@ class DifferentialIK:
             d_corr = np.zeros(N)  # the correction does not fit this cycle: the line alone
             s = _path_scale(direction, s_goal, g, h_path)
         if s is not None:  # 1. on the line
-            dq = s * direction + d_corr
+            dq = np.empty(N)
+            kernels.line_point(s, direction, d_corr, dq)  # s * direction + d_corr
             if xi is not None and self._ref is not None and asks_motion:
                 self._ref = _advance(self._ref, xi, s, dt)  # the reference follows what was achieved
             if s_goal == 0.0 and s == 0.0:
@@ -471,14 +491,22 @@ class DifferentialIK:
             else:
                 dq = self._decelerate()
                 flags |= _B.SOLVER_FAILED
-        dd = float(d @ d)
-        scale = min(max(float(dq @ d) / dd, 0.0), 1.0) * s_sing if s_goal == 1.0 and dd > 0.0 else 0.0
-        flags |= self._binding_flags(g, h, dq)
-        if not kernels.all_finite(dq):  # defensive: every branch above is finite by construction
+        # In one kernel call: the share of the command delivered, the flags of the rows dq binds (within
+        # binding_tol + 1e-6 |h|; inactive rows, h = inf, never bind; an acceleration row whose bound is
+        # the velocity one raises VELOCITY_LIMIT, and ACCEL_LIMIT stays only if a row bound by
+        # acceleration binds), and the rows of out: the copy of dq kept as the next cycle's start,
+        # q + dq, dq / dt.
+        out = np.empty((3, N))
+        scale, bits, finite = kernels.step_result(
+            dq, d, s_goal, s_sing, q, dt, g, h, self._row_flags, self._accel_lo, self._accel_hi,
+            self.accel_limit.velocity_bound, st.binding_tol, _VELOCITY_LIMIT_BIT, _ACCEL_LIMIT_BIT, out)
+        flags |= bits
+        if not finite:  # defensive: every branch above is finite by construction
             dq = np.zeros(N)
             flags |= _B.SOLVER_FAILED
-        self._dq_prev = dq.copy()
-        return IkResult(dq=dq, q_next=q + dq, velocity=dq / dt, scale=float(scale), flags=_ik_flag(flags),
+            kernels.step_outputs(dq, q, dt, out)
+        self._dq_prev, q_next, velocity = out
+        return IkResult(dq=dq, q_next=q_next, velocity=velocity, scale=scale, flags=_ik_flag(flags),
                         condition=kappa, mode=mode, solver_status=solver_status)
 
     def step_again(self, q_model_rad: ArrayLike, command: Command | None, *, dq_prev: ArrayLike | None = None
@@ -569,6 +597,7 @@ class DifferentialIK:
         self._sl = sl
         self._row_counts = counts
         self._accel_rows, self._braking_rows = sl[2], sl[3]
+        self._accel_lo, self._accel_hi = sl[2].start, sl[2].stop  # (the binding kernel's ints)
         flags = np.zeros(m, dtype=np.int64)
         flags[sl[0]] = int(IkFlag.JOINT_LIMIT)
         flags[sl[1]] = int(IkFlag.VELOCITY_LIMIT)
@@ -587,8 +616,11 @@ class DifferentialIK:
         data = self.configuration.data
         self._view = types.SimpleNamespace(qpos=data.qpos, site_xmat=data.site_xmat, site_xpos=data.site_xpos,
                                            cdof=data.cdof, subtree_com=data.subtree_com)
+        self._neq = int(model.neq)  # (a tool change moves a site: the model keeps its equality constraints)
         self._tree, self._dof_parentid = jacobian_tree(model)
-        self._site_bodyid = model.site_bodyid
+        self._site_body = int(model.site_bodyid[self._site_id])  # (a tool change moves the site, not its body)
+        # The TCP site's rows of those arrays, as views made once (for its pose each Cartesian cycle).
+        self._tcp_xmat, self._tcp_xpos = data.site_xmat[self._site_id], data.site_xpos[self._site_id]
         self._jac_flange = np.zeros((6, model.nv))
         self._jac_flange_lin, self._jac_flange_ang = self._jac_flange[:3], self._jac_flange[3:]
         self._cond_work = np.zeros((6, model.nv))
@@ -642,10 +674,10 @@ class DifferentialIK:
     def _kinematics(self, q: np.ndarray) -> None:
         """The configuration at ``q``: what ``Configuration.update`` does, without copying qpos."""
         data = self.configuration.data
-        data.qpos[:] = q  # the arm's joints are the whole qpos, in model order (checked by _layout)
+        self._view.qpos[:] = q  # the arm's joints are the whole qpos, in model order (checked by _layout)
         mujoco.mj_kinematics(self.model, data)
         mujoco.mj_comPos(self.model, data)
-        if self.model.neq > 0:
+        if self._neq > 0:
             mujoco.mj_makeConstraint(self.model, data)
 
     def _posture_terms(self, task: mink.PostureTask, cost: np.ndarray, goal: np.ndarray) -> np.ndarray:
@@ -667,7 +699,7 @@ class DifferentialIK:
             self._posture_src = pt.target_q
             self._posture_goal = np.ascontiguousarray(pt.target_q, dtype=float)  # qpos order is model order
         ok = kernels.site_objective(
-            view.cdof, view.subtree_com, self._tree, self._dof_parentid, int(self._site_bodyid[sid]), view.site_xmat,
+            view.cdof, view.subtree_com, self._tree, self._dof_parentid, self._site_body, view.site_xmat,
             view.site_xpos, sid, self._jac_world, target, ref if ref is not None else target, ref is not None,
             self._frame_cost, self._frame_gain, self._posture_cost, self._posture_gain, self._posture_goal, view.qpos,
             self.settings.damping, self._correction_gain, self._p, self._c, self._c_frame, self._weighted_jac, self._d)
@@ -715,14 +747,15 @@ class DifferentialIK:
         return self._condition_at(q)
 
     # -------------------------------------------------------------------------- desired motion
-    def _twist_base(self, cmd: Twist, tcp: np.ndarray) -> np.ndarray:
-        xi = np.array((*cmd.linear, *cmd.angular), dtype=float)  # one array, converted in place
-        xi[:3] /= 1000.0
-        np.radians(xi[3:], out=xi[3:])
+    def _twist_base(self, cmd: Twist, tcp: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The twist in the base frame, m/s and rad/s, and whether it is not zero (``xi.any()``)."""
+        xi = np.empty(6)
+        moves = kernels.twist_si(cmd.linear, cmd.angular, xi)  # numpy's operations in one call
         if cmd.frame == "tool":
             for part in (xi[:3], xi[3:]):
                 mujoco.mju_rotVecQuat(part, part.copy(), tcp[:4])
-        return xi
+            moves = kernels.any_nonzero(xi)
+        return xi, moves
 
     def _pose_twist(self, cmd: PoseTarget, tcp: np.ndarray) -> tuple[np.ndarray, bool]:
         """Straight-line P-control: one rate for translation and rotation (they arrive together),
@@ -814,20 +847,12 @@ class DifferentialIK:
             self._row_flags[self._braking_rows] = np.where(self.braking_limit.restricted, int(IkFlag.CONFIGURATION),
                                                            int(IkFlag.JOINT_LIMIT))
 
-    def _binding_flags(self, g: np.ndarray, h: np.ndarray, dq: np.ndarray) -> int:
-        assert self._row_flags is not None and self._accel_rows is not None
-        # Binding within binding_tol + 1e-6 |h|; inactive rows (h = inf) never bind. An acceleration
-        # row whose bound is the velocity one raises VELOCITY_LIMIT, and ACCEL_LIMIT stays only if a
-        # row bound by acceleration binds.
-        return int(kernels.binding_flags(g, h, dq, self._row_flags, self._accel_rows.start, self._accel_rows.stop,
-                                         self.accel_limit.velocity_bound, self.settings.binding_tol,
-                                         _B.VELOCITY_LIMIT, _B.ACCEL_LIMIT))
-
-    def _site_pose(self, data: mujoco.MjData, site_id: int) -> np.ndarray:
-        """The site's pose as mink stores an SE3: quaternion (w x y z), then position."""
+    def _tcp_pose(self) -> np.ndarray:
+        """The TCP site's pose as mink stores an SE3: quaternion (w x y z), then position (read through
+        the views of the configuration's arrays made once)."""
         pose = np.empty(7)
-        mujoco.mju_mat2Quat(pose[:4], data.site_xmat[site_id])
-        pose[4:] = data.site_xpos[site_id]
+        mujoco.mju_mat2Quat(pose[:4], self._tcp_xmat)
+        pose[4:] = self._tcp_xpos
         return pose
 
     def _along_track(self, ref: np.ndarray, tcp: np.ndarray, xi: np.ndarray) -> np.ndarray:
@@ -838,9 +863,6 @@ class DifferentialIK:
         (+20 %) and swung back: only the error across the line is the IK's to correct."""
         out = np.empty(7)
         return out if kernels.along_track(out, ref, tcp, xi, self._track_weights) else ref
-
-    def _near(self, a: np.ndarray, b: np.ndarray) -> bool:
-        return bool(kernels.poses_near(a, b, self.settings.reference_tolerance_m, self._reach))
 
     def _full_q(self, q: np.ndarray) -> np.ndarray:
         full = self.configuration.data.qpos.copy()
@@ -872,10 +894,13 @@ def _scale_interval(direction: np.ndarray, g: np.ndarray, h: np.ndarray, shift: 
 def _path_scale(direction: np.ndarray, s_goal: float, g: np.ndarray, h: np.ndarray,
                 shift: np.ndarray | None = None) -> float | None:
     """The ``s`` nearest ``s_goal`` with ``g @ (s * direction + shift) <= h``, or None if there is none."""
-    interval = _scale_interval(direction, g, h, shift)
-    if interval is None:
+    if shift is None:  # (_scale_interval's kernel call, without its call: this runs every Cartesian cycle)
+        lo, hi = kernels.scale_interval(direction, g, h, direction, 0.0)
+    else:
+        lo, hi = kernels.scale_interval(direction, g, h, shift, 1.0)
+    if math.isnan(lo):
         return None
-    s = min(max(s_goal, interval[0]), interval[1])
+    s = min(max(s_goal, lo), hi)
     return s if math.isfinite(s) else None
 
 

@@ -22,6 +22,7 @@ import math
 import numpy as np
 
 from servo_app.jit import kernel
+from servo_app.robots.kernels import DEG_TO_RAD
 
 _MINVAL = 1e-15  # MuJoCo's mjMINVAL: its vector normalisations treat shorter vectors as zero
 _LIE_EPS = 1e-10  # mink's _lie_ops_c EPS: small-angle series below it
@@ -56,6 +57,20 @@ def rotation_between(out: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
     if speed > math.pi:  # the angle beyond pi: the other way round
         speed -= 2.0 * math.pi
     out[0], out[1], out[2] = x * speed, y * speed, z * speed
+
+
+@kernel("boolean(UniTuple(float64, 3), UniTuple(float64, 3), float64[::1])")
+def twist_si(linear_mm_s: tuple[float, float, float], angular_deg_s: tuple[float, float, float],
+             out: np.ndarray) -> bool:
+    """A twist in SI units into ``out`` (6): ``linear / 1000.0`` (m/s), then ``np.radians(angular)``
+    (rad/s: numpy multiplies by pi / 180, this constant); returns ``out.any()``."""
+    for i in range(3):
+        out[i] = linear_mm_s[i] / 1000.0
+        out[3 + i] = angular_deg_s[i] * DEG_TO_RAD
+    for x in out:  # noqa: SIM110 - a loop numba compiles (no generator expression)
+        if x != 0.0:
+            return True
+    return False
 
 
 @kernel("void(float64[::1], float64[::1], float64[::1], float64, float64)")
@@ -623,6 +638,62 @@ def any_nonzero(v: np.ndarray) -> bool:
         if x != 0.0:
             return True
     return False
+
+
+@kernel("boolean(float64[::1], float64[::1], float64, float64[:, ::1])")
+def step_outputs(dq: np.ndarray, q: np.ndarray, dt: float, out: np.ndarray) -> bool:
+    """A diff-IK step's arrays from its increment ``dq`` at the joints ``q``, into the rows of ``out``
+    (3 x n): ``dq`` (a copy), ``q + dq``, ``dq / dt``; False (``out`` untouched) if ``dq`` is not finite."""
+    n = dq.shape[0]
+    for i in range(n):
+        if not math.isfinite(dq[i]):
+            return False
+    for i in range(n):
+        out[0, i] = dq[i]
+        out[1, i] = q[i] + dq[i]
+        out[2, i] = dq[i] / dt
+    return True
+
+
+@kernel("void(float64, float64[::1], float64[::1], float64[::1])")
+def line_point(s: float, direction: np.ndarray, shift: np.ndarray, out: np.ndarray) -> None:
+    """``s * direction + shift`` into ``out``: numpy's two operations per entry, in its order."""
+    for i in range(direction.shape[0]):
+        out[i] = s * direction[i] + shift[i]
+
+
+@kernel("float64(float64[::1], float64[::1])")
+def dot(a: np.ndarray, b: np.ndarray) -> float:
+    """``a @ b``: the products summed in index order, as numpy's dot of two 6-vectors sums them (equal
+    to the bit on 200 000 random pairs here; tests/test_ik_kernels.py holds it to numpy within 1e-12)."""
+    acc = 0.0
+    for i in range(a.shape[0]):
+        acc += a[i] * b[i]
+    return acc
+
+
+@kernel("Tuple((float64, int64, boolean))(float64[::1], float64[::1], float64, float64, float64[::1], float64, "
+        "float64[:, ::1], float64[::1], int64[::1], int64, int64, boolean[::1], float64, int64, int64, "
+        "float64[:, ::1])")
+def step_result(dq: np.ndarray, d: np.ndarray, s_goal: float, s_sing: float, q: np.ndarray, dt: float,
+                g: np.ndarray, h: np.ndarray, row_flags: np.ndarray, accel_lo: int, accel_hi: int,
+                velocity_bound: np.ndarray, tol: float, velocity_flag: int, accel_flag: int,
+                out: np.ndarray) -> tuple[float, int, bool]:
+    """The end of a diff-IK step with the increment ``dq``, in one call: (the share of the command ``d``
+    delivered, the flags of the rows ``dq`` binds (:func:`binding_flags`), :func:`step_outputs` into
+    ``out``). The share is ``min(max(dq.d / d.d, 0), 1) * s_sing`` when ``s_goal`` is 1 and ``d`` is
+    not zero, else 0, with Python's min and max (a NaN stays NaN)."""
+    scale = 0.0
+    dd = dot(d, d)
+    if s_goal == 1.0 and dd > 0.0:
+        x = dot(dq, d) / dd
+        if x < 0.0:  # max(x, 0.0)
+            x = 0.0
+        if x > 1.0:  # min(x, 1.0)
+            x = 1.0
+        scale = x * s_sing
+    bits = binding_flags(g, h, dq, row_flags, accel_lo, accel_hi, velocity_bound, tol, velocity_flag, accel_flag)
+    return scale, bits, step_outputs(dq, q, dt, out)
 
 
 @kernel("boolean(float64[::1])")

@@ -146,7 +146,7 @@ class AccelerationLimit(Limit):
         self._da = np.zeros(6)
 
     def set_previous(self, dq_prev: np.ndarray) -> None:
-        self.dq_prev = np.asarray(dq_prev, dtype=float).copy()
+        self.dq_prev = np.array(dq_prev, dtype=float)  # a copy
 
     def compute_qp_inequalities(self, configuration: Configuration, dt: float) -> Constraint:
         del configuration

@@ -106,6 +106,7 @@ class ServoCycle:
         # Scratch for the kernels: the cycle allocates nothing for them.
         self._scratch = np.empty(profile.dof)
         self._jog_goal = np.empty(profile.dof)
+        self._ik_velocity = np.empty(profile.dof)  # _guard_ik_velocity's output, handed to the shaper
         # The shaper's soft limits as the guards use them, for the limits they were derived from.
         self._soft_for: ShaperLimits | None = None
         self._soft_vel = self._brake = np.empty(0)
@@ -251,10 +252,10 @@ class ServoCycle:
         cart = self._cart
         if shaper is None or not self._cart_active or self._ahead is not None or isinstance(cart, PoseTarget):
             return False
-        q_f, v_f, _ = shaper.state
+        q_f, v_f = shaper.position_velocity()
         q_m, dq_prev = np.empty(len(q_f)), np.empty(len(q_f))
         cycle_kernels.ik_start(q_f, v_f, self._j23, self.dt, q_m, dq_prev)
-        res = self.ik.step(q_m, cart, dq_prev=dq_prev)
+        res = self.ik.step_owned(q_m, cart, dq_prev)  # (arrays made here for it)
         self._ahead = _Ahead(res, cart, self._steps, q_f, v_f, q_m, dq_prev)
         return True
 
@@ -523,7 +524,7 @@ class ServoCycle:
             q_f, v_f, q_m, dq_prev, res = ahead.q_f, ahead.v_f, ahead.q_m, ahead.dq_prev, ahead.result
             self.ahead_used += 1
         else:
-            q_f, v_f, _ = shaper.state
+            q_f, v_f = shaper.position_velocity()
             # The start in the model convention and what the shaper delivers, model rad/cycle (new
             # arrays each cycle: the IK may keep them).
             q_m, dq_prev = np.empty(len(q_f)), np.empty(len(q_f))
@@ -532,7 +533,7 @@ class ServoCycle:
                 self.ahead_dropped += 1
                 res = self.ik.step_again(q_m, self._cart, dq_prev=dq_prev)
             else:
-                res = self.ik.step(q_m, self._cart, dq_prev=dq_prev)
+                res = self.ik.step_owned(q_m, self._cart, dq_prev)
         while self.late_command is not None:
             # A command that arrived while the IK solved still makes this cycle's packet: the input
             # is read as late as the cycle allows, not only when the status packet arrived. The hook
@@ -600,11 +601,12 @@ class ServoCycle:
         let the IK approach a boundary (a target out of reach) ever more slowly: below CREEP_DEG_S it
         only creeps, and the arm is held still and at rest instead.
         """
-        self._soft_limits(shaper)
-        v = np.empty(len(q))
+        if shaper.limits is not self._soft_for:
+            self._soft_limits(shaper)
+        v = self._ik_velocity  # (set_velocity copies it into ruckig's input)
         self.limit_scale = cycle_kernels.guard_ik_velocity(
-            q, np.ascontiguousarray(velocity_model, dtype=np.float64), v_now, self._stop_lag, self._brake, self._j23,
-            self._region_packed, CREEP_DEG_S, self._scratch, v)
+            q, velocity_model, v_now, self._stop_lag, self._brake, self._j23, self._region_packed, CREEP_DEG_S,
+            self._scratch, v)
         return v
 
     def _soft_limits(self, shaper: JointShaper) -> None:

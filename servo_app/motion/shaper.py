@@ -49,7 +49,7 @@ from ruckig import (
 )
 
 from servo_app.motion.limit_tables import LimitTables
-from servo_app.motion.shaper_kernels import emit_if_passes, line_limits, velocity_within
+from servo_app.motion.shaper_kernels import any_nonzero2, emit_if_passes, line_limits, velocity_within
 from servo_app.motion.stops import STOP_MODES, StopMode, stop_path, time_optimal_stop_duration
 
 ArrayLike = Sequence[float] | np.ndarray
@@ -368,6 +368,9 @@ class JointShaper:
         self._guard_env = self._wanted_guard = self._env["soft"]  # guard: enforced now / to adopt
         self._applied_plan: tuple[Envelope, float] | None = None  # plain limits ruckig has (see _apply_plan_limits)
         self._line_limits = np.empty((3, self.n))  # scratch of _apply_line_limits
+        self._within = np.empty(self.n)  # scratch of set_velocity
+        self._no_change = _NO_CHANGE[self.n]  # the guard's mask when it changed nothing
+        self._target_still = True  # ruckig's target velocity is zero (what _settle asks)
         self.set_limits(limits)
         self.reseed(q0)
 
@@ -445,8 +448,8 @@ class JointShaper:
     def set_velocity(self, v: ArrayLike) -> None:
         """Reach joint velocity ``v`` (deg/s) jerk-limited; above the limit all axes are scaled by one
         factor, which keeps the direction."""
-        v = _arr(v)
-        within = np.empty(self.n)
+        v = np.ascontiguousarray(v, dtype=np.float64)  # (not kept: no copy)
+        within = self._within
         if v.shape != (self.n,) or velocity_within(v, self._env["soft"].plan_vel, within) < 0.0:
             raise ValueError(f"expected {self.n} finite joint velocities, got {v}")
         self._select_plan("soft", 1.0)
@@ -483,7 +486,8 @@ class JointShaper:
             r = self.guard.s1
             self.guard.commit(r.tolist())
             return r
-        self._try_switch_guard()
+        if self._guard_env is not self._wanted_guard:  # (_try_switch_guard's own test, without the call)
+            self._try_switch_guard()
         candidate = self._plan()
         if candidate is None:
             # Last resort: a discrete braking step of our own (the guard still checks it); ruckig
@@ -494,7 +498,7 @@ class JointShaper:
             return r
         r, changed = self.guard.filter(candidate, self._guard_env)
         self._out.pass_to_input(self._inp)
-        if changed is not _NO_CHANGE[self.n] and changed.any():
+        if changed is not self._no_change and changed.any():
             self._resync(changed)
         elif self._finished:
             self._settle()
@@ -508,6 +512,11 @@ class JointShaper:
         return (np.asarray(self._inp.current_position), np.asarray(self._inp.current_velocity),
                 np.asarray(self._inp.current_acceleration))
 
+    def position_velocity(self) -> tuple[np.ndarray, np.ndarray]:
+        """``state``'s position and velocity alone (the IK's start each Cartesian cycle)."""
+        inp = self._inp
+        return np.asarray(inp.current_position), np.asarray(inp.current_velocity)
+
     @property
     def commanded(self) -> np.ndarray:
         """The last position emitted (float32 values): the one to re-seed from."""
@@ -520,7 +529,7 @@ class JointShaper:
         # The same terms, cheapest first and on the guard's own arrays (no copies): a moving arm fails on
         # the first two, ~2 us here where the whole test took 13 us (the servo process asks every publish).
         g = self.guard
-        if not self._finished or g._v.any() or g._a.any():  # any(): nonzero or NaN, as "== 0.0" fails them
+        if not self._finished or any_nonzero2(g._v, g._a):  # nonzero or NaN, as "== 0.0" fails them
             return False
         p, v, a = self.state
         return bool(np.array_equal(g._s, to_f32(p)) and (np.abs(v) <= _REST_TOL).all()
@@ -611,13 +620,17 @@ class JointShaper:
         self._inp.synchronization = Synchronization.Phase  # falls back to Time when not possible
         self._inp.target_position = q.tolist()
         self._inp.target_velocity = [0.0] * self.n
+        self._target_still = True
         self._finished = False
 
     def _set_velocity_mode(self, v: np.ndarray, name: str) -> None:
-        self._mode = name
-        self._inp.control_interface = ControlInterface.Velocity
-        self._inp.synchronization = Synchronization.Phase
-        self._inp.target_velocity = v.tolist()
+        if self._mode != name:  # (a velocity stream sets the same mode every cycle: ruckig has it already)
+            self._mode = name
+            self._inp.control_interface = ControlInterface.Velocity
+            self._inp.synchronization = Synchronization.Phase
+        target = v.tolist()
+        self._inp.target_velocity = target
+        self._target_still = not any(target)
         self._finished = False
 
     def _try_switch_guard(self) -> None:
@@ -660,7 +673,7 @@ class JointShaper:
         """At the end of a stop or a move ruckig may leave ~1e-14 deg/s that would creep on forever,
         or end ~1e-16 deg off the target: snap to the exact end state (far inside the planning slack)."""
         inp = self._inp
-        if any(inp.target_velocity):
+        if not self._target_still:  # (any(inp.target_velocity), kept by the two modes that set it)
             return
         position = inp.control_interface == ControlInterface.Position
         if any(inp.current_velocity) or any(inp.current_acceleration) or (
