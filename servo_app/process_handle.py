@@ -135,7 +135,8 @@ class ServoProcessHost:
             self._deliver_signal(sig, time.monotonic())
         self._poll_requests()
         self.sup.watch_start(time.monotonic())
-        self._answer_start()
+        if self._start_waiters:
+            self._answer_start()
         self._watch_link()
         self._publish()
         if self.sup.finished:
@@ -245,7 +246,7 @@ class ServoProcessHost:
         d = sv.data
         d[_PUBLISHED_UNIX] = time.time()
         d[_PHASE] = _PHASE_INDEX[self.sup.link_phase()[0]]
-        d[_MODE] = _MODE_INDEX[self.sup.state.mode.value]
+        d[_MODE] = _MODE_INDEX[self.sup.state.mode]  # a StrEnum member finds its value's entry
         d[_SESSION_TIME] = time.monotonic() - self.t0
         self._publish_backend(sv)
         self.slot.write(d)  # the one write a reader sees

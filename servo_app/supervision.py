@@ -413,9 +413,12 @@ class SupervisorBase:
         self.hold = HoldToRun(timeout_s=hold_s).renew(now)
 
     def _poll_hold(self, now: float) -> None:
-        self.hold, expired = self.hold.poll(now)
-        if expired is not None and self.state.mode == Mode.STREAMING:
-            self._feed(JogExpired(), now)
+        # HoldToRun.poll's test without its (watch, event) pair: this runs on every status packet.
+        hold = self.hold
+        if hold.last_renewed is not None and hold.expired(now):
+            self.hold = hold.release()
+            if self.state.mode == Mode.STREAMING:
+                self._feed(JogExpired(), now)
 
     # ------------------------------------------------------------------------------------ start
     @property
@@ -467,7 +470,9 @@ class SupervisorBase:
 
     def link_phase(self) -> tuple[str, str]:
         """The link's phase (one of :data:`servo_app.state.PHASES`) and, in fault, why."""
-        return self.session.phase.value, self.session.fault_reason
+        # A session's phase is a StrEnum: str() is its value, without the enum's Python-level value
+        # property (twice per loop iteration).
+        return str(self.session.phase), self.session.fault_reason
 
     @property
     def finished(self) -> bool:
