@@ -245,8 +245,10 @@ class ServoProcessHost:
         sv = self.state
         d = sv.data
         d[_PUBLISHED_UNIX] = time.time()
-        d[_PHASE] = _PHASE_INDEX[self.sup.link_phase()[0]]
-        d[_MODE] = _MODE_INDEX[self.sup.state.mode]  # a StrEnum member finds its value's entry
+        # The session's phase and the safety mode are StrEnums: each member finds its value's entry (and
+        # the phase is link_phase's, read here without the call).
+        d[_PHASE] = _PHASE_INDEX[self.sup.session.phase]
+        d[_MODE] = _MODE_INDEX[self.sup.state.mode]
         d[_SESSION_TIME] = time.monotonic() - self.t0
         self._publish_backend(sv)
         self.slot.write(d)  # the one write a reader sees

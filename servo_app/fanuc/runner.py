@@ -452,7 +452,7 @@ class _ServoProcess(ServoProcessHost):
         What the commands change in the state goes into the vector here, once per status, not at every
         publish (the publish after a reply rewrote them unchanged): the latency figures, the histogram
         bucket by offset, and the commanded position's derivatives."""
-        s = self.sup.session
+        s = self.session
         st = s.last_status
         if st is None or self.log is None:
             return
@@ -472,7 +472,6 @@ class _ServoProcess(ServoProcessHost):
             self.log.write_pair(self._log_pair)
             self._command_sent(d, c, lat_us)
             s.sent = []
-            self._commands_published(d, lat_us)
             return
         records = []
         if st.seq != self._logged_seq:
@@ -485,7 +484,6 @@ class _ServoProcess(ServoProcessHost):
             if records:
                 self.log.write_records(records)
             return
-        lat_us = 0.0
         for c in sent:
             t = t_first if c.early else t_sent
             lat_us = (t - t_recv) * 1e6
@@ -494,26 +492,24 @@ class _ServoProcess(ServoProcessHost):
             self._command_sent(d, c, lat_us)
         self.log.write_records(records)  # the status and its answers in one write, after they left
         s.sent = []
-        self._commands_published(d, lat_us)
 
     def _command_sent(self, d: np.ndarray, c: SentCommand, lat_us: float) -> None:
+        """A command that left, into the latency figures and the command history, and both into the
+        state vector (of several for one status, the last one's stand)."""
         lat = self.latency
         lat.add(lat_us, self.late_us)
         d[_LAT_HIST + bisect.bisect_left(LATENCY_BUCKETS_US, lat_us)] += 1  # le semantics
         self.lat_sum_us += lat_us
-        self.hist.add(c.values)
         # By count: the window's length stops at 4096, where "len % 16" held at every cycle. Over a
         # full window the percentiles cost 0.5-1 ms here (now ~0.1 ms compiled): every 256th command
         # (1-2 s) once it holds 1024, every 16th before, is as fresh as a display or a scrape needs.
         if lat.count % (16 if lat.count < 1024 else 256) == 0:
             d[_LAT_P50], d[_LAT_P99] = lat.percentiles()
-
-    def _commands_published(self, d: np.ndarray, lat_us: float) -> None:
-        lat = self.latency
         d[_LAT_SUM] = self.lat_sum_us
         d[_LAT_LAST] = lat_us
         d[_LAT_MAX] = lat.max_us
         d[_LATE] = lat.late
+        self.hist.add(c.values)
         self.hist.write(d)
 
     def _open_stream_log(self) -> None:
@@ -566,8 +562,7 @@ class _ServoProcess(ServoProcessHost):
                 d[_STATUS_TIME] = st.timestamp_ms
             d[_STATUS_SEQ] = st.seq
             d[_STATUS_BITS] = st.status
-            d[_Q_SERVO: _Q_SERVO + 6] = st.joints[:6]
-            d[_CART_SERVO: _CART_SERVO + 6] = st.cartesian[:6]
+            d[_Q_SERVO: _Q_SERVO + 12] = st.joints[:6] + st.cartesian[:6]  # q_servo, then cart_servo
             d[_IO_VALUE] = st.read_io_value
             d[_IO_TYPE] = st.read_io_type
             d[_IO_INDEX] = st.read_io_index
@@ -620,6 +615,8 @@ _TRAJ = OFFSET["traj_state"]  # traj_state, traj_index, traj_total, traj_time_s,
     "settled", "stopped", "tables_from_controller", "latency_p50_us", "latency_p99_us", "latency_sum_us",
     "latency_last_us", "latency_max_us", "late_commands"))
 assert FIELDS["latency_hist"].stop - _LAT_HIST == len(LATENCY_BUCKETS_US) + 1
+assert _CART_SERVO == _Q_SERVO + 6  # written as one
+assert _SOLVE_MAX == _SOLVE_P50 + 1 and _CYCLE_MAX == _CYCLE_P50 + 1 and _AHEAD_MAX == _AHEAD_P50 + 1  # _TimeWindow.out
 
 
 def _child_main(cfg_dict: dict[str, Any], conn: Connection, slot_name: str) -> None:
