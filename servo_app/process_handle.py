@@ -134,12 +134,14 @@ class ServoProcessHost:
             sig, self.pending_signal = self.pending_signal, None
             self._deliver_signal(sig, time.monotonic())
         self._poll_requests()
-        self.sup.watch_start(time.monotonic())
+        sup = self.sup
+        if sup.start_pending:  # (no call per cycle while none is)
+            sup.watch_start(time.monotonic())
         if self._start_waiters:
             self._answer_start()
         self._watch_link()
         self._publish()
-        if self.sup.finished:
+        if sup.state.shutdown and sup.finished:  # (finished needs shutdown: no call per cycle before)
             self.quit = True
 
     def _watch_parent(self) -> None:

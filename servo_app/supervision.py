@@ -181,7 +181,7 @@ class SupervisorBase:
         self.hold = HoldToRun(timeout_s=self.default_hold_s)
         self.changed = False  # set when the safety state changed; the runner clears it after publishing
         self.start_timeout_s = start_timeout_s
-        self._start_pending = False
+        self.start_pending = False  # a start waits for the controller (read by the host every cycle)
         self._start_deadline = 0.0
         self.start_error = ""  # why the last start was given up
         self._fed_actions: tuple[Action, ...] = ()
@@ -321,7 +321,7 @@ class SupervisorBase:
         # Link first (status output on / accept the robot); StartRequested follows when the controller
         # shows it is waiting. Refused only where status already flows, which is as good.
         self._feed(ConnectRequested(), now)
-        self._start_pending = True
+        self.start_pending = True
         self._start_deadline = now + self.start_timeout_s
         self.start_error = ""
 
@@ -421,23 +421,19 @@ class SupervisorBase:
                 self._feed(JogExpired(), now)
 
     # ------------------------------------------------------------------------------------ start
-    @property
-    def start_pending(self) -> bool:
-        return self._start_pending
-
     def _start_when_ready(self, now: float) -> None:
         """Called on each new status: a pending start begins once the controller is waiting."""
-        if not self._start_pending:  # the streaming case: nothing to look at
+        if not self.start_pending:  # the streaming case: nothing to look at
             return
         st = self.state.status
         if self.state.mode == Mode.READY or (self.state.mode == Mode.ENDED and st is not None and st.waiting):
-            self._start_pending = False
+            self.start_pending = False
             self._feed(StartRequested(), now)
 
     def watch_start(self, now: float) -> None:
         """A pending start that cannot succeed is given up, with the reason, instead of waiting forever.
         One that found status still flowing (its link request refused) opens the link once status stops."""
-        if not self._start_pending:
+        if not self.start_pending:
             return
         failure = self._link_failure()
         if failure:
@@ -448,8 +444,8 @@ class SupervisorBase:
             self._feed(ConnectRequested(), now)
 
     def _cancel_start(self, why: str) -> None:
-        if self._start_pending:
-            self._start_pending = False
+        if self.start_pending:
+            self.start_pending = False
             self.start_error = why
             self.changed = True
 
@@ -493,7 +489,7 @@ class SupervisorBase:
                                                  "during": fault.during.value if fault.during else None},
             "stops": dict(self.log.stops),
             "warnings": self.log.warnings[-10:],
-            "start_pending": self._start_pending,
+            "start_pending": self.start_pending,
             "start_error": self.start_error or None,
             "inputs_enabled": self.inputs.enabled,
             "input_error": self.inputs.error,

@@ -367,7 +367,8 @@ class StreamSession:
         return [] if packet is None else self.on_packet(packet, now)
 
     def on_packet(self, packet: Status | LimitTableResponse, now: float) -> list[bytes]:
-        self.begin_motion()
+        if self._begin_with is not None:  # (the runner has done it already: no call per status)
+            self.begin_motion()
         self.sent = []
         if isinstance(packet, LimitTableResponse):
             self._on_table(packet)

@@ -320,7 +320,8 @@ class StreamSupervisor(SupervisorBase):
         self._on_status_before(packet, now)
         self._out += session.on_packet(packet, now)
         self._after_status(packet, now)
-        return self._take()
+        out, self._out = self._out, []  # _take()
+        return out
 
     def _on_status_before(self, st: Status, now: float) -> None:
         prev = self.session.last_status
@@ -337,7 +338,7 @@ class StreamSupervisor(SupervisorBase):
             self._steady_bits, self._steady_state = (bits, before) if steady else (-1, None)
         # A start after an ended stream stays in ended (not ready) while the controller comes back to
         # IBGN start: the waiting status there is as good as ready.
-        if self._start_pending and self.session.phase != Phase.FETCHING_TABLES:
+        if self.start_pending and self.session.phase != Phase.FETCHING_TABLES:
             self._start_when_ready(now)
         # Hold-to-run and rest are judged before the command for this status is computed.
         self._poll_hold(now)
