@@ -233,6 +233,10 @@ class ServoProcessHost:
             self.conn.send(event)
 
     def _watch_link(self) -> None:
+        # The session's phase (a StrEnum, equal to link_phase's string) compared every cycle without the
+        # call; link_phase, with its reason, on a change.
+        if self.sup.session.phase == self._last_phase:
+            return
         phase, reason = self.sup.link_phase()
         if phase != self._last_phase:
             self._last_phase = phase

@@ -168,7 +168,9 @@ def check_speeds(name: str, v: np.ndarray, limits: Any, axis_names: list[str], u
 
 class SupervisorBase:
     motion: MotionStage
-    session: Any  # the backend's link session (``link_phase`` reads its ``phase`` and ``fault_reason``)
+    # The backend's link session: ``link_phase`` reads its ``phase`` (a StrEnum of servo_app.state.PHASES
+    # values, which the servo process host also reads directly every cycle) and ``fault_reason``.
+    session: Any
     default_hold_s: float = 0.2
     max_hold_s: float = 2.0
 
