@@ -23,16 +23,19 @@ class LatestValueSlot:
         if create:
             buf[:] = 0.0
         self.size = size
+        # The counter as this side last wrote it: the only writer need not read it back from the shared
+        # page on every write (once per servo cycle).
+        self._written = int(self._seq[0])
 
     @property
     def name(self) -> str:
         return self._shm.name
 
     def write(self, values: np.ndarray) -> None:
-        s = int(self._seq[0])
+        s = self._written
         self._seq[0] = s + 1
         self._data[: values.size] = values
-        self._seq[0] = s + 2
+        self._seq[0] = self._written = s + 2
 
     def read(self, retries: int = 1000) -> tuple[int, np.ndarray]:
         """(version, copy of the values); version 0 means never written."""

@@ -134,11 +134,14 @@ class ServoProcessHost:
             sig, self.pending_signal = self.pending_signal, None
             self._deliver_signal(sig, time.monotonic())
         self._poll_requests()
-        self.sup.watch_start(time.monotonic())
-        self._answer_start()
+        sup = self.sup
+        if sup.start_pending:  # (no call per cycle while none is)
+            sup.watch_start(time.monotonic())
+        if self._start_waiters:
+            self._answer_start()
         self._watch_link()
         self._publish()
-        if self.sup.finished:
+        if sup.state.shutdown and sup.finished:  # (finished needs shutdown: no call per cycle before)
             self.quit = True
 
     def _watch_parent(self) -> None:
@@ -230,6 +233,10 @@ class ServoProcessHost:
             self.conn.send(event)
 
     def _watch_link(self) -> None:
+        # The session's phase (a StrEnum, equal to link_phase's string) compared every cycle without the
+        # call; link_phase, with its reason, on a change.
+        if self.sup.session.phase == self._last_phase:
+            return
         phase, reason = self.sup.link_phase()
         if phase != self._last_phase:
             self._last_phase = phase
@@ -244,8 +251,10 @@ class ServoProcessHost:
         sv = self.state
         d = sv.data
         d[_PUBLISHED_UNIX] = time.time()
-        d[_PHASE] = _PHASE_INDEX[self.sup.link_phase()[0]]
-        d[_MODE] = _MODE_INDEX[self.sup.state.mode.value]
+        # The session's phase and the safety mode are StrEnums: each member finds its value's entry (and
+        # the phase is link_phase's, read here without the call).
+        d[_PHASE] = _PHASE_INDEX[self.sup.session.phase]
+        d[_MODE] = _MODE_INDEX[self.sup.state.mode]
         d[_SESSION_TIME] = time.monotonic() - self.t0
         self._publish_backend(sv)
         self.slot.write(d)  # the one write a reader sees

@@ -85,10 +85,10 @@ def pack_status_and_command(buf: bytearray, t_status: float, seq: int, bits: int
                             values: tuple[float, ...] | list[float]) -> None:
     """``status_record(...) + command_record(...)`` into ``buf`` (2 x 56 bytes) by one precompiled Struct:
     a status packet and the one command that answered it, the servo process's usual pair."""
-    n, m = min(len(joints), 9), min(len(values), 9)
-    _PAIR.pack_into(buf, 0, KIND_STATUS, t_status, seq, bits, io, 0.0, *joints[:n], *_ZEROS[n:],
+    joints, values = joints[:9], values[:9]
+    _PAIR.pack_into(buf, 0, KIND_STATUS, t_status, seq, bits, io, 0.0, *joints, *_ZEROS[len(joints):],
                     KIND_COMMAND, t, command_seq, last_data | (data_format << 1), command_io, latency_us,
-                    *values[:m], *_ZEROS[m:])
+                    *values, *_ZEROS[len(values):])
 
 
 class SessionLogWriter:

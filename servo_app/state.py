@@ -6,6 +6,7 @@ process reads it and turns it into a dict. Adding a field means adding a line he
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Sequence
 from typing import Any
 
@@ -103,10 +104,16 @@ OFFSET: dict[str, int] = {name: sl.start for name, sl in FIELDS.items()}
 LINK_COUNTERS = ("commands_sent", "status_received", "status_lost", "status_duplicated", "malformed")
 
 
+_LINK_COUNTERS_OF = operator.attrgetter(*LINK_COUNTERS)
+_AT_LINK = OFFSET[LINK_COUNTERS[0]]
+assert [OFFSET[name] for name in LINK_COUNTERS] == list(range(_AT_LINK, _AT_LINK + 5))
+
+
 def write_link_counters(data: np.ndarray, stats: object) -> None:
-    """A session's link counters, straight into a state vector's data (a servo process's publish)."""
-    for name in LINK_COUNTERS:
-        data[OFFSET[name]] = getattr(stats, name)
+    """A session's link counters, straight into a state vector's data (a servo process's publish, once
+    per cycle: one attrgetter call where a loop of getattr and offset look-ups took six)."""
+    data[_AT_LINK], data[_AT_LINK + 1], data[_AT_LINK + 2], data[_AT_LINK + 3], data[_AT_LINK + 4] = (
+        _LINK_COUNTERS_OF(stats))
 
 
 class StateVector:

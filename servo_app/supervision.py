@@ -168,7 +168,9 @@ def check_speeds(name: str, v: np.ndarray, limits: Any, axis_names: list[str], u
 
 class SupervisorBase:
     motion: MotionStage
-    session: Any  # the backend's link session (``link_phase`` reads its ``phase`` and ``fault_reason``)
+    # The backend's link session: ``link_phase`` reads its ``phase`` (a StrEnum of servo_app.state.PHASES
+    # values, which the servo process host also reads directly every cycle) and ``fault_reason``.
+    session: Any
     default_hold_s: float = 0.2
     max_hold_s: float = 2.0
 
@@ -181,7 +183,7 @@ class SupervisorBase:
         self.hold = HoldToRun(timeout_s=self.default_hold_s)
         self.changed = False  # set when the safety state changed; the runner clears it after publishing
         self.start_timeout_s = start_timeout_s
-        self._start_pending = False
+        self.start_pending = False  # a start waits for the controller (read by the host every cycle)
         self._start_deadline = 0.0
         self.start_error = ""  # why the last start was given up
         self._fed_actions: tuple[Action, ...] = ()
@@ -321,7 +323,7 @@ class SupervisorBase:
         # Link first (status output on / accept the robot); StartRequested follows when the controller
         # shows it is waiting. Refused only where status already flows, which is as good.
         self._feed(ConnectRequested(), now)
-        self._start_pending = True
+        self.start_pending = True
         self._start_deadline = now + self.start_timeout_s
         self.start_error = ""
 
@@ -413,28 +415,27 @@ class SupervisorBase:
         self.hold = HoldToRun(timeout_s=hold_s).renew(now)
 
     def _poll_hold(self, now: float) -> None:
-        self.hold, expired = self.hold.poll(now)
-        if expired is not None and self.state.mode == Mode.STREAMING:
-            self._feed(JogExpired(), now)
+        # HoldToRun.poll's test without its (watch, event) pair: this runs on every status packet.
+        hold = self.hold
+        if hold.last_renewed is not None and hold.expired(now):
+            self.hold = hold.release()
+            if self.state.mode == Mode.STREAMING:
+                self._feed(JogExpired(), now)
 
     # ------------------------------------------------------------------------------------ start
-    @property
-    def start_pending(self) -> bool:
-        return self._start_pending
-
     def _start_when_ready(self, now: float) -> None:
         """Called on each new status: a pending start begins once the controller is waiting."""
-        if not self._start_pending:  # the streaming case: nothing to look at
+        if not self.start_pending:  # the streaming case: nothing to look at
             return
         st = self.state.status
         if self.state.mode == Mode.READY or (self.state.mode == Mode.ENDED and st is not None and st.waiting):
-            self._start_pending = False
+            self.start_pending = False
             self._feed(StartRequested(), now)
 
     def watch_start(self, now: float) -> None:
         """A pending start that cannot succeed is given up, with the reason, instead of waiting forever.
         One that found status still flowing (its link request refused) opens the link once status stops."""
-        if not self._start_pending:
+        if not self.start_pending:
             return
         failure = self._link_failure()
         if failure:
@@ -445,8 +446,8 @@ class SupervisorBase:
             self._feed(ConnectRequested(), now)
 
     def _cancel_start(self, why: str) -> None:
-        if self._start_pending:
-            self._start_pending = False
+        if self.start_pending:
+            self.start_pending = False
             self.start_error = why
             self.changed = True
 
@@ -467,7 +468,9 @@ class SupervisorBase:
 
     def link_phase(self) -> tuple[str, str]:
         """The link's phase (one of :data:`servo_app.state.PHASES`) and, in fault, why."""
-        return self.session.phase.value, self.session.fault_reason
+        # A session's phase is a StrEnum: str() is its value, without the enum's Python-level value
+        # property (twice per loop iteration).
+        return str(self.session.phase), self.session.fault_reason
 
     @property
     def finished(self) -> bool:
@@ -488,7 +491,7 @@ class SupervisorBase:
                                                  "during": fault.during.value if fault.during else None},
             "stops": dict(self.log.stops),
             "warnings": self.log.warnings[-10:],
-            "start_pending": self._start_pending,
+            "start_pending": self.start_pending,
             "start_error": self.start_error or None,
             "inputs_enabled": self.inputs.enabled,
             "input_error": self.inputs.error,

@@ -309,6 +309,7 @@ ControllerBound = StatusStart | StatusStop | Command | LimitTableRequest
 
 
 _new = object.__new__
+_set_dict = object.__setattr__
 
 
 def _check_version(version: int, expected: int | None) -> None:
@@ -318,6 +319,22 @@ def _check_version(version: int, expected: int | None) -> None:
 
 def decode_from_robot(data: bytes, version: int | None = PROTOCOL_VERSION) -> RobotBound:
     """Decode a datagram sent by the controller: a status packet or a limit-table response."""
+    if not (len(data) == STATUS_SIZE and data[:SEQ_OFFSET] == STATUS_HEADER and version == PROTOCOL_VERSION):
+        return _decode_checked(data, version)
+    # The usual datagram, a status packet (its checks in one comparison). Every field straight into the
+    # instance's __dict__, as the frozen dataclass's own __init__ would set them one object.__setattr__
+    # at a time: half the cost of a status packet's decode.
+    f = _STATUS.unpack(data)
+    st = _new(Status)
+    _set_dict(st, "__dict__", {"seq": f[2], "status": f[3], "read_io_type": f[4], "read_io_index": f[5],
+                               "read_io_mask": f[6], "read_io_value": f[7], "timestamp_ms": f[8],
+                               "cartesian": f[9:18], "joints": f[18:27], "currents": f[27:36], "version": f[1]})
+    return st
+
+
+def _decode_checked(data: bytes, version: int | None) -> RobotBound:
+    """decode_from_robot for every datagram but a well-formed status packet of the protocol's version:
+    a status of another version (``version=None``), a limit-table response, or a PacketError."""
     if len(data) < _HEADER.size:
         raise PacketError(f"length={len(data)} is too short for a packet header (8 bytes)")
     ptype, ver = _HEADER.unpack_from(data)
@@ -326,13 +343,9 @@ def decode_from_robot(data: bytes, version: int | None = PROTOCOL_VERSION) -> Ro
             raise PacketError(f"length={len(data)} is wrong for a status packet, expected {STATUS_SIZE}")
         _check_version(ver, version)
         f = _STATUS.unpack(data)
-        # Every field straight into the instance's __dict__, as the frozen dataclass's own __init__
-        # would set them one object.__setattr__ at a time: half the cost of a status packet's decode.
-        st = _new(Status)
-        st.__dict__.update(seq=f[2], status=f[3], read_io_type=f[4], read_io_index=f[5], read_io_mask=f[6],
-                           read_io_value=f[7], timestamp_ms=f[8], cartesian=f[9:18], joints=f[18:27],
-                           currents=f[27:36], version=ver)
-        return st
+        return Status(seq=f[2], status=f[3], read_io_type=f[4], read_io_index=f[5], read_io_mask=f[6],
+                      read_io_value=f[7], timestamp_ms=f[8], cartesian=f[9:18], joints=f[18:27],
+                      currents=f[27:36], version=ver)
     if ptype == PacketType.LIMIT_TABLE:
         if len(data) != LIMIT_RESPONSE_SIZE:
             raise PacketError(

@@ -208,25 +208,32 @@ class _Latency:
 class _TimeWindow:
     """The last ``size`` samples of a per-cycle time (us) in a preallocated ring; its median and maximum
     are refreshed every ``every`` samples, by one compiled call (np.median of 256 cost ~20 us: a few per
-    second is plenty for a display, and nothing is computed in between)."""
+    second is plenty for a display, and nothing is computed in between). They are written into ``out``
+    (2 floats: a view of the published state vector's p50 and max fields, so that the publish has
+    nothing to copy from here per cycle)."""
 
-    def __init__(self, size: int = 256, every: int = 64) -> None:
+    def __init__(self, size: int = 256, every: int = 64, out: np.ndarray | None = None) -> None:
         self.ring = np.zeros(size)
         self._scratch = np.empty(size)
-        self._out = np.zeros(2)
-        self.every = every
+        self.out = np.zeros(2) if out is None else out
+        assert self.out.shape == (2,)
+        self.size, self.every = size, every
         self.count = 0
-        self.p50_us = 0.0
-        self.max_us = 0.0
+
+    @property
+    def p50_us(self) -> float:
+        return float(self.out[0])
+
+    @property
+    def max_us(self) -> float:
+        return float(self.out[1])
 
     def add(self, us: float) -> None:
-        ring = self.ring
-        ring[self.count % ring.size] = us
-        self.count += 1
-        if self.count % self.every == 0:
-            out = self._out
-            _median_max(ring, min(self.count, ring.size), self._scratch, out)
-            self.p50_us, self.max_us = float(out[0]), float(out[1])
+        n = self.count
+        self.ring[n % self.size] = us
+        self.count = n = n + 1
+        if n % self.every == 0:
+            _median_max(self.ring, min(n, self.size), self._scratch, self.out)
 
 
 class _TimedMotion:
@@ -268,12 +275,18 @@ class _ServoProcess(ServoProcessHost):
             lead=cfg.lead, status_timeout_s=cfg.status_timeout_s, link_timeout_s=cfg.link_timeout_s,
             max_payload_kg=self.profile.max_payload_kg), start_timeout_s=cfg.start_timeout_s)
         # Per-cycle compute times, published (solve_*_us, cycle_*_us): the motion step per command, and
-        # a status's whole handling here, from its receipt to the end of the loop's housekeeping.
-        self.solve_time, self.cycle_time = _TimeWindow(), _TimeWindow()
+        # a status's whole handling here, from its receipt to the end of the loop's housekeeping. Each
+        # window writes its median and maximum straight into the state vector when it refreshes them.
+        d = self.state.data
+        self.solve_time = _TimeWindow(out=d[_SOLVE_P50: _SOLVE_P50 + 2])
+        self.cycle_time = _TimeWindow(out=d[_CYCLE_P50: _CYCLE_P50 + 2])
         self._tables_reported: object = None  # the controller's tables last sent to the parent
         self._replay_left_reported: object = None  # the replay whose leaving was last sent to the parent
-        self.ahead_time = _TimeWindow()  # the IK solved ahead, per solve (ServoCycle.solve_ahead)
-        self.sup.session.motion = _TimedMotion(self.cycle, self.solve_time)
+        # The IK solved ahead, per solve (ServoCycle.solve_ahead)
+        self.ahead_time = _TimeWindow(out=d[_AHEAD_P50: _AHEAD_P50 + 2])
+        self._traj_published = False  # a replay's progress is in the state (traj_state not 0)
+        self.session = self.sup.session
+        self.session.motion = _TimedMotion(self.cycle, self.solve_time)
         self._handled_status = False  # this loop iteration handled a datagram (its cycle time is due)
         self.inputs = InputSlotReader(cfg.input_slot) if cfg.input_slot else None
         self._t_recv = 0.0  # when the status packet being answered arrived
@@ -357,8 +370,9 @@ class _ServoProcess(ServoProcessHost):
             self.sock.send(b)
 
     def _io_step(self) -> None:
+        sock = self.sock
         try:
-            data = self.sock.recv(1024)
+            data = sock.recv(1024)
         except (TimeoutError, ConnectionRefusedError):
             data = b""
         now = time.monotonic()
@@ -367,19 +381,19 @@ class _ServoProcess(ServoProcessHost):
             # A stream's first command (the hold position) leaves before anything else happens on its
             # ready status: the packet was made while waiting (prepare_first_command), only the status's
             # sequence number and joints go in now.
-            first = self.sup.first_command_early(data)
+            first = self.session.first_command_early(data)
             t_first = 0.0
             if first is not None:
-                self.sock.send(first)
+                sock.send(first)
                 t_first = time.monotonic()
             if self.inputs is not None:  # the newest input before this status packet's command
                 cmd = self.inputs.poll()
                 if cmd is not None:
                     self.sup.on_input(cmd, now)
-            out = self.sup.on_datagram(data, now)
-            self._send(out)
+            for b in self.sup.on_datagram(data, now):
+                sock.send(b)
             t_sent = time.monotonic()
-            self.sup.session.begin_motion()  # a stream's first commands (the hold) left first
+            self.session.begin_motion()  # a stream's first commands (the hold) left first
             self._after_datagram(now, t_sent, t_first)
             self._handled_status = True
         else:
@@ -397,7 +411,7 @@ class _ServoProcess(ServoProcessHost):
         # next status packet: the next command's IK, so that the status finds it solved. The command
         # itself (shaper, guards) is still made on the status, from what holds then; a command changed
         # on the status (input slot, safety, hold-to-run) is solved afresh there, as without this.
-        if self.sup.session.streaming_motion:
+        if self.session.streaming_motion:
             t = time.perf_counter()
             if self.cycle.solve_ahead():
                 self.ahead_time.add((time.perf_counter() - t) * 1e6)
@@ -438,7 +452,7 @@ class _ServoProcess(ServoProcessHost):
         What the commands change in the state goes into the vector here, once per status, not at every
         publish (the publish after a reply rewrote them unchanged): the latency figures, the histogram
         bucket by offset, and the commanded position's derivatives."""
-        s = self.sup.session
+        s = self.session
         st = s.last_status
         if st is None or self.log is None:
             return
@@ -458,7 +472,6 @@ class _ServoProcess(ServoProcessHost):
             self.log.write_pair(self._log_pair)
             self._command_sent(d, c, lat_us)
             s.sent = []
-            self._commands_published(d, lat_us)
             return
         records = []
         if st.seq != self._logged_seq:
@@ -471,7 +484,6 @@ class _ServoProcess(ServoProcessHost):
             if records:
                 self.log.write_records(records)
             return
-        lat_us = 0.0
         for c in sent:
             t = t_first if c.early else t_sent
             lat_us = (t - t_recv) * 1e6
@@ -480,26 +492,24 @@ class _ServoProcess(ServoProcessHost):
             self._command_sent(d, c, lat_us)
         self.log.write_records(records)  # the status and its answers in one write, after they left
         s.sent = []
-        self._commands_published(d, lat_us)
 
     def _command_sent(self, d: np.ndarray, c: SentCommand, lat_us: float) -> None:
+        """A command that left, into the latency figures and the command history, and both into the
+        state vector (of several for one status, the last one's stand)."""
         lat = self.latency
         lat.add(lat_us, self.late_us)
         d[_LAT_HIST + bisect.bisect_left(LATENCY_BUCKETS_US, lat_us)] += 1  # le semantics
         self.lat_sum_us += lat_us
-        self.hist.add(c.values)
         # By count: the window's length stops at 4096, where "len % 16" held at every cycle. Over a
         # full window the percentiles cost 0.5-1 ms here (now ~0.1 ms compiled): every 256th command
         # (1-2 s) once it holds 1024, every 16th before, is as fresh as a display or a scrape needs.
         if lat.count % (16 if lat.count < 1024 else 256) == 0:
             d[_LAT_P50], d[_LAT_P99] = lat.percentiles()
-
-    def _commands_published(self, d: np.ndarray, lat_us: float) -> None:
-        lat = self.latency
         d[_LAT_SUM] = self.lat_sum_us
         d[_LAT_LAST] = lat_us
         d[_LAT_MAX] = lat.max_us
         d[_LATE] = lat.late
+        self.hist.add(c.values)
         self.hist.write(d)
 
     def _open_stream_log(self) -> None:
@@ -542,8 +552,8 @@ class _ServoProcess(ServoProcessHost):
         # Straight into the vector by offset, nothing allocated: this runs once per cycle. What the
         # commands change was written as they left (_after_datagram).
         d, c = sv.data, self.cycle
-        st = self.sup.session.last_status
-        if st is not self._status_published and isinstance(st, Status):  # its fields once per status
+        st = self.session.last_status
+        if st is not self._status_published and st is not None:  # its fields once per status
             self._status_published = st
             if st.seq != self._settle_seq:  # a new status: the feedback moved on (or did not)
                 self._settle_seq = st.seq
@@ -552,18 +562,13 @@ class _ServoProcess(ServoProcessHost):
                 d[_STATUS_TIME] = st.timestamp_ms
             d[_STATUS_SEQ] = st.seq
             d[_STATUS_BITS] = st.status
-            d[_Q_SERVO: _Q_SERVO + 6] = st.joints[:6]
-            d[_CART_SERVO: _CART_SERVO + 6] = st.cartesian[:6]
+            d[_Q_SERVO: _Q_SERVO + 12] = st.joints[:6] + st.cartesian[:6]  # q_servo, then cart_servo
             d[_IO_VALUE] = st.read_io_value
             d[_IO_TYPE] = st.read_io_type
             d[_IO_INDEX] = st.read_io_index
             d[_IO_MASK] = st.read_io_mask
-        write_link_counters(d, self.sup.session.stats)
+        write_link_counters(d, self.session.stats)
         d[_LATE_INPUTS] = c.late_inputs
-        solve, cycle, ahead = self.solve_time, self.cycle_time, self.ahead_time
-        d[_SOLVE_P50], d[_SOLVE_MAX] = solve.p50_us, solve.max_us
-        d[_CYCLE_P50], d[_CYCLE_MAX] = cycle.p50_us, cycle.max_us
-        d[_AHEAD_P50], d[_AHEAD_MAX] = ahead.p50_us, ahead.max_us
         ik = c.last_ik if c.ik_active else None
         if ik is not None:
             d[_IK_ACTIVE], d[_IK_FLAGS], d[_IK_SCALE], d[_IK_CONDITION] = True, ik.flags, ik.scale, ik.condition
@@ -591,8 +596,10 @@ class _ServoProcess(ServoProcessHost):
             d[_TRAJ + 2] = replay.total
             d[_TRAJ + 3] = replay.tau * self.dt
             d[_TRAJ + 4] = (replay.total - 1) * self.dt
-        else:
+            self._traj_published = True
+        elif self._traj_published:  # none (any more): written once, not every cycle
             d[_TRAJ] = 0.0
+            self._traj_published = False
 
 
 _Q_SERVO, _CART_SERVO, _LAT_HIST = (OFFSET[k] for k in ("q_servo", "cart_servo", "latency_hist"))
@@ -608,6 +615,8 @@ _TRAJ = OFFSET["traj_state"]  # traj_state, traj_index, traj_total, traj_time_s,
     "settled", "stopped", "tables_from_controller", "latency_p50_us", "latency_p99_us", "latency_sum_us",
     "latency_last_us", "latency_max_us", "late_commands"))
 assert FIELDS["latency_hist"].stop - _LAT_HIST == len(LATENCY_BUCKETS_US) + 1
+assert _CART_SERVO == _Q_SERVO + 6  # written as one
+assert _SOLVE_MAX == _SOLVE_P50 + 1 and _CYCLE_MAX == _CYCLE_P50 + 1 and _AHEAD_MAX == _AHEAD_P50 + 1  # _TimeWindow.out
 
 
 def _child_main(cfg_dict: dict[str, Any], conn: Connection, slot_name: str) -> None:

@@ -367,7 +367,8 @@ class StreamSession:
         return [] if packet is None else self.on_packet(packet, now)
 
     def on_packet(self, packet: Status | LimitTableResponse, now: float) -> list[bytes]:
-        self.begin_motion()
+        if self._begin_with is not None:  # (the runner has done it already: no call per status)
+            self.begin_motion()
         self.sent = []
         if isinstance(packet, LimitTableResponse):
             self._on_table(packet)
@@ -464,7 +465,14 @@ class StreamSession:
         self.stats.status_received += 1
         self.last_status = st
         self._last_status_at = now
-        if self.phase == Phase.IDLE:  # after a reset: status still flows, so the link is up
+        phase = self.phase
+        if phase == Phase.STREAMING:  # the usual case first: no branch below leads to it or from it
+            if st.status & _READY_BITS != _READY_BITS:  # bit 0 or SYSRDY cleared
+                self._fault("controller stopped the stream (status bit 0 or SYSRDY cleared): see its alarm "
+                            "history", now)
+                return []
+            return self._send_due(st)
+        if phase == Phase.IDLE:  # after a reset: status still flows, so the link is up
             self._enter(Phase.CONNECTED, now)
         if self.phase == Phase.FETCHING_TABLES:
             out = self._table_requests(now)
@@ -476,8 +484,6 @@ class StreamSession:
                 self._enter(Phase.CLOSED, now)
                 return [StatusStop().encode()]
             return self._maybe_start(st)
-        if self.phase == Phase.STREAMING:
-            return self._stream(st, now)
         if self.phase == Phase.ENDING and not st.waiting_for_command:
             if not self.close_after_end:
                 self._enter(Phase.CONNECTED, now)
@@ -498,13 +504,6 @@ class StreamSession:
         self._sent_since_start = 0
         self._last_data_sent = False
         self.phase = Phase.STREAMING
-        return self._send_due(st)
-
-    def _stream(self, st: Status, now: float) -> list[bytes]:
-        if not st.waiting_for_command or not st.sysrdy:
-            self._fault("controller stopped the stream (status bit 0 or SYSRDY cleared): see its alarm "
-                        "history", now)
-            return []
         return self._send_due(st)
 
     def _send_due(self, st: Status) -> list[bytes]:

@@ -26,7 +26,7 @@ import numpy as np
 from servo_app import messages as msg
 from servo_app.errors import CommandRejected, InvalidRequest
 from servo_app.fanuc.alarms import ALARMS
-from servo_app.fanuc.packets import IoType, LimitTableResponse, Status, StatusBit
+from servo_app.fanuc.packets import IoType, Status, StatusBit
 from servo_app.fanuc.session import IoRequest, Phase, SessionConfig, StreamSession
 from servo_app.input_slot import POSE, TWIST, InputCommand
 from servo_app.motion.commands import PoseTarget, Twist
@@ -51,6 +51,9 @@ from servo_app.supervision import SupervisorBase, axis_values, check_count, chec
 # The status bits a StatusReceived event carries (bit 0, bit 1, SYSRDY, moving).
 _STATUS_EVENT_BITS = int(StatusBit.WAITING_FOR_COMMAND | StatusBit.COMMAND_RECEIVED | StatusBit.SYSRDY
                          | StatusBit.MOVING)
+
+# The link phases a ready status can start a stream from (StreamSupervisor._starts_on_ready).
+_STARTS_FROM = (Phase.WAITING_READY, Phase.CONNECTED)
 
 # A pose whose X, Y and Z all lie within this many mm of the base was almost surely sent in metres.
 METRES_SUSPECT_MM = 5.0
@@ -282,7 +285,10 @@ class StreamSupervisor(SupervisorBase):
     def prepare_first_command(self) -> None:
         """Off the cycle, after each datagram and request: if the next ready status would start the
         stream, the session gets the first command's packet ready (``first_command_early``)."""
-        self.session.prepare_first_command(self._starts_on_ready())
+        s = self.session
+        # Only these phases can start on a ready status: in any other (streaming, every cycle) the
+        # dry run's answer is no, and it is not run.
+        s.prepare_first_command(s.phase in _STARTS_FROM and self._starts_on_ready())
 
     def first_command_early(self, data: bytes) -> bytes | None:
         """The first command for ``data`` if it is the ready status a start waits for: the runner sends
@@ -304,18 +310,18 @@ class StreamSupervisor(SupervisorBase):
 
     def on_datagram(self, data: bytes, now: float) -> list[bytes]:
         self._out = []
-        self.session.sent = []  # a malformed datagram sends nothing: nothing of an earlier one may be logged
-        packet = self.session.decode(data)
+        session = self.session
+        session.sent = []  # a malformed datagram sends nothing: nothing of an earlier one may be logged
+        packet = session.decode(data)
         if packet is None:
             return []
-        if isinstance(packet, Status):
-            self._on_status_before(packet, now)
-        self._out += self.session.on_packet(packet, now)
-        if isinstance(packet, Status):
-            self._after_status(packet, now)
-        elif isinstance(packet, LimitTableResponse):
-            pass
-        return self._take()
+        if not isinstance(packet, Status):  # a limit-table response: the session's alone
+            return session.on_packet(packet, now)
+        self._on_status_before(packet, now)
+        self._out += session.on_packet(packet, now)
+        self._after_status(packet, now)
+        out, self._out = self._out, []  # _take()
+        return out
 
     def _on_status_before(self, st: Status, now: float) -> None:
         prev = self.session.last_status
@@ -332,7 +338,7 @@ class StreamSupervisor(SupervisorBase):
             self._steady_bits, self._steady_state = (bits, before) if steady else (-1, None)
         # A start after an ended stream stays in ended (not ready) while the controller comes back to
         # IBGN start: the waiting status there is as good as ready.
-        if self.session.phase != Phase.FETCHING_TABLES:
+        if self.start_pending and self.session.phase != Phase.FETCHING_TABLES:
             self._start_when_ready(now)
         # Hold-to-run and rest are judged before the command for this status is computed.
         self._poll_hold(now)
