@@ -307,3 +307,11 @@ def test_any_nonzero_and_all_finite_match_numpy(v: np.ndarray, bad: float, at: i
     assert k.all_finite(v)
     v[at] = bad
     assert not k.all_finite(v)
+
+
+sparse = st.lists(st.sampled_from([0.0, -0.0, 1e-300, -2.5, math.nan, math.inf]), min_size=6, max_size=6).map(np.array)
+
+
+@given(a=sparse, b=sparse)
+def test_any_nonzero2_is_numpys_any_of_both(a: np.ndarray, b: np.ndarray) -> None:
+    assert k.any_nonzero2(a, b) == bool(a.any() or b.any())

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from servo_app.motion.shaper import Envelope, ShaperLimits
-from servo_app.motion.shaper_kernels import any_nonzero2, emit_if_passes, line_limits, velocity_within
+from servo_app.motion.shaper_kernels import emit_if_passes, line_limits, velocity_within
 
 DT = 0.008
 LIMITS = ShaperLimits(np.array([370.0, 310.0, 410.0, 550.0, 545.0, 1000.0]),
@@ -146,10 +146,3 @@ def test_velocity_cap_refuses_what_is_not_finite():
     assert velocity_within(np.array([0.0, np.nan, 0, 0, 0, 0]), ENV.plan_vel, out) < 0.0
     assert velocity_within(np.array([0.0, 0, 0, 0, 0, -np.inf]), ENV.plan_vel, out) < 0.0
 
-
-sparse = st.lists(st.sampled_from([0.0, -0.0, 1e-300, -2.5, math.nan, math.inf]), min_size=6, max_size=6).map(np.array)
-
-
-@given(a=sparse, b=sparse)
-def test_any_nonzero2_is_numpys_any_of_both(a: np.ndarray, b: np.ndarray) -> None:
-    assert any_nonzero2(a, b) == bool(a.any() or b.any())

@@ -48,8 +48,9 @@ from ruckig import (
     Synchronization,
 )
 
+from servo_app.motion.ik_kernels import any_nonzero2
 from servo_app.motion.limit_tables import LimitTables
-from servo_app.motion.shaper_kernels import any_nonzero2, emit_if_passes, line_limits, velocity_within
+from servo_app.motion.shaper_kernels import emit_if_passes, line_limits, velocity_within
 from servo_app.motion.stops import STOP_MODES, StopMode, stop_path, time_optimal_stop_duration
 
 ArrayLike = Sequence[float] | np.ndarray

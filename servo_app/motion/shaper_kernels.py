@@ -115,15 +115,3 @@ def velocity_within(v: np.ndarray, vmax: np.ndarray, out: np.ndarray) -> float:
         out[i] = v[i] / over if over > 1.0 else v[i]
     return over
 
-
-@kernel("boolean(float64[::1], float64[::1])")
-def any_nonzero2(a: np.ndarray, b: np.ndarray) -> bool:
-    """``a.any() or b.any()``: an entry of either that is nonzero or NaN (the publish path asks it
-    every loop through ``JointShaper.at_rest``: numpy's ``any`` costs ~1.5 us a call here, this 0.3)."""
-    for x in a:  # (loops numba compiles: no generator expression)
-        if x != 0.0:
-            return True
-    for x in b:  # noqa: SIM110
-        if x != 0.0:
-            return True
-    return False
