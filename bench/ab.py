@@ -14,14 +14,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import shlex
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from results import write_section
+from results import command_line, write_section
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -76,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     text = (f"Before and after on this machine, alternating, base first: `{' '.join(command)}` in each tree.\n\n"
             f"| tree | round | (the benchmark's columns) |\n|---|---|---|\n{table}\n\n{notes}")
     if not args.no_write:
-        cmd = ".venv/bin/python bench/ab.py" + "".join(f" {shlex.quote(a)}" for a in (argv or sys.argv[1:]))
+        cmd = command_line(__file__, argv)
         name = args.name or f"ab {Path(command[0]).stem}"
         print("wrote", write_section(name, cmd, text))
     return 0

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
 import subprocess
 import sys
 import tempfile
@@ -31,7 +30,7 @@ from servo_app.messages import End, Jog, Start
 from servo_app.service import ServiceConfig, ServoService
 
 sys.path.insert(0, str(Path(__file__).parent))
-from results import write_section
+from results import command_line, write_section
 from stream_latency import HEADER, closed_log, latency_row, wait_for
 
 TOKEN = "bench-api-load"
@@ -170,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
         + f"\n\nSimulator alarms: {', '.join(alarms) or 'none'}."
     )
     if not args.no_write:
-        cmd = ".venv/bin/python bench/api_load.py" + "".join(f" {shlex.quote(a)}" for a in (argv or sys.argv[1:]))
+        cmd = command_line(__file__, argv)
         print("wrote", write_section("api_load", cmd, text))
     return 0 if not alarms else 1
 

@@ -30,7 +30,7 @@ from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.profile import load_profile
 
 sys.path.insert(0, str(Path(__file__).parent))
-from results import write_section
+from results import command_line, write_section
 
 HOME = np.array([0.0, 10.0, -10.0, 0.0, -70.0, 0.0])
 
@@ -165,7 +165,7 @@ def main() -> int:
     text = "\n".join(lines)
     print(text)
     if not args.no_write:
-        write_section("cycle", " ".join(["python", "bench/cycle.py", *sys.argv[1:]]), text)
+        write_section("cycle", command_line(__file__), text)
     return 0
 
 

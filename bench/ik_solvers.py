@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import shlex
 import sys
 import time
 import warnings
@@ -34,7 +33,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
-from results import write_section  # noqa: E402
+from results import command_line, write_section  # noqa: E402
 
 # servo_app from PYTHONPATH (or the installed package), not from this file's tree: bench/ab.py runs this
 # script in the base revision's tree too, with that tree on PYTHONPATH.
@@ -218,8 +217,8 @@ def main(argv: list[str] | None = None) -> int:
     text = table(results)
     print(text)
     if not args.no_write:
-        command = ".venv/bin/python bench/ik_solvers.py " + shlex.join(argv if argv is not None else sys.argv[1:])
-        print(f"written to {write_results(text, command.strip(), args.section)}")
+        command = command_line(__file__, argv)
+        print(f"written to {write_results(text, command, args.section)}")
     return 0
 
 

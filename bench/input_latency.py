@@ -32,7 +32,6 @@ import math
 import multiprocessing as mp
 import os
 import random
-import shlex
 import shutil
 import socket
 import sys
@@ -50,7 +49,7 @@ from servo_app.messages import Reset, Resume, Start
 from servo_app.realtime import make_realtime
 
 sys.path.insert(0, str(Path(__file__).parent))
-from results import write_section
+from results import command_line, write_section
 
 ROOT = Path(__file__).resolve().parents[1]
 DBC = ROOT / "configs" / "inputs" / "sensors.dbc"
@@ -745,8 +744,7 @@ def main(argv: list[str] | None = None) -> int:
     if not clean:
         print("not written to bench/RESULTS.md: the run had missed trials, interruptions or alarms (machine load?)")
     elif not args.no_write:
-        command = "python bench/input_latency.py" + (" " + shlex.join(argv if argv is not None else sys.argv[1:])
-                                                     if (argv if argv is not None else sys.argv[1:]) else "")
+        command = command_line(__file__, argv)
         print(f"wrote {write_section('input_latency', command, text)}")
     return 0 if not alarms else 1
 

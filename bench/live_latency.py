@@ -33,7 +33,6 @@ import argparse
 import json
 import os
 import re
-import shlex
 import signal
 import socket
 import subprocess
@@ -52,7 +51,7 @@ from servo_app.fanuc.packets import StatusBit
 from servo_app.session_log import SessionLog, read_session_log
 
 sys.path.insert(0, str(Path(__file__).parent))
-from results import write_section
+from results import command_line, write_section
 
 TOKEN = "bench-live-latency"
 JOG_HZ = 20.0
@@ -288,7 +287,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(rows))
     print(verdict)
     if args.write and not args.no_write:
-        cmd = ".venv/bin/python bench/live_latency.py" + "".join(f" {shlex.quote(a)}" for a in (argv or sys.argv[1:]))
+        cmd = command_line(__file__, argv)
         text = (
             f"`servo-app run` against its embedded simulator (API, servo process and simulator each in their "
             f"own process), Cartesian jogs over REST: ±X at {SPEED_MM_S:g} mm/s in the base frame, renewed at "

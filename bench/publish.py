@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
-import shlex
 import sys
 import time
 from pathlib import Path
@@ -30,7 +29,7 @@ from servo_app.sim.fanuc_model import ControllerConfig, FanucControllerModel
 from servo_app.state import STATE_SIZE
 
 sys.path.insert(0, str(Path(__file__).parent))
-from results import write_section
+from results import command_line, write_section
 
 HEADER = "| run | interval ms | calls | p50 us | mean us | p99 us | max us |"
 CLIENT = ("127.0.0.1", 50000)
@@ -113,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(rows))
     print(f"_publish of a streaming FANUC servo process, {args.calls} calls per case, in process")
     if args.write and not args.no_write:
-        cmd = ".venv/bin/python bench/publish.py" + "".join(f" {shlex.quote(a)}" for a in (argv or sys.argv[1:]))
+        cmd = command_line(__file__, argv)
         text = ("The FANUC servo process's per-cycle publish (`_publish`: the state vector into its shared-memory "
                 "slot), in process, on a streaming and jogging servo process object (controller model on a "
                 f"simulated clock).\n\n{HEADER}\n|---|---|---|---|---|---|---|\n" + "\n".join(rows))

@@ -3,10 +3,20 @@
 from __future__ import annotations
 
 import platform
+import shlex
+import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "RESULTS.md"
+
+
+def command_line(script: str, argv: Sequence[str] | None = None) -> str:
+    """The command that reproduces a run, as a section quotes it: ``.venv/bin/python bench/NAME.py ARGS``
+    (``script``: the benchmark's ``__file__``; ``argv``: its arguments, by default this process's)."""
+    args = sys.argv[1:] if argv is None else argv
+    return " ".join([".venv/bin/python", f"bench/{Path(script).name}", *map(shlex.quote, args)])
 
 
 def write_section(name: str, command: str, text: str) -> Path:

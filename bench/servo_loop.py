@@ -22,7 +22,6 @@ import argparse
 import gc
 import multiprocessing as mp
 import select
-import shlex
 import socket
 import sys
 import tempfile
@@ -39,7 +38,7 @@ from servo_app.sim.fanuc_model import ControllerConfig, FanucControllerModel
 from servo_app.state import STATE_SIZE
 
 sys.path.insert(0, str(Path(__file__).parent))
-from results import write_section
+from results import command_line, write_section
 
 WARM_STATUSES = 300  # the stream starts, the jog gets going, lazy set-up is paid
 JOG_EVERY_S = 0.05  # 20 Hz renewals, as live_latency
@@ -142,8 +141,8 @@ def main(argv: list[str] | None = None) -> int:
     print(text)
     print("servo loop: per status while jogging, asleep between statuses")
     if not args.no_write:
-        command = ".venv/bin/python bench/servo_loop.py " + shlex.join(argv if argv is not None else sys.argv[1:])
-        print(f"written to {write_section('servo_loop', command.strip(), text)}")
+        command = command_line(__file__, argv)
+        print(f"written to {write_section('servo_loop', command, text)}")
     return 0
 
 

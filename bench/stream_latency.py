@@ -11,7 +11,6 @@ Prints a table and writes its section of bench/RESULTS.md with the command line.
 from __future__ import annotations
 
 import argparse
-import shlex
 import sys
 import tempfile
 import time
@@ -25,7 +24,7 @@ from servo_app.service import ServiceConfig, ServoService
 from servo_app.session_log import SessionLog, read_session_log
 
 sys.path.insert(0, str(Path(__file__).parent))
-from results import write_section
+from results import command_line, write_section
 
 POSES = ([0.0, 10.0, -10.0, 0.0, -70.0, 0.0], [40.0, 30.0, -25.0, 60.0, -40.0, 90.0],
          [-35.0, -5.0, 5.0, -60.0, -95.0, -90.0])
@@ -121,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
         f"scheduling: servo process {realtime}, simulator {sim_scheduling}."
     )
     if not args.no_write:
-        cmd = ".venv/bin/python bench/stream_latency.py" + "".join(f" {shlex.quote(a)}" for a in (argv or sys.argv[1:]))
+        cmd = command_line(__file__, argv)
         print("wrote", write_section("stream_latency", cmd, text))
     return 0 if s["state"] == "ended" and not alarms else 1
 
