@@ -99,7 +99,7 @@ class RunnerCell(Cell):
         if raw is None:
             self.deliver(self.sup.on_idle(self.t))
         else:
-            first = self.sup.first_command_early(raw)
+            first = self.sup.session.first_command_early(raw)  # as the runner does
             if first is not None:
                 self.early.append(first)
                 self.deliver([first])

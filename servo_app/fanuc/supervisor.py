@@ -284,16 +284,12 @@ class StreamSupervisor(SupervisorBase):
     # ------------------------------------------------------------------ cycle
     def prepare_first_command(self) -> None:
         """Off the cycle, after each datagram and request: if the next ready status would start the
-        stream, the session gets the first command's packet ready (``first_command_early``)."""
+        stream, the session gets the first command's packet ready (the runner sends it with
+        ``StreamSession.first_command_early`` before anything else, then calls ``on_datagram`` as usual)."""
         s = self.session
         # Only these phases can start on a ready status: in any other (streaming, every cycle) the
         # dry run's answer is no, and it is not run.
         s.prepare_first_command(s.phase in _STARTS_FROM and self._starts_on_ready())
-
-    def first_command_early(self, data: bytes) -> bytes | None:
-        """The first command for ``data`` if it is the ready status a start waits for: the runner sends
-        it before anything else, then calls ``on_datagram`` as usual."""
-        return self.session.first_command_early(data)
 
     def _starts_on_ready(self) -> bool:
         """Would a ready status (bit 0, SYSRDY, no command received) start the stream now? What
