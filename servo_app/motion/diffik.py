@@ -347,8 +347,6 @@ class DifferentialIK:
         stop along the current motion. ``dq_prev`` overrides last cycle's increment (e.g. what the
         shaper actually delivered); by default the IK's own last output."""
         q = self._checked(q_model_rad, "q_model_rad")
-        if not self._started:
-            self.reset(q)
         return self.step_owned(q, command, None if dq_prev is None else self._checked(dq_prev, "dq_prev"))
 
     def step_owned(self, q: np.ndarray, command: Command | None, dq_prev: np.ndarray | None = None) -> IkResult:
