@@ -101,6 +101,8 @@ class IkFlag(enum.IntFlag):
 _B = types.SimpleNamespace(**{f.name: int(f) for f in IkFlag if f.name})
 _VELOCITY_LIMIT_BIT, _ACCEL_LIMIT_BIT = int(IkFlag.VELOCITY_LIMIT), int(IkFlag.ACCEL_LIMIT)
 
+_ZERO3 = (0.0, 0.0, 0.0)  # cartesian_step's twist when there is none
+
 _FLAG_OF: dict[int, IkFlag] = {}  # IkFlag(bits) by bits: the enum's constructor costs microseconds
 
 
@@ -360,11 +362,18 @@ class DifferentialIK:
         self._before = (self._dq_prev, self._ref, self._last_xi, self._mode)
         if dq_prev is not None:
             self._dq_prev = dq_prev
+        # (set_previous without its copy: the IK's dq_prev is never changed in place, only replaced)
+        self.accel_limit.dq_prev = self._dq_prev
+        is_twist = isinstance(command, Twist)  # (the jog's command: one check, not a union's)
+        if is_twist or (command is None and self._last_xi is not None):
+            # The common Cartesian step (a twist, or braking along its line) in one kernel; the rest
+            # (singularity slow-down, blend, QP) is the code below, from the same state.
+            done = self._cartesian_step(q, command)
+            if done is not None:
+                return done
         st, dt = self.settings, self.dt
         data = self.configuration.data
         self._kinematics(q)
-        # (set_previous without its copy: the IK's dq_prev is never changed in place, only replaced)
-        self.accel_limit.dq_prev = self._dq_prev
         kappa = self._condition(data)
         flags = _B.NEAR_SINGULARITY if kappa > st.singularity_slow else 0  # int bits: IntFlag | costs us
         s_sing = 1.0
@@ -375,7 +384,6 @@ class DifferentialIK:
         target: np.ndarray | None = None  # the frame task's target pose (Cartesian modes)
         joint_goal = q  # the joint task's target (joint modes)
 
-        is_twist = isinstance(command, Twist)  # (the jog's command: one check, not a union's)
         if is_twist or isinstance(command, PoseTarget) or cartesian_stop:
             tcp = self._tcp_pose()
             if is_twist:
@@ -507,6 +515,116 @@ class DifferentialIK:
         return IkResult(dq=dq, q_next=q_next, velocity=velocity, scale=scale, flags=_ik_flag(flags),
                         condition=kappa, mode=mode, solver_status=solver_status)
 
+    def _cartesian_step(self, q: np.ndarray, command: Twist | None) -> IkResult | None:
+        """:meth:`step_owned` for a twist (``command``) or a stop braking along the last Cartesian line
+        (``None``) in one kernel call (:func:`~servo_app.motion.ik_kernels.cartesian_step`: the same
+        operations as the code of step_owned, MuJoCo's through its C functions, so the same bits).
+        None when the step is not the kernel's (a collision limit with cached pairs, not yet set up;
+        a stop off any line; the singularity slow-down; off the line: blend or QP): nothing the IK
+        keeps has changed then, and step_owned's code does the step.
+
+        Why: the step as Python around ~20 kernel and MuJoCo calls cost ~140-170 us per status when
+        the caches are cold (8 ms between steps); one call removes those layers."""
+        args = self._fast_args
+        if args is None:
+            args = self._fast_args = self._cartesian_step_args()
+            if args is None:
+                return None
+        elif not args:
+            return None
+        reference = self.config_guard.reference
+        if reference is None:
+            return None
+        pt = self.posture_task
+        if pt.target_q is not self._posture_src:  # set_target stores a new array: model order, once
+            assert pt.target_q is not None
+            self._posture_src = pt.target_q
+            self._posture_goal = np.ascontiguousarray(pt.target_q, dtype=float)  # qpos order is model order
+        ref, last_xi = self._ref, self._last_xi
+        if command is not None:
+            kind = kernels.TWIST_TOOL if command.frame == "tool" else kernels.TWIST_BASE
+            linear, angular = command.linear, command.angular
+            mode_changed, twist_mode = self._mode != "twist", True
+        else:
+            kind, linear, angular = kernels.CARTESIAN_STOP, _ZERO3, _ZERO3
+            mode_changed, twist_mode = False, self._mode == "twist"
+        poses = np.empty((2, 7))
+        xi = np.empty(6)
+        out = np.empty((4, N))
+        status, bits, kappa, scale, rate = kernels.cartesian_step(
+            kind, linear, angular, q, self._dq_prev, ref if ref is not None else self._no_pose, ref is not None,
+            last_xi if last_xi is not None else self._zero, last_xi is not None, mode_changed, twist_mode,
+            self._posture_goal, self.braking_limit._bound, reference.top, *args, poses, xi, out)
+        if status < 0:  # (the kernel's scratch, rows and path direction are all set again by that code)
+            return None
+        path = self.path_braking
+        if math.isinf(rate):  # PathBraking.set_direction's outcome, its direction copied by the kernel
+            path.u, path.rate = None, math.inf
+        else:
+            path.u, path.rate = path._u, rate
+        self._ref, self.frame_target = poses
+        code = status & 3
+        if code == kernels.LAST_XI_NEW:
+            self._last_xi = xi
+        elif code == kernels.LAST_XI_CLEARED:
+            self._last_xi = None
+        if command is not None:
+            mode = self._mode = "twist"
+        else:
+            mode = "stop"  # (a Cartesian stop keeps its mode: the reference pose stays valid)
+        dq, self._dq_prev, q_next, velocity = out
+        if not status & kernels.STEP_FINITE:  # defensive: the line's increment is finite by construction
+            dq = np.zeros(N)
+            bits |= _B.SOLVER_FAILED
+            kernels.step_outputs(dq, q, self.dt, out[1:])
+        return IkResult(dq=dq, q_next=q_next, velocity=velocity, scale=scale, flags=_ik_flag(bits),
+                        condition=kappa, mode=mode, solver_status="")
+
+    def _cartesian_step_args(self) -> tuple | None:
+        """:func:`~servo_app.motion.ik_kernels.cartesian_step`'s arguments that stay (constants, the
+        MjData's arrays as views, scratch, the row arrays), made once; ``()`` when the collision limit
+        keeps a cache (pairs the screen cannot decide: their narrow phases are Python's), None while
+        its first fill has not set it up."""
+        col = self.collision_limit
+        if col is not None and col._cached:
+            return ()
+        if col is not None and col._q_refresh is None:
+            return None
+        st, view, model = self.settings, self._view, self.model
+        data = self.configuration.data
+        accel, brk, guard, path = self.accel_limit, self.braking_limit, self.config_guard, self.path_braking
+        vmax, da = accel.bounds(self.dt)
+        consts = np.array([self.dt, self._reach, st.singularity_slow, st.reference_tolerance_m, st.damping,
+                           self._correction_gain, self._frame_gain, self._posture_gain, st.binding_tol,
+                           self._cfg_gain, brk.lag_s, path.floor, guard.margins.shoulder_m,
+                           guard.margins.shoulder_brake_acc, guard.lag_s])
+        collide = col is not None and bool(col.max_num_contacts)
+        ints = np.array([model._address, data._address, self._flange_id, self._site_id, self._site_body,
+                         self._accel_lo, self._accel_hi, self._neq, int(collide), _VELOCITY_LIMIT_BIT,
+                         _ACCEL_LIMIT_BIT, _B.NEAR_SINGULARITY, _B.NO_COMMAND], dtype=np.int64)
+        _, acc2, brake, cols, _ = brk.row_data()
+        head = (consts, ints, self._track_weights, view.qpos, view.cdof, view.subtree_com, view.site_xmat,
+                view.site_xpos, data.geom_xpos, data.geom_xmat, self._tree, self._dof_parentid,
+                self._jac_flange, self._cond_work, self._jac_world, self._frame_cost, self._posture_cost,
+                self._p, self._c, self._c_frame, self._weighted_jac, self._d, accel.c, path.brake, path._u,
+                self._cfg_upper, self._cfg_lower, self._cfg_qpos, vmax, da, accel.velocity_bound, acc2, brake,
+                cols, guard._arm, guard._guard_cols, self._g_guard, self._row_starts, self._g, self._h, self._hp,
+                self._row_flags)
+        if collide:
+            assert col is not None
+            tail = (col._geom_shape, col._geom_radius, col._geom_half, col._geom_rbound, col._pair_g1_arr,
+                    col._pair_g2_arr, col._exact, col._pair_b1_arr, col._pair_b2_arr, col._lower_bound,
+                    col._candidates, col._row_pairs, col._dists, col._fromtos, col._jac1, col._jac2,
+                    np.array([col.screen_tolerance, col.collision_detection_distance, col.gain,
+                              col.minimum_distance_from_collisions, col.bound_relaxation, col.brake_acc, self.dt,
+                              col.lag_s]), self._g_col, self._h_col, self._hp_col)
+        else:
+            none_f, none_i, none_m = np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros((0, N))
+            tail = (none_i, none_f, none_f, none_f, none_i, none_i, np.zeros(0, dtype=bool), none_i, none_i,
+                    none_f, none_i, none_i, none_f, np.zeros((0, 6)), np.zeros((3, N)), np.zeros((3, N)),
+                    np.zeros(8), none_m, none_f, none_f)
+        return head + tail
+
     def step_again(self, q_model_rad: ArrayLike, command: Command | None, *, dq_prev: ArrayLike | None = None
                    ) -> IkResult:
         """The last cycle once more, from the state it started from, with another command: what
@@ -637,6 +755,8 @@ class DifferentialIK:
         self._d = np.zeros((2, N))  # the optimum toward the target, and the pull-back (see step)
         self._rhs = np.zeros((N, 2))
         self._zero = np.zeros(N)
+        self._no_pose = np.zeros(7)  # cartesian_step's reference when there is none
+        self._fast_args: tuple | None = None  # cartesian_step's arguments that stay, made at its first call
         # Where the row blocks start, for the kernel that fills them (limit_rows: the same path for the
         # braking rows and the configuration guard's row), and the guard's row of G.
         if self.braking_limit.path is not self.path_braking or self.config_guard.path is not self.path_braking:

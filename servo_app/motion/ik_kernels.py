@@ -22,6 +22,17 @@ import math
 import numpy as np
 
 from servo_app.jit import kernel
+from servo_app.motion.mujoco_c import (
+    address,
+    doubles,
+    mj_comPos,
+    mj_geomDistance,
+    mj_jacSite,
+    mj_kinematics,
+    mj_makeConstraint,
+    mju_mat2Quat,
+    mju_rotVecQuat,
+)
 from servo_app.robots.kernels import DEG_TO_RAD
 
 _MINVAL = 1e-15  # MuJoCo's mjMINVAL: its vector normalisations treat shorter vectors as zero
@@ -1052,3 +1063,215 @@ def limit_rows(q: np.ndarray, dt: float,
         h_path[guard_at] = hg
     for i in range(brk_at):
         h_path[i] = h[i]
+
+
+# ---------------------------------------------------------------- the rows with their narrow phases
+@kernel("int64(int64, int64, float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], int64[:, ::1], "
+        "int64[::1], int64[::1], float64[::1], float64[::1], float64[::1], int64[::1], int64[::1], boolean[::1], "
+        "int64[::1], int64[::1], float64[::1], int64[::1], int64[::1], float64[::1], float64[:, ::1], "
+        "float64[:, ::1], float64[:, ::1], float64[::1], boolean, float64[::1], float64, float64, "
+        "float64[:, ::1], float64[::1], float64[::1])")
+def collision_fill(model: int, data: int, geom_xpos: np.ndarray, geom_xmat: np.ndarray, cdof: np.ndarray,
+                   subtree_com: np.ndarray, tree: np.ndarray, dof_parentid: np.ndarray, shape: np.ndarray,
+                   radius: np.ndarray, half: np.ndarray, rbound: np.ndarray, g1: np.ndarray, g2: np.ndarray,
+                   exact: np.ndarray, body1: np.ndarray, body2: np.ndarray, lower_bound: np.ndarray,
+                   candidates: np.ndarray, row_pairs: np.ndarray, dists: np.ndarray, fromtos: np.ndarray,
+                   jac1: np.ndarray, jac2: np.ndarray, params: np.ndarray, with_path: bool, u: np.ndarray,
+                   rate: float, floor: float, g: np.ndarray, h: np.ndarray, h_path: np.ndarray) -> int:
+    """``CollisionLimit.fill`` for a limit with no cached pairs (every pair exact), in one call: the
+    screen (:func:`collision_screen`), MuJoCo's narrow phase (``mj_geomDistance``, the reference's call,
+    through its C function) on the pairs it leaves, and their rows (:func:`collision_rows`); the
+    number of rows returned. ``model``, ``data``: the structs' addresses; ``params``: the screen
+    tolerance, the detection distance, gain, minimum distance, bound relaxation, braking deceleration,
+    dt and ``lag_s``."""
+    tol, distmax, gain, min_dist, relax, brake_acc, dt, lag = (params[0], params[1], params[2], params[3],
+                                                               params[4], params[5], params[6], params[7])
+    count = collision_screen(shape, radius, half, rbound, g1, g2, exact, geom_xpos, geom_xmat, tol, distmax,
+                             lower_bound, candidates, g, h, h_path)
+    m, d = address(model), address(data)
+    rows = 0
+    for k in range(count):
+        idx = candidates[k]
+        dist = mj_geomDistance(m, d, np.int32(g1[idx]), np.int32(g2[idx]), distmax, doubles(fromtos[rows]))
+        if abs(dist - distmax) >= 1e-12:
+            row_pairs[rows] = idx
+            dists[rows] = dist
+            rows += 1
+    if rows:
+        collision_rows(rows, row_pairs, dists, fromtos, cdof, subtree_com, tree, dof_parentid, body1, body2, jac1,
+                       jac2, gain, min_dist, relax, brake_acc, dt, dt + lag, with_path, u, rate, floor, g, h, h_path)
+    return rows
+
+
+# ------------------------------------------------------------------- the Cartesian step in one call
+# What cartesian_step is asked to do (DifferentialIK.step_owned's command), and what it returns
+# besides its outputs: the step done (STEP_DONE, with the bits below), or why it left the step to
+# the Python code (which then does the whole step: nothing the IK keeps was changed).
+TWIST_BASE, TWIST_TOOL, CARTESIAN_STOP = 0, 1, 2
+STEP_NOT_CARTESIAN = -1  # a stop that is not braking along a Cartesian line
+STEP_SINGULARITY = -2  # the singularity factor is needed (condition above singularity_slow, the command moves)
+STEP_OFF_LINE = -3  # no scale fits the path-keeping rows: blend, QP or braking
+STEP_NOT_DEFINITE = -4  # the objective's Hessian is not positive definite (the Python code raises)
+LAST_XI_KEPT, LAST_XI_NEW, LAST_XI_CLEARED = 0, 1, 2  # the IK's last line: as it was, this twist, none
+STEP_FINITE = 4  # bit: the increment is finite (else the Python code's defensive branch)
+
+
+@kernel("float64(float64, float64, float64)")
+def _nearest(goal: float, lo: float, hi: float) -> float:
+    """``min(max(goal, lo), hi)`` with Python's min and max (``_path_scale``'s), NaN when not finite."""
+    s = goal
+    if lo > s:
+        s = lo
+    if hi < s:
+        s = hi
+    return s if math.isfinite(s) else math.nan
+
+
+@kernel("Tuple((int64, int64, float64, float64, float64))("
+        "int64, UniTuple(float64, 3), UniTuple(float64, 3), float64[::1], float64[::1], float64[::1], boolean, "
+        "float64[::1], boolean, boolean, boolean, float64[::1], float64[::1], boolean, "
+        "float64[::1], int64[::1], float64[::1], "
+        "float64[::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], "
+        "float64[:, ::1], int64[:, ::1], int64[::1], "
+        "float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], "
+        "float64[:, ::1], float64[::1], float64[::1], float64[:, ::1], float64[:, ::1], "
+        "float64[:, ::1], float64[::1], float64[::1], "
+        "float64[::1], float64[::1], int64[::1], float64[::1], float64[::1], boolean[::1], float64[::1], "
+        "float64[::1], int64[::1], float64[::1], int64[::1], float64[::1], int64[::1], "
+        "float64[:, ::1], float64[::1], float64[::1], int64[::1], "
+        "int64[::1], float64[::1], float64[::1], float64[::1], int64[::1], int64[::1], boolean[::1], int64[::1], "
+        "int64[::1], float64[::1], int64[::1], int64[::1], float64[::1], float64[:, ::1], float64[:, ::1], "
+        "float64[:, ::1], float64[::1], float64[:, ::1], float64[::1], float64[::1], "
+        "float64[:, ::1], float64[::1], float64[:, ::1])")
+def cartesian_step(kind: int, linear: tuple[float, float, float], angular: tuple[float, float, float],
+                   q: np.ndarray, dq_prev: np.ndarray, ref: np.ndarray, has_ref: bool, last_xi: np.ndarray,
+                   has_last_xi: bool, mode_changed: bool, twist_mode: bool, posture_goal: np.ndarray,
+                   bound: np.ndarray, top: bool,
+                   consts: np.ndarray, ints: np.ndarray, track_weights: np.ndarray,
+                   qpos: np.ndarray, cdof: np.ndarray, subtree_com: np.ndarray, site_xmat: np.ndarray,
+                   site_xpos: np.ndarray, geom_xpos: np.ndarray, geom_xmat: np.ndarray, tree: np.ndarray,
+                   dof_parentid: np.ndarray,
+                   jac_flange: np.ndarray, cond_work: np.ndarray, jac_world: np.ndarray, frame_cost: np.ndarray,
+                   posture_cost: np.ndarray, p: np.ndarray, c: np.ndarray, c_frame: np.ndarray, wjac: np.ndarray,
+                   d: np.ndarray, rate_c: np.ndarray, path_brake: np.ndarray, path_u: np.ndarray,
+                   cfg_upper: np.ndarray, cfg_lower: np.ndarray, cfg_qpos: np.ndarray, vmax: np.ndarray,
+                   da: np.ndarray, velocity_bound: np.ndarray, brake_acc2: np.ndarray, brake: np.ndarray,
+                   cols: np.ndarray, arm: np.ndarray, guard_cols: np.ndarray, g_guard: np.ndarray,
+                   starts: np.ndarray, g: np.ndarray, h: np.ndarray, h_path: np.ndarray, row_flags: np.ndarray,
+                   shape: np.ndarray, radius: np.ndarray, half: np.ndarray, rbound: np.ndarray, g1: np.ndarray,
+                   g2: np.ndarray, exact: np.ndarray, body1: np.ndarray, body2: np.ndarray, lower_bound: np.ndarray,
+                   candidates: np.ndarray, row_pairs: np.ndarray, dists: np.ndarray, fromtos: np.ndarray,
+                   jac1: np.ndarray, jac2: np.ndarray, col_params: np.ndarray, g_col: np.ndarray, h_col: np.ndarray,
+                   h_path_col: np.ndarray, poses: np.ndarray, xi: np.ndarray, out: np.ndarray
+                   ) -> tuple[int, int, float, float, float]:
+    """``DifferentialIK.step_owned`` for a twist (``kind`` ``TWIST_BASE`` / ``TWIST_TOOL``: ``linear``
+    mm/s, ``angular`` deg/s) or a stop braking along the last Cartesian line (``CARTESIAN_STOP``), when
+    the step stays on the line, in one call: the same operations in the same order as the Python
+    step (MuJoCo's through their C functions), so the same bits.
+
+    Returns ``(status, flags, condition, scale, path rate)``; ``status`` < 0 (``STEP_*``): the step is
+    the Python code's (the IK's kept state untouched: only scratch, the MjData and the rows were
+    written). Else the ``LAST_XI_*`` code plus ``STEP_FINITE``; ``poses`` rows: the new reference and
+    the frame target; ``xi``: this step's twist (m/s, rad/s); ``out`` rows: the increment, its copy
+    (next cycle's ``dq_prev``), ``q + dq``, ``dq / dt``; ``path_u`` and the path rate: the path's
+    braking direction (``PathBraking``'s).
+
+    ``consts``: dt, reach, singularity_slow, reference_tolerance_m, damping, correction gain, frame
+    task gain, posture gain, binding_tol, ConfigurationLimit gain, the braking rows' lag, the path's
+    floor, the shoulder margin, its braking deceleration, the configuration guard's lag. ``ints``:
+    the model's and data's addresses, the flange site, the TCP site and its body, the acceleration
+    rows' first and end row, the model's equality count, collision rows (1/0), the flag bits
+    VELOCITY_LIMIT, ACCEL_LIMIT, NEAR_SINGULARITY, NO_COMMAND. The rest: as :func:`site_objective`,
+    :func:`limit_rows`, :func:`collision_fill` and :func:`step_result` take them."""
+    n = q.shape[0]
+    dt, reach, sing_slow, ref_tol = consts[0], consts[1], consts[2], consts[3]
+    for i in range(n):  # the configuration at q (model order is qpos order)
+        qpos[i] = q[i]
+    m, dd = address(ints[0]), address(ints[1])
+    mj_kinematics(m, dd)
+    mj_comPos(m, dd)
+    if ints[7] > 0:
+        mj_makeConstraint(m, dd)
+    mj_jacSite(m, dd, doubles(jac_flange[:3]), doubles(jac_flange[3:]), np.int32(ints[2]))
+    kappa = condition_number(jac_flange, reach, cond_work)
+    flags = ints[11] if kappa > sing_slow else 0
+    moving = any_nonzero(dq_prev)
+    if kind == CARTESIAN_STOP and not (has_last_xi and moving):
+        return STEP_NOT_CARTESIAN, 0, kappa, 0.0, 0.0
+    sid = ints[3]
+    tcp = np.empty(7)
+    mju_mat2Quat(doubles(tcp[:4]), doubles(site_xmat[sid]))
+    for i in range(3):
+        tcp[4 + i] = site_xpos[sid, i]
+    if kind == CARTESIAN_STOP:
+        for i in range(6):
+            xi[i] = 0.0
+        xi_moves = False
+        flags |= ints[12]
+    else:
+        xi_moves = twist_si(linear, angular, xi)
+        if kind == TWIST_TOOL:
+            part = np.empty(3)
+            for at in (0, 3):
+                for i in range(3):
+                    part[i] = xi[at + i]
+                mju_rotVecQuat(doubles(xi[at: at + 3]), doubles(part), doubles(tcp[:4]))
+            xi_moves = any_nonzero(xi)
+    new_ref = poses[0]
+    if mode_changed or not has_ref or not poses_near(ref, tcp, ref_tol, reach):
+        new_ref[:] = tcp
+    elif not (twist_mode and has_last_xi and along_track(new_ref, ref, tcp, last_xi, track_weights)):
+        new_ref[:] = ref
+    if xi_moves:
+        if kappa > sing_slow:
+            return STEP_SINGULARITY, 0, kappa, 0.0, 0.0
+        line, s_goal, asks_motion, last_code = xi, 1.0, True, LAST_XI_NEW
+    elif has_last_xi and moving:
+        line, s_goal, asks_motion, last_code = last_xi, 0.0, any_nonzero(last_xi), LAST_XI_KEPT
+    else:
+        line, s_goal, asks_motion, last_code = xi, 0.0, False, LAST_XI_CLEARED
+    target = poses[1]
+    advance(target, new_ref, line, 1.0, dt)
+    toward = new_ref if asks_motion else target
+    if not site_objective(cdof, subtree_com, tree, dof_parentid, ints[4], site_xmat, site_xpos, sid, jac_world,
+                          target, toward, asks_motion, frame_cost, consts[6],
+                          posture_cost, consts[7], posture_goal, qpos, consts[4], consts[5], p, c, c_frame, wjac,
+                          d):
+        return STEP_NOT_DEFINITE, 0, kappa, 0.0, 0.0
+    direction = np.empty(n)
+    for i in range(n):
+        direction[i] = d[0, i] - d[1, i] if asks_motion else dq_prev[i]
+    rate = path_rate(rate_c, path_brake, direction, path_u)
+    with_path = not math.isinf(rate)
+    floor = consts[11]
+    u = path_u if with_path else qpos
+    path_rate_used = rate if with_path else 0.0
+    limit_rows(qpos, dt, consts[9], cfg_upper, cfg_lower, cfg_qpos, rate_c, dq_prev, vmax, da, velocity_bound,
+               bound, brake_acc2, brake, cols, consts[10], with_path, u, path_rate_used, floor, arm, consts[12],
+               consts[13], top, consts[14], guard_cols, g_guard, starts, h, h_path)
+    if ints[8]:
+        col_u = path_u if with_path else np.zeros(n)
+        collision_fill(ints[0], ints[1], geom_xpos, geom_xmat, cdof, subtree_com, tree, dof_parentid, shape, radius,
+                       half, rbound, g1, g2, exact, body1, body2, lower_bound, candidates, row_pairs, dists, fromtos,
+                       jac1, jac2, col_params, with_path, col_u, path_rate_used, floor, g_col, h_col, h_path_col)
+    correction = d[1]
+    lo, hi = scale_interval(direction, g, h_path, correction, 1.0)
+    s = math.nan
+    if not math.isnan(lo):
+        s = _nearest(s_goal, lo, hi)
+    if not math.isfinite(s) and any_nonzero(correction):
+        correction = np.zeros(n)  # the correction does not fit this cycle: the line alone
+        lo, hi = scale_interval(direction, g, h_path, direction, 0.0)
+        if not math.isnan(lo):
+            s = _nearest(s_goal, lo, hi)
+    if not math.isfinite(s):
+        return STEP_OFF_LINE, 0, kappa, 0.0, rate
+    line_point(s, direction, correction, out[0])
+    if asks_motion:  # the reference follows what was achieved
+        before = new_ref.copy()
+        advance(new_ref, before, line, s, dt)
+    if s_goal == 0.0 and s == 0.0:
+        last_code = LAST_XI_CLEARED  # at rest
+    scale, bits, finite = step_result(out[0], d[0], s_goal, 1.0, q, dt, g, h, row_flags, ints[5], ints[6],
+                                      velocity_bound, consts[8], ints[9], ints[10], out[1:])
+    return last_code + (STEP_FINITE if finite else 0), flags | bits, kappa, scale, rate
