@@ -525,12 +525,12 @@ class DifferentialIK:
 
         Why: the step as Python around ~20 kernel and MuJoCo calls cost ~140-170 us per status when
         the caches are cold (8 ms between steps); one call removes those layers."""
-        args = self._fast_args
-        if args is None:
-            args = self._fast_args = self._cartesian_step_args()
-            if args is None:
+        table = self._fast_table
+        if table is None:
+            table = self._fast_table = self._cartesian_step_table()
+            if table is None:
                 return None
-        elif not args:
+        if not len(table):
             return None
         reference = self.config_guard.reference
         if reference is None:
@@ -541,20 +541,30 @@ class DifferentialIK:
             self._posture_src = pt.target_q
             self._posture_goal = np.ascontiguousarray(pt.target_q, dtype=float)  # qpos order is model order
         ref, last_xi = self._ref, self._last_xi
+        state = kernels.STATE_TOP if reference.top else 0
+        if ref is not None:
+            state |= kernels.STATE_HAS_REF
+        else:
+            ref = self._no_pose
+        if last_xi is not None:
+            state |= kernels.STATE_HAS_LAST_XI
+        else:
+            last_xi = self._zero
         if command is not None:
             kind = kernels.TWIST_TOOL if command.frame == "tool" else kernels.TWIST_BASE
             linear, angular = command.linear, command.angular
-            mode_changed, twist_mode = self._mode != "twist", True
+            state |= kernels.STATE_TWIST_MODE if self._mode == "twist" else (kernels.STATE_TWIST_MODE
+                                                                             | kernels.STATE_MODE_CHANGED)
         else:
             kind, linear, angular = kernels.CARTESIAN_STOP, _ZERO3, _ZERO3
-            mode_changed, twist_mode = False, self._mode == "twist"
+            if self._mode == "twist":
+                state |= kernels.STATE_TWIST_MODE
         poses = np.empty((2, 7))
         xi = np.empty(6)
         out = np.empty((4, N))
         status, bits, kappa, scale, rate = kernels.cartesian_step(
-            kind, linear, angular, q, self._dq_prev, ref if ref is not None else self._no_pose, ref is not None,
-            last_xi if last_xi is not None else self._zero, last_xi is not None, mode_changed, twist_mode,
-            self._posture_goal, self.braking_limit._bound, reference.top, *args, poses, xi, out)
+            kind, linear, angular, q, self._dq_prev, ref, last_xi, self._posture_goal, self.braking_limit._bound,
+            state, table, poses, xi, out)
         if status < 0:  # (the kernel's scratch, rows and path direction are all set again by that code)
             return None
         path = self.path_braking
@@ -580,50 +590,64 @@ class DifferentialIK:
         return IkResult(dq=dq, q_next=q_next, velocity=velocity, scale=scale, flags=_ik_flag(bits),
                         condition=kappa, mode=mode, solver_status="")
 
-    def _cartesian_step_args(self) -> tuple | None:
-        """:func:`~servo_app.motion.ik_kernels.cartesian_step`'s arguments that stay (constants, the
-        MjData's arrays as views, scratch, the row arrays), made once; ``()`` when the collision limit
-        keeps a cache (pairs the screen cannot decide: their narrow phases are Python's), None while
-        its first fill has not set it up."""
+    def _cartesian_step_table(self) -> np.ndarray | None:
+        """:func:`~servo_app.motion.ik_kernels.cartesian_step`'s table of the arrays that stay
+        (``CARTESIAN_ARRAYS``: constants, the MjData's arrays, scratch, the row arrays; they are kept
+        in ``self._fast_arrays`` as long as the table), made once. Empty when the collision limit keeps
+        a cache (pairs the screen cannot decide: their narrow phases are Python's), None while its first
+        fill has not set it up."""
         col = self.collision_limit
         if col is not None and col._cached:
-            return ()
+            return np.zeros((0, 3), dtype=np.int64)
         if col is not None and col._q_refresh is None:
             return None
         st, view, model = self.settings, self._view, self.model
         data = self.configuration.data
         accel, brk, guard, path = self.accel_limit, self.braking_limit, self.config_guard, self.path_braking
         vmax, da = accel.bounds(self.dt)
-        consts = np.array([self.dt, self._reach, st.singularity_slow, st.reference_tolerance_m, st.damping,
-                           self._correction_gain, self._frame_gain, self._posture_gain, st.binding_tol,
-                           self._cfg_gain, brk.lag_s, path.floor, guard.margins.shoulder_m,
-                           guard.margins.shoulder_brake_acc, guard.lag_s])
         collide = col is not None and bool(col.max_num_contacts)
-        ints = np.array([model._address, data._address, self._flange_id, self._site_id, self._site_body,
-                         self._accel_lo, self._accel_hi, self._neq, int(collide), _VELOCITY_LIMIT_BIT,
-                         _ACCEL_LIMIT_BIT, _B.NEAR_SINGULARITY, _B.NO_COMMAND], dtype=np.int64)
         _, acc2, brake, cols, _ = brk.row_data()
-        head = (consts, ints, self._track_weights, view.qpos, view.cdof, view.subtree_com, view.site_xmat,
-                view.site_xpos, data.geom_xpos, data.geom_xmat, self._tree, self._dof_parentid,
-                self._jac_flange, self._cond_work, self._jac_world, self._frame_cost, self._posture_cost,
-                self._p, self._c, self._c_frame, self._weighted_jac, self._d, accel.c, path.brake, path._u,
-                self._cfg_upper, self._cfg_lower, self._cfg_qpos, vmax, da, accel.velocity_bound, acc2, brake,
-                cols, guard._arm, guard._guard_cols, self._g_guard, self._row_starts, self._g, self._h, self._hp,
-                self._row_flags)
+        arrays = dict(
+            consts=np.array([self.dt, self._reach, st.singularity_slow, st.reference_tolerance_m, st.damping,
+                             self._correction_gain, self._frame_gain, self._posture_gain, st.binding_tol,
+                             self._cfg_gain, brk.lag_s, path.floor, guard.margins.shoulder_m,
+                             guard.margins.shoulder_brake_acc, guard.lag_s]),
+            ints=np.array([model._address, data._address, self._flange_id, self._site_id, self._site_body,
+                           self._accel_lo, self._accel_hi, self._neq, int(collide), _VELOCITY_LIMIT_BIT,
+                           _ACCEL_LIMIT_BIT, _B.NEAR_SINGULARITY, _B.NO_COMMAND], dtype=np.int64),
+            track_weights=self._track_weights, qpos=view.qpos, cdof=view.cdof, subtree_com=view.subtree_com,
+            site_xmat=view.site_xmat, site_xpos=view.site_xpos, geom_xpos=data.geom_xpos, geom_xmat=data.geom_xmat,
+            tree=self._tree, dof_parentid=self._dof_parentid, jac_flange=self._jac_flange, cond_work=self._cond_work,
+            jac_world=self._jac_world, frame_cost=self._frame_cost, posture_cost=self._posture_cost, p=self._p,
+            c=self._c, c_frame=self._c_frame, wjac=self._weighted_jac, d=self._d, rate_c=accel.c,
+            path_brake=path.brake, path_u=path._u, cfg_upper=self._cfg_upper, cfg_lower=self._cfg_lower,
+            cfg_qpos=self._cfg_qpos, vmax=vmax, da=da, velocity_bound=accel.velocity_bound, brake_acc2=acc2,
+            brake=brake, cols=cols, arm=guard._arm, guard_cols=guard._guard_cols, g_guard=self._g_guard,
+            starts=self._row_starts, g=self._g, h=self._h, h_path=self._hp, row_flags=self._row_flags)
         if collide:
             assert col is not None
-            tail = (col._geom_shape, col._geom_radius, col._geom_half, col._geom_rbound, col._pair_g1_arr,
-                    col._pair_g2_arr, col._exact, col._pair_b1_arr, col._pair_b2_arr, col._lower_bound,
-                    col._candidates, col._row_pairs, col._dists, col._fromtos, col._jac1, col._jac2,
-                    np.array([col.screen_tolerance, col.collision_detection_distance, col.gain,
-                              col.minimum_distance_from_collisions, col.bound_relaxation, col.brake_acc, self.dt,
-                              col.lag_s]), self._g_col, self._h_col, self._hp_col)
-        else:
-            none_f, none_i, none_m = np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros((0, N))
-            tail = (none_i, none_f, none_f, none_f, none_i, none_i, np.zeros(0, dtype=bool), none_i, none_i,
-                    none_f, none_i, none_i, none_f, np.zeros((0, 6)), np.zeros((3, N)), np.zeros((3, N)),
-                    np.zeros(8), none_m, none_f, none_f)
-        return head + tail
+            arrays.update(
+                shape=col._geom_shape, radius=col._geom_radius, half=col._geom_half, rbound=col._geom_rbound,
+                g1=col._pair_g1_arr, g2=col._pair_g2_arr, exact=col._exact, body1=col._pair_b1_arr,
+                body2=col._pair_b2_arr, lower_bound=col._lower_bound, candidates=col._candidates,
+                row_pairs=col._row_pairs, dists=col._dists, fromtos=col._fromtos, jac1=col._jac1, jac2=col._jac2,
+                col_params=np.array([col.screen_tolerance, col.collision_detection_distance, col.gain,
+                                     col.minimum_distance_from_collisions, col.bound_relaxation, col.brake_acc,
+                                     self.dt, col.lag_s]),
+                g_col=self._g_col, h_col=self._h_col, h_path_col=self._hp_col)
+        kinds = {"f": np.float64, "i": np.int64, "b": np.bool_}
+        table = np.zeros((len(kernels.CARTESIAN_ARRAYS), 3), dtype=np.int64)
+        kept = []
+        for k, (name, kind, ndim) in enumerate(kernels.CARTESIAN_ARRAYS):
+            a = arrays.get(name)
+            if a is None:  # (no collision rows: empty arrays, never read)
+                a = np.zeros((0,) * ndim, dtype=kinds[kind])
+            if a.dtype != kinds[kind] or a.ndim != ndim or not a.flags.c_contiguous:
+                raise TypeError(f"cartesian_step's {name}: {a.dtype}, {a.ndim} dims, not {kind} {ndim} C-contiguous")
+            table[k] = (a.ctypes.data, a.shape[0], a.shape[1] if ndim == 2 else 0)
+            kept.append(a)
+        self._fast_arrays = kept  # the table's arrays, alive as long as it is
+        return table
 
     def step_again(self, q_model_rad: ArrayLike, command: Command | None, *, dq_prev: ArrayLike | None = None
                    ) -> IkResult:
@@ -756,7 +780,8 @@ class DifferentialIK:
         self._rhs = np.zeros((N, 2))
         self._zero = np.zeros(N)
         self._no_pose = np.zeros(7)  # cartesian_step's reference when there is none
-        self._fast_args: tuple | None = None  # cartesian_step's arguments that stay, made at its first call
+        self._fast_table: np.ndarray | None = None  # cartesian_step's arrays that stay, made at its first call
+        self._fast_arrays: list[np.ndarray] = []
         # Where the row blocks start, for the kernel that fills them (limit_rows: the same path for the
         # braking rows and the configuration guard's row), and the guard's row of G.
         if self.braking_limit.path is not self.path_braking or self.config_guard.path is not self.path_braking:

@@ -19,12 +19,16 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 from servo_app.jit import kernel
 from servo_app.motion.mujoco_c import (
     address,
+    boolean_pointer,
     doubles,
+    float64_pointer,
+    int64_pointer,
     mj_comPos,
     mj_geomDistance,
     mj_jacSite,
@@ -1114,6 +1118,9 @@ STEP_OFF_LINE = -3  # no scale fits the path-keeping rows: blend, QP or braking
 STEP_NOT_DEFINITE = -4  # the objective's Hessian is not positive definite (the Python code raises)
 LAST_XI_KEPT, LAST_XI_NEW, LAST_XI_CLEARED = 0, 1, 2  # the IK's last line: as it was, this twist, none
 STEP_FINITE = 4  # bit: the increment is finite (else the Python code's defensive branch)
+# cartesian_step's state bits: a reference pose and a last line are given, the Cartesian mode changes,
+# the mode is (stays) "twist", the configuration to keep is Top.
+STATE_HAS_REF, STATE_HAS_LAST_XI, STATE_MODE_CHANGED, STATE_TWIST_MODE, STATE_TOP = 1, 2, 4, 8, 16
 
 
 @kernel("float64(float64, float64, float64)")
@@ -1127,62 +1134,149 @@ def _nearest(goal: float, lo: float, hi: float) -> float:
     return s if math.isfinite(s) else math.nan
 
 
-@kernel("Tuple((int64, int64, float64, float64, float64))("
-        "int64, UniTuple(float64, 3), UniTuple(float64, 3), float64[::1], float64[::1], float64[::1], boolean, "
-        "float64[::1], boolean, boolean, boolean, float64[::1], float64[::1], boolean, "
-        "float64[::1], int64[::1], float64[::1], "
-        "float64[::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], "
-        "float64[:, ::1], int64[:, ::1], int64[::1], "
-        "float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], "
-        "float64[:, ::1], float64[::1], float64[::1], float64[:, ::1], float64[:, ::1], "
-        "float64[:, ::1], float64[::1], float64[::1], "
-        "float64[::1], float64[::1], int64[::1], float64[::1], float64[::1], boolean[::1], float64[::1], "
-        "float64[::1], int64[::1], float64[::1], int64[::1], float64[::1], int64[::1], "
-        "float64[:, ::1], float64[::1], float64[::1], int64[::1], "
-        "int64[::1], float64[::1], float64[::1], float64[::1], int64[::1], int64[::1], boolean[::1], int64[::1], "
-        "int64[::1], float64[::1], int64[::1], int64[::1], float64[::1], float64[:, ::1], float64[:, ::1], "
-        "float64[:, ::1], float64[::1], float64[:, ::1], float64[::1], float64[::1], "
+
+# cartesian_step's arrays that stay (constants, the MjData's arrays, scratch, the rows), reached through
+# one table of addresses (row k: ``ctypes.data``, then the shape; DifferentialIK builds it in this
+# order, checking each array's kind: f float64, i int64, b bool, its dimensions and that it is
+# C-contiguous): the kernel then takes 14 arguments instead of 76 (numba's dispatch types and unboxes
+# each: ~60 ns in a tight loop, several times that cold). The owners keep the arrays alive.
+CARTESIAN_ARRAYS: tuple[tuple[str, str, int], ...] = (
+    ("consts", "f", 1), ("ints", "i", 1), ("track_weights", "f", 1), ("qpos", "f", 1), ("cdof", "f", 2),
+    ("subtree_com", "f", 2), ("site_xmat", "f", 2), ("site_xpos", "f", 2), ("geom_xpos", "f", 2),
+    ("geom_xmat", "f", 2), ("tree", "i", 2), ("dof_parentid", "i", 1), ("jac_flange", "f", 2), ("cond_work", "f", 2),
+    ("jac_world", "f", 2), ("frame_cost", "f", 1), ("posture_cost", "f", 1), ("p", "f", 2), ("c", "f", 1),
+    ("c_frame", "f", 1), ("wjac", "f", 2), ("d", "f", 2), ("rate_c", "f", 2), ("path_brake", "f", 1),
+    ("path_u", "f", 1), ("cfg_upper", "f", 1), ("cfg_lower", "f", 1), ("cfg_qpos", "i", 1), ("vmax", "f", 1),
+    ("da", "f", 1), ("velocity_bound", "b", 1), ("brake_acc2", "f", 1), ("brake", "f", 1), ("cols", "i", 1),
+    ("arm", "f", 1), ("guard_cols", "i", 1), ("g_guard", "f", 1), ("starts", "i", 1), ("g", "f", 2), ("h", "f", 1),
+    ("h_path", "f", 1), ("row_flags", "i", 1), ("shape", "i", 1), ("radius", "f", 1), ("half", "f", 1),
+    ("rbound", "f", 1), ("g1", "i", 1), ("g2", "i", 1), ("exact", "b", 1), ("body1", "i", 1), ("body2", "i", 1),
+    ("lower_bound", "f", 1), ("candidates", "i", 1), ("row_pairs", "i", 1), ("dists", "f", 1), ("fromtos", "f", 2),
+    ("jac1", "f", 2), ("jac2", "f", 2), ("col_params", "f", 1), ("g_col", "f", 2), ("h_col", "f", 1),
+    ("h_path_col", "f", 1),
+)
+
+
+@kernel("float64[::1](int64[:, ::1], int64)")
+def _table_f1(table: np.ndarray, k: int) -> np.ndarray:
+    return numba.carray(float64_pointer(table[k, 0]), (table[k, 1],))
+
+
+@kernel("float64[:, ::1](int64[:, ::1], int64)")
+def _table_f2(table: np.ndarray, k: int) -> np.ndarray:
+    return numba.carray(float64_pointer(table[k, 0]), (table[k, 1], table[k, 2]))
+
+
+@kernel("int64[::1](int64[:, ::1], int64)")
+def _table_i1(table: np.ndarray, k: int) -> np.ndarray:
+    return numba.carray(int64_pointer(table[k, 0]), (table[k, 1],))
+
+
+@kernel("int64[:, ::1](int64[:, ::1], int64)")
+def _table_i2(table: np.ndarray, k: int) -> np.ndarray:
+    return numba.carray(int64_pointer(table[k, 0]), (table[k, 1], table[k, 2]))
+
+
+@kernel("boolean[::1](int64[:, ::1], int64)")
+def _table_b1(table: np.ndarray, k: int) -> np.ndarray:
+    return numba.carray(boolean_pointer(table[k, 0]), (table[k, 1],))
+
+
+@kernel("Tuple((int64, int64, float64, float64, float64))(int64, UniTuple(float64, 3), UniTuple(float64, 3), "
+        "float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64[:, ::1], "
         "float64[:, ::1], float64[::1], float64[:, ::1])")
 def cartesian_step(kind: int, linear: tuple[float, float, float], angular: tuple[float, float, float],
-                   q: np.ndarray, dq_prev: np.ndarray, ref: np.ndarray, has_ref: bool, last_xi: np.ndarray,
-                   has_last_xi: bool, mode_changed: bool, twist_mode: bool, posture_goal: np.ndarray,
-                   bound: np.ndarray, top: bool,
-                   consts: np.ndarray, ints: np.ndarray, track_weights: np.ndarray,
-                   qpos: np.ndarray, cdof: np.ndarray, subtree_com: np.ndarray, site_xmat: np.ndarray,
-                   site_xpos: np.ndarray, geom_xpos: np.ndarray, geom_xmat: np.ndarray, tree: np.ndarray,
-                   dof_parentid: np.ndarray,
-                   jac_flange: np.ndarray, cond_work: np.ndarray, jac_world: np.ndarray, frame_cost: np.ndarray,
-                   posture_cost: np.ndarray, p: np.ndarray, c: np.ndarray, c_frame: np.ndarray, wjac: np.ndarray,
-                   d: np.ndarray, rate_c: np.ndarray, path_brake: np.ndarray, path_u: np.ndarray,
-                   cfg_upper: np.ndarray, cfg_lower: np.ndarray, cfg_qpos: np.ndarray, vmax: np.ndarray,
-                   da: np.ndarray, velocity_bound: np.ndarray, brake_acc2: np.ndarray, brake: np.ndarray,
-                   cols: np.ndarray, arm: np.ndarray, guard_cols: np.ndarray, g_guard: np.ndarray,
-                   starts: np.ndarray, g: np.ndarray, h: np.ndarray, h_path: np.ndarray, row_flags: np.ndarray,
-                   shape: np.ndarray, radius: np.ndarray, half: np.ndarray, rbound: np.ndarray, g1: np.ndarray,
-                   g2: np.ndarray, exact: np.ndarray, body1: np.ndarray, body2: np.ndarray, lower_bound: np.ndarray,
-                   candidates: np.ndarray, row_pairs: np.ndarray, dists: np.ndarray, fromtos: np.ndarray,
-                   jac1: np.ndarray, jac2: np.ndarray, col_params: np.ndarray, g_col: np.ndarray, h_col: np.ndarray,
-                   h_path_col: np.ndarray, poses: np.ndarray, xi: np.ndarray, out: np.ndarray
-                   ) -> tuple[int, int, float, float, float]:
+                   q: np.ndarray, dq_prev: np.ndarray, ref: np.ndarray, last_xi: np.ndarray, posture_goal: np.ndarray,
+                   bound: np.ndarray, state: int, table: np.ndarray, poses: np.ndarray, xi: np.ndarray,
+                   out: np.ndarray) -> tuple[int, int, float, float, float]:
     """``DifferentialIK.step_owned`` for a twist (``kind`` ``TWIST_BASE`` / ``TWIST_TOOL``: ``linear``
     mm/s, ``angular`` deg/s) or a stop braking along the last Cartesian line (``CARTESIAN_STOP``), when
     the step stays on the line, in one call: the same operations in the same order as the Python
     step (MuJoCo's through their C functions), so the same bits.
+
+    Per call: the joints ``q``, last cycle's increment ``dq_prev``, the reference pose ``ref`` and the
+    last line ``last_xi`` (when ``state`` says there are), the posture goal, the braking rows' bounds
+    ``bound`` (``BrakingLimit.row_data``), ``state``'s bits (``STATE_*``); the rest through ``table``
+    (``CARTESIAN_ARRAYS``). ``consts``: dt, reach, singularity_slow, reference_tolerance_m, damping,
+    the correction gain, the frame task's gain, the posture gain, binding_tol, ConfigurationLimit's
+    gain, the braking rows' lag, the path's floor, the shoulder margin, its braking deceleration, the
+    configuration guard's lag. ``ints``: the model's and data's addresses, the flange site, the TCP
+    site and its body, the acceleration rows' first and end row, the model's equality count,
+    collision rows (1/0), the flag bits VELOCITY_LIMIT, ACCEL_LIMIT, NEAR_SINGULARITY, NO_COMMAND.
+    The others as :func:`site_objective`, :func:`limit_rows`, :func:`collision_fill` and
+    :func:`step_result` take them.
 
     Returns ``(status, flags, condition, scale, path rate)``; ``status`` < 0 (``STEP_*``): the step is
     the Python code's (the IK's kept state untouched: only scratch, the MjData and the rows were
     written). Else the ``LAST_XI_*`` code plus ``STEP_FINITE``; ``poses`` rows: the new reference and
     the frame target; ``xi``: this step's twist (m/s, rad/s); ``out`` rows: the increment, its copy
     (next cycle's ``dq_prev``), ``q + dq``, ``dq / dt``; ``path_u`` and the path rate: the path's
-    braking direction (``PathBraking``'s).
-
-    ``consts``: dt, reach, singularity_slow, reference_tolerance_m, damping, correction gain, frame
-    task gain, posture gain, binding_tol, ConfigurationLimit gain, the braking rows' lag, the path's
-    floor, the shoulder margin, its braking deceleration, the configuration guard's lag. ``ints``:
-    the model's and data's addresses, the flange site, the TCP site and its body, the acceleration
-    rows' first and end row, the model's equality count, collision rows (1/0), the flag bits
-    VELOCITY_LIMIT, ACCEL_LIMIT, NEAR_SINGULARITY, NO_COMMAND. The rest: as :func:`site_objective`,
-    :func:`limit_rows`, :func:`collision_fill` and :func:`step_result` take them."""
+    braking direction (``PathBraking``'s)."""
+    consts = _table_f1(table, 0)
+    ints = _table_i1(table, 1)
+    track_weights = _table_f1(table, 2)
+    qpos = _table_f1(table, 3)
+    cdof = _table_f2(table, 4)
+    subtree_com = _table_f2(table, 5)
+    site_xmat = _table_f2(table, 6)
+    site_xpos = _table_f2(table, 7)
+    geom_xpos = _table_f2(table, 8)
+    geom_xmat = _table_f2(table, 9)
+    tree = _table_i2(table, 10)
+    dof_parentid = _table_i1(table, 11)
+    jac_flange = _table_f2(table, 12)
+    cond_work = _table_f2(table, 13)
+    jac_world = _table_f2(table, 14)
+    frame_cost = _table_f1(table, 15)
+    posture_cost = _table_f1(table, 16)
+    p = _table_f2(table, 17)
+    c = _table_f1(table, 18)
+    c_frame = _table_f1(table, 19)
+    wjac = _table_f2(table, 20)
+    d = _table_f2(table, 21)
+    rate_c = _table_f2(table, 22)
+    path_brake = _table_f1(table, 23)
+    path_u = _table_f1(table, 24)
+    cfg_upper = _table_f1(table, 25)
+    cfg_lower = _table_f1(table, 26)
+    cfg_qpos = _table_i1(table, 27)
+    vmax = _table_f1(table, 28)
+    da = _table_f1(table, 29)
+    velocity_bound = _table_b1(table, 30)
+    brake_acc2 = _table_f1(table, 31)
+    brake = _table_f1(table, 32)
+    cols = _table_i1(table, 33)
+    arm = _table_f1(table, 34)
+    guard_cols = _table_i1(table, 35)
+    g_guard = _table_f1(table, 36)
+    starts = _table_i1(table, 37)
+    g = _table_f2(table, 38)
+    h = _table_f1(table, 39)
+    h_path = _table_f1(table, 40)
+    row_flags = _table_i1(table, 41)
+    shape = _table_i1(table, 42)
+    radius = _table_f1(table, 43)
+    half = _table_f1(table, 44)
+    rbound = _table_f1(table, 45)
+    g1 = _table_i1(table, 46)
+    g2 = _table_i1(table, 47)
+    exact = _table_b1(table, 48)
+    body1 = _table_i1(table, 49)
+    body2 = _table_i1(table, 50)
+    lower_bound = _table_f1(table, 51)
+    candidates = _table_i1(table, 52)
+    row_pairs = _table_i1(table, 53)
+    dists = _table_f1(table, 54)
+    fromtos = _table_f2(table, 55)
+    jac1 = _table_f2(table, 56)
+    jac2 = _table_f2(table, 57)
+    col_params = _table_f1(table, 58)
+    g_col = _table_f2(table, 59)
+    h_col = _table_f1(table, 60)
+    h_path_col = _table_f1(table, 61)
+    has_ref, has_last_xi = (state & STATE_HAS_REF) != 0, (state & STATE_HAS_LAST_XI) != 0
+    mode_changed, twist_mode = (state & STATE_MODE_CHANGED) != 0, (state & STATE_TWIST_MODE) != 0
+    top = (state & STATE_TOP) != 0
     n = q.shape[0]
     dt, reach, sing_slow, ref_tol = consts[0], consts[1], consts[2], consts[3]
     for i in range(n):  # the configuration at q (model order is qpos order)
