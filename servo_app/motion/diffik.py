@@ -365,9 +365,11 @@ class DifferentialIK:
         # (set_previous without its copy: the IK's dq_prev is never changed in place, only replaced)
         self.accel_limit.dq_prev = self._dq_prev
         is_twist = isinstance(command, Twist)  # (the jog's command: one check, not a union's)
-        if is_twist or (command is None and self._last_xi is not None):
+        if (is_twist or (command is None and self._last_xi is not None)) and _path_scale is _KERNEL_LINE_SCALE:
             # The common Cartesian step (a twist, or braking along its line) in one kernel; the rest
-            # (singularity slow-down, blend, QP) is the code below, from the same state.
+            # (singularity slow-down, blend, QP) is the code below, from the same state. (The kernel
+            # finds the line's scale as _path_scale does: a _path_scale replaced, as tests do to force
+            # the fallbacks, leaves every step to the code below.)
             done = self._cartesian_step(q, command)
             if done is not None:
                 return done
@@ -1045,6 +1047,9 @@ def _path_scale(direction: np.ndarray, s_goal: float, g: np.ndarray, h: np.ndarr
         return None
     s = min(max(s_goal, lo), hi)
     return s if math.isfinite(s) else None
+
+
+_KERNEL_LINE_SCALE = _path_scale  # what cartesian_step's line scale is (see step_owned)
 
 
 # Poses are 7-vectors as mink's SE3 stores them: unit quaternion (w x y z), then position (m).
