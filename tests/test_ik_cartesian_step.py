@@ -45,14 +45,25 @@ def same_or_none(a: np.ndarray | None, b: np.ndarray | None) -> bool:
     return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
 
 
+def count_kernel_steps(monkeypatch: pytest.MonkeyPatch) -> collections.Counter:
+    """Counts the steps cartesian_step did (True) and left to the Python code (False)."""
+    counts: collections.Counter = collections.Counter()
+    step = kernels.cartesian_step
+
+    def counted(*args):  # type: ignore[no-untyped-def]
+        out = step(*args)
+        counts[out[0] >= 0] += 1
+        return out
+
+    monkeypatch.setattr(kernels, "cartesian_step", counted)
+    return counts
+
+
 @pytest.fixture(scope="module")
 def pairs() -> dict[tuple[bool, float], tuple[DifferentialIK, DifferentialIK]]:
     return {(collision, dt): (DifferentialIK(PROFILE, dt, collision=collision, solver="daqp"),
                               python_only(DifferentialIK(PROFILE, dt, collision=collision, solver="daqp")))
             for collision in (True, False) for dt in (0.008, 0.004)}
-
-
-STATUS = collections.Counter()
 
 
 @pytest.mark.parametrize("collision", [True, False])
@@ -61,21 +72,16 @@ STATUS = collections.Counter()
 @given(u=st.lists(st.floats(0.05, 0.95), min_size=6, max_size=6),
        vfrac=st.lists(st.floats(-0.5, 0.5), min_size=6, max_size=6),
        segments=st.lists(st.tuples(commands, st.integers(1, 30)), min_size=1, max_size=5))
-def test_one_call_step_is_the_python_step(pairs, monkeypatch: pytest.MonkeyPatch, collision: bool, dt: float,
-                                          u: list[float], vfrac: list[float], segments) -> None:
+def test_one_call_step_is_the_python_step(pairs, collision: bool, dt: float, u: list[float], vfrac: list[float],
+                                          segments) -> None:
+    # (Random states and increments often blend or brake off the line, where both are the Python
+    # code's: 25-50 % of these steps were the kernel's over seeds here; a steady jog's are nearly all,
+    # test_step_again_and_undo_after_a_kernel_step.)
     fast, slow = pairs[(collision, dt)]
     q = LO + np.array(u) * (HI - LO)
     dq_prev = np.array(vfrac) * fast.vel * dt
     fast.reset(q, dq_prev)
     slow.reset(q, dq_prev)
-    step = kernels.cartesian_step
-
-    def counted(*args):  # type: ignore[no-untyped-def]
-        out = step(*args)
-        STATUS[out[0] >= 0] += 1
-        return out
-
-    monkeypatch.setattr(kernels, "cartesian_step", counted)
     for cmd, n in segments:
         for _ in range(n):
             a, b = fast.step(q, cmd), slow.step(q, cmd)
@@ -91,18 +97,10 @@ def test_one_call_step_is_the_python_step(pairs, monkeypatch: pytest.MonkeyPatch
             q = a.q_next
 
 
-def test_the_kernel_did_the_steps() -> None:
-    """(After the property test, in this module's order.) Many of its steps were the kernel's: the
-    comparison above is not between two runs of the Python code."""
-    if not STATUS:
-        pytest.skip("runs after test_one_call_step_is_the_python_step")
-    # (Random states and increments blend or brake off the line often: 25-50 % of the steps were the
-    # kernel's over seeds here.)
-    assert STATUS[True] >= 500 and STATUS[True] > 0.1 * (STATUS[True] + STATUS[False]), STATUS
-
-
-def test_step_again_and_undo_after_a_kernel_step() -> None:
-    """step_again / undo_step restore what a one-call step changed, as after a Python step."""
+def test_step_again_and_undo_after_a_kernel_step(monkeypatch: pytest.MonkeyPatch) -> None:
+    """step_again / undo_step restore what a one-call step changed, as after a Python step; a steady
+    jog is mostly the kernel's."""
+    done = count_kernel_steps(monkeypatch)
     fast = DifferentialIK(PROFILE, 0.008, collision=True)
     slow = python_only(DifferentialIK(PROFILE, 0.008, collision=True))
     q = np.radians([0.0, 10.0, -10.0, 0.0, -70.0, 0.0])
@@ -120,3 +118,4 @@ def test_step_again_and_undo_after_a_kernel_step() -> None:
             slow.undo_step()
             assert_same(fast.step(q, None), slow.step(q, None))
         q = a.q_next
+    assert done[True] >= 0.75 * sum(done.values()), done  # (the other command and the stops blend: 65 of 73)
