@@ -527,21 +527,12 @@ class DifferentialIK:
 
         Why: the step as Python around ~20 kernel and MuJoCo calls cost ~140-170 us per status when
         the caches are cold (8 ms between steps); one call removes those layers."""
-        table = self._fast_table
+        table = self._row_table()
         if table is None:
-            table = self._fast_table = self._cartesian_step_table()
-            if table is None:
-                return None
-        if not len(table):
             return None
         reference = self.config_guard.reference
-        if reference is None:
-            return None
-        pt = self.posture_task
-        if pt.target_q is not self._posture_src:  # set_target stores a new array: model order, once
-            assert pt.target_q is not None
-            self._posture_src = pt.target_q
-            self._posture_goal = np.ascontiguousarray(pt.target_q, dtype=float)  # qpos order is model order
+        assert reference is not None
+        posture_goal = self._posture_goal_now()
         ref, last_xi = self._ref, self._last_xi
         state = kernels.STATE_TOP if reference.top else 0
         if ref is not None:
@@ -565,7 +556,7 @@ class DifferentialIK:
         xi = np.empty(6)
         out = np.empty((4, N))
         status, bits, kappa, scale, rate = kernels.cartesian_step(
-            kind, linear, angular, q, self._dq_prev, ref, last_xi, self._posture_goal, self.braking_limit._bound,
+            kind, linear, angular, q, self._dq_prev, ref, last_xi, posture_goal, self.braking_limit._bound,
             state, table, poses, xi, out)
         if status < 0:  # (the kernel's scratch, rows and path direction are all set again by that code)
             return None
@@ -683,7 +674,17 @@ class DifferentialIK:
         """``(P, c, G, h)`` of the Cartesian cycle at the current configuration, as step() builds it:
         the frame task toward the pose ``target`` (wxyz_xyz) plus the posture task, and every limit
         row (G and h are the in-place arrays: valid until the next build)."""
-        p, c = self._cartesian_objective(np.ascontiguousarray(target, dtype=float), None)
+        target = np.ascontiguousarray(target, dtype=float)
+        table = self._row_table()
+        if table is not None:  # objective and rows in one kernel
+            path, reference = self.path_braking, self.config_guard.reference
+            assert reference is not None
+            if not kernels.table_problem(target, self._posture_goal_now(), self.accel_limit.dq_prev,
+                                         self.braking_limit._bound, reference.top, path.u is not None, path.rate,
+                                         table):
+                raise np.linalg.LinAlgError("the IK objective's Hessian is not positive definite")
+            return self._p, self._c, self._g, self._h
+        p, c = self._cartesian_objective(target, None)
         g, h, _ = self._rows()
         return p, c, g, h
 
@@ -800,6 +801,13 @@ class DifferentialIK:
         (their ``h_path``). Reads the same state the limits' own rows read (the configuration's qpos,
         ``accel_limit.dq_prev``, ``path_braking``), so both stay interchangeable."""
         g, h, hp, dt = self._g, self._h, self._hp, self.dt
+        table = self._row_table()
+        if table is not None:  # one kernel (the same ones as below, narrow phases inside)
+            path, reference = self.path_braking, self.config_guard.reference
+            assert reference is not None
+            kernels.table_rows(self.accel_limit.dq_prev, self.braking_limit._bound, reference.top, path.u is not None,
+                               path.rate, table)
+            return g, h, hp
         data = self.configuration.data
         qpos = self._view.qpos  # model order is qpos order (checked by _layout)
         accel, path = self.accel_limit, self.path_braking
@@ -838,19 +846,38 @@ class DifferentialIK:
         with a reference pose ``ref`` the pull-back toward it (row 1; see ``step``)."""
         view = self._view
         sid = self._site_id
+        posture_goal = self._posture_goal_now()
+        ok = kernels.site_objective(
+            view.cdof, view.subtree_com, self._tree, self._dof_parentid, self._site_body, view.site_xmat,
+            view.site_xpos, sid, self._jac_world, target, ref if ref is not None else target, ref is not None,
+            self._frame_cost, self._frame_gain, self._posture_cost, self._posture_gain, posture_goal, view.qpos,
+            self.settings.damping, self._correction_gain, self._p, self._c, self._c_frame, self._weighted_jac, self._d)
+        if not ok:
+            raise np.linalg.LinAlgError("the IK objective's Hessian is not positive definite")
+        return self._p, self._c
+
+    def _posture_goal_now(self) -> np.ndarray:
+        """The posture task's target in model order (taken again when ``set_target`` stored a new array)."""
         pt = self.posture_task
         if pt.target_q is not self._posture_src:  # set_target stores a new array: model order, once
             assert pt.target_q is not None
             self._posture_src = pt.target_q
             self._posture_goal = np.ascontiguousarray(pt.target_q, dtype=float)  # qpos order is model order
-        ok = kernels.site_objective(
-            view.cdof, view.subtree_com, self._tree, self._dof_parentid, self._site_body, view.site_xmat,
-            view.site_xpos, sid, self._jac_world, target, ref if ref is not None else target, ref is not None,
-            self._frame_cost, self._frame_gain, self._posture_cost, self._posture_gain, self._posture_goal, view.qpos,
-            self.settings.damping, self._correction_gain, self._p, self._c, self._c_frame, self._weighted_jac, self._d)
-        if not ok:
-            raise np.linalg.LinAlgError("the IK objective's Hessian is not positive definite")
-        return self._p, self._c
+        return self._posture_goal
+
+    def _row_table(self) -> np.ndarray | None:
+        """cartesian_step's table when the rows can be made from it (:func:`~servo_app.motion.ik_kernels.
+        table_rows`: the path's direction, if any, is its own array, the configuration latched), else
+        None (``_rows``' code)."""
+        table = self._fast_table
+        if table is None:
+            table = self._fast_table = self._cartesian_step_table()
+            if table is None:
+                return None
+        path = self.path_braking
+        if not len(table) or self.config_guard.reference is None or (path.u is not None and path.u is not path._u):
+            return None
+        return table
 
     def _joint_objective(self, q: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(P, c) of the joint task toward ``goal`` (cost 1, gain 1), with our damping."""

@@ -1182,6 +1182,54 @@ def _table_b1(table: np.ndarray, k: int) -> np.ndarray:
     return numba.carray(boolean_pointer(table[k, 0]), (table[k, 1],))
 
 
+@kernel("void(float64[::1], float64[::1], boolean, boolean, float64, int64[:, ::1])")
+def table_rows(dq_prev: np.ndarray, bound: np.ndarray, top: bool, with_path: bool, rate: float,
+               table: np.ndarray) -> None:
+    """``DifferentialIK._rows`` in one call, its arrays through ``table`` (``CARTESIAN_ARRAYS``): every
+    limit row (:func:`limit_rows`) and the collision rows with their narrow phases
+    (:func:`collision_fill`), at the configuration's joints. Per call: the acceleration rows' last
+    increment ``dq_prev``, the braking rows' ``bound``, the side ``top`` of the configuration guard,
+    and the path (``with_path``: its direction is the table's ``path_u``, ``rate``)."""
+    consts, ints = _table_f1(table, 0), _table_i1(table, 1)
+    qpos, cdof, subtree_com = _table_f1(table, 3), _table_f2(table, 4), _table_f2(table, 5)
+    path_u = _table_f1(table, 24)
+    u = path_u if with_path else qpos
+    path_rate_used = rate if with_path else 0.0
+    floor = consts[11]
+    limit_rows(qpos, consts[0], consts[9], _table_f1(table, 25), _table_f1(table, 26), _table_i1(table, 27),
+               _table_f2(table, 22), dq_prev, _table_f1(table, 28), _table_f1(table, 29), _table_b1(table, 30),
+               bound, _table_f1(table, 31), _table_f1(table, 32), _table_i1(table, 33), consts[10], with_path, u,
+               path_rate_used, floor, _table_f1(table, 34), consts[12], consts[13], top, consts[14],
+               _table_i1(table, 35), _table_f1(table, 36), _table_i1(table, 37), _table_f1(table, 39),
+               _table_f1(table, 40))
+    if ints[8]:
+        col_u = path_u if with_path else np.zeros(qpos.shape[0])
+        collision_fill(ints[0], ints[1], _table_f2(table, 8), _table_f2(table, 9), cdof, subtree_com,
+                       _table_i2(table, 10), _table_i1(table, 11), _table_i1(table, 42), _table_f1(table, 43),
+                       _table_f1(table, 44), _table_f1(table, 45), _table_i1(table, 46), _table_i1(table, 47),
+                       _table_b1(table, 48), _table_i1(table, 49), _table_i1(table, 50), _table_f1(table, 51),
+                       _table_i1(table, 52), _table_i1(table, 53), _table_f1(table, 54), _table_f2(table, 55),
+                       _table_f2(table, 56), _table_f2(table, 57), _table_f1(table, 58), with_path, col_u,
+                       path_rate_used, floor, _table_f2(table, 59), _table_f1(table, 60), _table_f1(table, 61))
+
+
+@kernel("boolean(float64[::1], float64[::1], float64[::1], float64[::1], boolean, boolean, float64, int64[:, ::1])")
+def table_problem(target: np.ndarray, posture_goal: np.ndarray, dq_prev: np.ndarray, bound: np.ndarray, top: bool,
+                  with_path: bool, rate: float, table: np.ndarray) -> bool:
+    """``DifferentialIK.qp_problem`` in one call: the objective toward ``target`` (:func:`site_objective`,
+    no reference) and :func:`table_rows`; False if the Hessian is not positive definite."""
+    consts, ints = _table_f1(table, 0), _table_i1(table, 1)
+    site_xmat, site_xpos = _table_f2(table, 6), _table_f2(table, 7)
+    if not site_objective(_table_f2(table, 4), _table_f2(table, 5), _table_i2(table, 10), _table_i1(table, 11),
+                          ints[4], site_xmat, site_xpos, ints[3], _table_f2(table, 14), target, target, False,
+                          _table_f1(table, 15), consts[6], _table_f1(table, 16), consts[7], posture_goal,
+                          _table_f1(table, 3), consts[4], consts[5], _table_f2(table, 17), _table_f1(table, 18),
+                          _table_f1(table, 19), _table_f2(table, 20), _table_f2(table, 21)):
+        return False
+    table_rows(dq_prev, bound, top, with_path, rate, table)
+    return True
+
+
 @kernel("Tuple((int64, int64, float64, float64, float64))(int64, UniTuple(float64, 3), UniTuple(float64, 3), "
         "float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64[:, ::1], "
         "float64[:, ::1], float64[::1], float64[:, ::1])")
@@ -1192,7 +1240,7 @@ def cartesian_step(kind: int, linear: tuple[float, float, float], angular: tuple
     """``DifferentialIK.step_owned`` for a twist (``kind`` ``TWIST_BASE`` / ``TWIST_TOOL``: ``linear``
     mm/s, ``angular`` deg/s) or a stop braking along the last Cartesian line (``CARTESIAN_STOP``), when
     the step stays on the line, in one call: the same operations in the same order as the Python
-    step (MuJoCo's through their C functions), so the same bits.
+    step (MuJoCo's through their C functions; the rows :func:`table_rows`), so the same bits.
 
     Per call: the joints ``q``, last cycle's increment ``dq_prev``, the reference pose ``ref`` and the
     last line ``last_xi`` (when ``state`` says there are), the posture goal, the braking rows' bounds
@@ -1220,8 +1268,6 @@ def cartesian_step(kind: int, linear: tuple[float, float, float], angular: tuple
     subtree_com = _table_f2(table, 5)
     site_xmat = _table_f2(table, 6)
     site_xpos = _table_f2(table, 7)
-    geom_xpos = _table_f2(table, 8)
-    geom_xmat = _table_f2(table, 9)
     tree = _table_i2(table, 10)
     dof_parentid = _table_i1(table, 11)
     jac_flange = _table_f2(table, 12)
@@ -1237,43 +1283,11 @@ def cartesian_step(kind: int, linear: tuple[float, float, float], angular: tuple
     rate_c = _table_f2(table, 22)
     path_brake = _table_f1(table, 23)
     path_u = _table_f1(table, 24)
-    cfg_upper = _table_f1(table, 25)
-    cfg_lower = _table_f1(table, 26)
-    cfg_qpos = _table_i1(table, 27)
-    vmax = _table_f1(table, 28)
-    da = _table_f1(table, 29)
     velocity_bound = _table_b1(table, 30)
-    brake_acc2 = _table_f1(table, 31)
-    brake = _table_f1(table, 32)
-    cols = _table_i1(table, 33)
-    arm = _table_f1(table, 34)
-    guard_cols = _table_i1(table, 35)
-    g_guard = _table_f1(table, 36)
-    starts = _table_i1(table, 37)
     g = _table_f2(table, 38)
     h = _table_f1(table, 39)
     h_path = _table_f1(table, 40)
     row_flags = _table_i1(table, 41)
-    shape = _table_i1(table, 42)
-    radius = _table_f1(table, 43)
-    half = _table_f1(table, 44)
-    rbound = _table_f1(table, 45)
-    g1 = _table_i1(table, 46)
-    g2 = _table_i1(table, 47)
-    exact = _table_b1(table, 48)
-    body1 = _table_i1(table, 49)
-    body2 = _table_i1(table, 50)
-    lower_bound = _table_f1(table, 51)
-    candidates = _table_i1(table, 52)
-    row_pairs = _table_i1(table, 53)
-    dists = _table_f1(table, 54)
-    fromtos = _table_f2(table, 55)
-    jac1 = _table_f2(table, 56)
-    jac2 = _table_f2(table, 57)
-    col_params = _table_f1(table, 58)
-    g_col = _table_f2(table, 59)
-    h_col = _table_f1(table, 60)
-    h_path_col = _table_f1(table, 61)
     has_ref, has_last_xi = (state & STATE_HAS_REF) != 0, (state & STATE_HAS_LAST_XI) != 0
     mode_changed, twist_mode = (state & STATE_MODE_CHANGED) != 0, (state & STATE_TWIST_MODE) != 0
     top = (state & STATE_TOP) != 0
@@ -1337,17 +1351,7 @@ def cartesian_step(kind: int, linear: tuple[float, float, float], angular: tuple
         direction[i] = d[0, i] - d[1, i] if asks_motion else dq_prev[i]
     rate = path_rate(rate_c, path_brake, direction, path_u)
     with_path = not math.isinf(rate)
-    floor = consts[11]
-    u = path_u if with_path else qpos
-    path_rate_used = rate if with_path else 0.0
-    limit_rows(qpos, dt, consts[9], cfg_upper, cfg_lower, cfg_qpos, rate_c, dq_prev, vmax, da, velocity_bound,
-               bound, brake_acc2, brake, cols, consts[10], with_path, u, path_rate_used, floor, arm, consts[12],
-               consts[13], top, consts[14], guard_cols, g_guard, starts, h, h_path)
-    if ints[8]:
-        col_u = path_u if with_path else np.zeros(n)
-        collision_fill(ints[0], ints[1], geom_xpos, geom_xmat, cdof, subtree_com, tree, dof_parentid, shape, radius,
-                       half, rbound, g1, g2, exact, body1, body2, lower_bound, candidates, row_pairs, dists, fromtos,
-                       jac1, jac2, col_params, with_path, col_u, path_rate_used, floor, g_col, h_col, h_path_col)
+    table_rows(dq_prev, bound, top, with_path, rate, table)
     correction = d[1]
     lo, hi = scale_interval(direction, g, h_path, correction, 1.0)
     s = math.nan
