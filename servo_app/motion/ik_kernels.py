@@ -2,7 +2,10 @@
 
 Why: between its MuJoCo calls and the solve, the IK cycle was hundreds of numpy calls on 6-vectors
 (1-2 us each here); each kernel below replaces a group of them with one call (~0.5 us). Pure math,
-no I/O, every output written into arrays the caller allocated once.
+no I/O, every output written into arrays the caller allocated once. The last few (:func:`collision_fill`,
+:func:`table_rows`, :func:`table_problem`, :func:`cartesian_step`) also call MuJoCo's C functions
+(:mod:`servo_app.motion.mujoco_c`: kinematics, Jacobians, narrow phases), so a whole Cartesian step
+is one call.
 
 Numbers: the limit rows (:func:`acceleration_rows`, :func:`braking_rows`, :func:`configuration_limit_rows`,
 :func:`limit_rows`, :func:`collision_rows`) repeat the reference's float operations in its order, so they
