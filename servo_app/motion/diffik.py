@@ -101,6 +101,8 @@ class IkFlag(enum.IntFlag):
 _B = types.SimpleNamespace(**{f.name: int(f) for f in IkFlag if f.name})
 _VELOCITY_LIMIT_BIT, _ACCEL_LIMIT_BIT = int(IkFlag.VELOCITY_LIMIT), int(IkFlag.ACCEL_LIMIT)
 
+_ZERO3 = (0.0, 0.0, 0.0)  # cartesian_step's twist when there is none
+
 _FLAG_OF: dict[int, IkFlag] = {}  # IkFlag(bits) by bits: the enum's constructor costs microseconds
 
 
@@ -360,11 +362,20 @@ class DifferentialIK:
         self._before = (self._dq_prev, self._ref, self._last_xi, self._mode)
         if dq_prev is not None:
             self._dq_prev = dq_prev
+        # (set_previous without its copy: the IK's dq_prev is never changed in place, only replaced)
+        self.accel_limit.dq_prev = self._dq_prev
+        is_twist = isinstance(command, Twist)  # (the jog's command: one check, not a union's)
+        if (is_twist or (command is None and self._last_xi is not None)) and _path_scale is _KERNEL_LINE_SCALE:
+            # The common Cartesian step (a twist, or braking along its line) in one kernel; the rest
+            # (singularity slow-down, blend, QP) is the code below, from the same state. (The kernel
+            # finds the line's scale as _path_scale does: a _path_scale replaced, as tests do to force
+            # the fallbacks, leaves every step to the code below.)
+            done = self._cartesian_step(q, command)
+            if done is not None:
+                return done
         st, dt = self.settings, self.dt
         data = self.configuration.data
         self._kinematics(q)
-        # (set_previous without its copy: the IK's dq_prev is never changed in place, only replaced)
-        self.accel_limit.dq_prev = self._dq_prev
         kappa = self._condition(data)
         flags = _B.NEAR_SINGULARITY if kappa > st.singularity_slow else 0  # int bits: IntFlag | costs us
         s_sing = 1.0
@@ -375,7 +386,6 @@ class DifferentialIK:
         target: np.ndarray | None = None  # the frame task's target pose (Cartesian modes)
         joint_goal = q  # the joint task's target (joint modes)
 
-        is_twist = isinstance(command, Twist)  # (the jog's command: one check, not a union's)
         if is_twist or isinstance(command, PoseTarget) or cartesian_stop:
             tcp = self._tcp_pose()
             if is_twist:
@@ -507,6 +517,132 @@ class DifferentialIK:
         return IkResult(dq=dq, q_next=q_next, velocity=velocity, scale=scale, flags=_ik_flag(flags),
                         condition=kappa, mode=mode, solver_status=solver_status)
 
+    def _cartesian_step(self, q: np.ndarray, command: Twist | None) -> IkResult | None:
+        """:meth:`step_owned` for a twist (``command``) or a stop braking along the last Cartesian line
+        (``None``) in one kernel call (:func:`~servo_app.motion.ik_kernels.cartesian_step`: the same
+        operations as the code of step_owned, MuJoCo's through its C functions, so the same bits).
+        None when the step is not the kernel's (a collision limit with cached pairs, not yet set up;
+        a stop off any line; the singularity slow-down; off the line: blend or QP): nothing the IK
+        keeps has changed then, and step_owned's code does the step.
+
+        Why: the step as Python around ~20 kernel and MuJoCo calls cost ~190-230 us per status when
+        the caches are cold (8 ms between steps, bench/servo_loop.py's IK ahead); in one call ~100-110
+        (62 -> 18 us in a tight loop)."""
+        table = self._row_table()
+        if table is None:
+            return None
+        reference = self.config_guard.reference
+        assert reference is not None
+        posture_goal = self._posture_goal_now()
+        ref, last_xi = self._ref, self._last_xi
+        state = kernels.STATE_TOP if reference.top else 0
+        if ref is not None:
+            state |= kernels.STATE_HAS_REF
+        else:
+            ref = self._no_pose
+        if last_xi is not None:
+            state |= kernels.STATE_HAS_LAST_XI
+        else:
+            last_xi = self._zero
+        if command is not None:
+            kind = kernels.TWIST_TOOL if command.frame == "tool" else kernels.TWIST_BASE
+            linear, angular = command.linear, command.angular
+            state |= kernels.STATE_TWIST_MODE if self._mode == "twist" else (kernels.STATE_TWIST_MODE
+                                                                             | kernels.STATE_MODE_CHANGED)
+        else:
+            kind, linear, angular = kernels.CARTESIAN_STOP, _ZERO3, _ZERO3
+            if self._mode == "twist":
+                state |= kernels.STATE_TWIST_MODE
+        poses = np.empty((2, 7))
+        xi = np.empty(6)
+        out = np.empty((4, N))
+        status, bits, kappa, scale, rate = kernels.cartesian_step(
+            kind, linear, angular, q, self._dq_prev, ref, last_xi, posture_goal, self.braking_limit._bound,
+            state, table, poses, xi, out)
+        if status < 0:  # (the kernel's scratch, rows and path direction are all set again by that code)
+            return None
+        path = self.path_braking
+        if math.isinf(rate):  # PathBraking.set_direction's outcome, its direction copied by the kernel
+            path.u, path.rate = None, math.inf
+        else:
+            path.u, path.rate = path._u, rate
+        self._ref, self.frame_target = poses
+        code = status & 3
+        if code == kernels.LAST_XI_NEW:
+            self._last_xi = xi
+        elif code == kernels.LAST_XI_CLEARED:
+            self._last_xi = None
+        if command is not None:
+            mode = self._mode = "twist"
+        else:
+            mode = "stop"  # (a Cartesian stop keeps its mode: the reference pose stays valid)
+        dq, self._dq_prev, q_next, velocity = out
+        if not status & kernels.STEP_FINITE:  # defensive: the line's increment is finite by construction
+            dq = np.zeros(N)
+            bits |= _B.SOLVER_FAILED
+            kernels.step_outputs(dq, q, self.dt, out[1:])
+        return IkResult(dq=dq, q_next=q_next, velocity=velocity, scale=scale, flags=_ik_flag(bits),
+                        condition=kappa, mode=mode, solver_status="")
+
+    def _cartesian_step_table(self) -> np.ndarray | None:
+        """:func:`~servo_app.motion.ik_kernels.cartesian_step`'s table of the arrays that stay
+        (``CARTESIAN_ARRAYS``: constants, the MjData's arrays, scratch, the row arrays; they are kept
+        in ``self._fast_arrays`` as long as the table), made once. Empty when the collision limit keeps
+        a cache (pairs the screen cannot decide: their narrow phases are Python's), None while its first
+        fill has not set it up."""
+        col = self.collision_limit
+        if col is not None and col._cached:
+            return np.zeros((0, 3), dtype=np.int64)
+        if col is not None and col._q_refresh is None:
+            return None
+        st, view, model = self.settings, self._view, self.model
+        data = self.configuration.data
+        accel, brk, guard, path = self.accel_limit, self.braking_limit, self.config_guard, self.path_braking
+        vmax, da = accel.bounds(self.dt)
+        collide = col is not None and bool(col.max_num_contacts)
+        _, acc2, brake, cols, _ = brk.row_data()
+        arrays = dict(
+            consts=np.array([self.dt, self._reach, st.singularity_slow, st.reference_tolerance_m, st.damping,
+                             self._correction_gain, self._frame_gain, self._posture_gain, st.binding_tol,
+                             self._cfg_gain, brk.lag_s, path.floor, guard.margins.shoulder_m,
+                             guard.margins.shoulder_brake_acc, guard.lag_s]),
+            ints=np.array([model._address, data._address, self._flange_id, self._site_id, self._site_body,
+                           self._accel_lo, self._accel_hi, self._neq, int(collide), _VELOCITY_LIMIT_BIT,
+                           _ACCEL_LIMIT_BIT, _B.NEAR_SINGULARITY, _B.NO_COMMAND], dtype=np.int64),
+            track_weights=self._track_weights, qpos=view.qpos, cdof=view.cdof, subtree_com=view.subtree_com,
+            site_xmat=view.site_xmat, site_xpos=view.site_xpos, geom_xpos=data.geom_xpos, geom_xmat=data.geom_xmat,
+            tree=self._tree, dof_parentid=self._dof_parentid, jac_flange=self._jac_flange, cond_work=self._cond_work,
+            jac_world=self._jac_world, frame_cost=self._frame_cost, posture_cost=self._posture_cost, p=self._p,
+            c=self._c, c_frame=self._c_frame, wjac=self._weighted_jac, d=self._d, rate_c=accel.c,
+            path_brake=path.brake, path_u=path._u, cfg_upper=self._cfg_upper, cfg_lower=self._cfg_lower,
+            cfg_qpos=self._cfg_qpos, vmax=vmax, da=da, velocity_bound=accel.velocity_bound, brake_acc2=acc2,
+            brake=brake, cols=cols, arm=guard._arm, guard_cols=guard._guard_cols, g_guard=self._g_guard,
+            starts=self._row_starts, g=self._g, h=self._h, h_path=self._hp, row_flags=self._row_flags)
+        if collide:
+            assert col is not None
+            arrays.update(
+                shape=col._geom_shape, radius=col._geom_radius, half=col._geom_half, rbound=col._geom_rbound,
+                g1=col._pair_g1_arr, g2=col._pair_g2_arr, exact=col._exact, body1=col._pair_b1_arr,
+                body2=col._pair_b2_arr, lower_bound=col._lower_bound, candidates=col._candidates,
+                row_pairs=col._row_pairs, dists=col._dists, fromtos=col._fromtos, jac1=col._jac1, jac2=col._jac2,
+                col_params=np.array([col.screen_tolerance, col.collision_detection_distance, col.gain,
+                                     col.minimum_distance_from_collisions, col.bound_relaxation, col.brake_acc,
+                                     self.dt, col.lag_s]),
+                g_col=self._g_col, h_col=self._h_col, h_path_col=self._hp_col)
+        kinds = {"f": np.float64, "i": np.int64, "b": np.bool_}
+        table = np.zeros((len(kernels.CARTESIAN_ARRAYS), 3), dtype=np.int64)
+        kept = []
+        for k, (name, kind, ndim) in enumerate(kernels.CARTESIAN_ARRAYS):
+            a = arrays.get(name)
+            if a is None:  # (no collision rows: empty arrays, never read)
+                a = np.zeros((0,) * ndim, dtype=kinds[kind])
+            if a.dtype != kinds[kind] or a.ndim != ndim or not a.flags.c_contiguous:
+                raise TypeError(f"cartesian_step's {name}: {a.dtype}, {a.ndim} dims, not {kind} {ndim} C-contiguous")
+            table[k] = (a.ctypes.data, a.shape[0], a.shape[1] if ndim == 2 else 0)
+            kept.append(a)
+        self._fast_arrays = kept  # the table's arrays, alive as long as it is
+        return table
+
     def step_again(self, q_model_rad: ArrayLike, command: Command | None, *, dq_prev: ArrayLike | None = None
                    ) -> IkResult:
         """The last cycle once more, from the state it started from, with another command: what
@@ -539,7 +675,17 @@ class DifferentialIK:
         """``(P, c, G, h)`` of the Cartesian cycle at the current configuration, as step() builds it:
         the frame task toward the pose ``target`` (wxyz_xyz) plus the posture task, and every limit
         row (G and h are the in-place arrays: valid until the next build)."""
-        p, c = self._cartesian_objective(np.ascontiguousarray(target, dtype=float), None)
+        target = np.ascontiguousarray(target, dtype=float)
+        table = self._row_table()
+        if table is not None:  # objective and rows in one kernel
+            path, reference = self.path_braking, self.config_guard.reference
+            assert reference is not None
+            if not kernels.table_problem(target, self._posture_goal_now(), self.accel_limit.dq_prev,
+                                         self.braking_limit._bound, reference.top, path.u is not None, path.rate,
+                                         table):
+                raise np.linalg.LinAlgError("the IK objective's Hessian is not positive definite")
+            return self._p, self._c, self._g, self._h
+        p, c = self._cartesian_objective(target, None)
         g, h, _ = self._rows()
         return p, c, g, h
 
@@ -637,6 +783,9 @@ class DifferentialIK:
         self._d = np.zeros((2, N))  # the optimum toward the target, and the pull-back (see step)
         self._rhs = np.zeros((N, 2))
         self._zero = np.zeros(N)
+        self._no_pose = np.zeros(7)  # cartesian_step's reference when there is none
+        self._fast_table: np.ndarray | None = None  # cartesian_step's arrays that stay, made at its first call
+        self._fast_arrays: list[np.ndarray] = []
         # Where the row blocks start, for the kernel that fills them (limit_rows: the same path for the
         # braking rows and the configuration guard's row), and the guard's row of G.
         if self.braking_limit.path is not self.path_braking or self.config_guard.path is not self.path_braking:
@@ -653,6 +802,13 @@ class DifferentialIK:
         (their ``h_path``). Reads the same state the limits' own rows read (the configuration's qpos,
         ``accel_limit.dq_prev``, ``path_braking``), so both stay interchangeable."""
         g, h, hp, dt = self._g, self._h, self._hp, self.dt
+        table = self._row_table()
+        if table is not None:  # one kernel (the same ones as below, narrow phases inside)
+            path, reference = self.path_braking, self.config_guard.reference
+            assert reference is not None
+            kernels.table_rows(self.accel_limit.dq_prev, self.braking_limit._bound, reference.top, path.u is not None,
+                               path.rate, table)
+            return g, h, hp
         data = self.configuration.data
         qpos = self._view.qpos  # model order is qpos order (checked by _layout)
         accel, path = self.accel_limit, self.path_braking
@@ -691,19 +847,38 @@ class DifferentialIK:
         with a reference pose ``ref`` the pull-back toward it (row 1; see ``step``)."""
         view = self._view
         sid = self._site_id
+        posture_goal = self._posture_goal_now()
+        ok = kernels.site_objective(
+            view.cdof, view.subtree_com, self._tree, self._dof_parentid, self._site_body, view.site_xmat,
+            view.site_xpos, sid, self._jac_world, target, ref if ref is not None else target, ref is not None,
+            self._frame_cost, self._frame_gain, self._posture_cost, self._posture_gain, posture_goal, view.qpos,
+            self.settings.damping, self._correction_gain, self._p, self._c, self._c_frame, self._weighted_jac, self._d)
+        if not ok:
+            raise np.linalg.LinAlgError("the IK objective's Hessian is not positive definite")
+        return self._p, self._c
+
+    def _posture_goal_now(self) -> np.ndarray:
+        """The posture task's target in model order (taken again when ``set_target`` stored a new array)."""
         pt = self.posture_task
         if pt.target_q is not self._posture_src:  # set_target stores a new array: model order, once
             assert pt.target_q is not None
             self._posture_src = pt.target_q
             self._posture_goal = np.ascontiguousarray(pt.target_q, dtype=float)  # qpos order is model order
-        ok = kernels.site_objective(
-            view.cdof, view.subtree_com, self._tree, self._dof_parentid, self._site_body, view.site_xmat,
-            view.site_xpos, sid, self._jac_world, target, ref if ref is not None else target, ref is not None,
-            self._frame_cost, self._frame_gain, self._posture_cost, self._posture_gain, self._posture_goal, view.qpos,
-            self.settings.damping, self._correction_gain, self._p, self._c, self._c_frame, self._weighted_jac, self._d)
-        if not ok:
-            raise np.linalg.LinAlgError("the IK objective's Hessian is not positive definite")
-        return self._p, self._c
+        return self._posture_goal
+
+    def _row_table(self) -> np.ndarray | None:
+        """cartesian_step's table when the rows can be made from it (:func:`~servo_app.motion.ik_kernels.
+        table_rows`: the path's direction, if any, is its own array, the configuration latched), else
+        None (``_rows``' code)."""
+        table = self._fast_table
+        if table is None:
+            table = self._fast_table = self._cartesian_step_table()
+            if table is None:
+                return None
+        path = self.path_braking
+        if not len(table) or self.config_guard.reference is None or (path.u is not None and path.u is not path._u):
+            return None
+        return table
 
     def _joint_objective(self, q: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(P, c) of the joint task toward ``goal`` (cost 1, gain 1), with our damping."""
@@ -900,6 +1075,9 @@ def _path_scale(direction: np.ndarray, s_goal: float, g: np.ndarray, h: np.ndarr
         return None
     s = min(max(s_goal, lo), hi)
     return s if math.isfinite(s) else None
+
+
+_KERNEL_LINE_SCALE = _path_scale  # what cartesian_step's line scale is (see step_owned)
 
 
 # Poses are 7-vectors as mink's SE3 stores them: unit quaternion (w x y z), then position (m).

@@ -2,7 +2,10 @@
 
 Why: between its MuJoCo calls and the solve, the IK cycle was hundreds of numpy calls on 6-vectors
 (1-2 us each here); each kernel below replaces a group of them with one call (~0.5 us). Pure math,
-no I/O, every output written into arrays the caller allocated once.
+no I/O, every output written into arrays the caller allocated once. The last few (:func:`collision_fill`,
+:func:`table_rows`, :func:`table_problem`, :func:`cartesian_step`) also call MuJoCo's C functions
+(:mod:`servo_app.motion.mujoco_c`: kinematics, Jacobians, narrow phases), so a whole Cartesian step
+is one call.
 
 Numbers: the limit rows (:func:`acceleration_rows`, :func:`braking_rows`, :func:`configuration_limit_rows`,
 :func:`limit_rows`, :func:`collision_rows`) repeat the reference's float operations in its order, so they
@@ -19,9 +22,24 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 from servo_app.jit import kernel
+from servo_app.motion.mujoco_c import (
+    address,
+    boolean_pointer,
+    doubles,
+    float64_pointer,
+    int64_pointer,
+    mj_comPos,
+    mj_geomDistance,
+    mj_jacSite,
+    mj_kinematics,
+    mj_makeConstraint,
+    mju_mat2Quat,
+    mju_rotVecQuat,
+)
 from servo_app.robots.kernels import DEG_TO_RAD
 
 _MINVAL = 1e-15  # MuJoCo's mjMINVAL: its vector normalisations treat shorter vectors as zero
@@ -1052,3 +1070,309 @@ def limit_rows(q: np.ndarray, dt: float,
         h_path[guard_at] = hg
     for i in range(brk_at):
         h_path[i] = h[i]
+
+
+# ---------------------------------------------------------------- the rows with their narrow phases
+@kernel("int64(int64, int64, float64[:, ::1], float64[:, ::1], float64[:, ::1], float64[:, ::1], int64[:, ::1], "
+        "int64[::1], int64[::1], float64[::1], float64[::1], float64[::1], int64[::1], int64[::1], boolean[::1], "
+        "int64[::1], int64[::1], float64[::1], int64[::1], int64[::1], float64[::1], float64[:, ::1], "
+        "float64[:, ::1], float64[:, ::1], float64[::1], boolean, float64[::1], float64, float64, "
+        "float64[:, ::1], float64[::1], float64[::1])")
+def collision_fill(model: int, data: int, geom_xpos: np.ndarray, geom_xmat: np.ndarray, cdof: np.ndarray,
+                   subtree_com: np.ndarray, tree: np.ndarray, dof_parentid: np.ndarray, shape: np.ndarray,
+                   radius: np.ndarray, half: np.ndarray, rbound: np.ndarray, g1: np.ndarray, g2: np.ndarray,
+                   exact: np.ndarray, body1: np.ndarray, body2: np.ndarray, lower_bound: np.ndarray,
+                   candidates: np.ndarray, row_pairs: np.ndarray, dists: np.ndarray, fromtos: np.ndarray,
+                   jac1: np.ndarray, jac2: np.ndarray, params: np.ndarray, with_path: bool, u: np.ndarray,
+                   rate: float, floor: float, g: np.ndarray, h: np.ndarray, h_path: np.ndarray) -> int:
+    """``CollisionLimit.fill`` for a limit with no cached pairs (every pair exact), in one call: the
+    screen (:func:`collision_screen`), MuJoCo's narrow phase (``mj_geomDistance``, the reference's call,
+    through its C function) on the pairs it leaves, and their rows (:func:`collision_rows`); the
+    number of rows returned. ``model``, ``data``: the structs' addresses; ``params``: the screen
+    tolerance, the detection distance, gain, minimum distance, bound relaxation, braking deceleration,
+    dt and ``lag_s``."""
+    tol, distmax, gain, min_dist, relax, brake_acc, dt, lag = (params[0], params[1], params[2], params[3],
+                                                               params[4], params[5], params[6], params[7])
+    count = collision_screen(shape, radius, half, rbound, g1, g2, exact, geom_xpos, geom_xmat, tol, distmax,
+                             lower_bound, candidates, g, h, h_path)
+    m, d = address(model), address(data)
+    rows = 0
+    for k in range(count):
+        idx = candidates[k]
+        dist = mj_geomDistance(m, d, np.int32(g1[idx]), np.int32(g2[idx]), distmax, doubles(fromtos[rows]))
+        if abs(dist - distmax) >= 1e-12:
+            row_pairs[rows] = idx
+            dists[rows] = dist
+            rows += 1
+    if rows:
+        collision_rows(rows, row_pairs, dists, fromtos, cdof, subtree_com, tree, dof_parentid, body1, body2, jac1,
+                       jac2, gain, min_dist, relax, brake_acc, dt, dt + lag, with_path, u, rate, floor, g, h, h_path)
+    return rows
+
+
+# ------------------------------------------------------------------- the Cartesian step in one call
+# What cartesian_step is asked to do (DifferentialIK.step_owned's command), and what it returns
+# besides its outputs: the step done (STEP_DONE, with the bits below), or why it left the step to
+# the Python code (which then does the whole step: nothing the IK keeps was changed).
+TWIST_BASE, TWIST_TOOL, CARTESIAN_STOP = 0, 1, 2
+STEP_NOT_CARTESIAN = -1  # a stop that is not braking along a Cartesian line
+STEP_SINGULARITY = -2  # the singularity factor is needed (condition above singularity_slow, the command moves)
+STEP_OFF_LINE = -3  # no scale fits the path-keeping rows: blend, QP or braking
+STEP_NOT_DEFINITE = -4  # the objective's Hessian is not positive definite (the Python code raises)
+LAST_XI_KEPT, LAST_XI_NEW, LAST_XI_CLEARED = 0, 1, 2  # the IK's last line: as it was, this twist, none
+STEP_FINITE = 4  # bit: the increment is finite (else the Python code's defensive branch)
+# cartesian_step's state bits: a reference pose and a last line are given, the Cartesian mode changes,
+# the mode is (stays) "twist", the configuration to keep is Top.
+STATE_HAS_REF, STATE_HAS_LAST_XI, STATE_MODE_CHANGED, STATE_TWIST_MODE, STATE_TOP = 1, 2, 4, 8, 16
+
+
+@kernel("float64(float64, float64, float64)")
+def _nearest(goal: float, lo: float, hi: float) -> float:
+    """``min(max(goal, lo), hi)`` with Python's min and max (``_path_scale``'s), NaN when not finite."""
+    s = goal
+    if lo > s:
+        s = lo
+    if hi < s:
+        s = hi
+    return s if math.isfinite(s) else math.nan
+
+
+
+# cartesian_step's arrays that stay (constants, the MjData's arrays, scratch, the rows), reached through
+# one table of addresses (row k: ``ctypes.data``, then the shape; DifferentialIK builds it in this
+# order, checking each array's kind: f float64, i int64, b bool, its dimensions and that it is
+# C-contiguous): the kernel then takes 14 arguments instead of 76 (numba's dispatch types and unboxes
+# each: ~60 ns in a tight loop, several times that cold). The owners keep the arrays alive.
+CARTESIAN_ARRAYS: tuple[tuple[str, str, int], ...] = (
+    ("consts", "f", 1), ("ints", "i", 1), ("track_weights", "f", 1), ("qpos", "f", 1), ("cdof", "f", 2),
+    ("subtree_com", "f", 2), ("site_xmat", "f", 2), ("site_xpos", "f", 2), ("geom_xpos", "f", 2),
+    ("geom_xmat", "f", 2), ("tree", "i", 2), ("dof_parentid", "i", 1), ("jac_flange", "f", 2), ("cond_work", "f", 2),
+    ("jac_world", "f", 2), ("frame_cost", "f", 1), ("posture_cost", "f", 1), ("p", "f", 2), ("c", "f", 1),
+    ("c_frame", "f", 1), ("wjac", "f", 2), ("d", "f", 2), ("rate_c", "f", 2), ("path_brake", "f", 1),
+    ("path_u", "f", 1), ("cfg_upper", "f", 1), ("cfg_lower", "f", 1), ("cfg_qpos", "i", 1), ("vmax", "f", 1),
+    ("da", "f", 1), ("velocity_bound", "b", 1), ("brake_acc2", "f", 1), ("brake", "f", 1), ("cols", "i", 1),
+    ("arm", "f", 1), ("guard_cols", "i", 1), ("g_guard", "f", 1), ("starts", "i", 1), ("g", "f", 2), ("h", "f", 1),
+    ("h_path", "f", 1), ("row_flags", "i", 1), ("shape", "i", 1), ("radius", "f", 1), ("half", "f", 1),
+    ("rbound", "f", 1), ("g1", "i", 1), ("g2", "i", 1), ("exact", "b", 1), ("body1", "i", 1), ("body2", "i", 1),
+    ("lower_bound", "f", 1), ("candidates", "i", 1), ("row_pairs", "i", 1), ("dists", "f", 1), ("fromtos", "f", 2),
+    ("jac1", "f", 2), ("jac2", "f", 2), ("col_params", "f", 1), ("g_col", "f", 2), ("h_col", "f", 1),
+    ("h_path_col", "f", 1),
+)
+
+
+@kernel("float64[::1](int64[:, ::1], int64)")
+def _table_f1(table: np.ndarray, k: int) -> np.ndarray:
+    return numba.carray(float64_pointer(table[k, 0]), (table[k, 1],))
+
+
+@kernel("float64[:, ::1](int64[:, ::1], int64)")
+def _table_f2(table: np.ndarray, k: int) -> np.ndarray:
+    return numba.carray(float64_pointer(table[k, 0]), (table[k, 1], table[k, 2]))
+
+
+@kernel("int64[::1](int64[:, ::1], int64)")
+def _table_i1(table: np.ndarray, k: int) -> np.ndarray:
+    return numba.carray(int64_pointer(table[k, 0]), (table[k, 1],))
+
+
+@kernel("int64[:, ::1](int64[:, ::1], int64)")
+def _table_i2(table: np.ndarray, k: int) -> np.ndarray:
+    return numba.carray(int64_pointer(table[k, 0]), (table[k, 1], table[k, 2]))
+
+
+@kernel("boolean[::1](int64[:, ::1], int64)")
+def _table_b1(table: np.ndarray, k: int) -> np.ndarray:
+    return numba.carray(boolean_pointer(table[k, 0]), (table[k, 1],))
+
+
+@kernel("void(float64[::1], float64[::1], boolean, boolean, float64, int64[:, ::1])")
+def table_rows(dq_prev: np.ndarray, bound: np.ndarray, top: bool, with_path: bool, rate: float,
+               table: np.ndarray) -> None:
+    """``DifferentialIK._rows`` in one call, its arrays through ``table`` (``CARTESIAN_ARRAYS``): every
+    limit row (:func:`limit_rows`) and the collision rows with their narrow phases
+    (:func:`collision_fill`), at the configuration's joints. Per call: the acceleration rows' last
+    increment ``dq_prev``, the braking rows' ``bound``, the side ``top`` of the configuration guard,
+    and the path (``with_path``: its direction is the table's ``path_u``, ``rate``)."""
+    consts, ints = _table_f1(table, 0), _table_i1(table, 1)
+    qpos, cdof, subtree_com = _table_f1(table, 3), _table_f2(table, 4), _table_f2(table, 5)
+    path_u = _table_f1(table, 24)
+    u = path_u if with_path else qpos
+    path_rate_used = rate if with_path else 0.0
+    floor = consts[11]
+    limit_rows(qpos, consts[0], consts[9], _table_f1(table, 25), _table_f1(table, 26), _table_i1(table, 27),
+               _table_f2(table, 22), dq_prev, _table_f1(table, 28), _table_f1(table, 29), _table_b1(table, 30),
+               bound, _table_f1(table, 31), _table_f1(table, 32), _table_i1(table, 33), consts[10], with_path, u,
+               path_rate_used, floor, _table_f1(table, 34), consts[12], consts[13], top, consts[14],
+               _table_i1(table, 35), _table_f1(table, 36), _table_i1(table, 37), _table_f1(table, 39),
+               _table_f1(table, 40))
+    if ints[8]:
+        col_u = path_u if with_path else np.zeros(qpos.shape[0])
+        collision_fill(ints[0], ints[1], _table_f2(table, 8), _table_f2(table, 9), cdof, subtree_com,
+                       _table_i2(table, 10), _table_i1(table, 11), _table_i1(table, 42), _table_f1(table, 43),
+                       _table_f1(table, 44), _table_f1(table, 45), _table_i1(table, 46), _table_i1(table, 47),
+                       _table_b1(table, 48), _table_i1(table, 49), _table_i1(table, 50), _table_f1(table, 51),
+                       _table_i1(table, 52), _table_i1(table, 53), _table_f1(table, 54), _table_f2(table, 55),
+                       _table_f2(table, 56), _table_f2(table, 57), _table_f1(table, 58), with_path, col_u,
+                       path_rate_used, floor, _table_f2(table, 59), _table_f1(table, 60), _table_f1(table, 61))
+
+
+@kernel("boolean(float64[::1], float64[::1], float64[::1], float64[::1], boolean, boolean, float64, int64[:, ::1])")
+def table_problem(target: np.ndarray, posture_goal: np.ndarray, dq_prev: np.ndarray, bound: np.ndarray, top: bool,
+                  with_path: bool, rate: float, table: np.ndarray) -> bool:
+    """``DifferentialIK.qp_problem`` in one call: the objective toward ``target`` (:func:`site_objective`,
+    no reference) and :func:`table_rows`; False if the Hessian is not positive definite."""
+    consts, ints = _table_f1(table, 0), _table_i1(table, 1)
+    site_xmat, site_xpos = _table_f2(table, 6), _table_f2(table, 7)
+    if not site_objective(_table_f2(table, 4), _table_f2(table, 5), _table_i2(table, 10), _table_i1(table, 11),
+                          ints[4], site_xmat, site_xpos, ints[3], _table_f2(table, 14), target, target, False,
+                          _table_f1(table, 15), consts[6], _table_f1(table, 16), consts[7], posture_goal,
+                          _table_f1(table, 3), consts[4], consts[5], _table_f2(table, 17), _table_f1(table, 18),
+                          _table_f1(table, 19), _table_f2(table, 20), _table_f2(table, 21)):
+        return False
+    table_rows(dq_prev, bound, top, with_path, rate, table)
+    return True
+
+
+@kernel("Tuple((int64, int64, float64, float64, float64))(int64, UniTuple(float64, 3), UniTuple(float64, 3), "
+        "float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64[:, ::1], "
+        "float64[:, ::1], float64[::1], float64[:, ::1])")
+def cartesian_step(kind: int, linear: tuple[float, float, float], angular: tuple[float, float, float],
+                   q: np.ndarray, dq_prev: np.ndarray, ref: np.ndarray, last_xi: np.ndarray, posture_goal: np.ndarray,
+                   bound: np.ndarray, state: int, table: np.ndarray, poses: np.ndarray, xi: np.ndarray,
+                   out: np.ndarray) -> tuple[int, int, float, float, float]:
+    """``DifferentialIK.step_owned`` for a twist (``kind`` ``TWIST_BASE`` / ``TWIST_TOOL``: ``linear``
+    mm/s, ``angular`` deg/s) or a stop braking along the last Cartesian line (``CARTESIAN_STOP``), when
+    the step stays on the line, in one call: the same operations in the same order as the Python
+    step (MuJoCo's through their C functions; the rows :func:`table_rows`), so the same bits.
+
+    Per call: the joints ``q``, last cycle's increment ``dq_prev``, the reference pose ``ref`` and the
+    last line ``last_xi`` (when ``state`` says there are), the posture goal, the braking rows' bounds
+    ``bound`` (``BrakingLimit.row_data``), ``state``'s bits (``STATE_*``); the rest through ``table``
+    (``CARTESIAN_ARRAYS``). ``consts``: dt, reach, singularity_slow, reference_tolerance_m, damping,
+    the correction gain, the frame task's gain, the posture gain, binding_tol, ConfigurationLimit's
+    gain, the braking rows' lag, the path's floor, the shoulder margin, its braking deceleration, the
+    configuration guard's lag. ``ints``: the model's and data's addresses, the flange site, the TCP
+    site and its body, the acceleration rows' first and end row, the model's equality count,
+    collision rows (1/0), the flag bits VELOCITY_LIMIT, ACCEL_LIMIT, NEAR_SINGULARITY, NO_COMMAND.
+    The others as :func:`site_objective`, :func:`limit_rows`, :func:`collision_fill` and
+    :func:`step_result` take them.
+
+    Returns ``(status, flags, condition, scale, path rate)``; ``status`` < 0 (``STEP_*``): the step is
+    the Python code's (the IK's kept state untouched: only scratch, the MjData and the rows were
+    written). Else the ``LAST_XI_*`` code plus ``STEP_FINITE``; ``poses`` rows: the new reference and
+    the frame target; ``xi``: this step's twist (m/s, rad/s); ``out`` rows: the increment, its copy
+    (next cycle's ``dq_prev``), ``q + dq``, ``dq / dt``; ``path_u`` and the path rate: the path's
+    braking direction (``PathBraking``'s)."""
+    consts = _table_f1(table, 0)
+    ints = _table_i1(table, 1)
+    track_weights = _table_f1(table, 2)
+    qpos = _table_f1(table, 3)
+    cdof = _table_f2(table, 4)
+    subtree_com = _table_f2(table, 5)
+    site_xmat = _table_f2(table, 6)
+    site_xpos = _table_f2(table, 7)
+    tree = _table_i2(table, 10)
+    dof_parentid = _table_i1(table, 11)
+    jac_flange = _table_f2(table, 12)
+    cond_work = _table_f2(table, 13)
+    jac_world = _table_f2(table, 14)
+    frame_cost = _table_f1(table, 15)
+    posture_cost = _table_f1(table, 16)
+    p = _table_f2(table, 17)
+    c = _table_f1(table, 18)
+    c_frame = _table_f1(table, 19)
+    wjac = _table_f2(table, 20)
+    d = _table_f2(table, 21)
+    rate_c = _table_f2(table, 22)
+    path_brake = _table_f1(table, 23)
+    path_u = _table_f1(table, 24)
+    velocity_bound = _table_b1(table, 30)
+    g = _table_f2(table, 38)
+    h = _table_f1(table, 39)
+    h_path = _table_f1(table, 40)
+    row_flags = _table_i1(table, 41)
+    has_ref, has_last_xi = (state & STATE_HAS_REF) != 0, (state & STATE_HAS_LAST_XI) != 0
+    mode_changed, twist_mode = (state & STATE_MODE_CHANGED) != 0, (state & STATE_TWIST_MODE) != 0
+    top = (state & STATE_TOP) != 0
+    n = q.shape[0]
+    dt, reach, sing_slow, ref_tol = consts[0], consts[1], consts[2], consts[3]
+    for i in range(n):  # the configuration at q (model order is qpos order)
+        qpos[i] = q[i]
+    m, dd = address(ints[0]), address(ints[1])
+    mj_kinematics(m, dd)
+    mj_comPos(m, dd)
+    if ints[7] > 0:
+        mj_makeConstraint(m, dd)
+    mj_jacSite(m, dd, doubles(jac_flange[:3]), doubles(jac_flange[3:]), np.int32(ints[2]))
+    kappa = condition_number(jac_flange, reach, cond_work)
+    flags = ints[11] if kappa > sing_slow else 0
+    moving = any_nonzero(dq_prev)
+    if kind == CARTESIAN_STOP and not (has_last_xi and moving):
+        return STEP_NOT_CARTESIAN, 0, kappa, 0.0, 0.0
+    sid = ints[3]
+    tcp = np.empty(7)
+    mju_mat2Quat(doubles(tcp[:4]), doubles(site_xmat[sid]))
+    for i in range(3):
+        tcp[4 + i] = site_xpos[sid, i]
+    if kind == CARTESIAN_STOP:
+        for i in range(6):
+            xi[i] = 0.0
+        xi_moves = False
+        flags |= ints[12]
+    else:
+        xi_moves = twist_si(linear, angular, xi)
+        if kind == TWIST_TOOL:
+            part = np.empty(3)
+            for at in (0, 3):
+                for i in range(3):
+                    part[i] = xi[at + i]
+                mju_rotVecQuat(doubles(xi[at: at + 3]), doubles(part), doubles(tcp[:4]))
+            xi_moves = any_nonzero(xi)
+    new_ref = poses[0]
+    if mode_changed or not has_ref or not poses_near(ref, tcp, ref_tol, reach):
+        new_ref[:] = tcp
+    elif not (twist_mode and has_last_xi and along_track(new_ref, ref, tcp, last_xi, track_weights)):
+        new_ref[:] = ref
+    if xi_moves:
+        if kappa > sing_slow:
+            return STEP_SINGULARITY, 0, kappa, 0.0, 0.0
+        line, s_goal, asks_motion, last_code = xi, 1.0, True, LAST_XI_NEW
+    elif has_last_xi and moving:
+        line, s_goal, asks_motion, last_code = last_xi, 0.0, any_nonzero(last_xi), LAST_XI_KEPT
+    else:
+        line, s_goal, asks_motion, last_code = xi, 0.0, False, LAST_XI_CLEARED
+    target = poses[1]
+    advance(target, new_ref, line, 1.0, dt)
+    toward = new_ref if asks_motion else target
+    if not site_objective(cdof, subtree_com, tree, dof_parentid, ints[4], site_xmat, site_xpos, sid, jac_world,
+                          target, toward, asks_motion, frame_cost, consts[6],
+                          posture_cost, consts[7], posture_goal, qpos, consts[4], consts[5], p, c, c_frame, wjac,
+                          d):
+        return STEP_NOT_DEFINITE, 0, kappa, 0.0, 0.0
+    direction = np.empty(n)
+    for i in range(n):
+        direction[i] = d[0, i] - d[1, i] if asks_motion else dq_prev[i]
+    rate = path_rate(rate_c, path_brake, direction, path_u)
+    with_path = not math.isinf(rate)
+    table_rows(dq_prev, bound, top, with_path, rate, table)
+    correction = d[1]
+    lo, hi = scale_interval(direction, g, h_path, correction, 1.0)
+    s = math.nan
+    if not math.isnan(lo):
+        s = _nearest(s_goal, lo, hi)
+    if not math.isfinite(s) and any_nonzero(correction):
+        correction = np.zeros(n)  # the correction does not fit this cycle: the line alone
+        lo, hi = scale_interval(direction, g, h_path, direction, 0.0)
+        if not math.isnan(lo):
+            s = _nearest(s_goal, lo, hi)
+    if not math.isfinite(s):
+        return STEP_OFF_LINE, 0, kappa, 0.0, rate
+    line_point(s, direction, correction, out[0])
+    if asks_motion:  # the reference follows what was achieved
+        before = new_ref.copy()
+        advance(new_ref, before, line, s, dt)
+    if s_goal == 0.0 and s == 0.0:
+        last_code = LAST_XI_CLEARED  # at rest
+    scale, bits, finite = step_result(out[0], d[0], s_goal, 1.0, q, dt, g, h, row_flags, ints[5], ints[6],
+                                      velocity_bound, consts[8], ints[9], ints[10], out[1:])
+    return last_code + (STEP_FINITE if finite else 0), flags | bits, kappa, scale, rate

@@ -477,6 +477,11 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self._pair_b2_arr = np.array(self._pair_b2, dtype=np.int64)
         self._no_direction = np.zeros(model.nv)  # the row kernel's path direction when there is none
         self._tree, self._dof_parentid = jacobian_tree(model)  # for the row kernel's point Jacobians
+        # collision_fill's scalars: screen tolerance, detection distance, gain, minimum distance, relaxation,
+        # braking deceleration (dt and lag_s are written per call).
+        self._fill_params = np.array([self.screen_tolerance, self.collision_detection_distance, self.gain,
+                                      self.minimum_distance_from_collisions, self.bound_relaxation, self.brake_acc,
+                                      0.0, 0.0])
         self._views: tuple[mujoco.MjData | None, tuple[np.ndarray, ...]] = (None, ())
         self.refreshes = 0
 
@@ -531,6 +536,21 @@ class CollisionLimit(CollisionAvoidanceLimit):
         if self._views[0] is not data:  # data's arrays as views made once (an attribute read makes a new one)
             self._views = (data, (data.geom_xpos, data.geom_xmat, data.cdof, data.subtree_com))
         geom_xpos, geom_xmat, cdof, subtree_com = self._views[1]
+        if not self._cached and self._q_refresh is not None:  # every pair exact: one kernel, narrow phases in it
+            path = self.path
+            with_path = path is not None and path.u is not None
+            params = self._fill_params
+            params[6], params[7] = dt, self.lag_s
+            kernels.collision_fill(
+                model._address, data._address, geom_xpos, geom_xmat, cdof, subtree_com, self._tree,
+                self._dof_parentid, self._geom_shape, self._geom_radius, self._geom_half, self._geom_rbound,
+                self._pair_g1_arr, self._pair_g2_arr, self._exact, self._pair_b1_arr, self._pair_b2_arr,
+                self._lower_bound, self._candidates, self._row_pairs, self._dists, self._fromtos, self._jac1,
+                self._jac2, params, with_path,
+                path.u if path is not None and path.u is not None else self._no_direction,
+                path.rate if path is not None and with_path else 0.0, path.floor if path is not None else 0.0,
+                g, h, h_path)
+            return
         count = kernels.collision_screen(self._geom_shape, self._geom_radius, self._geom_half, self._geom_rbound,
                                          self._pair_g1_arr, self._pair_g2_arr, self._exact, geom_xpos, geom_xmat,
                                          self.screen_tolerance, distmax, self._lower_bound, self._candidates, g, h,

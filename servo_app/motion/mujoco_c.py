@@ -1,0 +1,103 @@
+"""MuJoCo's C functions for kernels: the few the IK cycle calls, declared for numba.
+
+Why: from Python each MuJoCo call goes through the binding (argument checks, array conversions:
+~1-2 us here); a kernel calls the C function directly, so a whole IK step (kinematics, Jacobians,
+narrow phases and the math between them) can be one compiled call. The functions are MuJoCo's
+own, so the numbers are the binding's to the bit (``tests/test_mujoco_c.py``).
+
+Importing this module loads ``libmujoco`` (the one the ``mujoco`` package ships) into the process's
+symbol table, so kernels that call these functions compile, and load from numba's on-disk cache,
+once it is imported (every kernel module using them imports it first).
+
+In a kernel: ``mj_kinematics(address(model_address), address(data_address))`` with the ints
+``model._address`` / ``data._address`` (the structs stay where MuJoCo allocated them for the
+objects' lifetime), and ``doubles(array)`` for a C-contiguous float64 array's data.
+Signatures as in ``mujoco/include/mujoco/mujoco.h`` (mjtNum is double, int is int32).
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+
+import llvmlite.binding as llvm
+import mujoco
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+
+def library_path() -> str:
+    """The ``libmujoco.so.*`` of the installed ``mujoco`` package (the library its binding uses)."""
+    found = sorted(glob.glob(os.path.join(os.path.dirname(mujoco.__file__), "libmujoco.so*")))
+    if not found:
+        raise ImportError(f"no libmujoco.so* beside {mujoco.__file__}")
+    return found[-1]
+
+
+llvm.load_library_permanently(library_path())
+
+_PTR = types.voidptr
+_DOUBLES = types.CPointer(types.float64)
+
+# void mj_kinematics(const mjModel* m, mjData* d)
+mj_kinematics = types.ExternalFunction("mj_kinematics", types.void(_PTR, _PTR))
+# void mj_comPos(const mjModel* m, mjData* d)
+mj_comPos = types.ExternalFunction("mj_comPos", types.void(_PTR, _PTR))
+# void mj_makeConstraint(const mjModel* m, mjData* d)
+mj_makeConstraint = types.ExternalFunction("mj_makeConstraint", types.void(_PTR, _PTR))
+# void mj_jacSite(const mjModel* m, const mjData* d, mjtNum* jacp, mjtNum* jacr, int site)
+mj_jacSite = types.ExternalFunction("mj_jacSite", types.void(_PTR, _PTR, _DOUBLES, _DOUBLES, types.int32))
+# void mju_mat2Quat(mjtNum quat[4], const mjtNum mat[9])
+mju_mat2Quat = types.ExternalFunction("mju_mat2Quat", types.void(_DOUBLES, _DOUBLES))
+# void mju_rotVecQuat(mjtNum res[3], const mjtNum vec[3], const mjtNum quat[4])
+mju_rotVecQuat = types.ExternalFunction("mju_rotVecQuat", types.void(_DOUBLES, _DOUBLES, _DOUBLES))
+# mjtNum mj_geomDistance(const mjModel* m, mjData* d, int geom1, int geom2, mjtNum distmax, mjtNum fromto[6])
+mj_geomDistance = types.ExternalFunction(
+    "mj_geomDistance", types.float64(_PTR, _PTR, types.int32, types.int32, types.float64, _DOUBLES))
+
+
+@intrinsic
+def address(typingctx, value):  # type: ignore[no-untyped-def]
+    """The int ``value`` (a struct's ``_address``) as a ``void*``."""
+    if not isinstance(value, types.Integer):
+        return None
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        return builder.inttoptr(args[0], cgutils.voidptr_t)
+
+    return types.voidptr(value), codegen
+
+
+@intrinsic
+def doubles(typingctx, array):  # type: ignore[no-untyped-def]
+    """A C-contiguous float64 array's data as ``double*`` (what MuJoCo's ``mjtNum*`` arguments take)."""
+    if not (isinstance(array, types.Array) and array.dtype == types.float64 and array.layout == "C"):
+        return None
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        return context.make_array(signature.args[0])(context, builder, args[0]).data
+
+    return _DOUBLES(array), codegen
+
+
+def _pointer_intrinsic(dtype: types.Type):  # type: ignore[no-untyped-def]
+    @intrinsic
+    def pointer(typingctx, value):  # type: ignore[no-untyped-def]
+        if not isinstance(value, types.Integer):
+            return None
+
+        def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+            return builder.inttoptr(args[0], context.get_value_type(signature.return_type))
+
+        return types.CPointer(dtype)(value), codegen
+
+    return pointer
+
+
+# An int (an array's ``ctypes.data``) as a typed pointer, for ``numba.carray``: a kernel can then reach
+# arrays through a table of addresses instead of taking each as an argument (numba's dispatch types
+# and unboxes every argument: ~60 ns each in a tight loop, several times that with cold caches).
+float64_pointer = _pointer_intrinsic(types.float64)
+int64_pointer = _pointer_intrinsic(types.int64)
+boolean_pointer = _pointer_intrinsic(types.boolean)
