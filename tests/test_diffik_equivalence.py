@@ -34,13 +34,19 @@ PROFILE = load_profile("lrmate200id")
 # velocities: 1e-6 rad/s * dt, with margin) -- where it converged: an OSQP answer at its iteration
 # limit has no tolerance to compare within, and two IKs whose warm starts drifted apart (each solves
 # the QP in its own cycles) stop at different iterates (hypothesis seeds 9 and 53: 1.3e-6 and 5.8e-4
-# rad/cycle apart). Such an answer must still keep every limit row (checked below).
+# rad/cycle apart). Such an answer must still keep every limit row (checked below). Nor has an OSQP
+# answer to a QP fallback near a singularity: the QP is ill-conditioned there, and OSQP stops on its
+# residuals, not on the distance to the optimum; two converged answers were 2.9e-6 and 1.6e-5
+# rad/cycle apart (random seeds, rarely). DAQP's exact answers to the same QPs are compared
+# to rounding, and every row is checked for both solvers.
 TOL = {"daqp": 1e-9, "osqp": 1e-6}
 SCALE_TOL = {"daqp": 1e-6, "osqp": 1e-4}
 ROW_TOL = 1e-9  # rad (or m) per cycle: a limit row "holds" within this ...
-# ... or, for an OSQP fallback, within the violation PersistentQP accepts (QpSettings.feasibility_tol),
-# as the reference's own answer does.
-QP_ROW_TOL = {"daqp": 1e-9, "osqp": QpSettings().feasibility_tol}
+# ... or, for a QP fallback, within the violation its solver accepts, as the reference's own answer
+# does: OSQP's is PersistentQP's (QpSettings.feasibility_tol); DAQP's is its primal tolerance
+# (daqp.solve's primal_tol, 1e-6) in the variables it solves for, velocities (var_scale = dt), so
+# 1e-6 * dt per cycle (seen: 1.4e-9 rad on a joint jog's fallback, at a row whose bound is 0).
+QP_ROW_TOL = {"daqp": 1e-6 * DT, "osqp": QpSettings().feasibility_tol}
 
 
 @pytest.fixture(scope="module")
@@ -113,7 +119,9 @@ def test_same_increment_as_the_reference(pairs, solver: str, collision: bool, sc
             assert math.isclose(a.condition, b.condition, rel_tol=1e-9), (a.condition, b.condition)
             failed = bool(a.flags & IkFlag.SOLVER_FAILED) or bool(int(b.flags) & int(IkFlag.SOLVER_FAILED))
             unconverged = "maximum iterations" in f"{a.solver_status} {b.solver_status}"
-            if not failed and not unconverged:
+            ill_conditioned = solver == "osqp" and bool((a.flags | int(b.flags)) & IkFlag.QP_FALLBACK) and bool(
+                (a.flags | int(b.flags)) & IkFlag.NEAR_SINGULARITY)
+            if not failed and not unconverged and not ill_conditioned:
                 assert np.max(np.abs(a.dq - b.dq)) <= TOL[solver], (a.dq - b.dq, a.flags, b.flags)
                 if bool(a.flags & IkFlag.QP_FALLBACK) == bool(int(b.flags) & int(IkFlag.QP_FALLBACK)) and \
                         solver == "daqp":
