@@ -380,6 +380,8 @@ def test_qp_fallback_and_solver_failure_never_give_nan(monkeypatch: pytest.Monke
     monkeypatch.setattr(diffik_module, "_path_scale", lambda *a: None)  # force the QP path
     for solver in ("osqp", "daqp"):
         ik = new_ik(solver=solver)
+        # The one-call Cartesian step off (an empty table): its line is not _path_scale's call.
+        ik._fast_table = np.zeros((0, 3), dtype=np.int64)
         monkeypatch.setattr(ik, "_blend", lambda *a: None)
         ik.reset(HOME)
         _, results, qs = run(ik, HOME, twist((200.0, 0.0, 0.0)), 30)

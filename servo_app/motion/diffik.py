@@ -365,11 +365,9 @@ class DifferentialIK:
         # (set_previous without its copy: the IK's dq_prev is never changed in place, only replaced)
         self.accel_limit.dq_prev = self._dq_prev
         is_twist = isinstance(command, Twist)  # (the jog's command: one check, not a union's)
-        if (is_twist or (command is None and self._last_xi is not None)) and _path_scale is _KERNEL_LINE_SCALE:
+        if is_twist or (command is None and self._last_xi is not None):
             # The common Cartesian step (a twist, or braking along its line) in one kernel; the rest
-            # (singularity slow-down, blend, QP) is the code below, from the same state. (The kernel
-            # finds the line's scale as _path_scale does: a _path_scale replaced, as tests do to force
-            # the fallbacks, leaves every step to the code below.)
+            # (singularity slow-down, blend, QP) is the code below, from the same state.
             done = self._cartesian_step(q, command)
             if done is not None:
                 return done
@@ -625,9 +623,7 @@ class DifferentialIK:
                 g1=col._pair_g1_arr, g2=col._pair_g2_arr, exact=col._exact, body1=col._pair_b1_arr,
                 body2=col._pair_b2_arr, lower_bound=col._lower_bound, candidates=col._candidates,
                 row_pairs=col._row_pairs, dists=col._dists, fromtos=col._fromtos, jac1=col._jac1, jac2=col._jac2,
-                col_params=np.array([col.screen_tolerance, col.collision_detection_distance, col.gain,
-                                     col.minimum_distance_from_collisions, col.bound_relaxation, col.brake_acc,
-                                     self.dt, col.lag_s]),
+                col_params=col.fill_params(self.dt),
                 g_col=self._g_col, h_col=self._h_col, h_path_col=self._hp_col)
         kinds = {"f": np.float64, "i": np.int64, "b": np.bool_}
         table = np.zeros((len(kernels.CARTESIAN_ARRAYS), 3), dtype=np.int64)
@@ -1075,9 +1071,6 @@ def _path_scale(direction: np.ndarray, s_goal: float, g: np.ndarray, h: np.ndarr
         return None
     s = min(max(s_goal, lo), hi)
     return s if math.isfinite(s) else None
-
-
-_KERNEL_LINE_SCALE = _path_scale  # what cartesian_step's line scale is (see step_owned)
 
 
 # Poses are 7-vectors as mink's SE3 stores them: unit quaternion (w x y z), then position (m).

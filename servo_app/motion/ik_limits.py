@@ -477,11 +477,7 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self._pair_b2_arr = np.array(self._pair_b2, dtype=np.int64)
         self._no_direction = np.zeros(model.nv)  # the row kernel's path direction when there is none
         self._tree, self._dof_parentid = jacobian_tree(model)  # for the row kernel's point Jacobians
-        # collision_fill's scalars: screen tolerance, detection distance, gain, minimum distance, relaxation,
-        # braking deceleration (dt and lag_s are written per call).
-        self._fill_params = np.array([self.screen_tolerance, self.collision_detection_distance, self.gain,
-                                      self.minimum_distance_from_collisions, self.bound_relaxation, self.brake_acc,
-                                      0.0, 0.0])
+        self._fill_params: np.ndarray | None = None  # fill_params()'s array
         self._views: tuple[mujoco.MjData | None, tuple[np.ndarray, ...]] = (None, ())
         self.refreshes = 0
 
@@ -539,8 +535,7 @@ class CollisionLimit(CollisionAvoidanceLimit):
         if not self._cached and self._q_refresh is not None:  # every pair exact: one kernel, narrow phases in it
             path = self.path
             with_path = path is not None and path.u is not None
-            params = self._fill_params
-            params[6], params[7] = dt, self.lag_s
+            params = self.fill_params(dt)
             kernels.collision_fill(
                 model._address, data._address, geom_xpos, geom_xmat, cdof, subtree_com, self._tree,
                 self._dof_parentid, self._geom_shape, self._geom_radius, self._geom_half, self._geom_rbound,
@@ -575,6 +570,17 @@ class CollisionLimit(CollisionAvoidanceLimit):
                 with_path, path.u if path is not None and path.u is not None else self._no_direction,
                 path.rate if path is not None and with_path else 0.0, path.floor if path is not None else 0.0,
                 g, h, h_path)
+
+    def fill_params(self, dt: float) -> np.ndarray:
+        """collision_fill's scalars, in its order: screen tolerance, detection distance, gain, minimum
+        distance, relaxation, braking deceleration, ``dt``, ``lag_s`` (one array, kept: also the IK's
+        one-call step reads it through its table)."""
+        params = self._fill_params
+        if params is None:
+            params = self._fill_params = np.zeros(8)
+        params[:] = (self.screen_tolerance, self.collision_detection_distance, self.gain,
+                     self.minimum_distance_from_collisions, self.bound_relaxation, self.brake_acc, dt, self.lag_s)
+        return params
 
     def _cached_rows(self, data: mujoco.MjData, q: np.ndarray, rows: int) -> int:
         """The cached pairs' narrow phases: the pairs found within detection distance appended to the
