@@ -509,6 +509,9 @@ class StreamSession:
     def _send_due(self, st: Status) -> list[bytes]:
         """Send as many commands as the status sequence says the controller will have consumed, + lead."""
         due = seq_diff(st.seq, self._first_status_seq) + 1 + self.config.lead - self._sent_since_start
+        if due == 1 and not self._last_data_sent:  # the usual status: its one command (the loop below, once)
+            data = self._command(st)
+            return [] if data is None else [data]
         out: list[bytes] = []
         for _ in range(max(due, 0)):
             if self._last_data_sent:
@@ -533,7 +536,8 @@ class StreamSession:
         read = self.io_read
         seq = self._next_cmd_seq
         if self.to_cartesian is None:
-            fmt, values = DataFormat.JOINT, _floats(q)
+            # (_floats' own test inline: one call less per status)
+            fmt, values = DataFormat.JOINT, (q.tolist() if type(q) is np.ndarray else _floats(q))
         else:
             fmt, values = DataFormat.CARTESIAN, _floats(self.to_cartesian(q))
         read_io = _NO_READ if read is None else (read.io_type, read.index, read.mask)
