@@ -133,7 +133,15 @@ class ServoProcessHost:
         if self.pending_signal is not None:  # handled here, not inside the signal handler
             sig, self.pending_signal = self.pending_signal, None
             self._deliver_signal(sig, time.monotonic())
-        self._poll_requests()
+        # The pipe's poll here first: _poll_requests' call only when a request (or the parent's end) is
+        # there, not at every loop iteration. A failing poll is _poll_requests' to report.
+        if not self.parent_gone:
+            try:
+                pending = bool(self._pipe_poll.poll(0))
+            except OSError:
+                pending = True
+            if pending:
+                self._poll_requests()
         sup = self.sup
         if sup.start_pending:  # (no call per cycle while none is)
             sup.watch_start(time.monotonic())

@@ -483,7 +483,8 @@ class _ServoProcess(ServoProcessHost):
             # A stream's first command (the hold position) leaves before anything else happens on its
             # ready status: the packet was made while waiting (prepare_first_command), only the status's
             # sequence number and joints go in now.
-            first = self.session.first_command_early(data)
+            session = self.session
+            first = None if session.first_command is None else session.first_command_early(data)
             t_first = 0.0
             if first is not None:
                 sock.send(first)
@@ -495,7 +496,7 @@ class _ServoProcess(ServoProcessHost):
             for b in self.sup.on_datagram(data, now):
                 sock.send(b)
             t_sent = time.monotonic()
-            self.session.begin_motion()  # a stream's first commands (the hold) left first
+            session.begin_motion()  # a stream's first commands (the hold) left first
             self._after_datagram(now, t_sent, t_first)
             self._handled_status = True
         else:
@@ -657,7 +658,8 @@ class _ServoProcess(ServoProcessHost):
     def _watch_link(self) -> None:
         if self.sup.state.mode in _STREAMED_MODES:
             self._log_streamed = True
-        super()._watch_link()
+        if self.sup.session.phase != self._last_phase:  # (the base's own test, without its call per cycle)
+            super()._watch_link()
         # A start that was given up closes its log: the next start opens a new one.
         if (self.log is not None and not self._log_streamed and not self.sup.start_pending
                 and self.sup.state.mode != _STREAMING):

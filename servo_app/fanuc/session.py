@@ -215,9 +215,9 @@ class StreamSession:
         # Streaming began and the motion source is still to be set up from this (start joints, tables).
         self._begin_with: tuple[np.ndarray, LimitTables | None] | None = None
         self.sent: list[SentCommand] = []  # filled per call, for the runner's log
-        # The first command's packet, ready before its status arrives (prepare_first_command), and the
-        # one that went out ahead of on_datagram: (sequence number, bytes).
-        self._early: bytearray | None = None
+        # The first command's packet, ready before its status arrives (prepare_first_command; None: none
+        # is), and the one that went out ahead of on_datagram: (sequence number, bytes).
+        self.first_command: bytearray | None = None
         self._early_key: tuple[object, ...] | None = None
         self._early_joints: bytes | None = None  # Cartesian format: the status joints it was made for
         self._early_sent: tuple[int, bytes] | None = None
@@ -279,13 +279,13 @@ class StreamSession:
         run and three commands encoded first)."""
         if (not starts or self.phase not in (Phase.CONNECTED, Phase.WAITING_READY) or self._io_writes
                 or (self.phase == Phase.WAITING_READY and self._end_requested)):  # (arm() clears it)
-            self._early = None
+            self.first_command = None
             return
         read = self.io_read
         # Cartesian format: the pose of the joints last reported, good while the arm reports them still.
         joints = self.last_status.joints if self.to_cartesian is not None and self.last_status else None
         key = (read, joints)
-        if self._early is not None and key == self._early_key:
+        if self.first_command is not None and key == self._early_key:
             return
         values: tuple[float, ...] = (0.0,) * self.config.n_axes  # joint format: copied from the status
         self._early_joints = None
@@ -296,7 +296,7 @@ class StreamSession:
                       data_format=DataFormat.JOINT if self.to_cartesian is None else DataFormat.CARTESIAN,
                       read_io_type=read.io_type if read else 0, read_io_index=read.index if read else 0,
                       read_io_mask=read.mask if read else 0)
-        self._early, self._early_key = bytearray(cmd.encode()), key
+        self.first_command, self._early_key = bytearray(cmd.encode()), key
 
     def _pose(self, joints: tuple[float, ...]) -> tuple[float, ...]:
         assert self.to_cartesian is not None
@@ -307,7 +307,7 @@ class StreamSession:
         packet waits for, else None. The caller sends it at once, then hands ``data`` to
         ``on_datagram`` as usual: the session goes on as if it had sent it there (and does not send
         it again)."""
-        p = self._early
+        p = self.first_command
         if (p is None or len(data) != STATUS_SIZE or data[:SEQ_OFFSET] != STATUS_HEADER
                 or data[STATUS_BITS_OFFSET] & _READY_MASK != _READY_BITS):
             return None
@@ -324,7 +324,7 @@ class StreamSession:
             p[COMMAND_VALUES_OFFSET: COMMAND_VALUES_OFFSET + 4 * len(pose)] = struct.pack(f">{len(pose)}f", *pose)
         p[SEQ_OFFSET: SEQ_OFFSET + 4] = data[SEQ_OFFSET: SEQ_OFFSET + 4]  # the first command carries its seq
         out = bytes(p)
-        self._early = None
+        self.first_command = None
         self._early_sent = (seq, out)
         return out
 

@@ -292,8 +292,11 @@ class StreamSupervisor(SupervisorBase):
         ``StreamSession.first_command_early`` before anything else, then calls ``on_datagram`` as usual)."""
         s = self.session
         # Only these phases can start on a ready status: in any other (streaming, every cycle) the
-        # dry run's answer is no, and it is not run.
-        s.prepare_first_command(s.phase in _STARTS_FROM and self._starts_on_ready())
+        # dry run's answer is no, and it is not run; nor is the session asked to drop a packet it has not.
+        if s.phase in _STARTS_FROM:
+            s.prepare_first_command(self._starts_on_ready())
+        elif s.first_command is not None:
+            s.prepare_first_command(False)
 
     def _starts_on_ready(self) -> bool:
         """Would a ready status (bit 0, SYSRDY, no command received) start the stream now? What
