@@ -126,16 +126,19 @@ class _CommandHistory:
         _write_derivatives(self.q, self.at[0], self.dt, d, _Q_CMD, _VEL, _ACC, _JERK)
 
 
-@kernel("void(float64[:, ::1], int64[::1], float64[::1])")
+@kernel("void(float64[:, ::1], int64[::1], float64[:])")
 def _history_add(q: np.ndarray, at: np.ndarray, values: np.ndarray) -> None:
-    """``values`` into the ring ``q`` as its newest row (``at``: that row, and the count since the
+    """``values[:dof]`` into the ring ``q`` as its newest row (``at``: that row, and the count since the
     clear); at the start, the first command stands in for the ones not sent yet (every row)."""
+    n = q.shape[1]
+    if values.size < n:
+        raise ValueError("fewer command values than the history's axes")
     if at[1] == 0:
         for r in range(4):
-            q[r, :] = values
+            q[r, :] = values[:n]
     else:
         at[0] = (at[0] + 1) % 4
-        q[at[0], :] = values
+        q[at[0], :] = values[:n]
     at[1] += 1
 
 
@@ -269,7 +272,7 @@ _CMD_FIELDS = ("latency_hist", "latency_sum_us", "latency_p50_us", "latency_p99_
 
 
 @kernel("void(float64[::1], int64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], "
-        "float64[::1], float64[:, ::1], int64[::1], float64[::1], float64, float64, float64)")
+        "float64[::1], float64[:, ::1], int64[::1], float64[:], float64, float64, float64)")
 def _command_into_state(d: np.ndarray, at: np.ndarray, buckets: np.ndarray, quantiles: np.ndarray,
                         ring: np.ndarray, stats: np.ndarray, scratch: np.ndarray, out: np.ndarray, q: np.ndarray,
                         q_at: np.ndarray, values: np.ndarray, lat_us: float, late_us: float, dt: float) -> None:
@@ -606,8 +609,12 @@ class _ServoProcess(ServoProcessHost):
         """The fields of status ``st`` into the state vector, and for a new sequence number its joints
         into the settle detector (the feedback moved on, or did not)."""
         self._status_published = st
-        # q_servo, then cart_servo, in one conversion (each from a tuple costs ~10 us with caches cold)
-        d[_Q_SERVO: _Q_SERVO + 12] = st.joints[:6] + st.cartesian[:6]
+        # q_servo, then cart_servo, item by item: numpy's conversion of a tuple into a slice cost ~15 us
+        # with caches cold here, twelve stores ~5 (/tmp microbenchmark, 64 MB touched between calls).
+        q, c = st.joints, st.cartesian
+        d[_Q_SERVO], d[_Q_SERVO + 1], d[_Q_SERVO + 2], d[_Q_SERVO + 3], d[_Q_SERVO + 4], d[_Q_SERVO + 5] = q[:6]
+        d[_CART_SERVO], d[_CART_SERVO + 1], d[_CART_SERVO + 2], d[_CART_SERVO + 3], d[_CART_SERVO + 4], \
+            d[_CART_SERVO + 5] = c[:6]
         if st.seq != self._settle_seq:
             self._settle_seq = st.seq
             self.settle.add(self._t_recv, d[_Q_SERVO: _Q_SERVO + 6])  # J1..J6 as just written, array to array
@@ -624,8 +631,10 @@ class _ServoProcess(ServoProcessHost):
         """A command that left, into the latency figures and the command history, and both into the
         state vector (of several for one status, the last one's stand): one compiled call."""
         lat, hist = self.latency, self.hist
-        values = hist.values
-        values[:] = (c.values if c.array is None else c.array)[: hist.dof]  # array to array when it can
+        values = c.array  # the kernel copies the history's row from it (numpy's copy: ~5-15 us, caches cold)
+        if values is None or values.dtype is not _FLOAT64:  # (another float type: by numpy's conversion)
+            values = hist.values
+            values[:] = c.values[: hist.dof]
         _command_into_state(d, _CMD_AT, _BUCKETS, _P50_P99, lat.ring, lat.stats, lat.scratch, lat.out, hist.q,
                             hist.at, values, lat_us, self.late_us, self.dt)
 
@@ -719,6 +728,7 @@ _TRAJ = OFFSET["traj_state"]  # traj_state, traj_index, traj_total, traj_time_s,
 assert FIELDS["latency_hist"].stop - _LAT_HIST == len(LATENCY_BUCKETS_US) + 1
 assert _CART_SERVO == _Q_SERVO + 6  # written as one
 _CMD_AT = np.array([OFFSET[k] for k in _CMD_FIELDS], dtype=np.int64)  # _command_into_state's offsets
+_FLOAT64 = np.dtype(np.float64)
 _BUCKETS = np.array(LATENCY_BUCKETS_US)  # the latency histogram's upper bounds, for the kernel
 _SOCKET_TIMEOUT_US = 20_000  # a wait for a datagram: at most this long between housekeeping rounds
 assert _SOLVE_MAX == _SOLVE_P50 + 1 and _CYCLE_MAX == _CYCLE_P50 + 1 and _AHEAD_MAX == _AHEAD_P50 + 1  # _TimeWindow.out
