@@ -129,7 +129,11 @@ class ServoProcessHost:
         signal.signal(signal.SIGINT, self._on_signal)
 
     def _housekeeping(self) -> None:
-        self._watch_parent()
+        # The parent's death ends the stream as SIGTERM would (soft stop, last data, status off): an
+        # orphan must not keep an arm under its control. Checked by pid, since a pipe's end of file
+        # only shows once somebody reads it (here, not in a method of its own: one call less a cycle).
+        if not self.parent_gone and os.getppid() != self.parent_pid:
+            self._parent_died()
         if self.pending_signal is not None:  # handled here, not inside the signal handler
             sig, self.pending_signal = self.pending_signal, None
             self._deliver_signal(sig, time.monotonic())
@@ -151,13 +155,6 @@ class ServoProcessHost:
         self._publish()
         if sup.state.shutdown and sup.finished:  # (finished needs shutdown: no call per cycle before)
             self.quit = True
-
-    def _watch_parent(self) -> None:
-        """The parent's death ends the stream as SIGTERM would (soft stop, last data, status off): an
-        orphan must not keep an arm under its control. Checked by pid, since a pipe's end of file
-        only shows once somebody reads it."""
-        if not self.parent_gone and os.getppid() != self.parent_pid:
-            self._parent_died()
 
     def _parent_died(self) -> None:
         if not self.parent_gone:
