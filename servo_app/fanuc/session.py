@@ -146,9 +146,10 @@ class SessionStats:
 class SentCommand:
     """What went out in one datagram; the runner logs it. The fields the log needs are kept as made
     (the session packs the datagram straight from them, one per status packet); ``command`` builds
-    the :class:`Command` they describe on demand. ``array``: the values as the float64 array they were
-    made from, when they were (the runner copies them into its command history array to array: from
-    the list, numpy's conversion cost ~20 us a status here, with caches cold)."""
+    the :class:`Command` they describe on demand. ``array``: the values as the array they were made
+    from, when they were, to be read at once (it may be the motion source's own buffer): the runner
+    copies them into its command history array to array (from the list, numpy's conversion cost
+    ~15-20 us a status here, with caches cold)."""
 
     __slots__ = ("array", "data", "data_format", "early", "last_data", "read_io", "seq", "values", "write_io")
 
