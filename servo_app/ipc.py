@@ -34,7 +34,10 @@ class LatestValueSlot:
     def write(self, values: np.ndarray) -> None:
         s = self._written
         self._seq[0] = s + 1
-        self._data[: values.size] = values
+        if values.size == self.size:  # (the whole vector, as the servo process writes it: no view made)
+            self._data[...] = values
+        else:
+            self._data[: values.size] = values
         self._seq[0] = self._written = s + 2
 
     def read(self, retries: int = 1000) -> tuple[int, np.ndarray]:

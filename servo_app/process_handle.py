@@ -129,11 +129,23 @@ class ServoProcessHost:
         signal.signal(signal.SIGINT, self._on_signal)
 
     def _housekeeping(self) -> None:
-        self._watch_parent()
+        # The parent's death ends the stream as SIGTERM would (soft stop, last data, status off): an
+        # orphan must not keep an arm under its control. Checked by pid, since a pipe's end of file
+        # only shows once somebody reads it (here, not in a method of its own: one call less a cycle).
+        if not self.parent_gone and os.getppid() != self.parent_pid:
+            self._parent_died()
         if self.pending_signal is not None:  # handled here, not inside the signal handler
             sig, self.pending_signal = self.pending_signal, None
             self._deliver_signal(sig, time.monotonic())
-        self._poll_requests()
+        # The pipe's poll here first: _poll_requests' call only when a request (or the parent's end) is
+        # there, not at every loop iteration. A failing poll is _poll_requests' to report.
+        if not self.parent_gone:
+            try:
+                pending = bool(self._pipe_poll.poll(0))
+            except OSError:
+                pending = True
+            if pending:
+                self._poll_requests()
         sup = self.sup
         if sup.start_pending:  # (no call per cycle while none is)
             sup.watch_start(time.monotonic())
@@ -143,13 +155,6 @@ class ServoProcessHost:
         self._publish()
         if sup.state.shutdown and sup.finished:  # (finished needs shutdown: no call per cycle before)
             self.quit = True
-
-    def _watch_parent(self) -> None:
-        """The parent's death ends the stream as SIGTERM would (soft stop, last data, status off): an
-        orphan must not keep an arm under its control. Checked by pid, since a pipe's end of file
-        only shows once somebody reads it."""
-        if not self.parent_gone and os.getppid() != self.parent_pid:
-            self._parent_died()
 
     def _parent_died(self) -> None:
         if not self.parent_gone:

@@ -60,3 +60,44 @@ def test_a_nan_sample_makes_the_percentiles_nan_as_numpys_do() -> None:
     for v in (1.0, float("nan"), 3.0):
         lat.add(v, 1e9)
     assert all(np.isnan(lat.percentiles())) and np.isnan(np.percentile([1.0, np.nan, 3.0], 50))
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.floats(0.0, 1e4, allow_nan=False) | st.sampled_from([0.0, 100.0, 8000.0, 8000.5]),
+                min_size=1, max_size=80),
+       st.integers(0, 40))
+def test_the_command_kernel_writes_what_the_plain_figures_are(latencies: list[float], seed: int) -> None:
+    """_command_into_state (one compiled call per command sent) against the plain reading of the figures:
+    bisect for the histogram bucket (le semantics), a running sum, np.percentile every 16th command, max,
+    late count, and command_derivatives of the history."""
+    import bisect
+
+    from servo_app.fanuc.runner import _BUCKETS, _CMD_AT, _P50_P99, _command_into_state
+    from servo_app.state import LATENCY_BUCKETS_US
+
+    dt, late_us = 0.008, 4000.0
+    rng = np.random.default_rng(seed)
+    d = np.zeros(STATE_SIZE)
+    lat, hist = _Latency(), _CommandHistory(6, dt)
+    hist_sum, hist_counts, commands, plain = 0.0, [0] * (len(LATENCY_BUCKETS_US) + 1), [], []
+    p50 = p99 = 0.0
+    for k, us in enumerate(latencies, start=1):
+        q = rng.uniform(-90, 90, 6).tolist()
+        hist.values[:] = q
+        _command_into_state(d, _CMD_AT, _BUCKETS, _P50_P99, lat.ring, lat.stats, lat.scratch, lat.out, hist.q,
+                            hist.at, hist.values, us, late_us, dt)
+        hist_counts[bisect.bisect_left(LATENCY_BUCKETS_US, us)] += 1
+        hist_sum += us
+        plain.append(us)
+        commands.append(np.array(q))
+        if k % 16 == 0:
+            p50, p99 = (float(v) for v in np.percentile(np.array(plain), [50, 99]))
+        assert d[FIELDS["latency_hist"]].tolist() == hist_counts
+        assert d[FIELDS["latency_sum_us"].start] == hist_sum
+        assert (d[FIELDS["latency_p50_us"].start], d[FIELDS["latency_p99_us"].start]) == (p50, p99)
+        assert d[FIELDS["latency_last_us"].start] == us
+        assert d[FIELDS["latency_max_us"].start] == max(plain)
+        assert d[FIELDS["late_commands"].start] == sum(v > late_us for v in plain)
+        for key, want in command_derivatives(commands, dt).items():
+            assert np.array_equal(d[FIELDS[key]], want), (k, key)
+    assert lat.count == len(latencies) and lat.max_us == max(latencies)

@@ -82,3 +82,21 @@ def test_a_range_of_exactly_tol_is_settled() -> None:
         pos = [0.25 * (k % 2), 0.0]
         assert fast.add(0.01 * k, pos) == plain.add(0.01 * k, pos)
     assert fast.settled
+
+
+@settings(max_examples=100, deadline=None)
+@given(steps=st.lists(st.tuples(st.floats(0.0, 0.05), st.lists(VALUES, min_size=6, max_size=6)), min_size=1,
+                      max_size=60))
+def test_an_array_sample_is_judged_as_the_same_values_in_a_list(steps: list[tuple[float, list[float]]]) -> None:
+    """A float64 array is read where it is (a slice of the state vector, or a strided view): the same
+    answers as the values handed over as a list."""
+    from_list, from_slice, from_strided = (SettleDetector(0.5, 0.1, capacity=2) for _ in range(3))
+    store = np.zeros(20)
+    t = 0.0
+    for dt, values in steps:
+        t += dt
+        store[0:6] = values
+        store[8:20:2] = values
+        want = from_list.add(t, list(values))
+        assert from_slice.add(t, store[0:6]) == want
+        assert from_strided.add(t, store[8:20:2]) == want

@@ -11,12 +11,12 @@ SIGINT/SIGTERM end the stream cleanly: decelerate, last data, then status output
 
 from __future__ import annotations
 
-import bisect
 import contextlib
 import gc
 import math
 import os
 import socket
+import struct
 import time
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
@@ -40,10 +40,24 @@ from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.profile import load_profile
 from servo_app.safety import Mode
 from servo_app.session_log import RECORD_SIZE, command_record, pack_status_and_command, status_record
-from servo_app.state import FIELDS, LATENCY_BUCKETS_US, MODES, OFFSET, PHASES, StateVector, write_link_counters
+from servo_app.state import (
+    FIELDS,
+    LATENCY_BUCKETS_US,
+    MODES,
+    OFFSET,
+    PHASES,
+    STATE_SIZE,
+    StateVector,
+    write_link_counters,
+)
 
 assert all(p.value in PHASES for p in Phase)
 assert all(m.value in MODES for m in Mode)
+
+# The modes in which a stream has run, looked at every loop iteration (an enum member looked up on its
+# class costs ~0.1 us here, more with caches cold).
+_STREAMED_MODES = (Mode.STREAMING, Mode.STOPPING, Mode.STOPPED, Mode.ENDING)
+_STREAMING = Mode.STREAMING
 
 
 @dataclass
@@ -86,23 +100,46 @@ class _CommandHistory:
     def __init__(self, dof: int, dt: float) -> None:
         self.dof, self.dt = dof, dt
         self.q = np.zeros((4, dof))
-        self.newest = 0  # the row of q holding the newest command
-        self.n = 0  # commands since clear()
+        # The row of q holding the newest command, and the commands since clear(): in an array, so that
+        # one kernel per command (_command_into_state) adds to the ring too.
+        self.at = np.zeros(2, dtype=np.int64)
+        self.values = np.zeros(dof)  # a command's values as the kernels take them
+
+    @property
+    def newest(self) -> int:
+        return int(self.at[0])
+
+    @property
+    def n(self) -> int:
+        return int(self.at[1])
 
     def clear(self) -> None:
-        self.n = 0
+        self.at[1] = 0
 
-    def add(self, values: tuple[float, ...]) -> None:
-        if self.n == 0:  # at the start, the first command stands in for the ones not sent yet
-            self.q[:] = values[: self.dof]
-        else:
-            self.newest = (self.newest + 1) % 4
-            self.q[self.newest] = values[: self.dof]
-        self.n += 1
+    def add(self, values: tuple[float, ...] | list[float]) -> None:
+        v = self.values
+        v[:] = values[: self.dof]
+        _history_add(self.q, self.at, v)
 
     def write(self, d: np.ndarray) -> None:
         """q_cmd, vel, acc and jerk into the state vector ``d`` (the same arithmetic as np.diff)."""
-        _write_derivatives(self.q, self.newest, self.dt, d, _Q_CMD, _VEL, _ACC, _JERK)
+        _write_derivatives(self.q, self.at[0], self.dt, d, _Q_CMD, _VEL, _ACC, _JERK)
+
+
+@kernel("void(float64[:, ::1], int64[::1], float64[:])")
+def _history_add(q: np.ndarray, at: np.ndarray, values: np.ndarray) -> None:
+    """``values[:dof]`` into the ring ``q`` as its newest row (``at``: that row, and the count since the
+    clear); at the start, the first command stands in for the ones not sent yet (every row)."""
+    n = q.shape[1]
+    if values.size < n:
+        raise ValueError("fewer command values than the history's axes")
+    if at[1] == 0:
+        for r in range(4):
+            q[r, :] = values[:n]
+    else:
+        at[0] = (at[0] + 1) % 4
+        q[at[0], :] = values[:n]
+    at[1] += 1
 
 
 @kernel("void(float64[:, ::1], int64, float64, float64[::1], int64, int64, int64, int64)")
@@ -170,17 +207,29 @@ _P50_P99 = np.array([50.0, 99.0]) / 100  # as np.percentile divides them
 class _Latency:
     """Status receipt to command send, last 4096 cycles, in a preallocated ring. Its percentiles by one
     compiled sort of a copy: over a full window 0.5-1 ms here with np.fromiter of a deque and
-    np.percentile, every 16th command for the first 1024 (a 10 s run at 8 ms never left that regime)."""
+    np.percentile, every 16th command for the first 1024 (a 10 s run at 8 ms never left that regime).
+    The count, maximum and late count live in ``stats`` so that one kernel per command updates them
+    all (:func:`_command_into_state`)."""
 
     SIZE = 4096
 
     def __init__(self) -> None:
         self.ring = np.zeros(self.SIZE)
-        self._scratch = np.empty(self.SIZE)
-        self._out = np.zeros(2)
-        self.max_us = 0.0
-        self.late = 0
-        self.count = 0  # ever added (the samples kept stop at 4096)
+        self.scratch = np.empty(self.SIZE)  # the percentiles' sort
+        self.out = np.zeros(2)  # (p50, p99)
+        self.stats = np.zeros(3)  # samples ever added (those kept stop at 4096), maximum, late ones
+
+    @property
+    def count(self) -> int:
+        return int(self.stats[_COUNT])
+
+    @property
+    def max_us(self) -> float:
+        return float(self.stats[_MAX])
+
+    @property
+    def late(self) -> int:
+        return int(self.stats[_LATE_COUNT])
 
     @property
     def samples(self) -> np.ndarray:
@@ -188,21 +237,69 @@ class _Latency:
         return self.ring[: min(self.count, self.SIZE)]
 
     def add(self, us: float, late_us: float) -> None:
-        self.ring[self.count % self.SIZE] = us
-        self.count += 1
-        if us > self.max_us:
-            self.max_us = us
-        if us > late_us:
-            self.late += 1
+        _latency_add(self.ring, self.stats, us, late_us)
 
     def percentiles(self) -> tuple[float, float]:
         """(p50, p99) of the samples kept, as np.percentile gives them."""
         n = min(self.count, self.SIZE)
         if n == 0:
             return 0.0, 0.0
-        out = self._out
-        _percentiles(self.ring, n, _P50_P99, self._scratch, out)
+        out = self.out
+        _percentiles(self.ring, n, _P50_P99, self.scratch, out)
         return float(out[0]), float(out[1])
+
+
+_COUNT, _MAX, _LATE_COUNT = 0, 1, 2  # _Latency.stats
+
+
+@kernel("void(float64[::1], float64[::1], float64, float64)")
+def _latency_add(ring: np.ndarray, stats: np.ndarray, us: float, late_us: float) -> None:
+    """One latency sample into the ring and the count, maximum and late count of ``stats``."""
+    n = int(stats[0])
+    ring[n % ring.size] = us
+    stats[0] = n + 1
+    if us > stats[1]:
+        stats[1] = us
+    if us > late_us:
+        stats[2] += 1
+
+
+# The state vector's offsets _command_into_state writes, in this order. Passed to the kernel as an array,
+# not read as globals: a compiled kernel keeps the globals it was compiled with in its on-disk cache,
+# which is keyed on this file alone, so a layout change in state.py would go unseen.
+_CMD_FIELDS = ("latency_hist", "latency_sum_us", "latency_p50_us", "latency_p99_us", "latency_last_us",
+               "latency_max_us", "late_commands", "q_cmd", "vel", "acc", "jerk")
+
+
+@kernel("void(float64[::1], int64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], "
+        "float64[::1], float64[:, ::1], int64[::1], float64[:], float64, float64, float64)")
+def _command_into_state(d: np.ndarray, at: np.ndarray, buckets: np.ndarray, quantiles: np.ndarray,
+                        ring: np.ndarray, stats: np.ndarray, scratch: np.ndarray, out: np.ndarray, q: np.ndarray,
+                        q_at: np.ndarray, values: np.ndarray, lat_us: float, late_us: float, dt: float) -> None:
+    """What a command that left changes in the state vector ``d`` (offsets ``at``: _CMD_FIELDS), in one
+    call where a dozen Python operations took ~20 us a status here: its latency into the window
+    (``ring``, ``stats``: _Latency), the histogram bucket (``bisect_left`` on ``buckets``: le semantics)
+    and the sum, the percentiles when due, the figures, and its ``values`` into the command history
+    (``q``, ``q_at``: _CommandHistory) with the derivatives. The same arithmetic, in the same order."""
+    _latency_add(ring, stats, lat_us, late_us)
+    k = 0
+    while k < buckets.size and buckets[k] < lat_us:
+        k += 1
+    d[at[0] + k] += 1
+    d[at[1]] += lat_us  # over the process's life: Prometheus wants counters that only grow
+    # By count: the window's length stops at 4096, where "len % 16" held at every cycle. Over a
+    # full window the percentiles cost 0.5-1 ms here (now ~0.1 ms compiled): every 256th command
+    # (1-2 s) once it holds 1024, every 16th before, is as fresh as a display or a scrape needs.
+    count = int(stats[0])
+    if count % (16 if count < 1024 else 256) == 0:
+        _percentiles(ring, min(count, ring.size), quantiles, scratch, out)
+        d[at[2]] = out[0]
+        d[at[3]] = out[1]
+    d[at[4]] = lat_us
+    d[at[5]] = stats[1]
+    d[at[6]] = stats[2]
+    _history_add(q, q_at, values)
+    _write_derivatives(q, q_at[0], dt, d, at[7], at[8], at[9], at[10])
 
 
 class _TimeWindow:
@@ -267,7 +364,13 @@ class _ServoProcess(ServoProcessHost):
         self.dt = (cfg.interval_ms or self.profile.interval_ms) / 1000.0
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.connect((cfg.host, cfg.port))
-        self.sock.settimeout(0.02)
+        # A blocking socket whose waits time out in the kernel (SO_RCVTIMEO, SO_SNDTIMEO: 20 ms): recv is
+        # one recvfrom and send one sendto, where with settimeout Python polls before each (four system
+        # calls a status packet instead of two). A signal interrupts the wait; Python runs its handler
+        # and waits again (PEP 475), so a SIGTERM while no status comes is handled within 20 ms more.
+        timeout = struct.pack("ll", 0, _SOCKET_TIMEOUT_US)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, timeout)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, timeout)
         settings = ServoSettings(limit_fraction=cfg.limit_fraction, flange_speed_cap=cfg.flange_speed_cap,
                                  payload_kg=cfg.payload_kg)
         self.cycle = ServoCycle(self.profile, self.dt, settings)
@@ -300,9 +403,8 @@ class _ServoProcess(ServoProcessHost):
         elif cfg.data_format != "joint":
             raise ValueError(f"data_format={cfg.data_format!r} must be 'joint' or 'cartesian'")
         self.latency = _Latency()
-        # The latency histogram (in the state vector) and sum are over the process's life: Prometheus
-        # wants counters that only grow.
-        self.lat_sum_us = 0.0
+        # The latency histogram and sum (both kept in the state vector) are over the process's life:
+        # Prometheus wants counters that only grow.
         self.late_us = (cfg.late_threshold_ms or self.dt * 1000 / 2) * 1000
         self.hist = _CommandHistory(6, self.dt)  # J1..J6 (the state's 6 slots): commanded velocity, acc., jerk
         self._limits_published: object = None  # the limits last written to the state (they change per stream)
@@ -364,6 +466,9 @@ class _ServoProcess(ServoProcessHost):
         self.hist.write(self.state.data)
         self._publish_backend(self.state)
         self.hist.clear()
+        lat, hist = _Latency(), _CommandHistory(6, self.dt)  # the command's kernel, on figures thrown away
+        _command_into_state(np.zeros(STATE_SIZE), _CMD_AT, _BUCKETS, _P50_P99, lat.ring, lat.stats, lat.scratch,
+                            lat.out, hist.q, hist.at, hist.values, 100.0, self.late_us, self.dt)
 
     def _send(self, out: list[bytes]) -> None:
         for b in out:
@@ -373,7 +478,7 @@ class _ServoProcess(ServoProcessHost):
         sock = self.sock
         try:
             data = sock.recv(1024)
-        except (TimeoutError, ConnectionRefusedError):
+        except (BlockingIOError, ConnectionRefusedError):  # SO_RCVTIMEO passed (EAGAIN), or no controller
             data = b""
         now = time.monotonic()
         if data:
@@ -381,7 +486,8 @@ class _ServoProcess(ServoProcessHost):
             # A stream's first command (the hold position) leaves before anything else happens on its
             # ready status: the packet was made while waiting (prepare_first_command), only the status's
             # sequence number and joints go in now.
-            first = self.session.first_command_early(data)
+            session = self.session
+            first = None if session.first_command is None else session.first_command_early(data)
             t_first = 0.0
             if first is not None:
                 sock.send(first)
@@ -393,7 +499,7 @@ class _ServoProcess(ServoProcessHost):
             for b in self.sup.on_datagram(data, now):
                 sock.send(b)
             t_sent = time.monotonic()
-            self.session.begin_motion()  # a stream's first commands (the hold) left first
+            session.begin_motion()  # a stream's first commands (the hold) left first
             self._after_datagram(now, t_sent, t_first)
             self._handled_status = True
         else:
@@ -451,12 +557,18 @@ class _ServoProcess(ServoProcessHost):
 
         What the commands change in the state goes into the vector here, once per status, not at every
         publish (the publish after a reply rewrote them unchanged): the latency figures, the histogram
-        bucket by offset, and the commanded position's derivatives."""
+        bucket by offset, and the commanded position's derivatives; and what the status changes (its
+        fields, the link counters, the settle detector's window)."""
         s = self.session
-        st = s.last_status
-        if st is None or self.log is None:
-            return
         d = self.state.data
+        write_link_counters(d, s.stats)  # (only a datagram changes them)
+        st = s.last_status
+        if st is None:
+            return
+        if st is not self._status_published:  # a status became the session's last
+            self._publish_status(d, st)
+        if self.log is None:
+            return
         sent = s.sent
         if len(sent) == 1 and st.seq != self._logged_seq:  # the usual status and its one command: one pack
             self._logged_seq = st.seq
@@ -493,24 +605,38 @@ class _ServoProcess(ServoProcessHost):
         self.log.write_records(records)  # the status and its answers in one write, after they left
         s.sent = []
 
+    def _publish_status(self, d: np.ndarray, st: Status) -> None:
+        """The fields of status ``st`` into the state vector, and for a new sequence number its joints
+        into the settle detector (the feedback moved on, or did not)."""
+        self._status_published = st
+        # q_servo, then cart_servo, item by item: numpy's conversion of a tuple into a slice cost ~15 us
+        # with caches cold here, twelve stores ~5 (/tmp microbenchmark, 64 MB touched between calls).
+        q, c = st.joints, st.cartesian
+        d[_Q_SERVO], d[_Q_SERVO + 1], d[_Q_SERVO + 2], d[_Q_SERVO + 3], d[_Q_SERVO + 4], d[_Q_SERVO + 5] = q[:6]
+        d[_CART_SERVO], d[_CART_SERVO + 1], d[_CART_SERVO + 2], d[_CART_SERVO + 3], d[_CART_SERVO + 4], \
+            d[_CART_SERVO + 5] = c[:6]
+        if st.seq != self._settle_seq:
+            self._settle_seq = st.seq
+            self.settle.add(self._t_recv, d[_Q_SERVO: _Q_SERVO + 6])  # J1..J6 as just written, array to array
+            d[_STATUS_UNIX] = time.time() - (time.monotonic() - self._t_recv)
+            d[_STATUS_TIME] = st.timestamp_ms
+        d[_STATUS_SEQ] = st.seq
+        d[_STATUS_BITS] = st.status
+        d[_IO_VALUE] = st.read_io_value
+        d[_IO_TYPE] = st.read_io_type
+        d[_IO_INDEX] = st.read_io_index
+        d[_IO_MASK] = st.read_io_mask
+
     def _command_sent(self, d: np.ndarray, c: SentCommand, lat_us: float) -> None:
         """A command that left, into the latency figures and the command history, and both into the
-        state vector (of several for one status, the last one's stand)."""
-        lat = self.latency
-        lat.add(lat_us, self.late_us)
-        d[_LAT_HIST + bisect.bisect_left(LATENCY_BUCKETS_US, lat_us)] += 1  # le semantics
-        self.lat_sum_us += lat_us
-        # By count: the window's length stops at 4096, where "len % 16" held at every cycle. Over a
-        # full window the percentiles cost 0.5-1 ms here (now ~0.1 ms compiled): every 256th command
-        # (1-2 s) once it holds 1024, every 16th before, is as fresh as a display or a scrape needs.
-        if lat.count % (16 if lat.count < 1024 else 256) == 0:
-            d[_LAT_P50], d[_LAT_P99] = lat.percentiles()
-        d[_LAT_SUM] = self.lat_sum_us
-        d[_LAT_LAST] = lat_us
-        d[_LAT_MAX] = lat.max_us
-        d[_LATE] = lat.late
-        self.hist.add(c.values)
-        self.hist.write(d)
+        state vector (of several for one status, the last one's stand): one compiled call."""
+        lat, hist = self.latency, self.hist
+        values = c.array  # the kernel copies the history's row from it (numpy's copy: ~5-15 us, caches cold)
+        if values is None or values.dtype is not _FLOAT64:  # (another float type: by numpy's conversion)
+            values = hist.values
+            values[:] = c.values[: hist.dof]
+        _command_into_state(d, _CMD_AT, _BUCKETS, _P50_P99, lat.ring, lat.stats, lat.scratch, lat.out, hist.q,
+                            hist.at, values, lat_us, self.late_us, self.dt)
 
     def _open_stream_log(self) -> None:
         if self.log is not None:
@@ -539,35 +665,20 @@ class _ServoProcess(ServoProcessHost):
             self._close_log()
 
     def _watch_link(self) -> None:
-        if self.sup.state.mode in (Mode.STREAMING, Mode.STOPPING, Mode.STOPPED, Mode.ENDING):
+        if self.sup.state.mode in _STREAMED_MODES:
             self._log_streamed = True
-        super()._watch_link()
+        if self.sup.session.phase != self._last_phase:  # (the base's own test, without its call per cycle)
+            super()._watch_link()
         # A start that was given up closes its log: the next start opens a new one.
         if (self.log is not None and not self._log_streamed and not self.sup.start_pending
-                and self.sup.state.mode not in (Mode.STREAMING,)):
+                and self.sup.state.mode != _STREAMING):
             self._close_log()
 
     # -- publishing
     def _publish_backend(self, sv: StateVector) -> None:
-        # Straight into the vector by offset, nothing allocated: this runs once per cycle. What the
-        # commands change was written as they left (_after_datagram).
+        # Straight into the vector by offset, nothing allocated: this runs once per cycle. What a status
+        # and its commands change was written as they came and left (_after_datagram).
         d, c = sv.data, self.cycle
-        st = self.session.last_status
-        if st is not self._status_published and st is not None:  # its fields once per status
-            self._status_published = st
-            if st.seq != self._settle_seq:  # a new status: the feedback moved on (or did not)
-                self._settle_seq = st.seq
-                self.settle.add(self._t_recv, st.joints[:6])
-                d[_STATUS_UNIX] = time.time() - (time.monotonic() - self._t_recv)
-                d[_STATUS_TIME] = st.timestamp_ms
-            d[_STATUS_SEQ] = st.seq
-            d[_STATUS_BITS] = st.status
-            d[_Q_SERVO: _Q_SERVO + 12] = st.joints[:6] + st.cartesian[:6]  # q_servo, then cart_servo
-            d[_IO_VALUE] = st.read_io_value
-            d[_IO_TYPE] = st.read_io_type
-            d[_IO_INDEX] = st.read_io_index
-            d[_IO_MASK] = st.read_io_mask
-        write_link_counters(d, self.session.stats)
         d[_LATE_INPUTS] = c.late_inputs
         ik = c.last_ik if c.ik_active else None
         if ik is not None:
@@ -616,6 +727,10 @@ _TRAJ = OFFSET["traj_state"]  # traj_state, traj_index, traj_total, traj_time_s,
     "latency_last_us", "latency_max_us", "late_commands"))
 assert FIELDS["latency_hist"].stop - _LAT_HIST == len(LATENCY_BUCKETS_US) + 1
 assert _CART_SERVO == _Q_SERVO + 6  # written as one
+_CMD_AT = np.array([OFFSET[k] for k in _CMD_FIELDS], dtype=np.int64)  # _command_into_state's offsets
+_FLOAT64 = np.dtype(np.float64)
+_BUCKETS = np.array(LATENCY_BUCKETS_US)  # the latency histogram's upper bounds, for the kernel
+_SOCKET_TIMEOUT_US = 20_000  # a wait for a datagram: at most this long between housekeeping rounds
 assert _SOLVE_MAX == _SOLVE_P50 + 1 and _CYCLE_MAX == _CYCLE_P50 + 1 and _AHEAD_MAX == _AHEAD_P50 + 1  # _TimeWindow.out
 
 
