@@ -75,6 +75,9 @@ def test_step_outputs_are_numpys_to_the_bit_and_refuse_non_finite(dq: np.ndarray
         return
     assert ok
     assert out.tobytes() == np.array([dq, q + dq, dq / dt]).tobytes()
+    apart = [np.full(6, 7.0) for _ in range(3)]  # the form the one-call Cartesian step writes
+    assert k.step_outputs_into(dq, q, dt, *apart)
+    assert b"".join(x.tobytes() for x in apart) == out.tobytes()
 
 
 @given(pose=poses, xi=vec6, s=st.floats(-2.0, 2.0), dt=st.sampled_from([0.004, 0.008, 1.0]))

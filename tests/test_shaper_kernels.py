@@ -63,6 +63,20 @@ def test_guard_check_matches_python_floats(state):
         assert (s_k.tolist(), v_k.tolist(), a_k.tolist()) == (s.tolist(), v.tolist(), a.tolist())
 
 
+@settings(max_examples=300, deadline=None)
+@given(guard_states())
+def test_guard_check_rounds_the_candidate_in_place_alike(state):
+    """DiscreteGuard.filter hands the kernel one array as candidate and output: the same answer, the
+    same rounded position and the same committed state as with two arrays."""
+    s, v, a, candidate = state
+    apart = [x.copy() for x in (s, v, a)] + [np.empty(6)]
+    inplace = [x.copy() for x in (s, v, a)] + [candidate.copy()]
+    ok_apart = emit_if_passes(candidate, *apart[:3], ENV.table, DT, apart[3])
+    ok_inplace = emit_if_passes(inplace[3], *inplace[:3], ENV.table, DT, inplace[3])
+    assert ok_apart == ok_inplace
+    assert [x.tobytes() for x in apart] == [x.tobytes() for x in inplace]
+
+
 def test_guard_check_has_both_answers():
     s, v, a, r = np.zeros(6), np.zeros(6), np.zeros(6), np.empty(6)
     assert emit_if_passes(np.full(6, 1e-6), s, v, a, ENV.table, DT, r)

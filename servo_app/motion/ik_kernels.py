@@ -663,19 +663,26 @@ def collision_drift(q: np.ndarray, q_refresh: np.ndarray, far_weights: np.ndarra
     return False
 
 
-@kernel("boolean(float64[::1], float64[::1], float64, float64[:, ::1])")
-def step_outputs(dq: np.ndarray, q: np.ndarray, dt: float, out: np.ndarray) -> bool:
-    """A diff-IK step's arrays from its increment ``dq`` at the joints ``q``, into the rows of ``out``
-    (3 x n): ``dq`` (a copy), ``q + dq``, ``dq / dt``; False (``out`` untouched) if ``dq`` is not finite."""
+@kernel("boolean(float64[::1], float64[::1], float64, float64[::1], float64[::1], float64[::1])")
+def step_outputs_into(dq: np.ndarray, q: np.ndarray, dt: float, dq_copy: np.ndarray, q_next: np.ndarray,
+                      velocity: np.ndarray) -> bool:
+    """A diff-IK step's arrays from its increment ``dq`` at the joints ``q``: ``dq_copy`` (a copy),
+    ``q_next`` = ``q + dq``, ``velocity`` = ``dq / dt``; False (nothing written) if ``dq`` is not finite."""
     n = dq.shape[0]
     for i in range(n):
         if not math.isfinite(dq[i]):
             return False
     for i in range(n):
-        out[0, i] = dq[i]
-        out[1, i] = q[i] + dq[i]
-        out[2, i] = dq[i] / dt
+        dq_copy[i] = dq[i]
+        q_next[i] = q[i] + dq[i]
+        velocity[i] = dq[i] / dt
     return True
+
+
+@kernel("boolean(float64[::1], float64[::1], float64, float64[:, ::1])")
+def step_outputs(dq: np.ndarray, q: np.ndarray, dt: float, out: np.ndarray) -> bool:
+    """:func:`step_outputs_into` into the rows of ``out`` (3 x n)."""
+    return step_outputs_into(dq, q, dt, out[0], out[1], out[2])
 
 
 @kernel("void(float64, float64[::1], float64[::1], float64[::1])")
@@ -697,15 +704,15 @@ def dot(a: np.ndarray, b: np.ndarray) -> float:
 
 @kernel("Tuple((float64, int64, boolean))(float64[::1], float64[::1], float64, float64, float64[::1], float64, "
         "float64[:, ::1], float64[::1], int64[::1], int64, int64, boolean[::1], float64, int64, int64, "
-        "float64[:, ::1])")
-def step_result(dq: np.ndarray, d: np.ndarray, s_goal: float, s_sing: float, q: np.ndarray, dt: float,
-                g: np.ndarray, h: np.ndarray, row_flags: np.ndarray, accel_lo: int, accel_hi: int,
-                velocity_bound: np.ndarray, tol: float, velocity_flag: int, accel_flag: int,
-                out: np.ndarray) -> tuple[float, int, bool]:
+        "float64[::1], float64[::1], float64[::1])")
+def step_result_into(dq: np.ndarray, d: np.ndarray, s_goal: float, s_sing: float, q: np.ndarray, dt: float,
+                     g: np.ndarray, h: np.ndarray, row_flags: np.ndarray, accel_lo: int, accel_hi: int,
+                     velocity_bound: np.ndarray, tol: float, velocity_flag: int, accel_flag: int,
+                     dq_copy: np.ndarray, q_next: np.ndarray, velocity: np.ndarray) -> tuple[float, int, bool]:
     """The end of a diff-IK step with the increment ``dq``, in one call: (the share of the command ``d``
-    delivered, the flags of the rows ``dq`` binds (:func:`binding_flags`), :func:`step_outputs` into
-    ``out``). The share is ``min(max(dq.d / d.d, 0), 1) * s_sing`` when ``s_goal`` is 1 and ``d`` is
-    not zero, else 0, with Python's min and max (a NaN stays NaN)."""
+    delivered, the flags of the rows ``dq`` binds (:func:`binding_flags`), :func:`step_outputs_into`
+    ``dq_copy``, ``q_next``, ``velocity``). The share is ``min(max(dq.d / d.d, 0), 1) * s_sing`` when
+    ``s_goal`` is 1 and ``d`` is not zero, else 0, with Python's min and max (a NaN stays NaN)."""
     scale = 0.0
     dd = dot(d, d)
     if s_goal == 1.0 and dd > 0.0:
@@ -716,7 +723,19 @@ def step_result(dq: np.ndarray, d: np.ndarray, s_goal: float, s_sing: float, q: 
             x = 1.0
         scale = x * s_sing
     bits = binding_flags(g, h, dq, row_flags, accel_lo, accel_hi, velocity_bound, tol, velocity_flag, accel_flag)
-    return scale, bits, step_outputs(dq, q, dt, out)
+    return scale, bits, step_outputs_into(dq, q, dt, dq_copy, q_next, velocity)
+
+
+@kernel("Tuple((float64, int64, boolean))(float64[::1], float64[::1], float64, float64, float64[::1], float64, "
+        "float64[:, ::1], float64[::1], int64[::1], int64, int64, boolean[::1], float64, int64, int64, "
+        "float64[:, ::1])")
+def step_result(dq: np.ndarray, d: np.ndarray, s_goal: float, s_sing: float, q: np.ndarray, dt: float,
+                g: np.ndarray, h: np.ndarray, row_flags: np.ndarray, accel_lo: int, accel_hi: int,
+                velocity_bound: np.ndarray, tol: float, velocity_flag: int, accel_flag: int,
+                out: np.ndarray) -> tuple[float, int, bool]:
+    """:func:`step_result_into` into the rows of ``out`` (3 x n)."""
+    return step_result_into(dq, d, s_goal, s_sing, q, dt, g, h, row_flags, accel_lo, accel_hi, velocity_bound, tol,
+                            velocity_flag, accel_flag, out[0], out[1], out[2])
 
 
 @kernel("boolean(float64[::1])")
@@ -1235,11 +1254,12 @@ def table_problem(target: np.ndarray, posture_goal: np.ndarray, dq_prev: np.ndar
 
 @kernel("Tuple((int64, int64, float64, float64, float64))(int64, UniTuple(float64, 3), UniTuple(float64, 3), "
         "float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], int64, int64[:, ::1], "
-        "float64[:, ::1], float64[::1], float64[:, ::1])")
+        "float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1])")
 def cartesian_step(kind: int, linear: tuple[float, float, float], angular: tuple[float, float, float],
                    q: np.ndarray, dq_prev: np.ndarray, ref: np.ndarray, last_xi: np.ndarray, posture_goal: np.ndarray,
-                   bound: np.ndarray, state: int, table: np.ndarray, poses: np.ndarray, xi: np.ndarray,
-                   out: np.ndarray) -> tuple[int, int, float, float, float]:
+                   bound: np.ndarray, state: int, table: np.ndarray, new_ref: np.ndarray, target: np.ndarray,
+                   xi: np.ndarray, dq: np.ndarray, dq_next: np.ndarray, q_next: np.ndarray,
+                   velocity: np.ndarray) -> tuple[int, int, float, float, float]:
     """``DifferentialIK.step_owned`` for a twist (``kind`` ``TWIST_BASE`` / ``TWIST_TOOL``: ``linear``
     mm/s, ``angular`` deg/s) or a stop braking along the last Cartesian line (``CARTESIAN_STOP``), when
     the step stays on the line, in one call: the same operations in the same order as the Python
@@ -1259,10 +1279,11 @@ def cartesian_step(kind: int, linear: tuple[float, float, float], angular: tuple
 
     Returns ``(status, flags, condition, scale, path rate)``; ``status`` < 0 (``STEP_*``): the step is
     the Python code's (the IK's kept state untouched: only scratch, the MjData and the rows were
-    written). Else the ``LAST_XI_*`` code plus ``STEP_FINITE``; ``poses`` rows: the new reference and
-    the frame target; ``xi``: this step's twist (m/s, rad/s); ``out`` rows: the increment, its copy
-    (next cycle's ``dq_prev``), ``q + dq``, ``dq / dt``; ``path_u`` and the path rate: the path's
-    braking direction (``PathBraking``'s)."""
+    written). Else the ``LAST_XI_*`` code plus ``STEP_FINITE``; ``new_ref``, ``target``: the new
+    reference and the frame target; ``xi``: this step's twist (m/s, rad/s); ``dq``: the increment,
+    ``dq_next`` its copy (next cycle's ``dq_prev``), ``q_next`` = ``q + dq``, ``velocity`` = ``dq / dt``
+    (each its own array: the IK's result and kept state hold them); ``path_u`` and the path rate: the
+    path's braking direction (``PathBraking``'s)."""
     consts = _table_f1(table, 0)
     ints = _table_i1(table, 1)
     track_weights = _table_f1(table, 2)
@@ -1328,7 +1349,6 @@ def cartesian_step(kind: int, linear: tuple[float, float, float], angular: tuple
                     part[i] = xi[at + i]
                 mju_rotVecQuat(doubles(xi[at: at + 3]), doubles(part), doubles(tcp[:4]))
             xi_moves = any_nonzero(xi)
-    new_ref = poses[0]
     if mode_changed or not has_ref or not poses_near(ref, tcp, ref_tol, reach):
         new_ref[:] = tcp
     elif not (twist_mode and has_last_xi and along_track(new_ref, ref, tcp, last_xi, track_weights)):
@@ -1341,7 +1361,6 @@ def cartesian_step(kind: int, linear: tuple[float, float, float], angular: tuple
         line, s_goal, asks_motion, last_code = last_xi, 0.0, any_nonzero(last_xi), LAST_XI_KEPT
     else:
         line, s_goal, asks_motion, last_code = xi, 0.0, False, LAST_XI_CLEARED
-    target = poses[1]
     advance(target, new_ref, line, 1.0, dt)
     toward = new_ref if asks_motion else target
     if not site_objective(cdof, subtree_com, tree, dof_parentid, ints[4], site_xmat, site_xpos, sid, jac_world,
@@ -1367,12 +1386,12 @@ def cartesian_step(kind: int, linear: tuple[float, float, float], angular: tuple
             s = _nearest(s_goal, lo, hi)
     if not math.isfinite(s):
         return STEP_OFF_LINE, 0, kappa, 0.0, rate
-    line_point(s, direction, correction, out[0])
+    line_point(s, direction, correction, dq)
     if asks_motion:  # the reference follows what was achieved
         before = new_ref.copy()
         advance(new_ref, before, line, s, dt)
     if s_goal == 0.0 and s == 0.0:
         last_code = LAST_XI_CLEARED  # at rest
-    scale, bits, finite = step_result(out[0], d[0], s_goal, 1.0, q, dt, g, h, row_flags, ints[5], ints[6],
-                                      velocity_bound, consts[8], ints[9], ints[10], out[1:])
+    scale, bits, finite = step_result_into(dq, d[0], s_goal, 1.0, q, dt, g, h, row_flags, ints[5], ints[6],
+                                           velocity_bound, consts[8], ints[9], ints[10], dq_next, q_next, velocity)
     return last_code + (STEP_FINITE if finite else 0), flags | bits, kappa, scale, rate

@@ -214,7 +214,9 @@ class ServoCycle:
     def next_command(self, status: object) -> np.ndarray:
         """The next commanded joint position; ``status`` (the controller's latest status) is not read:
         the cycle advances by the fixed interval."""
-        shaper = self._require()
+        shaper = self.shaper
+        if shaper is None:
+            shaper = self._require()  # (raises)
         ahead, self._ahead = self._ahead, None
         if self._replay is not None and self._replay.active:
             self._drop(ahead)
@@ -520,7 +522,8 @@ class ServoCycle:
         if isinstance(self._cart, PoseTarget) and self._finish_pose(shaper, self._cart):
             self._drop(ahead)
             return
-        if ahead is not None and ahead.steps == self._steps and _same_motion(ahead.command, self._cart):
+        if ahead is not None and ahead.steps == self._steps and (ahead.command is self._cart
+                                                                or _same_motion(ahead.command, self._cart)):
             q_f, v_f, q_m, dq_prev, res = ahead.q_f, ahead.v_f, ahead.q_m, ahead.dq_prev, ahead.result
             self.ahead_used += 1
         else:

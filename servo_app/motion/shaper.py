@@ -189,7 +189,7 @@ class DiscreteGuard:
         self._s = np.ascontiguousarray(to_f32(q))
         self._v = np.zeros(len(self._s))
         self._a = np.zeros(len(self._s))
-        self._r = np.empty(len(self._s))  # the kernel's float32-rounded candidate
+        self._no_change = _NO_CHANGE[len(self._s)]  # filter's mask when it changed nothing
 
     @property
     def s1(self) -> np.ndarray:
@@ -247,11 +247,11 @@ class DiscreteGuard:
 
     def filter(self, candidate: ArrayLike, env: Envelope) -> tuple[np.ndarray, np.ndarray]:
         """The float32 position to emit for ``candidate`` and the mask of axes that were changed."""
-        r = self._r
-        if emit_if_passes(np.ascontiguousarray(candidate, dtype=np.float64), self._s, self._v, self._a,
-                          env.table, self.dt, r):
-            return r.copy(), _NO_CHANGE[len(r)]
-        r = r.copy()
+        # The candidate as a new array, rounded to float32 in place by the kernel: the position sent
+        # (the caller keeps it), one numpy call where a conversion, a scratch array and its copy were.
+        r = np.array(candidate, dtype=np.float64)
+        if emit_if_passes(r, self._s, self._v, self._a, env.table, self.dt, r):
+            return r, self._no_change
         ok = self.passes(r, env)
         if ok.all():  # the fast check is the stricter one only by rounding; trust the reference
             self.commit(r)
@@ -451,8 +451,21 @@ class JointShaper:
         factor, which keeps the direction."""
         v = np.ascontiguousarray(v, dtype=np.float64)  # (not kept: no copy)
         within = self._within
-        if v.shape != (self.n,) or velocity_within(v, self._env["soft"].plan_vel, within) < 0.0:
+        soft = self._env["soft"]
+        if v.shape != (self.n,) or velocity_within(v, soft.plan_vel, within) < 0.0:
             raise ValueError(f"expected {self.n} finite joint velocities, got {v}")
+        applied = self._applied_plan
+        if (self._mode == "velocity" and self._plan_mode == "soft" and applied is not None and applied[0] is soft
+                and applied[1] == 1.0):
+            # A velocity stream (a Cartesian jog: every cycle): ruckig has the mode and the limits
+            # already, only the target changes. What _select_plan and _set_velocity_mode come to then,
+            # without their two calls (each Python layer costs ~0.5 us with caches cold after the wait).
+            self._vel_scale = 1.0
+            target = within.tolist()
+            self._inp.target_velocity = target
+            self._target_still = not any(target)
+            self._finished = False
+            return
         self._select_plan("soft", 1.0)
         self._set_velocity_mode(within, "velocity")
 
@@ -489,7 +502,8 @@ class JointShaper:
             return r
         if self._guard_env is not self._wanted_guard:  # (_try_switch_guard's own test, without the call)
             self._try_switch_guard()
-        candidate = self._plan()
+        # Ruckig's next position (its fallbacks in _replan, not expected).
+        candidate = self._out.new_position if self._update() else self._replan()
         if candidate is None:
             # Last resort: a discrete braking step of our own (the guard still checks it); ruckig
             # restarts from the emitted state next cycle.
@@ -639,12 +653,11 @@ class JointShaper:
         if self._guard_env is not self._wanted_guard and self.guard.state_feasible(self._wanted_guard):
             self._guard_env = self._wanted_guard
 
-    def _plan(self) -> list[float] | None:
-        """Ruckig's next position, or None if it cannot plan at all."""
-        if self._update():
-            return self._out.new_position  # type: ignore[no-any-return]
-        # Not expected, but ruckig 0.19 does raise on rare numerical edge cases (seen: velocity
-        # interface, "error in step 1"): retry less synchronized, then with a hair less jerk.
+    def _replan(self) -> list[float] | None:
+        """Ruckig's next position after its update failed, or None if it cannot plan at all.
+
+        Not expected, but ruckig 0.19 does raise on rare numerical edge cases (seen: velocity
+        interface, "error in step 1"): retry less synchronized, then with a hair less jerk."""
         self.planning_errors += 1
         sync = self._inp.synchronization
         for retry in (Synchronization.Time, Synchronization.No):
@@ -665,7 +678,7 @@ class JointShaper:
             self.last_planning_error = str(exc)
             return False
         self._finished = result == Result.Finished
-        if result in (Result.Working, Result.Finished):
+        if self._finished or result == Result.Working:
             return True
         self.last_planning_error = f"{result}: {self._inp}"
         return False

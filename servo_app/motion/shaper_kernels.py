@@ -23,7 +23,8 @@ CHECK_VEL, CHECK_ACC, CHECK_JERK, CHECK_BRAKE_VEL, CHECK_BRAKE_STEP = 0, 1, 2, 3
 @kernel("boolean(float64[::1], float64[::1], float64[::1], float64[::1], float64[:, ::1], float64, float64[::1])")
 def emit_if_passes(candidate: np.ndarray, s: np.ndarray, v: np.ndarray, a: np.ndarray, table: np.ndarray,
                    dt: float, r: np.ndarray) -> bool:
-    """Round ``candidate`` to float32 into ``r``; if emitting it keeps every axis' finite differences
+    """Round ``candidate`` to float32 into ``r`` (which may be ``candidate`` itself: each entry is read
+    before it is written); if emitting it keeps every axis' finite differences
     within ``table`` with a braking-feasible future, commit it (``s``, ``v``, ``a`` updated in place:
     the emitted position, velocity and acceleration) and return True; else change nothing else."""
     n = s.shape[0]
