@@ -252,10 +252,11 @@ def test_inputs_arriving_during_the_solve_are_taken_into_that_packet(tmp_path: P
         sp.request(ConfigureInputs(enable=True, sources=("tracker",)))
         x0 = sp.state()["cart_servo"][0]
         # At least 1.5 s, and until a write has landed during a solve: a write lands in a solve window
-        # (~0.1 ms of each 8 ms with the IK solved ahead) by chance, so the wait is on the condition.
+        # (~0.1 ms of each 8 ms with the IK solved ahead) by chance, so the wait is on the condition; the
+        # faster the solve, the narrower the window (2 of 10 runs under heavy load needed more than 8 s).
         start = time.monotonic()
         k = 0
-        while time.monotonic() < start + 1.5 or (sp.state()["late_inputs"] == 0 and time.monotonic() < start + 8.0):
+        while time.monotonic() < start + 1.5 or (sp.state()["late_inputs"] == 0 and time.monotonic() < start + 20.0):
             k += 1
             vx = 30.0 + 10.0 * math.sin(k / 50)  # a new speed each write: each is a new motion
             writer.publish(InputCommand(kind=TWIST, frame="base", values=(vx, 0, 0, 0, 0, 0), linear_speed=0,
