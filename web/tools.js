@@ -1,4 +1,5 @@
-// The active tool (TCP): a selector beside the pose, filled from GET /api/tools; a change is PUT
+// The active tool (TCP): a selector in the Control card (on the first screen at laptop widths, with the
+// session's other lease-holder controls), filled from GET /api/tools; a change is PUT
 // /api/tool. The server takes it only at rest (409 otherwise), so the selector is disabled while the
 // arm moves, and a refusal shows the server's words and puts the selector back on the active tool.
 
