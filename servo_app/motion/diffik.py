@@ -561,7 +561,7 @@ class DifferentialIK:
         new_ref, target, xi = np.empty(7), np.empty(7), np.empty(6)
         dq, dq_next, q_next, velocity = np.empty(N), np.empty(N), np.empty(N), np.empty(N)
         status, bits, kappa, scale, rate = kernels.cartesian_step(
-            kind, linear, angular, q, self._dq_prev, ref, last_xi, posture_goal, self.braking_limit._bound,
+            kind, linear, angular, q, self._dq_prev, ref, last_xi, posture_goal, self.braking_limit.bounds,
             state, table, new_ref, target, xi, dq, dq_next, q_next, velocity)
         if status < 0:  # (the kernel's scratch, rows and path direction are all set again by that code)
             return None
@@ -569,7 +569,7 @@ class DifferentialIK:
         if math.isinf(rate):  # PathBraking.set_direction's outcome, its direction copied by the kernel
             path.u, path.rate = None, math.inf
         else:
-            path.u, path.rate = path._u, rate
+            path.u, path.rate = path.direction_buffer, rate
         self._ref, self.frame_target = new_ref, target
         code = status & 3
         if code == kernels.LAST_XI_NEW:
@@ -595,7 +595,7 @@ class DifferentialIK:
         a cache (pairs the screen cannot decide: their narrow phases are Python's), None while its first
         fill has not set it up."""
         col = self.collision_limit
-        if col is not None and col._cached:
+        if col is not None and col.cached_pairs:
             return np.zeros((0, 3), dtype=np.int64)
         if col is not None and col._q_refresh is None:
             return None
@@ -618,7 +618,7 @@ class DifferentialIK:
             tree=self._tree, dof_parentid=self._dof_parentid, jac_flange=self._jac_flange, cond_work=self._cond_work,
             jac_world=self._jac_world, frame_cost=self._frame_cost, posture_cost=self._posture_cost, p=self._p,
             c=self._c, c_frame=self._c_frame, wjac=self._weighted_jac, d=self._d, rate_c=accel.c,
-            path_brake=path.brake, path_u=path._u, cfg_upper=self._cfg_upper, cfg_lower=self._cfg_lower,
+            path_brake=path.brake, path_u=path.direction_buffer, cfg_upper=self._cfg_upper, cfg_lower=self._cfg_lower,
             cfg_qpos=self._cfg_qpos, vmax=vmax, da=da, velocity_bound=accel.velocity_bound, brake_acc2=acc2,
             brake=brake, cols=cols, arm=guard._arm, guard_cols=guard._guard_cols, g_guard=self._g_guard,
             starts=self._row_starts, g=self._g, h=self._h, h_path=self._hp, row_flags=self._row_flags)
@@ -683,7 +683,7 @@ class DifferentialIK:
             path, reference = self.path_braking, self.config_guard.reference
             assert reference is not None
             if not kernels.table_problem(target, self._posture_goal_now(), self.accel_limit.dq_prev,
-                                         self.braking_limit._bound, reference.top, path.u is not None, path.rate,
+                                         self.braking_limit.bounds, reference.top, path.u is not None, path.rate,
                                          table):
                 raise np.linalg.LinAlgError("the IK objective's Hessian is not positive definite")
             return self._p, self._c, self._g, self._h
@@ -808,7 +808,7 @@ class DifferentialIK:
         if table is not None:  # one kernel (the same ones as below, narrow phases inside)
             path, reference = self.path_braking, self.config_guard.reference
             assert reference is not None
-            kernels.table_rows(self.accel_limit.dq_prev, self.braking_limit._bound, reference.top, path.u is not None,
+            kernels.table_rows(self.accel_limit.dq_prev, self.braking_limit.bounds, reference.top, path.u is not None,
                                path.rate, table)
             return g, h, hp
         data = self.configuration.data
@@ -878,7 +878,8 @@ class DifferentialIK:
             if table is None:
                 return None
         path = self.path_braking
-        if not len(table) or self.config_guard.reference is None or (path.u is not None and path.u is not path._u):
+        foreign_direction = path.u is not None and path.u is not path.direction_buffer
+        if not len(table) or self.config_guard.reference is None or foreign_direction:
             return None
         return table
 

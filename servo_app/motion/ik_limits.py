@@ -89,18 +89,19 @@ class PathBraking:
         self.floor = floor
         self.u: np.ndarray | None = None
         self.rate = math.inf
-        self._u = np.zeros(len(self.brake))  # u's storage (set_direction copies into it: no allocation)
+        # u's storage: set_direction, and the IK's one-call step, write the direction into it (no allocation).
+        self.direction_buffer = np.zeros(len(self.brake))
 
     def set_direction(self, u: np.ndarray | None) -> None:
         """The joint-space direction (model convention, any scale) the arm moves or will move along."""
         if u is None:
             self.u, self.rate = None, math.inf
             return
-        rate = kernels.path_rate(self.c, self.brake, np.ascontiguousarray(u, dtype=float), self._u)
+        rate = kernels.path_rate(self.c, self.brake, np.ascontiguousarray(u, dtype=float), self.direction_buffer)
         if math.isinf(rate):  # the direction moves no joint
             self.u, self.rate = None, math.inf
             return
-        self.u, self.rate = self._u, rate
+        self.u, self.rate = self.direction_buffer, rate
 
     def decel(self, grad_dot_u: np.ndarray, caps: np.ndarray | float) -> np.ndarray:
         """Deceleration for rows whose closing rate along ``u`` is ``grad_dot_u`` (per unit of s)."""
@@ -210,28 +211,28 @@ class BrakingLimit(Limit):
         g[np.arange(6), cols] = 1.0
         g[6 + np.arange(6), cols] = -1.0
         self._g = g
-        self._bound = np.concatenate([self.range_upper, -self.range_lower])  # row i: g_i @ q <= bound_i
+        self.bounds = np.concatenate([self.range_upper, -self.range_lower])  # row i: g_i @ q <= bounds[i]
         self.restricted = np.zeros(12, dtype=bool)
         self._cols_i64 = np.ascontiguousarray(cols, dtype=np.int64)
 
     @property
     def lower(self) -> np.ndarray:
-        return -self._bound[6:]
+        return -self.bounds[6:]
 
     @property
     def upper(self) -> np.ndarray:
-        return self._bound[:6].copy()
+        return self.bounds[:6].copy()
 
     def restrict(self, lower: np.ndarray, upper: np.ndarray) -> None:
         """Keep the joints within ``[lower, upper]`` as well as within their ranges."""
         lo = np.maximum(self.range_lower, lower)
         hi = np.minimum(self.range_upper, upper)
         self.restricted = np.concatenate([hi < self.range_upper, lo > self.range_lower])
-        self._bound = np.concatenate([hi, -lo])
+        self.bounds = np.concatenate([hi, -lo])
 
     def compute_qp_inequalities(self, configuration: Configuration, dt: float) -> Constraint:
         q = configuration.data.qpos[self._qadr]
-        distance = self._bound - np.concatenate([q, -q])  # to each bound, >= 0 inside (inf: none)
+        distance = self.bounds - np.concatenate([q, -q])  # to each bound, >= 0 inside (inf: none)
         horizon = dt + self.lag_s
         h = dt * braking_speed(distance, self._acc, horizon)
         self.h_path = h
@@ -249,13 +250,13 @@ class BrakingLimit(Limit):
         u = path.u if with_path and path is not None and path.u is not None else q
         rate = path.rate if with_path and path is not None else 0.0
         floor = path.floor if path is not None else 0.0
-        kernels.braking_rows(self._bound, self._acc, self.brake_acc, self._cols_i64, q, dt, self.lag_s, with_path,
+        kernels.braking_rows(self.bounds, self._acc, self.brake_acc, self._cols_i64, q, dt, self.lag_s, with_path,
                              u, rate, floor, h, h_path)
 
     def row_data(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
         """What :func:`~servo_app.motion.ik_kernels.braking_rows` takes from this limit: the bounds
         (upper, then lower negated), the deceleration per row and per joint, the dof columns, ``lag_s``."""
-        return self._bound, self._acc, self.brake_acc, self._cols_i64, self.lag_s
+        return self.bounds, self._acc, self.brake_acc, self._cols_i64, self.lag_s
 
 
 @dataclass(frozen=True)
@@ -446,12 +447,12 @@ class CollisionLimit(CollisionAvoidanceLimit):
         self._lower_bound = np.zeros(len(pairs))
         self._candidates = np.zeros(len(pairs), dtype=np.int64)
         # The cache covers the pairs the screen cannot decide (indices into the pairs).
-        self._cached: list[int] = [int(i) for i in np.flatnonzero(~self._exact)]
+        self.cached_pairs: list[int] = [int(i) for i in np.flatnonzero(~self._exact)]
         # Per cached pair and joint: how fast the pair's distance can change with that joint. A joint
         # upstream of both geoms turns them together (no change): only the joints between them count.
         per_joint = _geom_joint_bounds(model)
         weights = np.zeros((len(pairs), model.nv))
-        for i in self._cached:
+        for i in self.cached_pairs:
             r1, r2 = per_joint[pairs[i, 0]], per_joint[pairs[i, 1]]
             both = (r1 > 0.0) & (r2 > 0.0)
             weights[i] = np.where(both, 0.0, r1 + r2)
@@ -496,7 +497,7 @@ class CollisionLimit(CollisionAvoidanceLimit):
         near_dist: list[float] = []
         far: list[int] = []
         far_lb: list[float] = []
-        for idx in self._cached:
+        for idx in self.cached_pairs:
             lb = float(bound[idx])
             if lb <= distmax:
                 dist = mujoco.mj_geomDistance(model, data, self._pair_g1[idx], self._pair_g2[idx], distmax, fromto)
@@ -532,7 +533,7 @@ class CollisionLimit(CollisionAvoidanceLimit):
         if self._views[0] is not data:  # data's arrays as views made once (an attribute read makes a new one)
             self._views = (data, (data.geom_xpos, data.geom_xmat, data.cdof, data.subtree_com))
         geom_xpos, geom_xmat, cdof, subtree_com = self._views[1]
-        if not self._cached and self._q_refresh is not None:  # every pair exact: one kernel, narrow phases in it
+        if not self.cached_pairs and self._q_refresh is not None:  # every pair exact: one kernel, narrow phases in it
             path = self.path
             with_path = path is not None and path.u is not None
             params = self.fill_params(dt)
@@ -558,7 +559,7 @@ class CollisionLimit(CollisionAvoidanceLimit):
             if abs(dist - distmax) >= 1e-12:
                 row_pairs[rows], dists[rows] = idx, dist
                 rows += 1
-        if self._cached or self._q_refresh is None:  # the first fill sets the cache up, even an empty one
+        if self.cached_pairs or self._q_refresh is None:  # the first fill sets the cache up, even an empty one
             rows = self._cached_rows(data, q, rows)
         if rows:
             path = self.path
