@@ -93,6 +93,12 @@ def test_registry_rejections_name_field_and_value() -> None:
         ("vision", {"kind": "pose", "xyzwpr": [0, 0, 2000, 0, 0, 0]}, r"field 'z' value 2000.0 rejected: out of range"),
         ("vision", {"kind": "pose", "xyzwpr": [0, 0, float("nan"), 0, 0, 0]}, r"field 'xyzwpr.2' value nan"),
         ("vision", {"kind": "pose", "xyzwpr": [0, 0, 0, 0, 0, 0], "stamp": c.wall + 1.0}, r"field 'stamp' value"),
+        # A monotonic clock's reading (seconds since boot) for a stamp; and one so far back that its latency
+        # in ms overflowed to inf.
+        ("vision", {"kind": "pose", "xyzwpr": [0, 0, 0, 0, 0, 0], "stamp": 12345.6},
+         r"field 'stamp' value 12345.6: .* s in the past \(more than a day\): .* not a monotonic clock"),
+        ("gauge", {"kind": "measurement", "values": {"distance": 0.0}, "stamp": -1.797693134862316e+305},
+         r"field 'stamp' value -1.797693134862316e\+305: .* in the past"),
         ("vision", {"kind": "twist", "linear": [1, 0, 0]}, r"field 'kind' value 'twist': source 'vision' takes pose"),
         ("jog", {"kind": "twist", "linear": [300, 0, 0]}, r"field 'linear' value \[300.0, 0.0, 0.0\]"),
         ("gauge", {"kind": "measurement", "values": {"temp": 21.0}}, r"missing \['distance'\]"),
@@ -103,7 +109,8 @@ def test_registry_rejections_name_field_and_value() -> None:
     for source, payload, pattern in cases:
         with pytest.raises(FeedRejected, match=pattern):
             reg.submit(source, payload)
-    assert reg.stats("vision").rejected == 4 and reg.stats("gauge").last_error is not None
+    assert reg.stats("vision").rejected == 5 and reg.stats("gauge").last_error is not None
+    assert reg.slot("vision").read() is None and reg.slot("gauge").read() is None  # nothing refused was kept
     with pytest.raises(UnknownSource):
         reg.submit("nope", {"kind": "pose", "xyzwpr": [0] * 6})
     # Slightly-future stamps (within max_future_s) count as zero latency.

@@ -3,7 +3,8 @@
 The sender stamps each sample with its wall clock; latency = our wall clock at receipt minus that
 stamp, and the sample goes into its slot at (monotonic now - latency), so staleness and tracking
 extrapolation see how old the value really is. Stamps from the future beyond `max_future_s`
-(unsynchronised clocks) are rejected; slightly-future stamps count as zero latency. A sample older
+(unsynchronised clocks) are rejected, and so are stamps more than a day old (a monotonic clock's
+reading, or a wrong unit); slightly-future stamps count as zero latency. A sample older
 than the last published one (by seq or stamp) is dropped: a late packet must not move the robot back.
 
 Sequence numbers resynchronise: a seq at most `seq_window` behind the last accepted one is a late
@@ -35,6 +36,11 @@ from servo_app.inputs.validate import ValueRejected
 
 _MESSAGE = TypeAdapter(FeedMessage)
 _AXES = "xyzwpr"
+# A stamp further in the past than this is no wall-clock time of a live value: a monotonic clock's
+# reading (seconds since boot) or a wrong unit. Accepted, it was placed decades back, so the sample
+# went stale at once while its answer said "accepted" (and -1.8e305 s overflowed the latency in ms
+# to inf: the socket dropped without a close frame, found by tests/test_feed_ws_fuzz.py).
+MAX_STAMP_AGE_S = 86_400.0
 
 
 class UnknownSource(KeyError):
@@ -167,6 +173,10 @@ class FeedRegistry:
             if latency < -cfg.max_future_s:
                 raise FeedRejected(f"field 'stamp' value {msg.stamp!r}: {-latency:.3f} s in the future "
                                    f"(more than max_future_s {cfg.max_future_s}); are the clocks synchronised?")
+            if latency > MAX_STAMP_AGE_S:
+                raise FeedRejected(f"field 'stamp' value {msg.stamp!r}: {latency:.6g} s in the past (more than a "
+                                   "day): a stamp is the sender's wall-clock time in Unix seconds, not a monotonic "
+                                   "clock's reading; send the wall-clock time, or no stamp")
             stamp = now - max(latency, 0.0)
         prev = src.slot.read()
         # Stamped by the sender and placed after the last sample: measured later (the counter restarted).
