@@ -9,19 +9,17 @@ from __future__ import annotations
 
 import json
 import math
-import socket
-import threading
 import time
 from collections.abc import Iterator
 from typing import Any
 
 import httpx
 import pytest
-import uvicorn
 from fastapi import FastAPI, HTTPException
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from starlette.requests import HTTPConnection
+from test_api_harness import LiveServer
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
@@ -53,22 +51,11 @@ def server() -> Iterator[tuple[str, FeedRegistry]]:
     registry = FeedRegistry(SOURCES)
     app = FastAPI()
     app.include_router(feed_router(registry, _auth))
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    sock.bind(("127.0.0.1", 0))
-    port = sock.getsockname()[1]
-    srv = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="off"))
-    thread = threading.Thread(target=srv.run, kwargs={"sockets": [sock]}, daemon=True)
-    thread.start()
+    live = LiveServer(app).start(timeout=20.0)
     try:
-        deadline = time.monotonic() + 20.0
-        while not srv.started:
-            assert time.monotonic() < deadline and thread.is_alive(), "server did not start"
-            time.sleep(0.02)
-        yield f"127.0.0.1:{port}", registry
+        yield f"127.0.0.1:{live.port}", registry
     finally:
-        srv.should_exit = True
-        thread.join(20.0)
-        sock.close()
+        live.stop()
 
 
 # -- frames ----------------------------------------------------------------------------------------

@@ -5,19 +5,17 @@ from __future__ import annotations
 
 import asyncio
 import json
-import socket
-import threading
 import time
 from collections.abc import Iterator
 from typing import Any
 
 import httpx
 import pytest
-import uvicorn
 import websockets
 from fastapi import FastAPI, HTTPException, WebSocketDisconnect
 from fastapi.testclient import TestClient
 from starlette.requests import HTTPConnection
+from test_api_harness import LiveServer
 
 from servo_app.api.body_limit import MAX_BODY_BYTES, BodyLimit
 from servo_app.inputs import Arbiter, Measurement, PoseSample, TwistSample
@@ -319,17 +317,9 @@ def test_feed_over_real_uvicorn() -> None:
     reg = make_registry()
     app = FastAPI()
     app.include_router(feed_router(reg, auth))
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    sock.bind(("127.0.0.1", 0))
-    port = sock.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="off"))
-    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
-    thread.start()
+    live = LiveServer(app).start(timeout=20.0)
+    port = live.port
     try:
-        deadline = time.monotonic() + 20.0
-        while not server.started:
-            assert time.monotonic() < deadline and thread.is_alive(), "server did not start"
-            time.sleep(0.02)
         r = httpx.post(f"http://127.0.0.1:{port}/api/feed/gauge", headers={"Authorization": f"Bearer {TOKEN}"},
                        json={"kind": "measurement", "values": {"distance": 42.0}, "stamp": time.time()}, timeout=10)
         assert r.status_code == 200 and r.json()["latency_ms"] is not None
@@ -356,6 +346,4 @@ def test_feed_over_real_uvicorn() -> None:
         assert asyncio.run(nested()) == (1007, "message nested too deeply: a feed sample is a flat JSON object")
         assert reg.slot("jog").read().value.linear[0] == 2 and reg.slot("gauge").read().value["distance"] == 42.0
     finally:
-        server.should_exit = True
-        thread.join(20.0)
-        sock.close()
+        live.stop()
