@@ -7,7 +7,7 @@ made of hundreds of them; one compiled kernel call costs about 0.5 us.
   import: nothing is ever compiled inside a cycle.
 - ``cache=True`` keeps the machine code on disk; ``scripts/install`` fills the cache
   (``python -m servo_app.jit``), so a servo process loads kernels instead of compiling them.
-- The cache lives in a directory named by a digest of every kernel source (:func:`cache_dir`). numba
+- The cache lives in a directory named by a digest of every kernel source (``CACHE_DIR``). numba
   checks only a kernel's own file before it loads the kernel's machine code, so a kernel that calls a
   kernel of another module (``cycle_kernels`` calls ``robots.kernels``), or bakes in its constants,
   kept the old callee after that module alone changed: measured here, ``g(x) = f(x) * 10`` still gave
