@@ -446,9 +446,6 @@ class _ServoProcess(ServoProcessHost):
     def _warm_up(self) -> None:
         """Run every per-cycle code path once before streaming: first calls pay for lazy set-up
         (numpy's percentile machinery alone took 6.6 ms here, enough to miss a 4 ms packet)."""
-        self.latency.add(100.0, self.late_us)
-        self.latency.percentiles()
-        self.latency = _Latency()
         window = _TimeWindow()
         for _ in range(window.every):  # np.median's first call
             window.add(1.0)
@@ -466,7 +463,8 @@ class _ServoProcess(ServoProcessHost):
         self.hist.write(self.state.data)
         self._publish_backend(self.state)
         self.hist.clear()
-        lat, hist = _Latency(), _CommandHistory(6, self.dt)  # the command's kernel, on figures thrown away
+        # The command's kernel (the latency window and the history within it), on figures thrown away.
+        lat, hist = _Latency(), _CommandHistory(6, self.dt)
         _command_into_state(np.zeros(STATE_SIZE), _CMD_AT, _BUCKETS, _P50_P99, lat.ring, lat.stats, lat.scratch,
                             lat.out, hist.q, hist.at, hist.values, 100.0, self.late_us, self.dt)
 
