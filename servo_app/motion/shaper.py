@@ -455,18 +455,13 @@ class JointShaper:
         if v.shape != (self.n,) or velocity_within(v, soft.plan_vel, within) < 0.0:
             raise ValueError(f"expected {self.n} finite joint velocities, got {v}")
         applied = self._applied_plan
-        if (self._mode == "velocity" and self._plan_mode == "soft" and applied is not None and applied[0] is soft
-                and applied[1] == 1.0):
-            # A velocity stream (a Cartesian jog: every cycle): ruckig has the mode and the limits
-            # already, only the target changes. What _select_plan and _set_velocity_mode come to then,
-            # without their two calls (each Python layer costs ~0.5 us with caches cold after the wait).
+        if (self._plan_mode == "soft" and applied is not None and applied[0] is soft and applied[1] == 1.0):
+            # A velocity stream (a Cartesian jog: every cycle): ruckig has the plan's limits already.
+            # What _select_plan comes to then, without its call and _apply_plan_limits' (each Python
+            # layer costs ~0.5 us with caches cold after the wait).
             self._vel_scale = 1.0
-            target = within.tolist()
-            self._inp.target_velocity = target
-            self._target_still = not any(target)
-            self._finished = False
-            return
-        self._select_plan("soft", 1.0)
+        else:
+            self._select_plan("soft", 1.0)
         self._set_velocity_mode(within, "velocity")
 
     def stop(self, mode: StopMode = "soft") -> None:
