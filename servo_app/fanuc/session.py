@@ -549,7 +549,7 @@ class StreamSession:
             fmt, array = _JOINT_FORMAT, q
         else:
             fmt, array = _CARTESIAN_FORMAT, self.to_cartesian(q)
-        values = array.tolist() if type(array) is np.ndarray else _floats(array)  # (_floats' test: one call less)
+        values = _floats(array)
         read_io = _NO_READ if read is None else (read.io_type, read.index, read.mask)
         write_io = _NO_WRITE if write is None else (write.io_type, write.index, write.mask, write.value)
         early = self._early_sent
