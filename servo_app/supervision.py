@@ -21,6 +21,7 @@ Pure: no sockets, no clock of its own (``now`` comes in with every call).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar, Protocol
@@ -383,7 +384,7 @@ class SupervisorBase:
 
     # -------------------------------------------------------------------------------- the gates
     def _hold_checked(self, hold_s: float) -> None:
-        if not (np.isfinite(hold_s) and 0.0 < hold_s <= self.max_hold_s):
+        if not (math.isfinite(hold_s) and 0.0 < hold_s <= self.max_hold_s):
             raise InvalidRequest(f"hold_s={hold_s} must be in (0, {self.max_hold_s:g}]")
 
     def _motion_gate(self, what: str, resume_after_hold: bool = False, now: float = 0.0) -> None:

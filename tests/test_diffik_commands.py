@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from servo_app.motion.commands import JointJog, JointTarget, PoseTarget, Twist
 
@@ -72,3 +74,20 @@ def test_invalid_values_raise_naming_field_and_value(make, field: str, value: st
         make()
     assert field in str(err.value)
     assert value in str(err.value)
+
+
+@given(st.tuples(*[st.floats(allow_nan=True, allow_infinity=True, width=64)] * 3),
+       st.sampled_from([tuple, list, np.array]))
+def test_a_tuple_of_floats_is_checked_as_any_other_sequence(values: tuple[float, ...], kind: type) -> None:
+    """``_floats`` takes a tuple of finite floats as it is (the requests' usual case); it must accept and
+    refuse exactly what the general path does for the same numbers in a list or an array."""
+    def outcome(value: object) -> tuple[float, ...] | str:
+        try:
+            return Twist(linear=value, source="s", stamp=0.0).linear  # type: ignore[arg-type]
+        except ValueError as exc:
+            return str(exc).split("=")[0]  # the field named, e.g. "linear[1]"
+
+    got, general = outcome(kind(values)), outcome(list(values))
+    assert got == general
+    if isinstance(got, tuple):
+        assert all(type(v) is float for v in got)

@@ -190,7 +190,7 @@ class StreamSupervisor(SupervisorBase):
                         linear=tuple(req.linear), angular=tuple(req.angular))  # type: ignore[arg-type]
         except ValueError as exc:
             raise InvalidRequest(str(exc)) from None
-        speed, cap = float(np.linalg.norm(cmd.linear)), self._flange_cap()
+        speed, cap = math.hypot(*cmd.linear), self._flange_cap()
         if speed > cap:
             raise InvalidRequest(f"linear={list(cmd.linear)}: {speed:.1f} mm/s is above the flange-speed cap "
                                  f"{cap:.0f} mm/s")

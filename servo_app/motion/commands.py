@@ -31,6 +31,8 @@ Frame = Literal["base", "tool"]
 
 
 def _floats(name: str, value: Sequence[float], n: int) -> tuple[float, ...]:
+    if type(value) is tuple and len(value) == n and all(type(v) is float and math.isfinite(v) for v in value):
+        return value  # the usual case (a request's floats): as it is, in half the checks' time
     try:
         items = list(value)
     except TypeError:

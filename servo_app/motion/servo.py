@@ -334,9 +334,9 @@ class ServoCycle:
     def twist(self, cmd: Twist) -> None:
         """Move the TCP at a twist (base or tool frame) until replaced, stopped or the hold runs out."""
         self._require()
-        linear = float(np.linalg.norm(cmd.linear))
+        linear = math.hypot(*cmd.linear)  # (not numpy's norm: ~5 us less each, on every twist request)
         limit = self.cap * self.settings.flange_speed_margin
-        if self._flange_speed_bound(linear, float(np.linalg.norm(cmd.angular))) > limit:
+        if self._flange_speed_bound(linear, math.hypot(*cmd.angular)) > limit:
             raise CommandRejected(f"linear speed {linear:.1f} mm/s{self._tool_note(cmd.angular)} is above the "
                                   f"flange-speed cap {limit:.0f} mm/s")
         self._leave_replay("a twist took over")

@@ -48,14 +48,16 @@ class HoldToRun:
         return None if self.last_renewed is None else self.last_renewed + self.timeout_s
 
     def renew(self, now: float) -> HoldToRun:
-        return replace(self, last_renewed=_later(self.last_renewed, now))
+        # (by the constructor, not dataclasses.replace: a twist renews it 20 times a second, and replace
+        # reads the fields anew each time)
+        return HoldToRun(self.timeout_s, _later(self.last_renewed, now))
 
     def active(self, now: float) -> bool:
         """A jog may drive motion now."""
         return self.held and not self.expired(now)
 
     def release(self) -> HoldToRun:
-        return replace(self, last_renewed=None)
+        return HoldToRun(self.timeout_s)
 
     def expired(self, now: float) -> bool:
         if self.last_renewed is None:
