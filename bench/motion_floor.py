@@ -136,6 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--seconds", type=float, default=8.0)
     p.add_argument("--interval-ms", type=int, default=8)
+    p.add_argument("--name", default=None, help="RESULTS.md section (default: motion_floor at INTERVAL ms)")
     p.add_argument("--no-write", action="store_true")
     args = p.parse_args(argv)
     header = ("| round | floor CPU % | floor us per status | live CPU % | live us per status | floor / live |\n"
@@ -159,7 +160,8 @@ def main(argv: list[str] | None = None) -> int:
     print(verdict)
     if not args.no_write:
         text = f"{header}\n" + "\n".join(rows) + f"\n\n{verdict}."
-        print("wrote", write_section(f"motion_floor at {args.interval_ms} ms", command_line(__file__, argv), text))
+        name = args.name or f"motion_floor at {args.interval_ms} ms"
+        print("wrote", write_section(name, command_line(__file__, argv), text))
     return 0
 
 
