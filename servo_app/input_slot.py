@@ -90,6 +90,8 @@ class InputSlotReader:
 
     def peek(self) -> InputCommand | None:
         """Like :meth:`poll`, but the command stays new until :meth:`consume` takes it."""
+        if self.slot.version == self._version:  # nothing written since: the slot's counter alone
+            return None
         try:
             version, data = self.slot.read(retries=100)
         except TimeoutError:

@@ -40,6 +40,12 @@ class LatestValueSlot:
             self._data[: values.size] = values
         self._seq[0] = self._written = s + 2
 
+    @property
+    def version(self) -> int:
+        """The version of the values last written, read without copying them (version 0: never
+        written). While a write is in progress it is still the one before."""
+        return int(self._seq[0]) >> 1
+
     def read(self, retries: int = 1000) -> tuple[int, np.ndarray]:
         """(version, copy of the values); version 0 means never written."""
         for _ in range(retries):

@@ -36,6 +36,7 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 # Modules that define kernels: imported by the warm-up below (add a module here when it gains kernels).
 KERNEL_MODULES: tuple[str, ...] = (
+    "servo_app.motion.mujoco_c",
     "servo_app.robots.kernels",
     "servo_app.motion.cycle_kernels",
     "servo_app.motion.shaper_kernels",
@@ -46,7 +47,7 @@ KERNEL_MODULES: tuple[str, ...] = (
 # Everything the kernels' machine code is made of: their modules, what they declare for numba
 # (MuJoCo's C functions) and how they are compiled (this module). tests/test_jit_cache.py checks that
 # every module with a kernel is here.
-KERNEL_SOURCES: tuple[str, ...] = (*KERNEL_MODULES, "servo_app.motion.mujoco_c", "servo_app.jit")
+KERNEL_SOURCES: tuple[str, ...] = (*KERNEL_MODULES, "servo_app.jit")
 _PACKAGE_DIR = Path(__file__).resolve().parent
 _CACHE_PREFIX = "servo_app-"
 

@@ -76,21 +76,6 @@ def command_record(t: float, seq: int, last_data: int, data_format: int, io: int
                         *_ZEROS[n:])
 
 
-_PAIR = struct.Struct("<" + 2 * _RECORD.format.lstrip("<"))  # a status record and one command record
-
-
-def pack_status_and_command(buf: bytearray, t_status: float, seq: int, bits: int, io: int,
-                            joints: tuple[float, ...] | list[float], t: float, command_seq: int, last_data: int,
-                            data_format: int, command_io: int, latency_us: float,
-                            values: tuple[float, ...] | list[float]) -> None:
-    """``status_record(...) + command_record(...)`` into ``buf`` (2 x 56 bytes) by one precompiled Struct:
-    a status packet and the one command that answered it, the servo process's usual pair."""
-    joints, values = joints[:9], values[:9]
-    _PAIR.pack_into(buf, 0, KIND_STATUS, t_status, seq, bits, io, 0.0, *joints, *_ZEROS[len(joints):],
-                    KIND_COMMAND, t, command_seq, last_data | (data_format << 1), command_io, latency_us,
-                    *values, *_ZEROS[len(values):])
-
-
 class SessionLogWriter:
     def __init__(self, path: Path, header: dict[str, Any]) -> None:
         self.path = path
@@ -110,8 +95,9 @@ class SessionLogWriter:
                 values: tuple[float, ...] | list[float]) -> None:
         self.write_records([command_record(t, seq, last_data, data_format, io, latency_us, values)])
 
-    def write_pair(self, buf: bytearray) -> None:
-        """Two records packed by ``pack_status_and_command``, in one write."""
+    def write_pair(self, buf: bytearray | np.ndarray) -> None:
+        """Two records packed in place (a status and its command: the FANUC servo process's
+        ``_exchange_into_state``), in one write."""
         self._f.write(buf)
         self.records += 2
 

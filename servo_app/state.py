@@ -104,7 +104,7 @@ OFFSET: dict[str, int] = {name: sl.start for name, sl in FIELDS.items()}
 LINK_COUNTERS = ("commands_sent", "status_received", "status_lost", "status_duplicated", "malformed")
 
 
-_LINK_COUNTERS_OF = operator.attrgetter(*LINK_COUNTERS)
+LINK_COUNTERS_OF = operator.attrgetter(*LINK_COUNTERS)  # a session's stats -> the counters' tuple
 _AT_LINK = OFFSET[LINK_COUNTERS[0]]
 assert [OFFSET[name] for name in LINK_COUNTERS] == list(range(_AT_LINK, _AT_LINK + 5))
 
@@ -113,7 +113,7 @@ def write_link_counters(data: np.ndarray, stats: object) -> None:
     """A session's link counters, straight into a state vector's data (a servo process's publish, once
     per cycle: one attrgetter call where a loop of getattr and offset look-ups took six)."""
     data[_AT_LINK], data[_AT_LINK + 1], data[_AT_LINK + 2], data[_AT_LINK + 3], data[_AT_LINK + 4] = (
-        _LINK_COUNTERS_OF(stats))
+        LINK_COUNTERS_OF(stats))
 
 
 class StateVector:

@@ -331,8 +331,10 @@ def test_a_write_caught_half_done_reads_as_nothing_new(tmp_path: Path) -> None:
         assert reader.poll() is not None
         seq = bridge.writer.slot._seq
         seq[0] += 1  # the writer stopped between "odd" and "even"
-        assert reader.poll() is None and reader.torn_reads == 1
-        seq[0] -= 1
+        assert reader.poll() is None and reader.torn_reads == 0  # still the version taken: not even read
+        seq[0] += 2  # a newer version written meanwhile, and the writer stopped in the one after it
+        assert reader.poll() is None and reader.torn_reads == 1  # read, and given up: nothing new for now
+        seq[0] -= 3
         clock.t += 0.01
         bridge.feeds.submit("jog", twist(2.0, frame="base"))
         bridge.step(clock())

@@ -101,3 +101,83 @@ def test_the_command_kernel_writes_what_the_plain_figures_are(latencies: list[fl
         for key, want in command_derivatives(commands, dt).items():
             assert np.array_equal(d[FIELDS[key]], want), (k, key)
     assert lat.count == len(latencies) and lat.max_us == max(latencies)
+
+
+f32s = st.floats(-1e5, 1e5, width=32, allow_nan=False)
+u16 = st.integers(0, 0xFFFF)
+exchanges = st.lists(
+    st.tuples(st.integers(1, 50), st.integers(0, 255), st.integers(0, 255), u16, u16, u16, st.integers(0, 2**32 - 1),
+              st.lists(f32s, min_size=9, max_size=9), st.lists(f32s, min_size=9, max_size=9),
+              st.integers(0, 1), st.integers(0, 1), u16, st.lists(f32s, min_size=6, max_size=9),
+              st.floats(1e-4, 0.02), st.floats(0.0, 3e-3), st.booleans(), st.booleans(),
+              st.tuples(*[st.integers(0, 2**40)] * 5)),
+    min_size=1, max_size=40)
+
+
+@settings(max_examples=60, deadline=None)
+@given(exchanges)
+def test_the_exchange_kernel_writes_and_logs_what_the_python_path_does(tmp_path_factory, steps) -> None:
+    """A new status packet and the one command that answered it, the servo process's usual exchange: the
+    compiled path (``_log_exchange``, straight from the datagrams' bytes) against the Python one
+    (``_log_datagram``: decoded fields, status_record + command_record, _publish_status, _command_sent),
+    status after status: the same log bytes, the same state vector (but the wall-clock time of the status,
+    read by each), the same settle verdicts, latency window and command history."""
+    from multiprocessing import Pipe
+
+    from servo_app.fanuc.packets import Status, decode_from_robot, pack_command
+    from servo_app.fanuc.runner import StreamConfig, _ServoProcess
+    from servo_app.fanuc.session import SentCommand
+    from servo_app.ipc import LatestValueSlot
+    from servo_app.session_log import RECORD_SIZE, SessionLogWriter, read_session_log
+
+    tmp = tmp_path_factory.mktemp("exchange")
+    slot = LatestValueSlot(STATE_SIZE)
+    ends = Pipe()
+    procs = [_ServoProcess(StreamConfig(port=9, settle_window_s=0.02), ends[0], slot.name) for _ in range(2)]
+    unix = FIELDS["status_unix"].start
+    try:
+        for p, name in zip(procs, ("compiled", "python"), strict=True):
+            p.log = SessionLogWriter(tmp / f"{name}.srvlog", {})
+            p.t0 = 900.0  # (each set its own clock's origin when made)
+        t, seq, cmd_seq = 1000.0, 7, 3
+        for (gap, bits, io_type, io_index, io_mask, io_value, stamp, cart, joints, last, fmt, wio, values, dt,
+             lag, early, as_array, link) in steps:
+            seq += gap
+            cmd_seq += 1
+            t += dt
+            data = Status(seq=seq, status=bits, read_io_type=io_type, read_io_index=io_index, read_io_mask=io_mask,
+                          read_io_value=io_value, timestamp_ms=stamp, cartesian=tuple(cart), joints=tuple(joints),
+                          currents=(0.0,) * 9).encode()
+            command = pack_command(cmd_seq, tuple(values), fmt, last, (0, 0, 0), (2, 1, 0xFFFF, wio))
+            t_first, t_sent = (t + lag, t + 2 * lag) if early else (0.0, t + lag)
+            for k, p in enumerate(procs):
+                p._t_recv = t  # (as _io_step sets it on the datagram's arrival)
+                s = p.session
+                s.last_status = decode_from_robot(data)  # a new object each: as each process decodes its own
+                s.sent = [SentCommand(cmd_seq, tuple(values), fmt, last, (0, 0, 0), (2, 1, 0xFFFF, wio), command,
+                                      early, np.array(values) if as_array else None)]
+                for name, v in zip(("commands_sent", "status_received", "status_lost", "status_duplicated",
+                                    "malformed"), link, strict=True):
+                    setattr(s.stats, name, v)
+                if k == 0:
+                    p._after_datagram(data, t, t_sent, t_first)  # the usual exchange: the compiled path
+                else:
+                    p._log_datagram(t, t_sent, t_first)
+                assert s.sent == []
+            a, b = (p.state.data for p in procs)
+            assert abs(a[unix] - b[unix]) < 5.0
+            a[unix] = b[unix]
+            assert np.array_equal(a, b)
+            assert procs[0].settle.settled == procs[1].settle.settled
+            for x, y in ((procs[0].latency.ring, procs[1].latency.ring), (procs[0].hist.q, procs[1].hist.q)):
+                assert np.array_equal(x, y)
+        logs = [read_session_log(p.log.path).records.tobytes() for p in procs]  # type: ignore[union-attr]
+        assert logs[0] == logs[1] and len(logs[0]) == 2 * len(steps) * RECORD_SIZE  # (headers: each its time)
+    finally:
+        for p in procs:
+            p._close_log()
+            p.sock.close()
+            p.cycle.late_command = None
+        slot.close()
+        for c in ends:
+            c.close()

@@ -97,7 +97,13 @@ _U8, _U16, _U32 = 0xFF, 0xFFFF, 0xFFFFFFFF
 STATUS_HEADER = _HEADER.pack(PacketType.STATUS, PROTOCOL_VERSION)  # type and version of a status
 SEQ_OFFSET = _HEADER.size  # u32, status and command alike
 STATUS_BITS_OFFSET = struct.calcsize(">III")  # u8
+STATUS_IO_OFFSET = struct.calcsize(">IIIB")  # read I/O type u8, index u16, mask u16, value u16
+STATUS_TIME_OFFSET = struct.calcsize(">IIIBBHHH")  # u32, ms
+STATUS_CARTESIAN_OFFSET = struct.calcsize(">IIIBBHHHI")  # 9 x f32
 STATUS_JOINTS_OFFSET = struct.calcsize(">IIIBBHHHI9f")  # 9 x f32, J1..J9
+COMMAND_LAST_DATA_OFFSET = struct.calcsize(">III")  # u8
+COMMAND_FORMAT_OFFSET = struct.calcsize(">IIIBBHH")  # u8
+COMMAND_WRITE_VALUE_OFFSET = struct.calcsize(">IIIBBHHBBHH")  # u16
 COMMAND_VALUES_OFFSET = struct.calcsize(">IIIBBHHBBHHHH")  # 9 x f32
 
 

@@ -26,23 +26,47 @@ from typing import Any
 import numpy as np
 
 from servo_app import messages as msg
-from servo_app.fanuc.packets import ROBOT_PORT, Status
+from servo_app.fanuc.packets import (
+    COMMAND_FORMAT_OFFSET,
+    COMMAND_LAST_DATA_OFFSET,
+    COMMAND_VALUES_OFFSET,
+    COMMAND_WRITE_VALUE_OFFSET,
+    ROBOT_PORT,
+    SEQ_OFFSET,
+    STATUS_BITS_OFFSET,
+    STATUS_CARTESIAN_OFFSET,
+    STATUS_IO_OFFSET,
+    STATUS_JOINTS_OFFSET,
+    STATUS_SIZE,
+    STATUS_TIME_OFFSET,
+    Status,
+)
 from servo_app.fanuc.session import MotionSource, Phase, SentCommand, SessionConfig
 from servo_app.fanuc.supervisor import StreamSupervisor
 from servo_app.input_slot import InputSlotReader
 from servo_app.jit import kernel
 from servo_app.messages import Ready
+from servo_app.motion.mujoco_c import address_table, table_f1, table_f2, table_i1, table_u1
 from servo_app.motion.servo import ServoCycle, ServoSettings
-from servo_app.motion.settle import SettleDetector
+from servo_app.motion.settle import SettleDetector, settle_add
 from servo_app.process_handle import ServoProcessHandle, ServoProcessHost, run_child
 from servo_app.realtime import WakeLatencyHold, make_realtime
 from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.profile import load_profile
 from servo_app.safety import Mode
-from servo_app.session_log import RECORD_SIZE, command_record, pack_status_and_command, status_record
+from servo_app.session_log import (
+    KIND_COMMAND,
+    KIND_STATUS,
+    RECORD_DTYPE,
+    RECORD_SIZE,
+    command_record,
+    status_record,
+)
 from servo_app.state import (
     FIELDS,
     LATENCY_BUCKETS_US,
+    LINK_COUNTERS,
+    LINK_COUNTERS_OF,
     MODES,
     OFFSET,
     PHASES,
@@ -302,6 +326,113 @@ def _command_into_state(d: np.ndarray, at: np.ndarray, buckets: np.ndarray, quan
     _write_derivatives(q, q_at[0], dt, d, at[7], at[8], at[9], at[10])
 
 
+# What _exchange_into_state reads from the two datagrams (big-endian, packets.py), writes into the state
+# vector and packs into the log (session_log.RECORD_DTYPE, little-endian), by offset in this order: an
+# array, not globals baked into the cached kernel (see _CMD_FIELDS).
+_EXCHANGE_FIELDS = (
+    "status seq", "status bits", "status io", "status time", "status cartesian", "status joints", "command seq",
+    "command last_data", "command format", "command write value", "command values", "record t", "record seq",
+    "record flags", "record io", "record latency", "record values", "state q_servo", "state cart_servo",
+    "state status_seq", "state status_bits", "state io_read_value", "state io_read_type", "state io_read_index",
+    "state io_read_mask", "state status_unix", "state status_time_ms", "state status_interval_last_ms",
+    "state link counters")
+_BYTES = "Bytes(uint8, 1, 'C', readonly=True)"  # a bytes object as numba takes it: read where it lies
+# The arrays _exchange_into_state reaches through its table of addresses (mujoco_c.address_table), in
+# this order: one argument where they were 22, each of which numba's dispatch types and unboxes (the
+# call cost ~46 us with caches cold here that way; see _ServoProcess._exchange_table). ``consts``: the
+# late threshold (us), the interval (s), and the settle detector's window (s), tolerance and minimum count.
+_EXCHANGE_ARRAYS: tuple[tuple[str, str, int], ...] = (
+    ("d", "f", 1), ("at", "i", 1), ("log", "u", 1), ("bits", "f", 1), ("consts", "f", 1), ("settle_ts", "f", 1),
+    ("settle_ps", "f", 2), ("settle_ring", "i", 1), ("cmd_at", "i", 1), ("buckets", "f", 1), ("quantiles", "f", 1),
+    ("ring", "f", 1), ("stats", "f", 1), ("scratch", "f", 1), ("out", "f", 1), ("q", "f", 2), ("q_at", "i", 1))
+
+
+@kernel(f"int64(int64[:, ::1], {_BYTES}, {_BYTES}, float64[:], UniTuple(int64, 5), float64, float64, float64, "
+        "float64, float64)")
+def _exchange_into_state(table: np.ndarray, status: bytes, command: bytes, values: np.ndarray,
+                         link: tuple[int, ...], t0: float, t_status: float, t_command: float, last_status_t: float,
+                         unix: float) -> int:
+    """The usual exchange, a new status packet and the one command that answered it, in one call: the
+    status's fields into the state vector ``d`` (offsets ``at``: _EXCHANGE_FIELDS) with its joints into
+    the settle detector's ring (:func:`settle_add`, whose result it returns), the link counters, the
+    two log records packed into ``log`` straight from the bytes that crossed the wire (``bits``: one
+    float64 of scratch), and the command (its ``values`` as the history takes them) into the latency
+    figures and history (:func:`_command_into_state`). The arrays through ``table`` (_EXCHANGE_ARRAYS).
+    The same values, and the same log bytes, as the Python path (``_publish_status``, ``status_record``
+    + ``command_record``, ``_command_sent``): tested.
+
+    Why: those four steps as Python cost ~75 us a status here with caches cold, about a tenth of the
+    servo process's CPU at 8 ms (issue 15)."""
+    d, at, log, bits, consts = (table_f1(table, 0), table_i1(table, 1), table_u1(table, 2), table_f1(table, 3),
+                                table_f1(table, 4))
+    late_us, dt = consts[0], consts[1]
+    b8 = bits.view(np.uint8)
+    f32 = bits.view(np.float32)
+    # The status: its fields, big-endian, into the state (as decode_from_robot gives them).
+    o = at[0]
+    seq = (status[o] << 24) | (status[o + 1] << 16) | (status[o + 2] << 8) | status[o + 3]
+    o = at[2]
+    io_type = status[o]
+    io_index = (status[o + 1] << 8) | status[o + 2]
+    io_mask = (status[o + 3] << 8) | status[o + 4]
+    io_value = (status[o + 5] << 8) | status[o + 6]
+    o = at[3]
+    stamp = (status[o] << 24) | (status[o + 1] << 16) | (status[o + 2] << 8) | status[o + 3]
+    for k in range(6):
+        o = at[4] + 4 * k
+        b8[0], b8[1], b8[2], b8[3] = status[o + 3], status[o + 2], status[o + 1], status[o]
+        d[at[18] + k] = f32[0]
+        o = at[5] + 4 * k
+        b8[0], b8[1], b8[2], b8[3] = status[o + 3], status[o + 2], status[o + 1], status[o]
+        d[at[17] + k] = f32[0]
+    d[at[19]] = seq
+    d[at[20]] = status[at[1]]
+    d[at[21]] = io_value
+    d[at[22]] = io_type
+    d[at[23]] = io_index
+    d[at[24]] = io_mask
+    d[at[25]] = unix
+    d[at[26]] = stamp
+    if last_status_t:
+        d[at[27]] = (t_status - last_status_t) * 1000
+    for k in range(5):
+        d[at[28] + k] = link[k]
+    settled = settle_add(table_f1(table, 5), table_f2(table, 6), table_i1(table, 7), t_status, d[at[17]: at[17] + 6],
+                         6, consts[2], consts[3], int(consts[4]))
+    # The log: the status record, then the command record (session_log's layout, little-endian); the
+    # big-endian u32, u16 and f32 of the datagrams byte-reversed, not decoded and encoded again.
+    size = log.size // 2
+    for r in range(2):
+        src = status if r == 0 else command
+        base = r * size
+        log[base] = r  # KIND_STATUS, KIND_COMMAND
+        bits[0] = (t_status if r == 0 else t_command) - t0
+        for k in range(8):
+            log[base + at[11] + k] = b8[k]
+        o = at[0] if r == 0 else at[6]
+        for k in range(4):
+            log[base + at[12] + k] = src[o + 3 - k]
+        if r == 0:
+            log[base + at[13]] = status[at[1]]
+            o = at[2] + 5  # the read I/O value
+            f32[0] = 0.0
+        else:
+            log[base + at[13]] = command[at[7]] | (command[at[8]] << 1)
+            o = at[9]
+            f32[0] = np.float32((t_command - t_status) * 1e6)
+        log[base + at[14]], log[base + at[14] + 1] = src[o + 1], src[o]
+        for k in range(4):
+            log[base + at[15] + k] = b8[k]
+        o = at[5] if r == 0 else at[10]
+        for k in range(9):
+            for j in range(4):
+                log[base + at[16] + 4 * k + j] = src[o + 4 * k + 3 - j]
+    _command_into_state(d, table_i1(table, 8), table_f1(table, 9), table_f1(table, 10), table_f1(table, 11),
+                        table_f1(table, 12), table_f1(table, 13), table_f1(table, 14), table_f2(table, 15),
+                        table_i1(table, 16), values, (t_command - t_status) * 1e6, late_us, dt)
+    return settled
+
+
 class _TimeWindow:
     """The last ``size`` samples of a per-cycle time (us) in a preallocated ring; its median and maximum
     are refreshed every ``every`` samples, by one compiled call (np.median of 256 cost ~20 us: a few per
@@ -413,7 +544,9 @@ class _ServoProcess(ServoProcessHost):
         self._logged_seq: int | None = None
         self._log_streamed = False
         self.settle = SettleDetector(cfg.settle_tol_deg, cfg.settle_window_s)
-        self._log_pair = bytearray(2 * RECORD_SIZE)  # a status and its command, packed in place
+        self._log_pair = np.zeros(2 * RECORD_SIZE, dtype=np.uint8)  # a status and its command, packed in place
+        self._bits = np.zeros(1)  # _exchange_into_state's scratch
+        self._exchange: np.ndarray | None = None  # its table (_exchange_table), made when first needed
         self._settle_seq: int | None = None
 
     # -- main loop
@@ -498,7 +631,7 @@ class _ServoProcess(ServoProcessHost):
                 sock.send(b)
             t_sent = time.monotonic()
             session.begin_motion()  # a stream's first commands (the hold) left first
-            self._after_datagram(now, t_sent, t_first)
+            self._after_datagram(data, now, t_sent, t_first)
             self._handled_status = True
         else:
             self._send(self.sup.on_idle(now))
@@ -548,7 +681,7 @@ class _ServoProcess(ServoProcessHost):
         if self.sup.on_late_input(cmd, now):
             self.inputs.consume()
 
-    def _after_datagram(self, t_recv: float, t_sent: float, t_first: float = 0.0) -> None:
+    def _after_datagram(self, data: bytes, t_recv: float, t_sent: float, t_first: float = 0.0) -> None:
         """Log what really crossed the wire: the status just received (once per sequence number) and
         the commands just sent for it (``t_first``: when the one sent ahead left). A malformed datagram
         leaves ``session.sent`` empty.
@@ -558,30 +691,25 @@ class _ServoProcess(ServoProcessHost):
         bucket by offset, and the commanded position's derivatives; and what the status changes (its
         fields, the link counters, the settle detector's window)."""
         s = self.session
+        st = s.last_status
+        sent = s.sent
+        if (len(sent) == 1 and self.log is not None and st is not None and st is not self._status_published
+                and st.seq != self._logged_seq and st.seq != self._settle_seq and len(data) == STATUS_SIZE):
+            self._log_exchange(data, st, sent[0], t_recv, t_sent, t_first)  # the usual status and its command
+        else:
+            self._log_datagram(t_recv, t_sent, t_first)
+
+    def _log_datagram(self, t_recv: float, t_sent: float, t_first: float) -> None:
+        """``_after_datagram`` for any datagram: a status seen before, several commands or none, no log."""
+        s = self.session
+        st = s.last_status
         d = self.state.data
         write_link_counters(d, s.stats)  # (only a datagram changes them)
-        st = s.last_status
         if st is None:
             return
         if st is not self._status_published:  # a status became the session's last
             self._publish_status(d, st)
         if self.log is None:
-            return
-        sent = s.sent
-        if len(sent) == 1 and st.seq != self._logged_seq:  # the usual status and its one command: one pack
-            self._logged_seq = st.seq
-            if self.last_status_t:
-                d[_STATUS_INTERVAL] = (t_recv - self.last_status_t) * 1000
-            self.last_status_t = t_recv
-            c = sent[0]
-            t = t_first if c.early else t_sent
-            lat_us = (t - t_recv) * 1e6
-            pack_status_and_command(self._log_pair, t_recv - self.t0, st.seq, st.status, st.read_io_value,
-                                    st.joints, t - self.t0, c.seq, c.last_data, c.data_format, c.write_io[3],
-                                    lat_us, c.values)
-            self.log.write_pair(self._log_pair)
-            self._command_sent(d, c, lat_us)
-            s.sent = []
             return
         records = []
         if st.seq != self._logged_seq:
@@ -590,7 +718,8 @@ class _ServoProcess(ServoProcessHost):
             if self.last_status_t:
                 d[_STATUS_INTERVAL] = (t_recv - self.last_status_t) * 1000
             self.last_status_t = t_recv
-        if not s.sent:
+        sent = s.sent
+        if not sent:
             if records:
                 self.log.write_records(records)
             return
@@ -602,6 +731,45 @@ class _ServoProcess(ServoProcessHost):
             self._command_sent(d, c, lat_us)
         self.log.write_records(records)  # the status and its answers in one write, after they left
         s.sent = []
+
+    def _log_exchange(self, data: bytes, st: Status, c: SentCommand, t_recv: float, t_sent: float,
+                      t_first: float) -> None:
+        """``_after_datagram`` for the usual exchange (a new status packet ``data``, decoded as ``st``, and
+        the one command ``c`` that answered it): the log pair, the status's fields and the command's
+        figures in one compiled call (:func:`_exchange_into_state`), then the one write."""
+        self._status_published = st
+        self._logged_seq = self._settle_seq = st.seq
+        t = t_first if c.early else t_sent
+        hist, settle = self.hist, self.settle
+        values = c.array  # (as _command_sent takes them)
+        if values is None or values.dtype is not _FLOAT64:
+            values = hist.values
+            values[:] = c.values[: hist.dof]
+        table = self._exchange
+        if table is None:
+            table = self._exchange = self._exchange_table()
+        r = _exchange_into_state(table, data, c.data, values, LINK_COUNTERS_OF(self.session.stats), self.t0, t_recv,
+                                 t, self.last_status_t, time.time() - (time.monotonic() - t_recv))
+        self.last_status_t = t_recv
+        self.log.write_pair(self._log_pair)  # type: ignore[union-attr]
+        if r < 0:  # the settle ring was full and nothing added: SettleDetector.add grows it and adds
+            settle.add(t_recv, self.state.data[_Q_SERVO: _Q_SERVO + 6])
+            self._exchange = None  # (its arrays are new)
+        else:
+            settle.settled = r == 1
+        self.session.sent = []
+
+    def _exchange_table(self) -> np.ndarray:
+        """_exchange_into_state's table of the arrays it reaches, kept alive with it (made again when
+        one of them is replaced: a new latency window, a grown settle ring)."""
+        lat, hist, settle = self.latency, self.hist, self.settle
+        ts, ps, ring = settle.buffers
+        self._exchange_arrays = dict(
+            d=self.state.data, at=_EXCHANGE_AT, log=self._log_pair, bits=self._bits,
+            consts=np.array([self.late_us, self.dt, settle.window_s, settle.tol, settle.min_samples]),
+            settle_ts=ts, settle_ps=ps, settle_ring=ring, cmd_at=_CMD_AT, buckets=_BUCKETS, quantiles=_P50_P99,
+            ring=lat.ring, stats=lat.stats, scratch=lat.scratch, out=lat.out, q=hist.q, q_at=hist.at)
+        return address_table(_EXCHANGE_ARRAYS, self._exchange_arrays)
 
     def _publish_status(self, d: np.ndarray, st: Status) -> None:
         """The fields of status ``st`` into the state vector, and for a new sequence number its joints
@@ -642,6 +810,7 @@ class _ServoProcess(ServoProcessHost):
         self._log_streamed = False
         self.t0 = time.monotonic()
         self.latency = _Latency()
+        self._exchange = None  # (a new latency window)
         self.hist.clear()
         self._logged_seq = None
         stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -726,6 +895,15 @@ _TRAJ = OFFSET["traj_state"]  # traj_state, traj_index, traj_total, traj_time_s,
 assert FIELDS["latency_hist"].stop - _LAT_HIST == len(LATENCY_BUCKETS_US) + 1
 assert _CART_SERVO == _Q_SERVO + 6  # written as one
 _CMD_AT = np.array([OFFSET[k] for k in _CMD_FIELDS], dtype=np.int64)  # _command_into_state's offsets
+_EXCHANGE_AT = np.array(
+    [SEQ_OFFSET, STATUS_BITS_OFFSET, STATUS_IO_OFFSET, STATUS_TIME_OFFSET, STATUS_CARTESIAN_OFFSET,
+     STATUS_JOINTS_OFFSET, SEQ_OFFSET, COMMAND_LAST_DATA_OFFSET, COMMAND_FORMAT_OFFSET, COMMAND_WRITE_VALUE_OFFSET,
+     COMMAND_VALUES_OFFSET, *(RECORD_DTYPE.fields[k][1] for k in ("t", "seq", "flags", "io", "latency_us", "values")),
+     _Q_SERVO, _CART_SERVO, _STATUS_SEQ, _STATUS_BITS, _IO_VALUE, _IO_TYPE, _IO_INDEX, _IO_MASK, _STATUS_UNIX,
+     _STATUS_TIME, _STATUS_INTERVAL, OFFSET[LINK_COUNTERS[0]]], dtype=np.int64)
+assert len(_EXCHANGE_AT) == len(_EXCHANGE_FIELDS)
+assert RECORD_DTYPE.fields["kind"][1] == KIND_STATUS == 0 and KIND_COMMAND == 1  # (the kernel writes them so)
+assert [OFFSET[k] for k in LINK_COUNTERS] == list(range(_EXCHANGE_AT[-1], _EXCHANGE_AT[-1] + 5))
 _FLOAT64 = np.dtype(np.float64)
 _BUCKETS = np.array(LATENCY_BUCKETS_US)  # the latency histogram's upper bounds, for the kernel
 _SOCKET_TIMEOUT_US = 20_000  # a wait for a datagram: at most this long between housekeeping rounds

@@ -66,6 +66,7 @@ from servo_app.motion.ik_limits import (
     fanuc_rate_matrix,
     jacobian_tree,
 )
+from servo_app.motion.mujoco_c import address_table
 from servo_app.motion.qp import PersistentQP, QpSettings, SolverName
 from servo_app.robots.configuration import ArmConfiguration
 from servo_app.robots.conventions import ArrayLike, fanuc_deg_to_model_rad, model_rad_to_fanuc_deg, xyzwpr_to_matrix
@@ -632,17 +633,11 @@ class DifferentialIK:
                 col_params=col.fill_params(self.dt),
                 g_col=self._g_col, h_col=self._h_col, h_path_col=self._hp_col)
         kinds = {"f": np.float64, "i": np.int64, "b": np.bool_}
-        table = np.zeros((len(kernels.CARTESIAN_ARRAYS), 3), dtype=np.int64)
-        kept = []
-        for k, (name, kind, ndim) in enumerate(kernels.CARTESIAN_ARRAYS):
-            a = arrays.get(name)
-            if a is None:  # (no collision rows: empty arrays, never read)
-                a = np.zeros((0,) * ndim, dtype=kinds[kind])
-            if a.dtype != kinds[kind] or a.ndim != ndim or not a.flags.c_contiguous:
-                raise TypeError(f"cartesian_step's {name}: {a.dtype}, {a.ndim} dims, not {kind} {ndim} C-contiguous")
-            table[k] = (a.ctypes.data, a.shape[0], a.shape[1] if ndim == 2 else 0)
-            kept.append(a)
-        self._fast_arrays = kept  # the table's arrays, alive as long as it is
+        for name, kind, ndim in kernels.CARTESIAN_ARRAYS:
+            if name not in arrays:  # (no collision rows: empty arrays, never read)
+                arrays[name] = np.zeros((0,) * ndim, dtype=kinds[kind])
+        table = address_table(kernels.CARTESIAN_ARRAYS, arrays)
+        self._fast_arrays = list(arrays.values())  # the table's arrays, alive as long as it is
         return table
 
     def step_again(self, q_model_rad: ArrayLike, command: Command | None, *, dq_prev: ArrayLike | None = None

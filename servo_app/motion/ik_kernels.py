@@ -22,16 +22,12 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from servo_app.jit import kernel
 from servo_app.motion.mujoco_c import (
     address,
-    boolean_pointer,
     doubles,
-    float64_pointer,
-    int64_pointer,
     mj_comPos,
     mj_geomDistance,
     mj_jacSite,
@@ -39,6 +35,11 @@ from servo_app.motion.mujoco_c import (
     mj_makeConstraint,
     mju_mat2Quat,
     mju_rotVecQuat,
+    table_b1,
+    table_f1,
+    table_f2,
+    table_i1,
+    table_i2,
 )
 from servo_app.robots.kernels import DEG_TO_RAD
 
@@ -1179,31 +1180,6 @@ CARTESIAN_ARRAYS: tuple[tuple[str, str, int], ...] = (
 )
 
 
-@kernel("float64[::1](int64[:, ::1], int64)")
-def _table_f1(table: np.ndarray, k: int) -> np.ndarray:
-    return numba.carray(float64_pointer(table[k, 0]), (table[k, 1],))
-
-
-@kernel("float64[:, ::1](int64[:, ::1], int64)")
-def _table_f2(table: np.ndarray, k: int) -> np.ndarray:
-    return numba.carray(float64_pointer(table[k, 0]), (table[k, 1], table[k, 2]))
-
-
-@kernel("int64[::1](int64[:, ::1], int64)")
-def _table_i1(table: np.ndarray, k: int) -> np.ndarray:
-    return numba.carray(int64_pointer(table[k, 0]), (table[k, 1],))
-
-
-@kernel("int64[:, ::1](int64[:, ::1], int64)")
-def _table_i2(table: np.ndarray, k: int) -> np.ndarray:
-    return numba.carray(int64_pointer(table[k, 0]), (table[k, 1], table[k, 2]))
-
-
-@kernel("boolean[::1](int64[:, ::1], int64)")
-def _table_b1(table: np.ndarray, k: int) -> np.ndarray:
-    return numba.carray(boolean_pointer(table[k, 0]), (table[k, 1],))
-
-
 @kernel("void(float64[::1], float64[::1], boolean, boolean, float64, int64[:, ::1])")
 def table_rows(dq_prev: np.ndarray, bound: np.ndarray, top: bool, with_path: bool, rate: float,
                table: np.ndarray) -> None:
@@ -1212,27 +1188,27 @@ def table_rows(dq_prev: np.ndarray, bound: np.ndarray, top: bool, with_path: boo
     (:func:`collision_fill`), at the configuration's joints. Per call: the acceleration rows' last
     increment ``dq_prev``, the braking rows' ``bound``, the side ``top`` of the configuration guard,
     and the path (``with_path``: its direction is the table's ``path_u``, ``rate``)."""
-    consts, ints = _table_f1(table, 0), _table_i1(table, 1)
-    qpos, cdof, subtree_com = _table_f1(table, 3), _table_f2(table, 4), _table_f2(table, 5)
-    path_u = _table_f1(table, 24)
+    consts, ints = table_f1(table, 0), table_i1(table, 1)
+    qpos, cdof, subtree_com = table_f1(table, 3), table_f2(table, 4), table_f2(table, 5)
+    path_u = table_f1(table, 24)
     u = path_u if with_path else qpos
     path_rate_used = rate if with_path else 0.0
     floor = consts[11]
-    limit_rows(qpos, consts[0], consts[9], _table_f1(table, 25), _table_f1(table, 26), _table_i1(table, 27),
-               _table_f2(table, 22), dq_prev, _table_f1(table, 28), _table_f1(table, 29), _table_b1(table, 30),
-               bound, _table_f1(table, 31), _table_f1(table, 32), _table_i1(table, 33), consts[10], with_path, u,
-               path_rate_used, floor, _table_f1(table, 34), consts[12], consts[13], top, consts[14],
-               _table_i1(table, 35), _table_f1(table, 36), _table_i1(table, 37), _table_f1(table, 39),
-               _table_f1(table, 40))
+    limit_rows(qpos, consts[0], consts[9], table_f1(table, 25), table_f1(table, 26), table_i1(table, 27),
+               table_f2(table, 22), dq_prev, table_f1(table, 28), table_f1(table, 29), table_b1(table, 30),
+               bound, table_f1(table, 31), table_f1(table, 32), table_i1(table, 33), consts[10], with_path, u,
+               path_rate_used, floor, table_f1(table, 34), consts[12], consts[13], top, consts[14],
+               table_i1(table, 35), table_f1(table, 36), table_i1(table, 37), table_f1(table, 39),
+               table_f1(table, 40))
     if ints[8]:
         col_u = path_u if with_path else np.zeros(qpos.shape[0])
-        collision_fill(ints[0], ints[1], _table_f2(table, 8), _table_f2(table, 9), cdof, subtree_com,
-                       _table_i2(table, 10), _table_i1(table, 11), _table_i1(table, 42), _table_f1(table, 43),
-                       _table_f1(table, 44), _table_f1(table, 45), _table_i1(table, 46), _table_i1(table, 47),
-                       _table_b1(table, 48), _table_i1(table, 49), _table_i1(table, 50), _table_f1(table, 51),
-                       _table_i1(table, 52), _table_i1(table, 53), _table_f1(table, 54), _table_f2(table, 55),
-                       _table_f2(table, 56), _table_f2(table, 57), _table_f1(table, 58), with_path, col_u,
-                       path_rate_used, floor, _table_f2(table, 59), _table_f1(table, 60), _table_f1(table, 61))
+        collision_fill(ints[0], ints[1], table_f2(table, 8), table_f2(table, 9), cdof, subtree_com,
+                       table_i2(table, 10), table_i1(table, 11), table_i1(table, 42), table_f1(table, 43),
+                       table_f1(table, 44), table_f1(table, 45), table_i1(table, 46), table_i1(table, 47),
+                       table_b1(table, 48), table_i1(table, 49), table_i1(table, 50), table_f1(table, 51),
+                       table_i1(table, 52), table_i1(table, 53), table_f1(table, 54), table_f2(table, 55),
+                       table_f2(table, 56), table_f2(table, 57), table_f1(table, 58), with_path, col_u,
+                       path_rate_used, floor, table_f2(table, 59), table_f1(table, 60), table_f1(table, 61))
 
 
 @kernel("boolean(float64[::1], float64[::1], float64[::1], float64[::1], boolean, boolean, float64, int64[:, ::1])")
@@ -1240,13 +1216,13 @@ def table_problem(target: np.ndarray, posture_goal: np.ndarray, dq_prev: np.ndar
                   with_path: bool, rate: float, table: np.ndarray) -> bool:
     """``DifferentialIK.qp_problem`` in one call: the objective toward ``target`` (:func:`site_objective`,
     no reference) and :func:`table_rows`; False if the Hessian is not positive definite."""
-    consts, ints = _table_f1(table, 0), _table_i1(table, 1)
-    site_xmat, site_xpos = _table_f2(table, 6), _table_f2(table, 7)
-    if not site_objective(_table_f2(table, 4), _table_f2(table, 5), _table_i2(table, 10), _table_i1(table, 11),
-                          ints[4], site_xmat, site_xpos, ints[3], _table_f2(table, 14), target, target, False,
-                          _table_f1(table, 15), consts[6], _table_f1(table, 16), consts[7], posture_goal,
-                          _table_f1(table, 3), consts[4], consts[5], _table_f2(table, 17), _table_f1(table, 18),
-                          _table_f1(table, 19), _table_f2(table, 20), _table_f2(table, 21)):
+    consts, ints = table_f1(table, 0), table_i1(table, 1)
+    site_xmat, site_xpos = table_f2(table, 6), table_f2(table, 7)
+    if not site_objective(table_f2(table, 4), table_f2(table, 5), table_i2(table, 10), table_i1(table, 11),
+                          ints[4], site_xmat, site_xpos, ints[3], table_f2(table, 14), target, target, False,
+                          table_f1(table, 15), consts[6], table_f1(table, 16), consts[7], posture_goal,
+                          table_f1(table, 3), consts[4], consts[5], table_f2(table, 17), table_f1(table, 18),
+                          table_f1(table, 19), table_f2(table, 20), table_f2(table, 21)):
         return False
     table_rows(dq_prev, bound, top, with_path, rate, table)
     return True
@@ -1284,34 +1260,34 @@ def cartesian_step(kind: int, linear: tuple[float, float, float], angular: tuple
     ``dq_next`` its copy (next cycle's ``dq_prev``), ``q_next`` = ``q + dq``, ``velocity`` = ``dq / dt``
     (each its own array: the IK's result and kept state hold them); ``path_u`` and the path rate: the
     path's braking direction (``PathBraking``'s)."""
-    consts = _table_f1(table, 0)
-    ints = _table_i1(table, 1)
-    track_weights = _table_f1(table, 2)
-    qpos = _table_f1(table, 3)
-    cdof = _table_f2(table, 4)
-    subtree_com = _table_f2(table, 5)
-    site_xmat = _table_f2(table, 6)
-    site_xpos = _table_f2(table, 7)
-    tree = _table_i2(table, 10)
-    dof_parentid = _table_i1(table, 11)
-    jac_flange = _table_f2(table, 12)
-    cond_work = _table_f2(table, 13)
-    jac_world = _table_f2(table, 14)
-    frame_cost = _table_f1(table, 15)
-    posture_cost = _table_f1(table, 16)
-    p = _table_f2(table, 17)
-    c = _table_f1(table, 18)
-    c_frame = _table_f1(table, 19)
-    wjac = _table_f2(table, 20)
-    d = _table_f2(table, 21)
-    rate_c = _table_f2(table, 22)
-    path_brake = _table_f1(table, 23)
-    path_u = _table_f1(table, 24)
-    velocity_bound = _table_b1(table, 30)
-    g = _table_f2(table, 38)
-    h = _table_f1(table, 39)
-    h_path = _table_f1(table, 40)
-    row_flags = _table_i1(table, 41)
+    consts = table_f1(table, 0)
+    ints = table_i1(table, 1)
+    track_weights = table_f1(table, 2)
+    qpos = table_f1(table, 3)
+    cdof = table_f2(table, 4)
+    subtree_com = table_f2(table, 5)
+    site_xmat = table_f2(table, 6)
+    site_xpos = table_f2(table, 7)
+    tree = table_i2(table, 10)
+    dof_parentid = table_i1(table, 11)
+    jac_flange = table_f2(table, 12)
+    cond_work = table_f2(table, 13)
+    jac_world = table_f2(table, 14)
+    frame_cost = table_f1(table, 15)
+    posture_cost = table_f1(table, 16)
+    p = table_f2(table, 17)
+    c = table_f1(table, 18)
+    c_frame = table_f1(table, 19)
+    wjac = table_f2(table, 20)
+    d = table_f2(table, 21)
+    rate_c = table_f2(table, 22)
+    path_brake = table_f1(table, 23)
+    path_u = table_f1(table, 24)
+    velocity_bound = table_b1(table, 30)
+    g = table_f2(table, 38)
+    h = table_f1(table, 39)
+    h_path = table_f1(table, 40)
+    row_flags = table_i1(table, 41)
     has_ref, has_last_xi = (state & STATE_HAS_REF) != 0, (state & STATE_HAS_LAST_XI) != 0
     mode_changed, twist_mode = (state & STATE_MODE_CHANGED) != 0, (state & STATE_TWIST_MODE) != 0
     top = (state & STATE_TOP) != 0

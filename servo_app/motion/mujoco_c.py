@@ -19,12 +19,17 @@ from __future__ import annotations
 
 import glob
 import os
+from collections.abc import Mapping, Sequence
 
 import llvmlite.binding as llvm
 import mujoco
+import numba
+import numpy as np
 from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
+
+from servo_app.jit import kernel
 
 
 def library_path() -> str:
@@ -101,3 +106,51 @@ def _pointer_intrinsic(dtype: types.Type):  # type: ignore[no-untyped-def]
 float64_pointer = _pointer_intrinsic(types.float64)
 int64_pointer = _pointer_intrinsic(types.int64)
 boolean_pointer = _pointer_intrinsic(types.boolean)
+uint8_pointer = _pointer_intrinsic(types.uint8)
+
+
+# The readers of such a table (made by address_table): row ``k`` as the array it points to.
+@kernel("float64[::1](int64[:, ::1], int64)")
+def table_f1(table: np.ndarray, k: int) -> np.ndarray:
+    return numba.carray(float64_pointer(table[k, 0]), (table[k, 1],))
+
+
+@kernel("float64[:, ::1](int64[:, ::1], int64)")
+def table_f2(table: np.ndarray, k: int) -> np.ndarray:
+    return numba.carray(float64_pointer(table[k, 0]), (table[k, 1], table[k, 2]))
+
+
+@kernel("int64[::1](int64[:, ::1], int64)")
+def table_i1(table: np.ndarray, k: int) -> np.ndarray:
+    return numba.carray(int64_pointer(table[k, 0]), (table[k, 1],))
+
+
+@kernel("int64[:, ::1](int64[:, ::1], int64)")
+def table_i2(table: np.ndarray, k: int) -> np.ndarray:
+    return numba.carray(int64_pointer(table[k, 0]), (table[k, 1], table[k, 2]))
+
+
+@kernel("boolean[::1](int64[:, ::1], int64)")
+def table_b1(table: np.ndarray, k: int) -> np.ndarray:
+    return numba.carray(boolean_pointer(table[k, 0]), (table[k, 1],))
+
+
+@kernel("uint8[::1](int64[:, ::1], int64)")
+def table_u1(table: np.ndarray, k: int) -> np.ndarray:
+    return numba.carray(uint8_pointer(table[k, 0]), (table[k, 1],))
+
+
+_TABLE_KINDS = {"f": np.dtype(np.float64), "i": np.dtype(np.int64), "b": np.dtype(np.bool_), "u": np.dtype(np.uint8)}
+
+
+def address_table(layout: Sequence[tuple[str, str, int]], arrays: Mapping[str, np.ndarray]) -> np.ndarray:
+    """The table of ``arrays`` in ``layout``'s order ((name, kind, dimensions) per row; kind f float64,
+    i int64, b bool, u uint8): row k is the array's ``ctypes.data``, then its shape. Each array must be
+    of its kind and C-contiguous (TypeError otherwise); the caller keeps them alive as long as the table."""
+    table = np.zeros((len(layout), 3), dtype=np.int64)
+    for k, (name, kind, ndim) in enumerate(layout):
+        a = arrays[name]
+        if a.dtype != _TABLE_KINDS[kind] or a.ndim != ndim or not a.flags.c_contiguous:
+            raise TypeError(f"{name}: {a.dtype}, {a.ndim} dims, not {kind} {ndim} C-contiguous")
+        table[k] = (a.ctypes.data, a.shape[0], a.shape[1] if ndim == 2 else 0)
+    return table

@@ -7,7 +7,7 @@ of the last ``window_s`` lies within ``tol`` of the others, per axis, and the wi
 ``min_samples`` samples (a single status proves nothing).
 
 Pure: the runner hands it each new status's time and position. The samples live in a preallocated
-ring and each one costs one compiled call (:func:`_settle_add`: it appends, drops what left the window
+ring and each one costs one compiled call (:func:`settle_add`: it appends, drops what left the window
 and judges the window in one pass), where the deque of arrays and ``np.stack`` it replaces cost
 about 25 us per status here, a tenth of a 4 ms cycle's budget outside the IK.
 """
@@ -26,7 +26,7 @@ _FLOAT64 = np.dtype(np.float64)
 
 
 @kernel("int64(float64[::1], float64[:, ::1], int64[::1], float64, float64[:], int64, float64, float64, int64)")
-def _settle_add(ts: np.ndarray, ps: np.ndarray, ring: np.ndarray, t: float, p: np.ndarray, n_axes: int,
+def settle_add(ts: np.ndarray, ps: np.ndarray, ring: np.ndarray, t: float, p: np.ndarray, n_axes: int,
                 window_s: float, tol: float, min_samples: int) -> int:
     """Append sample (t, p[:n_axes]) to the ring (``ring`` = [head, count, axes]: the oldest slot, how many
     are kept and their axis count), drop the samples before the window's start but one, and judge the
@@ -92,6 +92,7 @@ class SettleDetector:
         self._ts = np.zeros(capacity)
         self._ps = np.zeros((capacity, MAX_AXES))
         self._ring = np.zeros(3, dtype=np.int64)  # head, count, axes
+        self.buffers = (self._ts, self._ps, self._ring)  # as settle_add takes them (for a kernel that calls it)
         self._p = np.zeros(MAX_AXES)  # the sample being added, as the kernel takes it
         self.settled = False
 
@@ -111,10 +112,10 @@ class SettleDetector:
             p[:n] = position
         # The restart checks live in the kernel too: one call per sample, ~2 us here where the checks on
         # numpy scalars before it took 4 (once per status packet).
-        r = _settle_add(self._ts, self._ps, self._ring, float(t), p, n, self.window_s, self.tol, self.min_samples)
+        r = settle_add(self._ts, self._ps, self._ring, float(t), p, n, self.window_s, self.tol, self.min_samples)
         if r < 0:  # more samples in the window than the ring holds (a fast link): twice the room
             self._grow()
-            r = _settle_add(self._ts, self._ps, self._ring, float(t), p, n, self.window_s, self.tol,
+            r = settle_add(self._ts, self._ps, self._ring, float(t), p, n, self.window_s, self.tol,
                             self.min_samples)
         self.settled = r == 1
         return self.settled
@@ -126,4 +127,5 @@ class SettleDetector:
         ts, ps = np.zeros(cap), np.zeros((cap, MAX_AXES))
         ts[:count], ps[:count] = self._ts[order], self._ps[order]
         self._ts, self._ps = ts, ps
+        self.buffers = (ts, ps, self._ring)
         self._ring[0], self._ring[1] = 0, count
