@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -42,10 +43,10 @@ from servo_app.robots.profile import RobotProfile
 CREEP_DEG_S = 1e-3  # joint speed below which a Cartesian motion is held still (~10 um/s at the flange)
 
 
-@dataclass
-class _Ahead:
+class _Ahead(NamedTuple):
     """The IK of the next command, solved ahead (:meth:`ServoCycle.solve_ahead`): its result, the
-    command it was solved for, the shaper step it starts after, and the start it was solved from."""
+    command it was solved for, the shaper step it starts after, and the start it was solved from. (A
+    named tuple: one is made every status, and a dataclass's __init__ is a Python call.)"""
 
     result: IkResult
     command: Twist | None

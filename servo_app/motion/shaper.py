@@ -510,7 +510,7 @@ class JointShaper:
         self._out.pass_to_input(self._inp)
         if changed is not self._no_change and changed.any():
             self._resync(changed)
-        elif self._finished:
+        elif self._finished and self._target_still:  # (_settle's own first test: a jog never calls it)
             self._settle()
         return r
 
