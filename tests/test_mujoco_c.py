@@ -3,6 +3,8 @@ numbers to the bit, on every arm model (random joints, every site, geom pair and
 
 from __future__ import annotations
 
+import re
+
 import mujoco
 import numpy as np
 import pytest
@@ -12,6 +14,7 @@ from numba import njit
 
 from servo_app.motion.mujoco_c import (
     address,
+    check_version,
     doubles,
     mj_comPos,
     mj_geomDistance,
@@ -94,3 +97,15 @@ def test_each_function_gives_the_bindings_bits(name: str, u: list[float], distma
             da = _geom_distance(model._address, ours._address, g1, g2, distmax, fa)
             db = mujoco.mj_geomDistance(model, theirs, g1, g2, distmax, fb)
             assert da == db and np.array_equal(fa, fb), (g1, g2)
+
+
+@pytest.mark.parametrize("version", ["4.0.0", "2.3.7", "10.1", "dev"])
+def test_an_unchecked_mujoco_major_version_is_refused_with_the_fix(version: str) -> None:
+    with pytest.raises(ImportError, match=rf"mujoco {re.escape(version)} is installed.*pip install 'mujoco>=3.1,<4'"):
+        check_version(version)
+
+
+def test_the_installed_mujoco_is_a_checked_one() -> None:
+    check_version(mujoco.__version__)  # (importing the module already did; this names the version on failure)
+    check_version("3.1.0")
+    check_version("3.17.0")

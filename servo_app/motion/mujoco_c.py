@@ -31,6 +31,24 @@ from numba.extending import intrinsic
 
 from servo_app.jit import kernel
 
+# The MuJoCo major versions whose C signatures (below) and numbers (tests/test_mujoco_c.py,
+# tests/test_diffik_equivalence.py) have been checked. A kernel calls a C function as declared here, with no
+# binding in between to notice a changed signature: an unchecked major version is refused at import.
+SUPPORTED_MAJOR = (3,)
+
+
+def check_version(version: str) -> None:
+    """Raise ImportError unless MuJoCo ``version`` is of a major version the kernels were checked with."""
+    major = version.split(".", 1)[0]
+    if not (major.isdigit() and int(major) in SUPPORTED_MAJOR):
+        raise ImportError(
+            f"mujoco {version} is installed, but servo_app's compiled IK calls MuJoCo's C functions as version "
+            f"{'/'.join(map(str, SUPPORTED_MAJOR))}.x declares them; install a supported one "
+            f"(./scripts/install does: pip install 'mujoco>=3.1,<4')")
+
+
+check_version(mujoco.__version__)
+
 
 def library_path() -> str:
     """The ``libmujoco.so.*`` of the installed ``mujoco`` package (the library its binding uses)."""
