@@ -26,6 +26,7 @@ from servo_app.robots.profile import load_profile
 
 sys.path.insert(0, str(Path(__file__).parent))
 from diffik_reference import DifferentialIK as ReferenceIK
+from mink_rows import assert_collision_rows_equal
 
 DT = 0.008
 PROFILE = load_profile("lrmate200id")
@@ -141,18 +142,10 @@ def test_same_increment_as_the_reference(pairs, solver: str, collision: bool, sc
             q = q + b.dq
 
 
-# mink's collision rows are ``normal @ jac`` (numpy's matmul, so OpenBLAS's dgemv, whose kernel is picked per
-# CPU): on an AMD EPYC with AVX-512 its SkylakeX kernel sums the three terms in another order, and 5 of 390
-# entries at the first state below came out up to 7e-18 off the kernel's (0.023040663744057138 against
-# ...145); with OPENBLAS_CORETYPE=Haswell or Zen, every entry is the same to the bit. Entries are a unit
-# normal times lever arms under 2 m: a few ulps of 2 m.
-COLLISION_ROW_ATOL = 4 * np.finfo(float).eps * 2.0
-
-
 def test_assembled_rows_are_the_limits_rows() -> None:
     """The rows assembled in place equal the limits' own compute_qp_inequalities, to the bit, at
     random states (collision rows switching on and off, configuration restricted or not); the
-    collision rows' G to a few ulps, as the reference's BLAS sums them (COLLISION_ROW_ATOL)."""
+    collision rows' G to a few ulps, as the reference's BLAS sums them (mink_rows)."""
     ik = DifferentialIK(PROFILE, DT, collision=True)
     collision_row = np.concatenate([np.full(n, lim is ik.collision_limit) for lim, n in
                                     zip(ik.limits, ik._row_counts, strict=True)])
@@ -172,7 +165,7 @@ def test_assembled_rows_are_the_limits_rows() -> None:
         g_ref = np.vstack([r.G for r in rows if r.G is not None])
         h_ref = np.concatenate([r.h for r in rows if r.h is not None])
         np.testing.assert_array_equal(g[~collision_row], g_ref[~collision_row])
-        np.testing.assert_allclose(g[collision_row], g_ref[collision_row], rtol=0, atol=COLLISION_ROW_ATOL)
+        assert_collision_rows_equal(g[collision_row], g_ref[collision_row])
         np.testing.assert_array_equal(h, h_ref)
         hp_ref = h_ref.copy()
         start = 0

@@ -5,6 +5,8 @@ rounding, and the collision screen never ruling out a pair the narrow phase find
 from __future__ import annotations
 
 import math
+import sys
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -19,6 +21,9 @@ from servo_app.motion.diffik import DifferentialIK
 from servo_app.motion.ik_limits import CollisionLimit, _geom_shapes, default_collision_pairs, jacobian_tree
 from servo_app.robots.model import load_spec
 from servo_app.robots.profile import load_profile
+
+sys.path.insert(0, str(Path(__file__).parent))
+from mink_rows import assert_collision_rows_equal
 
 PROFILE = load_profile("lrmate200id")
 DT = 0.008
@@ -109,7 +114,7 @@ def test_collision_screen_bounds_the_narrow_phase_and_keeps_every_pair_within_re
 
 def test_pairs_of_other_shapes_keep_the_cache_and_give_the_references_rows() -> None:
     """A box fixture in the cell: its pairs are not known in closed form, so the drift cache screens
-    them (refreshing as the arm sweeps past); the rows still equal mink's to the bit."""
+    them (refreshing as the arm sweeps past); the rows still equal mink's (h to the bit, G as mink_rows says)."""
     spec = load_spec(PROFILE)
     spec.worldbody.add_geom(name="fixture", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.08, 0.08, 0.15],
                             pos=[0.35, 0.0, 0.15])
@@ -131,7 +136,7 @@ def test_pairs_of_other_shapes_keep_the_cache_and_give_the_references_rows() -> 
         g, h, hp = np.zeros((n, model.nv)), np.full(n, math.inf), np.full(n, math.inf)
         limit.fill(ik.configuration.data, q, DT, g, h, hp)
         ref = limit.compute_qp_inequalities(ik.configuration, DT)
-        np.testing.assert_array_equal(g, ref.G)
+        assert_collision_rows_equal(g, ref.G)
         np.testing.assert_array_equal(h, ref.h)
         np.testing.assert_allclose(hp, limit.h_path, rtol=1e-12, atol=1e-15)
         active += int(np.isfinite(h[~limit._exact]).sum())
@@ -162,7 +167,7 @@ def test_collision_rows_are_minks_rows(u: np.ndarray, direction: np.ndarray, wit
     jac1, jac2, normal = np.zeros((3, MODEL.nv)), np.zeros((3, MODEL.nv)), np.zeros(3)
     for i, (g1, g2) in enumerate(limit.geom_id_pairs):
         row = compute_contact_normal_jacobian(MODEL, data, g1, g2, fromtos[i], normal, jac1, jac2)
-        np.testing.assert_array_equal(g[i], (-1.0 if dists[i] >= 0 else 1.0) * row)
+        assert_collision_rows_equal(g[i], (-1.0 if dists[i] >= 0 else 1.0) * row)
         h0 = gain * (dists[i] - min_dist) + relax if dists[i] > min_dist else relax
         gap = max((h0 - relax) / gain, 0.0)
         speed = brake * (math.sqrt((DT + lag) ** 2 + 2.0 * gap / brake) - (DT + lag))

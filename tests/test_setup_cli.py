@@ -147,6 +147,19 @@ def test_a_failed_install_is_retried_and_a_new_venv_installs(project: Path) -> N
     assert len(install(project)[1]) == 2
 
 
+def test_a_venv_with_mujoco_4s_split_loses_it_before_the_install(project: Path) -> None:
+    install(project)
+    site = project / ".venv" / "lib" / "python3.11" / "site-packages"
+    (site / "mujoco_core-4.0.0.dist-info").mkdir(parents=True)  # what pip left of mujoco 4.0.0 (split in three)
+    (project / "pyproject.toml").write_text((project / "pyproject.toml").read_text() + "\n# changed\n")
+    code, pips, _ = install(project)
+    assert code == 0 and len(pips) == 2, pips
+    assert pips[0].endswith("-m pip uninstall -q -y mujoco mujoco-core mujoco-studio") and pips[1].endswith("-e .")
+    shutil.rmtree(site / "mujoco_core-4.0.0.dist-info")  # (the uninstall's doing, in a real venv)
+    (project / "pyproject.toml").write_text((project / "pyproject.toml").read_text() + "\n# changed again\n")
+    assert install(project)[1] == [pips[1]]  # without the split: no uninstall
+
+
 # ------------------------------------------------------ `servo-app run`: devices, Ctrl-C, shutdown
 
 TOKEN = "setup-test-token"

@@ -51,11 +51,17 @@ check_version(mujoco.__version__)
 
 
 def library_path() -> str:
-    """The ``libmujoco.so.*`` of the installed ``mujoco`` package (the library its binding uses)."""
-    found = sorted(glob.glob(os.path.join(os.path.dirname(mujoco.__file__), "libmujoco.so*")))
-    if not found:
-        raise ImportError(f"no libmujoco.so* beside {mujoco.__file__}")
-    return found[-1]
+    """The ``libmujoco.so.VERSION`` of the installed ``mujoco`` package: the library its binding uses,
+    not another version an upgrade or a downgrade left beside it."""
+    here = os.path.dirname(mujoco.__file__)
+    exact = os.path.join(here, f"libmujoco.so.{mujoco.__version__}")
+    if os.path.exists(exact):
+        return exact
+    found = sorted(glob.glob(os.path.join(here, "libmujoco.so*")))
+    if len(found) == 1:
+        return found[0]
+    raise ImportError(f"mujoco {mujoco.__version__}: expected {exact}, found {found or 'no libmujoco.so*'}; "
+                      f"reinstall it (pip install --force-reinstall 'mujoco>=3.1,<4')")
 
 
 llvm.load_library_permanently(library_path())
