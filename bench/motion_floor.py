@@ -69,15 +69,14 @@ def _floor_servo(port: int, interval_ms: int, ready: Any) -> None:  # (ready: an
         sock.bind(("127.0.0.1", port))
         ready.set()
         renew_every, flip_every = round(1 / (JOG_HZ * dt)), round(FLIP_S / dt)
-        sign, n = 1.0, 0
+        n = 0
         while True:
             data, addr = sock.recvfrom(1024)
             if data == b"q":
                 break
             t_recv = time.monotonic()
             if n % renew_every == 0:
-                if n % flip_every == 0:
-                    sign = -sign
+                sign = 1.0 if (n // flip_every) % 2 == 0 else -1.0  # by the time elapsed, as live_latency's
                 cycle.twist(Twist(source="bench", stamp=t_recv, frame="base", linear=(SPEED_MM_S * sign, 0.0, 0.0)))
             status = decode_from_robot(data)
             q = cycle.next_command(status)

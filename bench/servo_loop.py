@@ -92,7 +92,7 @@ def _measure(proc: _ServoProcess, controller_sock: socket.socket, statuses: int,
     gc.collect()
     gc.freeze()
     per_status, beside = [], []
-    sign, t_ctrl = 1.0, time.monotonic()
+    t_ctrl = time.monotonic()
     renew_every, flip_every = round(JOG_EVERY_S / dt), round(FLIP_S / dt)
     for i in range(WARM_STATUSES + statuses):
         t_ctrl += dt
@@ -100,8 +100,10 @@ def _measure(proc: _ServoProcess, controller_sock: socket.socket, statuses: int,
         if raw is not None:
             controller_sock.sendto(raw, addr)
         if i % renew_every == 0 and proc.sup.state.mode.value == "streaming":
-            if i % flip_every == 0:
-                sign = -sign
+            # The direction by the time elapsed, as live_latency's: +X the first second, then flipping.
+            # (Flipped only at renewals that were also a multiple of flip_every, it had flipped every
+            # 6 s: a one-way jog far enough to slow for the elbow's singularity.)
+            sign = 1.0 if (i // flip_every) % 2 == 0 else -1.0
             proc.sup.request(msg.Twist(linear=(40.0 * sign, 0.0, 0.0)), time.monotonic())
         n_solve, n_ahead = proc.solve_time.count, proc.ahead_time.count
         t0 = time.perf_counter()
