@@ -99,6 +99,7 @@ def project(tmp_path: Path) -> Path:
     (tmp_path / "scripts").mkdir()
     (tmp_path / "scripts" / "install").write_text((ROOT / "scripts" / "install").read_text())
     (tmp_path / "pyproject.toml").write_text((ROOT / "pyproject.toml").read_text())
+    (tmp_path / "constraints.txt").write_text((ROOT / "constraints.txt").read_text())
     fake = tmp_path / "fake-python"
     fake.write_text(FAKE_PYTHON)
     fake.chmod(0o755)
@@ -128,13 +129,47 @@ def test_install_skips_pip_when_nothing_changed(project: Path) -> None:
     assert install(project)[1] == [] and install(project, "--test")[1] == []
 
 
-def test_install_runs_pip_again_when_pyproject_changes(project: Path) -> None:
+@pytest.mark.parametrize("changed", ["pyproject.toml", "constraints.txt"])
+def test_install_runs_pip_again_when_pyproject_or_the_constraints_change(project: Path, changed: str) -> None:
     install(project)
-    with (project / "pyproject.toml").open("a") as f:
-        f.write("\n# a new dependency\n")
+    with (project / changed).open("a") as f:
+        f.write("\n# a new dependency, or a version moved\n")
     code, pips, _ = install(project)
     assert code == 0 and len(pips) == 1 and pips[0].endswith("-e .")  # the venv stays, the package is reinstalled
     assert install(project)[1] == []
+
+
+def test_install_stays_within_the_tested_versions(project: Path) -> None:
+    pips = install(project, "--test")[1]
+    assert pips[-1].endswith("-c constraints.txt -e .[test]"), pips
+
+
+def _pins() -> dict[str, str]:
+    pins = {}
+    for line in (ROOT / "constraints.txt").read_text().splitlines():
+        if line.strip() and not line.startswith("#"):
+            name, _, version = line.partition("==")
+            pins[re.sub(r"[-_.]+", "-", name).lower()] = version.strip()
+    return pins
+
+
+def test_the_tested_versions_are_within_pyprojects_ranges_and_cover_every_dependency() -> None:
+    """constraints.txt pins one version of each package, inside pyproject.toml's range for it, and leaves
+    none of the run or test dependencies to chance."""
+    import tomllib
+
+    from packaging.requirements import Requirement
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    pins = _pins()
+    lines = [x for x in (ROOT / "constraints.txt").read_text().splitlines() if x.strip() and not x.startswith("#")]
+    assert len(pins) == len(lines) and all("==" in x for x in lines), "one exact version per package"
+    for spec in [*project["dependencies"], *project["optional-dependencies"]["test"]]:
+        req = Requirement(spec)
+        name = re.sub(r"[-_.]+", "-", req.name).lower()
+        assert name in pins, f"{req.name} is not pinned in constraints.txt"
+        assert req.specifier.contains(pins[name], prereleases=True), (
+            f"constraints.txt pins {req.name}=={pins[name]}, outside pyproject.toml's {req.specifier}")
 
 
 def test_a_failed_install_is_retried_and_a_new_venv_installs(project: Path) -> None:
