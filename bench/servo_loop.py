@@ -6,7 +6,8 @@ cycle costs 124 us in a tight loop and 300 us with 8 ms between). This runs the 
 itself (``_ServoProcess._io_step`` + ``_housekeeping``: decode, safety, IK ahead and on the status,
 shaper, guards, send, session log, publish) against the simulator's controller model over real
 loopback UDP, one status every ``--interval-ms`` with the process asleep in between as it is live, and
-Cartesian jogs (+-X 40 mm/s, renewed at 20 Hz, flipped every second) as in live_latency. No API
+Cartesian jogs (+-X 40 mm/s, renewed at 20 Hz, flipped every second) as in live_latency, and, once
+warm, scheduled as the live process is (SCHED_FIFO 20, CPU wake-up latency held at 0 us). No API
 process and no simulator process share the cores, so two trees compared alternately (``bench/ab.py``)
 differ by their code more than by the moment.
 
@@ -19,8 +20,10 @@ while jogging) and the part beside the motion step and the IK solved ahead (``be
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import multiprocessing as mp
+import os
 import select
 import socket
 import sys
@@ -33,7 +36,7 @@ import numpy as np
 from servo_app import messages as msg
 from servo_app.fanuc.runner import StreamConfig, _ServoProcess
 from servo_app.ipc import LatestValueSlot
-from servo_app.realtime import WakeLatencyHold
+from servo_app.realtime import WakeLatencyHold, make_realtime
 from servo_app.sim.fanuc_model import ControllerConfig, FanucControllerModel
 from servo_app.state import STATE_SIZE
 
@@ -69,6 +72,14 @@ def run(statuses: int, interval_ms: int) -> dict[str, float]:
             slot.close()
 
 
+def _schedule_as_live(proc: _ServoProcess) -> None:
+    """From here on, scheduled as the live servo process is once warm (StreamConfig's defaults: SCHED_FIFO 20,
+    the CPU wake-up latency held at 0 us): without them a status cost up to a third more here."""
+    make_realtime(20)
+    proc.wake.close()
+    proc.wake = WakeLatencyHold(0)
+
+
 def _measure(proc: _ServoProcess, controller_sock: socket.socket, statuses: int, dt: float) -> dict[str, float]:
     proc._warm_up()  # as run() does before serving
     proc.wake = WakeLatencyHold(None)
@@ -94,33 +105,40 @@ def _measure(proc: _ServoProcess, controller_sock: socket.socket, statuses: int,
     per_status, beside = [], []
     t_ctrl = time.monotonic()
     renew_every, flip_every = round(JOG_EVERY_S / dt), round(FLIP_S / dt)
-    for i in range(WARM_STATUSES + statuses):
-        t_ctrl += dt
-        raw = ctrl.tick(t_ctrl)
-        if raw is not None:
-            controller_sock.sendto(raw, addr)
-        if i % renew_every == 0 and proc.sup.state.mode.value == "streaming":
-            # The direction by the time elapsed, as live_latency's: +X the first second, then flipping.
-            # (Flipped only at renewals that were also a multiple of flip_every, it had flipped every
-            # 6 s: a one-way jog far enough to slow for the elbow's singularity.)
-            sign = 1.0 if (i // flip_every) % 2 == 0 else -1.0
-            proc.sup.request(msg.Twist(linear=(40.0 * sign, 0.0, 0.0)), time.monotonic())
-        n_solve, n_ahead = proc.solve_time.count, proc.ahead_time.count
-        t0 = time.perf_counter()
-        proc._io_step()
-        proc._housekeeping()
-        spent = (time.perf_counter() - t0) * 1e6
-        solve = proc.solve_time.ring[n_solve % 256] if proc.solve_time.count > n_solve else 0.0
-        ahead = proc.ahead_time.ring[n_ahead % 256] if proc.ahead_time.count > n_ahead else 0.0
-        answer(t_ctrl)
-        while select.select([proc.sock], [], [], 0.0)[0]:  # the stream's start-up exchanges, untimed
+    try:
+        for i in range(WARM_STATUSES + statuses):
+            if i == WARM_STATUSES:
+                _schedule_as_live(proc)
+            t_ctrl += dt
+            raw = ctrl.tick(t_ctrl)
+            if raw is not None:
+                controller_sock.sendto(raw, addr)
+            if i % renew_every == 0 and proc.sup.state.mode.value == "streaming":
+                # The direction by the time elapsed, as live_latency's: +X the first second, then flipping.
+                # (Flipped only at renewals that were also a multiple of flip_every, it had flipped every
+                # 6 s: a one-way jog far enough to slow for the elbow's singularity.)
+                sign = 1.0 if (i // flip_every) % 2 == 0 else -1.0
+                proc.sup.request(msg.Twist(linear=(40.0 * sign, 0.0, 0.0)), time.monotonic())
+            n_solve, n_ahead = proc.solve_time.count, proc.ahead_time.count
+            t0 = time.perf_counter()
             proc._io_step()
             proc._housekeeping()
+            spent = (time.perf_counter() - t0) * 1e6
+            solve = proc.solve_time.ring[n_solve % 256] if proc.solve_time.count > n_solve else 0.0
+            ahead = proc.ahead_time.ring[n_ahead % 256] if proc.ahead_time.count > n_ahead else 0.0
             answer(t_ctrl)
-        if i >= WARM_STATUSES and raw is not None:
-            per_status.append(spent)
-            beside.append(spent - solve - ahead)
-        time.sleep(dt)  # asleep between packets, as the live process is
+            while select.select([proc.sock], [], [], 0.0)[0]:  # the stream's start-up exchanges, untimed
+                proc._io_step()
+                proc._housekeeping()
+                answer(t_ctrl)
+            if i >= WARM_STATUSES and raw is not None:
+                per_status.append(spent)
+                beside.append(spent - solve - ahead)
+            time.sleep(dt)  # asleep between packets, as the live process is
+    finally:
+        proc.wake.close()
+        with contextlib.suppress(OSError):
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     if proc.sup.state.mode.value != "streaming":
         raise RuntimeError(f"the stream did not hold: {proc.sup.describe()}")
     return {"n": len(per_status), "p50": float(np.median(per_status)), "p99": float(np.percentile(per_status, 99)),
