@@ -45,12 +45,13 @@ WARM_STATUSES = 100  # answered at normal priority first: the first solves fill 
 def _floor_servo(port: int, interval_ms: int, ready: Any) -> None:  # (ready: an mp Event)
     import numba
     import numpy as np
+    from servo_loop import schedule_as_live
 
     from servo_app.fanuc.packets import decode_from_robot, pack_command
     from servo_app.ipc import LatestValueSlot
     from servo_app.motion.commands import Twist
     from servo_app.motion.servo import ServoCycle, ServoSettings
-    from servo_app.realtime import WakeLatencyHold, make_realtime
+    from servo_app.realtime import WakeLatencyHold
     from servo_app.robots.profile import load_profile
     from servo_app.state import STATE_SIZE
 
@@ -97,10 +98,10 @@ def _floor_servo(port: int, interval_ms: int, ready: Any) -> None:  # (ready: an
             slot.write(state)
             cycle.solve_ahead()
             n += 1
-            if n == WARM_STATUSES:  # then scheduled as the live servo process is once warm (StreamConfig's
-                # defaults: SCHED_FIFO 20, CPU wake-up latency held at 0 us), start-up objects out of the gc's scans
-                make_realtime(20)
-                hold = WakeLatencyHold(0)
+            if n == WARM_STATUSES:  # then scheduled as the live servo process is once warm, start-up objects
+                # out of the gc's scans
+                hold.close()
+                hold = schedule_as_live()
                 gc.collect()
                 gc.freeze()
         hold.close()

@@ -72,12 +72,13 @@ def run(statuses: int, interval_ms: int) -> dict[str, float]:
             slot.close()
 
 
-def _schedule_as_live(proc: _ServoProcess) -> None:
-    """From here on, scheduled as the live servo process is once warm (StreamConfig's defaults: SCHED_FIFO 20,
-    the CPU wake-up latency held at 0 us): without them a status cost up to a third more here."""
-    make_realtime(20)
-    proc.wake.close()
-    proc.wake = WakeLatencyHold(0)
+def schedule_as_live() -> WakeLatencyHold:
+    """From here on, this process scheduled as the live servo process is once warm (``_ServoProcess.run``
+    with StreamConfig's defaults: SCHED_FIFO 20, the CPU wake-up latency held at 0 us); the hold, to close.
+    Without them a status cost up to a third more here."""
+    cfg = StreamConfig()
+    make_realtime(cfg.realtime_priority)
+    return WakeLatencyHold(cfg.wake_latency_us)
 
 
 def _measure(proc: _ServoProcess, controller_sock: socket.socket, statuses: int, dt: float) -> dict[str, float]:
@@ -108,7 +109,8 @@ def _measure(proc: _ServoProcess, controller_sock: socket.socket, statuses: int,
     try:
         for i in range(WARM_STATUSES + statuses):
             if i == WARM_STATUSES:
-                _schedule_as_live(proc)
+                proc.wake.close()
+                proc.wake = schedule_as_live()
             t_ctrl += dt
             raw = ctrl.tick(t_ctrl)
             if raw is not None:

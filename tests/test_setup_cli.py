@@ -144,15 +144,6 @@ def test_install_stays_within_the_tested_versions(project: Path) -> None:
     assert pips[-1].endswith("-c constraints.txt -e .[test]"), pips
 
 
-def _pins() -> dict[str, str]:
-    pins = {}
-    for line in (ROOT / "constraints.txt").read_text().splitlines():
-        if line.strip() and not line.startswith("#"):
-            name, _, version = line.partition("==")
-            pins[re.sub(r"[-_.]+", "-", name).lower()] = version.strip()
-    return pins
-
-
 def test_the_tested_versions_are_within_pyprojects_ranges_and_cover_every_dependency() -> None:
     """constraints.txt pins one version of each package, inside pyproject.toml's range for it, and leaves
     none of the run or test dependencies to chance."""
@@ -161,9 +152,11 @@ def test_the_tested_versions_are_within_pyprojects_ranges_and_cover_every_depend
     from packaging.requirements import Requirement
 
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    pins = _pins()
     lines = [x for x in (ROOT / "constraints.txt").read_text().splitlines() if x.strip() and not x.startswith("#")]
-    assert len(pins) == len(lines) and all("==" in x for x in lines), "one exact version per package"
+    assert all("==" in x for x in lines), "one exact version per line"
+    pins = {re.sub(r"[-_.]+", "-", name).lower(): version.strip() for name, _, version in
+            (x.partition("==") for x in lines)}
+    assert len(pins) == len(lines), "one line per package"
     for spec in [*project["dependencies"], *project["optional-dependencies"]["test"]]:
         req = Requirement(spec)
         name = re.sub(r"[-_.]+", "-", req.name).lower()
