@@ -1,5 +1,5 @@
-"""HTTP/WebSocket feeds: the registry on injected clocks, the router through TestClient, and one
-end-to-end run on a real uvicorn server on 127.0.0.1 (port chosen by the OS)."""
+"""HTTP/WebSocket feeds: the registry on injected clocks, and the router as clients reach it: over
+HTTP and WebSocket on a real uvicorn server on 127.0.0.1 (port chosen by the OS)."""
 
 from __future__ import annotations
 
@@ -7,15 +7,17 @@ import asyncio
 import json
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import httpx
 import pytest
 import websockets
-from fastapi import FastAPI, HTTPException, WebSocketDisconnect
-from fastapi.testclient import TestClient
+from fastapi import FastAPI, HTTPException
 from starlette.requests import HTTPConnection
 from test_api_harness import LiveServer
+from websockets.sync.client import ClientConnection
+from websockets.sync.client import connect as ws_connect
 
 from servo_app.api.body_limit import MAX_BODY_BYTES, BodyLimit
 from servo_app.inputs import Arbiter, Measurement, PoseSample, TwistSample
@@ -176,10 +178,38 @@ def test_feed_sources_plug_into_the_arbiter() -> None:
     assert arb.select().decelerate
 
 
-# -- router ----------------------------------------------------------------------------------------
+# -- router, on a real uvicorn ---------------------------------------------------------------------
+
+class Served:
+    """An app on a running uvicorn (127.0.0.1, a free port): an HTTP client for it, and its WebSockets."""
+
+    def __init__(self, app: FastAPI) -> None:
+        self.live = LiveServer(app).start(timeout=20.0)
+        self.http = httpx.Client(base_url=f"http://127.0.0.1:{self.live.port}", timeout=10.0)
+
+    def websocket(self, path: str) -> ClientConnection:
+        return ws_connect(f"ws://127.0.0.1:{self.live.port}{path}", open_timeout=10.0, close_timeout=5.0)
+
+    def close(self) -> None:
+        self.http.close()
+        self.live.stop()
+
+
+@contextmanager
+def served(app: FastAPI) -> Iterator[Served]:
+    s = Served(app)
+    try:
+        yield s
+    finally:
+        s.close()
+
+
+def receive_json(ws: ClientConnection) -> Any:
+    return json.loads(ws.recv(timeout=10.0))
+
 
 @pytest.fixture(params=["route", "fast path"])
-def client(request: pytest.FixtureRequest) -> Iterator[tuple[TestClient, FeedRegistry]]:
+def client(request: pytest.FixtureRequest) -> Iterator[tuple[Served, FeedRegistry]]:
     """The feed router alone, and with the POST fast path in front (as the service has it): the same
     answers either way."""
     reg = make_registry()
@@ -187,10 +217,11 @@ def client(request: pytest.FixtureRequest) -> Iterator[tuple[TestClient, FeedReg
     app.include_router(feed_router(reg, auth))
     if request.param == "fast path":
         app.add_middleware(FeedPostFastPath, handler=feed_post_handler(reg, auth))
-    with TestClient(app) as c:
-        yield c, reg
+    with served(app) as s:
+        yield s, reg
 
 
+@pytest.mark.e2e
 def test_fast_path_serves_feed_posts_and_passes_everything_else_on() -> None:
     reg = make_registry()
     app = FastAPI()  # no feed route: whatever answers a feed POST is the fast path
@@ -201,7 +232,8 @@ def test_fast_path_serves_feed_posts_and_passes_everything_else_on() -> None:
 
     app.add_middleware(FeedPostFastPath, handler=feed_post_handler(reg, auth))
     h = {"Authorization": f"Bearer {TOKEN}"}
-    with TestClient(app) as c:
+    with served(app) as s:
+        c = s.http
         r = c.post("/api/feed/jog", json={"kind": "twist", "linear": [10, 0, 0]}, headers=h)
         assert r.status_code == 200 and r.json()["accepted"] and reg.slot("jog").seq == 1
         r = c.post("/api/feed/jog", json={"kind": "twist", "linear": [10, 0, 0]})
@@ -211,6 +243,7 @@ def test_fast_path_serves_feed_posts_and_passes_everything_else_on() -> None:
         assert c.post("/api/feed/", headers=h).status_code == 404
 
 
+@pytest.mark.e2e
 def test_the_body_limit_sits_in_front_of_the_feed_fast_path() -> None:
     """As the service stacks them: a sample over the body limit is refused (413) before the token
     check, whether it declares its length or streams it in chunks; nothing reaches the slot."""
@@ -222,7 +255,8 @@ def test_the_body_limit_sits_in_front_of_the_feed_fast_path() -> None:
     big = json.dumps({"kind": "measurement", "values": {f"ch{i}": 1.0 for i in range(10_000)}}).encode()
     assert len(big) > MAX_BODY_BYTES
     h = {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"}
-    with TestClient(app) as c:
+    with served(app) as s:
+        c = s.http
         assert c.post("/api/feed/gauge", content=big, headers=h).status_code == 413
         assert c.post("/api/feed/gauge", content=big).status_code == 413  # no token: still 413, not 401
         r = c.post("/api/feed/gauge", content=iter([big[i:i + 4096] for i in range(0, len(big), 4096)]), headers=h)
@@ -233,8 +267,10 @@ def test_the_body_limit_sits_in_front_of_the_feed_fast_path() -> None:
     assert reg.slot("gauge").seq == 1
 
 
-def test_post_feed(client: tuple[TestClient, FeedRegistry]) -> None:
-    c, reg = client
+@pytest.mark.e2e
+def test_post_feed(client: tuple[Served, FeedRegistry]) -> None:
+    s, reg = client
+    c = s.http
     h = {"Authorization": f"Bearer {TOKEN}"}
     r = c.post("/api/feed/jog", json={"kind": "twist", "linear": [10, 0, 0], "stamp": time.time()}, headers=h)
     assert r.status_code == 200 and r.json()["accepted"] and r.json()["seq"] == 1
@@ -262,34 +298,35 @@ def test_post_feed(client: tuple[TestClient, FeedRegistry]) -> None:
         assert op["summary"] and len(op["description"]) > 20, op  # /docs lists and explains them
 
 
-def test_websocket_feed(client: tuple[TestClient, FeedRegistry]) -> None:
-    c, reg = client
-    with c.websocket_connect(f"/ws/feed/vision?token={TOKEN}&ack=true") as ws:
+@pytest.mark.e2e
+def test_websocket_feed(client: tuple[Served, FeedRegistry]) -> None:
+    s, reg = client
+    with s.websocket(f"/ws/feed/vision?token={TOKEN}&ack=true") as ws:
         for i in range(5):
-            ws.send_text(json.dumps({"kind": "pose", "xyzwpr": [i, 0, 300, 180, 0, 0], "seq": i}))
-            assert ws.receive_json()["seq"] == i + 1
-        ws.send_text('{"kind": "pose", "xyzwpr": [0, 0, 0, 0, 0, NaN]}')
-        reply = ws.receive_json()
+            ws.send(json.dumps({"kind": "pose", "xyzwpr": [i, 0, 300, 180, 0, 0], "seq": i}))
+            assert receive_json(ws)["seq"] == i + 1
+        ws.send('{"kind": "pose", "xyzwpr": [0, 0, 0, 0, 0, NaN]}')
+        reply = receive_json(ws)
         assert not reply["accepted"] and reply["detail"].startswith("field 'xyzwpr.5' value nan")
-        ws.send_text("not json")
-        assert not ws.receive_json()["accepted"]
-        ws.send_text("[1, 2]")
-        assert "JSON object" in ws.receive_json()["detail"]
-        ws.send_text(json.dumps({"kind": "pose", "xyzwpr": [9, 0, 300, 180, 0, 0], "seq": 9}))
-        assert ws.receive_json()["accepted"]  # the stream keeps going after bad messages
+        ws.send("not json")
+        assert not receive_json(ws)["accepted"]
+        ws.send("[1, 2]")
+        assert "JSON object" in receive_json(ws)["detail"]
+        ws.send(json.dumps({"kind": "pose", "xyzwpr": [9, 0, 300, 180, 0, 0], "seq": 9}))
+        assert receive_json(ws)["accepted"]  # the stream keeps going after bad messages
     assert reg.slot("vision").read().value.xyzwpr[0] == 9 and reg.stats("vision").rejected == 3
-    with pytest.raises(Exception) as ei, c.websocket_connect("/ws/feed/vision") as ws:
-        pass
-    assert getattr(ei.value, "status_code", None) == 401
-    with c.websocket_connect(f"/ws/feed/nope?token={TOKEN}") as ws:
-        with pytest.raises(Exception) as ei:
-            ws.receive_text()
-        assert getattr(ei.value, "code", None) == 1008
+    with pytest.raises(websockets.InvalidStatus) as refused:  # no token: refused at the handshake
+        s.websocket("/ws/feed/vision")
+    assert refused.value.response.status_code == 401
+    with s.websocket(f"/ws/feed/nope?token={TOKEN}") as ws, pytest.raises(websockets.ConnectionClosed) as closed:
+        ws.recv(timeout=10.0)
+    assert closed.value.rcvd is not None and closed.value.rcvd.code == 1008
 
 
 NESTED = "[" * 20_000 + "]" * 20_000  # 40 KB: under the message limit, far over the JSON parser's depth
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize(("message", "code", "words"), [
     (NESTED, 1007, "nested too deeply"),
     ('{"kind": "pose", "x": ' + '{"a": ' * 5000 + "1" + "}" * 5000 + "}", 1007, "nested too deeply"),
@@ -297,23 +334,22 @@ NESTED = "[" * 20_000 + "]" * 20_000  # 40 KB: under the message limit, far over
     ("x" * 70_000, 1009, "at most 65536 bytes"),
 ])
 def test_an_unreadable_websocket_message_closes_the_feed_socket_with_a_reason(
-        client: tuple[TestClient, FeedRegistry], message: str | bytes, code: int, words: str) -> None:
-    c, reg = client
-    with c.websocket_connect(f"/ws/feed/vision?token={TOKEN}") as ws:
-        if isinstance(message, bytes):
-            ws.send_bytes(message)
-        else:
-            ws.send_text(message)
-        with pytest.raises(WebSocketDisconnect) as ei:
-            ws.receive_text()
-    assert ei.value.code == code and words in ei.value.reason
+        client: tuple[Served, FeedRegistry], message: str | bytes, code: int, words: str) -> None:
+    s, reg = client
+    with s.websocket(f"/ws/feed/vision?token={TOKEN}") as ws:
+        ws.send(message)  # bytes: a binary frame
+        with pytest.raises(websockets.ConnectionClosed) as closed:
+            ws.recv(timeout=10.0)
+    frame = closed.value.rcvd
+    assert frame is not None and frame.code == code and words in frame.reason
     assert reg.stats("vision").rejected == 1 and words in reg.stats("vision").last_error
 
 
 # -- end to end on a real server -------------------------------------------------------------------
 
 @pytest.mark.e2e
-def test_feed_over_real_uvicorn() -> None:
+def test_feed_over_real_uvicorn_with_asyncio_clients() -> None:
+    """The sensor side as an asyncio program writes it (websockets' asyncio client)."""
     reg = make_registry()
     app = FastAPI()
     app.include_router(feed_router(reg, auth))
