@@ -29,6 +29,7 @@ import socket
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -49,7 +50,10 @@ FLIP_S = 1.0
 HEADER = "| interval ms | statuses | per status p50 us | p99 us | mean us | beside motion p50 us |"
 
 
-def run(statuses: int, interval_ms: int) -> dict[str, float]:
+def run(statuses: int, interval_ms: int, prepare: Callable[[_ServoProcess], None] | None = None,
+        before_status: Callable[[], None] | None = None) -> dict[str, float]:
+    """The figures of ``statuses`` timed statuses; ``prepare`` is given the servo process's object before
+    its warm-up, ``before_status`` runs before each status, untimed (bench/cold_map.py's hooks)."""
     dt = interval_ms / 1000
     controller_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     controller_sock.bind(("127.0.0.1", 0))
@@ -60,8 +64,10 @@ def run(statuses: int, interval_ms: int) -> dict[str, float]:
         proc = _ServoProcess(StreamConfig(port=controller_sock.getsockname()[1], interval_ms=interval_ms,
                                           log_dir=log_dir, realtime_priority=None, wake_latency_us=None),
                              child_end, slot.name)
+        if prepare is not None:
+            prepare(proc)
         try:
-            return _measure(proc, controller_sock, statuses, dt)
+            return _measure(proc, controller_sock, statuses, dt, before_status)
         finally:
             gc.unfreeze()  # (frozen objects outlive the interpreter's teardown: ruckig's would be "leaked")
             proc.cycle.late_command = None
@@ -81,7 +87,8 @@ def schedule_as_live() -> WakeLatencyHold:
     return WakeLatencyHold(cfg.wake_latency_us)
 
 
-def _measure(proc: _ServoProcess, controller_sock: socket.socket, statuses: int, dt: float) -> dict[str, float]:
+def _measure(proc: _ServoProcess, controller_sock: socket.socket, statuses: int, dt: float,
+             before_status: Callable[[], None] | None = None) -> dict[str, float]:
     proc._warm_up()  # as run() does before serving
     proc.wake = WakeLatencyHold(None)
     ctrl = FanucControllerModel(proc.profile, ControllerConfig(interval_ms=round(dt * 1000)),
@@ -122,6 +129,8 @@ def _measure(proc: _ServoProcess, controller_sock: socket.socket, statuses: int,
                 sign = 1.0 if (i // flip_every) % 2 == 0 else -1.0
                 proc.sup.request(msg.Twist(linear=(40.0 * sign, 0.0, 0.0)), time.monotonic())
             n_solve, n_ahead = proc.solve_time.count, proc.ahead_time.count
+            if before_status is not None:
+                before_status()
             t0 = time.perf_counter()
             proc._io_step()
             proc._housekeeping()
