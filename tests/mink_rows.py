@@ -19,7 +19,7 @@ COLLISION_ROW_ATOL = 4 * np.finfo(float).eps * 2.0
 
 def assert_collision_rows_equal(actual: np.ndarray, desired: np.ndarray) -> None:
     """``actual`` is mink's collision rows ``desired`` up to the order the machine's BLAS sums them in:
-    the same shape, the same zero and non-finite entries, the rest within COLLISION_ROW_ATOL."""
+    the same shape, the same non-finite entries, every value within COLLISION_ROW_ATOL."""
     actual, desired = np.asarray(actual), np.asarray(desired)
     assert actual.shape == desired.shape, (actual.shape, desired.shape)
     np.testing.assert_array_equal(np.isfinite(actual), np.isfinite(desired))
