@@ -376,6 +376,33 @@ class StreamSession:
         packet = self.decode(data)
         return [] if packet is None else self.on_packet(packet, now)
 
+    def on_usual_status(self, data: bytes, now: float) -> list[bytes] | None:
+        """``on_datagram`` for the usual datagram of a running stream, without its general path: a
+        well-formed status packet whose sequence number follows the last one's, with bit 0 and SYSRDY
+        set, due exactly one command, while nothing else is under way (the first commands, one sent
+        ahead, an end). None for any other datagram, with nothing changed: ``on_datagram`` then (tested
+        to send and record the same as it on random streams).
+
+        Why: the general path is several calls and tests deep (decode, sequence arithmetic, phase,
+        commands due); with caches cold after the wait for the packet, the usual status through one
+        flat method and the supervisor's cost the servo process 6 % less per status (bench/servo_loop.py,
+        mean 157 -> 148 us, five rounds each way)."""
+        prev = self.last_status
+        if (self.phase != _STREAMING or prev is None or self._begin_with is not None or self._early_sent is not None
+                or self._end_requested or self._last_data_sent or len(data) != STATUS_SIZE
+                or data[:SEQ_OFFSET] != STATUS_HEADER or data[STATUS_BITS_OFFSET] & _READY_BITS != _READY_BITS):
+            return None
+        seq = int.from_bytes(data[SEQ_OFFSET: SEQ_OFFSET + 4], "big")
+        if (seq != next_seq(prev.seq)
+                or seq_diff(seq, self._first_status_seq) + 1 + self.config.lead - self._sent_since_start != 1):
+            return None
+        st = decode_from_robot(data)
+        assert isinstance(st, Status)  # (its length, type and version were checked above)
+        self.sent = []
+        self._accept(st, now)
+        out = self._command(st)
+        return [] if out is None else [out]
+
     def on_packet(self, packet: Status | LimitTableResponse, now: float) -> list[bytes]:
         if self._begin_with is not None:  # (the runner has done it already: no call per status)
             self.begin_motion()
@@ -471,10 +498,7 @@ class StreamSession:
                 return []
             if gap > 1:
                 self.stats.status_lost += gap - 1
-        self._malformed_at_status = self.stats.malformed
-        self.stats.status_received += 1
-        self.last_status = st
-        self._last_status_at = now
+        self._accept(st, now)
         phase = self.phase
         if phase == _STREAMING:  # the usual case first: no branch below leads to it or from it
             if st.status & _READY_BITS != _READY_BITS:  # bit 0 or SYSRDY cleared
@@ -501,6 +525,13 @@ class StreamSession:
             self._enter(Phase.CLOSED, now)
             return [StatusStop().encode()]
         return []
+
+    def _accept(self, st: Status, now: float) -> None:
+        """A new status packet, in sequence or after a gap: the session's last from now on."""
+        self._malformed_at_status = self.stats.malformed
+        self.stats.status_received += 1
+        self.last_status = st
+        self._last_status_at = now
 
     def _maybe_start(self, st: Status) -> list[bytes]:
         # Ready: waiting for commands, none received yet in this run of IBGN start, servo ready.

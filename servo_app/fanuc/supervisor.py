@@ -26,7 +26,7 @@ import numpy as np
 from servo_app import messages as msg
 from servo_app.errors import CommandRejected, InvalidRequest
 from servo_app.fanuc.alarms import ALARMS
-from servo_app.fanuc.packets import IoType, Status, StatusBit
+from servo_app.fanuc.packets import STATUS_BITS_OFFSET, IoType, Status, StatusBit
 from servo_app.fanuc.session import IoRequest, Phase, SessionConfig, StreamSession
 from servo_app.input_slot import POSE, TWIST, InputCommand
 from servo_app.motion.commands import PoseTarget, Twist
@@ -56,7 +56,7 @@ _STATUS_EVENT_BITS = int(StatusBit.WAITING_FOR_COMMAND | StatusBit.COMMAND_RECEI
 _STARTS_FROM = (Phase.WAITING_READY, Phase.CONNECTED)
 # What _after_status compares with on every status (an enum member looked up on its class costs ~0.1 us
 # here, more with caches cold); the modes in which a failed link is a lost status.
-_STOPPING, _ENDING, _CLOSED, _FAULT = Mode.STOPPING, Mode.ENDING, Phase.CLOSED, Phase.FAULT
+_STREAMING, _STOPPING, _ENDING, _CLOSED, _FAULT = Mode.STREAMING, Mode.STOPPING, Mode.ENDING, Phase.CLOSED, Phase.FAULT
 _LINK_ALIVE_MODES = (Mode.STREAMING, Mode.STOPPING, Mode.STOPPED, Mode.ENDING)
 
 # A pose whose X, Y and Z all lie within this many mm of the base was almost surely sent in metres.
@@ -312,8 +312,17 @@ class StreamSupervisor(SupervisorBase):
         return ready and SEND_FIRST_COMMAND in transition(st, StartRequested()).actions  # _start_when_ready
 
     def on_datagram(self, data: bytes, now: float) -> list[bytes]:
-        self._out = []
         session = self.session
+        # The usual status of a running stream, whose bits leave the safety state as it is, with no start,
+        # hold-to-run expiry or output pending: the session's flat path (it declines anything else).
+        if (self.state is self._steady_state and self.state.mode == _STREAMING and not self.start_pending
+                and not self._out and len(data) > STATUS_BITS_OFFSET
+                and data[STATUS_BITS_OFFSET] & _STATUS_EVENT_BITS == self._steady_bits
+                and (self.hold.last_renewed is None or not self.hold.expired(now))):
+            out = session.on_usual_status(data, now)
+            if out is not None:
+                return out
+        self._out = []
         session.sent = []  # a malformed datagram sends nothing: nothing of an earlier one may be logged
         packet = session.decode(data)
         if packet is None:
