@@ -1,7 +1,7 @@
 """The usual status's flat path (``StreamSupervisor.on_datagram`` into ``StreamSession.on_usual_status``)
 against the general one: two cells, the same but for the flat path declined in one, are given the same
-random operator stream (test_servo_cycle_property's) and the same disturbed datagrams (duplicated, lost,
-stale, malformed, status bits changed). At every step both must send the same bytes and stand in the
+random operator stream (test_servo_cycle_property's) and the same disturbed datagrams (duplicated,
+stale, truncated, status bits changed). At every step both must send the same bytes and stand in the
 same state: the supervisor's view, the link's counters, the commands just made."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_servo_cycle_property import HOLD_RENEW_CYCLES, KIN, Cell, PoseOffset, random_events
 
-from servo_app.fanuc.packets import STATUS_BITS_OFFSET, StatusBit
+from servo_app.fanuc.packets import SEQ_OFFSET, STATUS_BITS_OFFSET, StatusBit
 from servo_app.fanuc.session import StreamSession
 from servo_app.messages import Jog, PoseTarget, Request, Reset, Resume, Twist
 from servo_app.robots.conventions import matrix_to_xyzwpr
@@ -138,9 +138,11 @@ def test_the_flat_path_declines_without_changing_anything() -> None:
     before = view(cell)
     raw = cell.ctrl.tick(cell.t + cell.dt)
     assert raw is not None
-    seq = int.from_bytes(raw[8:12], "big")
-    gap = raw[:8] + (seq + 1).to_bytes(4, "big") + raw[12:]  # the one after it: this one was lost
-    for declined in (raw[:40], raw[:12] + bytes([raw[12] & ~StatusBit.SYSRDY]) + raw[13:], gap, last_raw(cell)):
+    seq = int.from_bytes(raw[SEQ_OFFSET: SEQ_OFFSET + 4], "big")
+    gap = raw[:SEQ_OFFSET] + (seq + 1).to_bytes(4, "big") + raw[SEQ_OFFSET + 4:]  # the one after it: this one lost
+    no_sysrdy = bytearray(raw)
+    no_sysrdy[STATUS_BITS_OFFSET] &= ~StatusBit.SYSRDY
+    for declined in (raw[:40], bytes(no_sysrdy), gap, last_raw(cell)):
         assert session.on_usual_status(declined, cell.t) is None
         assert view(cell) == before
     assert session.on_usual_status(raw, cell.t) is not None  # (the same status, undisturbed: taken)

@@ -183,6 +183,15 @@ _JOINT_FORMAT, _CARTESIAN_FORMAT = DataFormat.JOINT, DataFormat.CARTESIAN  # (no
 _NO_WRITE = (0, 0, 0, 0)
 
 
+def _ready_status_seq(data: bytes, mask: int) -> int | None:
+    """The sequence number of datagram ``data`` if it is a well-formed status packet of the protocol's
+    version whose status bits, masked by ``mask``, are bit 0 and SYSRDY, else None (read from the bytes,
+    before any decode)."""
+    if len(data) != STATUS_SIZE or data[:SEQ_OFFSET] != STATUS_HEADER or data[STATUS_BITS_OFFSET] & mask != _READY_BITS:
+        return None
+    return int.from_bytes(data[SEQ_OFFSET: SEQ_OFFSET + 4], "big")
+
+
 @dataclass
 class StreamSession:
     motion: MotionSource
@@ -309,10 +318,11 @@ class StreamSession:
         ``on_datagram`` as usual: the session goes on as if it had sent it there (and does not send
         it again)."""
         p = self.first_command
-        if (p is None or len(data) != STATUS_SIZE or data[:SEQ_OFFSET] != STATUS_HEADER
-                or data[STATUS_BITS_OFFSET] & _READY_MASK != _READY_BITS):
+        if p is None:
             return None
-        seq = int.from_bytes(data[SEQ_OFFSET: SEQ_OFFSET + 4], "big")
+        seq = _ready_status_seq(data, _READY_MASK)
+        if seq is None:
+            return None
         last = self.last_status
         if last is not None and (seq == last.seq or (seq_diff(seq, last.seq) <= 0 and seq != 1)):
             return None  # a duplicate or reordered status is not answered (_on_status)
@@ -389,12 +399,10 @@ class StreamSession:
         mean 157 -> 148 us, five rounds each way)."""
         prev = self.last_status
         if (self.phase != _STREAMING or prev is None or self._begin_with is not None or self._early_sent is not None
-                or self._end_requested or self._last_data_sent or len(data) != STATUS_SIZE
-                or data[:SEQ_OFFSET] != STATUS_HEADER or data[STATUS_BITS_OFFSET] & _READY_BITS != _READY_BITS):
+                or self._end_requested or self._last_data_sent):
             return None
-        seq = int.from_bytes(data[SEQ_OFFSET: SEQ_OFFSET + 4], "big")
-        if (seq != next_seq(prev.seq)
-                or seq_diff(seq, self._first_status_seq) + 1 + self.config.lead - self._sent_since_start != 1):
+        seq = _ready_status_seq(data, _READY_BITS)
+        if seq is None or seq != next_seq(prev.seq) or self._due(seq) != 1:
             return None
         st = decode_from_robot(data)
         assert isinstance(st, Status)  # (its length, type and version were checked above)
@@ -549,7 +557,7 @@ class StreamSession:
 
     def _send_due(self, st: Status) -> list[bytes]:
         """Send as many commands as the status sequence says the controller will have consumed, + lead."""
-        due = seq_diff(st.seq, self._first_status_seq) + 1 + self.config.lead - self._sent_since_start
+        due = self._due(st.seq)
         if due == 1 and not self._last_data_sent:  # the usual status: its one command (the loop below, once)
             data = self._command(st)
             return [] if data is None else [data]
@@ -561,6 +569,11 @@ class StreamSession:
             if data is not None:
                 out.append(data)
         return out
+
+    def _due(self, seq: int) -> int:
+        """The commands due on status ``seq``: those the controller will have consumed by then, + lead,
+        less those sent."""
+        return seq_diff(seq, self._first_status_seq) + 1 + self.config.lead - self._sent_since_start
 
     def _command(self, st: Status) -> bytes | None:
         """Make the next command; its bytes to send, or None when it went out ahead already."""

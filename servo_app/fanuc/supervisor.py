@@ -318,7 +318,7 @@ class StreamSupervisor(SupervisorBase):
         if (self.state is self._steady_state and self.state.mode == _STREAMING and not self.start_pending
                 and not self._out and len(data) > STATUS_BITS_OFFSET
                 and data[STATUS_BITS_OFFSET] & _STATUS_EVENT_BITS == self._steady_bits
-                and (self.hold.last_renewed is None or not self.hold.expired(now))):
+                and not self.hold.expired(now)):
             out = session.on_usual_status(data, now)
             if out is not None:
                 return out
