@@ -6,7 +6,9 @@ cycle costs 124 us in a tight loop and 300 us with 8 ms between). This runs the 
 itself (``_ServoProcess._io_step`` + ``_housekeeping``: decode, safety, IK ahead and on the status,
 shaper, guards, send, session log, publish) against the simulator's controller model over real
 loopback UDP, one status every ``--interval-ms`` with the process asleep in between as it is live, and
-Cartesian jogs (+-X 40 mm/s, renewed at 20 Hz, flipped every second) as in live_latency, and, once
+Cartesian jogs (+-X 40 mm/s, renewed at 20 Hz, flipped every second) as in live_latency, each renewal
+a request on the process's pipe as the API sends it (its reply read back untimed, as the API's reader
+thread does), and, once
 warm, scheduled as the live process is (SCHED_FIFO 20, CPU wake-up latency held at 0 us). No API
 process and no simulator process share the cores, so two trees compared alternately (``bench/ab.py``)
 differ by their code more than by the moment.
@@ -30,6 +32,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
+from multiprocessing.connection import Connection
 from pathlib import Path
 
 import numpy as np
@@ -67,7 +70,7 @@ def run(statuses: int, interval_ms: int, prepare: Callable[[_ServoProcess], None
         if prepare is not None:
             prepare(proc)
         try:
-            return _measure(proc, controller_sock, statuses, dt, before_status)
+            return _measure(proc, controller_sock, parent_end, statuses, dt, before_status)
         finally:
             gc.unfreeze()  # (frozen objects outlive the interpreter's teardown: ruckig's would be "leaked")
             proc.cycle.late_command = None
@@ -87,7 +90,7 @@ def schedule_as_live() -> WakeLatencyHold:
     return WakeLatencyHold(cfg.wake_latency_us)
 
 
-def _measure(proc: _ServoProcess, controller_sock: socket.socket, statuses: int, dt: float,
+def _measure(proc: _ServoProcess, controller_sock: socket.socket, parent_end: Connection, statuses: int, dt: float,
              before_status: Callable[[], None] | None = None) -> dict[str, float]:
     proc._warm_up()  # as run() does before serving
     proc.wake = WakeLatencyHold(None)
@@ -127,7 +130,7 @@ def _measure(proc: _ServoProcess, controller_sock: socket.socket, statuses: int,
                 # (Flipped only at renewals that were also a multiple of flip_every, it had flipped every
                 # 6 s: a one-way jog far enough to slow for the elbow's singularity.)
                 sign = 1.0 if (i // flip_every) % 2 == 0 else -1.0
-                proc.sup.request(msg.Twist(linear=(40.0 * sign, 0.0, 0.0)), time.monotonic())
+                parent_end.send(msg.Envelope(i, msg.Twist(linear=(40.0 * sign, 0.0, 0.0))))
             n_solve, n_ahead = proc.solve_time.count, proc.ahead_time.count
             if before_status is not None:
                 before_status()
@@ -138,6 +141,10 @@ def _measure(proc: _ServoProcess, controller_sock: socket.socket, statuses: int,
             solve = proc.solve_time.ring[n_solve % 256] if proc.solve_time.count > n_solve else 0.0
             ahead = proc.ahead_time.ring[n_ahead % 256] if proc.ahead_time.count > n_ahead else 0.0
             answer(t_ctrl)
+            while parent_end.poll(0):  # the replies and events, as the API's reader thread takes them
+                reply = parent_end.recv()
+                if isinstance(reply, msg.Reply) and not reply.ok:
+                    raise RuntimeError(f"a jog was refused: {reply.error}")
             while select.select([proc.sock], [], [], 0.0)[0]:  # the stream's start-up exchanges, untimed
                 proc._io_step()
                 proc._housekeeping()
