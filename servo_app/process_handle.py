@@ -38,6 +38,7 @@ from typing import Any
 from servo_app import messages as msg
 from servo_app.errors import CommandRejected, InvalidRequest
 from servo_app.ipc import LatestValueSlot
+from servo_app.pipe_frames import PipeEnd
 from servo_app.realtime import single_threaded_blas
 from servo_app.safety import Mode
 from servo_app.session_log import SessionLogWriter
@@ -70,6 +71,7 @@ class ServoProcessHost:
 
     def __init__(self, conn: Connection, slot_name: str) -> None:
         self.conn = conn
+        self.pipe = PipeEnd(conn)  # the pipe's frames read and written here, not by conn (see pipe_frames)
         self.slot = LatestValueSlot(STATE_SIZE, name=slot_name, create=False)
         self.state = StateVector()
         self.pending_signal: int | None = None
@@ -170,13 +172,14 @@ class ServoProcessHost:
             return
         while True:
             try:
-                if not self._pipe_poll.poll(0):  # readable, or hung up (then recv raises EOFError)
+                if not self._pipe_poll.poll(0):  # readable, or hung up (then read raises EOFError)
                     return
-                env = self.conn.recv()
+                frames = self.pipe.read()
             except (EOFError, OSError):  # the parent is gone
                 self._parent_died()
                 return
-            self._handle(env)
+            for data in frames:
+                self._handle(pickle.loads(data))
 
     def _handle(self, env: msg.Envelope) -> None:
         req = env.request
@@ -250,7 +253,7 @@ class ServoProcessHost:
         ``pickle.dumps``: multiprocessing's pickler copies the copyreg dispatch table on every call
         (a reply cost ~165 us that way, ~120 this way, with caches cold here)."""
         with contextlib.suppress(BrokenPipeError, OSError):
-            self.conn.send_bytes(pickle.dumps(message, pickle.HIGHEST_PROTOCOL))
+            self.pipe.write(pickle.dumps(message, pickle.HIGHEST_PROTOCOL))
 
     def _watch_link(self) -> None:
         # The session's phase (a StrEnum, equal to link_phase's string) compared every cycle without the

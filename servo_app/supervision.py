@@ -357,7 +357,7 @@ class SupervisorBase:
         self._hold_checked(hold_s)
         self._motion_gate("jog", resume_after_hold=True, now=now)
         self._jog_axes(v)
-        self.hold = HoldToRun(timeout_s=hold_s).renew(now)
+        self.hold = HoldToRun.renewed(hold_s, now)
 
     def _on_joint_target(self, req: msg.JointTarget, now: float) -> None:
         q = axis_values("joints", req.joints)
@@ -413,7 +413,7 @@ class SupervisorBase:
         """Gate a hold-to-run motion and renew its deadline."""
         self._hold_checked(hold_s)
         self._motion_gate(what, resume_after_hold=True, now=now)
-        self.hold = HoldToRun(timeout_s=hold_s).renew(now)
+        self.hold = HoldToRun.renewed(hold_s, now)
 
     def _poll_hold(self, now: float) -> None:
         # HoldToRun.poll's test without its (watch, event) pair: this runs on every status packet.

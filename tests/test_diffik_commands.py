@@ -85,9 +85,25 @@ def test_a_tuple_of_floats_is_checked_as_any_other_sequence(values: tuple[float,
         try:
             return Twist(linear=value, source="s", stamp=0.0).linear  # type: ignore[arg-type]
         except ValueError as exc:
-            return str(exc).split("=")[0]  # the field named, e.g. "linear[1]"
+            return str(exc)  # the field named, e.g. "linear[1]", with its value and the bounds
 
     got, general = outcome(kind(values)), outcome(list(values))
     assert got == general
     if isinstance(got, tuple):
         assert all(type(v) is float for v in got)
+        assert all(math.isfinite(v) and abs(v) <= 4000.0 for v in got)
+
+
+@given(st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**6, 10**6), st.booleans(),
+                 st.just("1.0")))
+def test_a_stamp_is_a_finite_number_whatever_its_type(stamp: object) -> None:
+    """The stamp's usual case (a finite float, taken as it is) and every other: a finite float or int
+    becomes that float, anything else is refused naming the stamp."""
+    try:
+        got: float | str = Twist(linear=(1.0, 0.0, 0.0), source="s", stamp=stamp).stamp  # type: ignore[arg-type]
+    except ValueError as exc:
+        got = str(exc)
+    if isinstance(stamp, int | float) and not isinstance(stamp, bool) and math.isfinite(stamp):
+        assert got == float(stamp) and type(got) is float
+    else:
+        assert isinstance(got, str) and got.startswith("stamp="), got

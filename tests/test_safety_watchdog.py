@@ -80,6 +80,19 @@ def test_hold_to_run_property(renewals, gap, timeout):
 # --- StalenessWatch --------------------------------------------------------------------------------
 
 
+@given(st.floats(allow_nan=True, allow_infinity=True), st.floats(allow_nan=True, allow_infinity=True))
+def test_a_hold_renewed_at_once_is_a_new_hold_renewed(timeout, now):
+    """``HoldToRun.renewed`` (a twist's renewal, in one construction) is ``HoldToRun(timeout).renew(now)``:
+    the same hold, or the same refusal of a bad timeout."""
+    def outcome(make):
+        try:
+            return make()
+        except ValueError as exc:
+            return str(exc)
+
+    assert outcome(lambda: HoldToRun.renewed(timeout, now)) == outcome(lambda: HoldToRun(timeout).renew(now))
+
+
 def test_staleness_is_per_source():
     w = StalenessWatch.start({"spacemouse": 0.05, "can0": 0.5}, now=0.0)
     assert w.stale(0.05) == ()

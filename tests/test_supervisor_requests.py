@@ -3,6 +3,7 @@ whole before anything changes, and every refusal by the state ends with the oper
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import replace
 
@@ -12,7 +13,7 @@ from test_safety_state_machine import STATES
 from test_servo_cycle_property import Cell
 
 from servo_app.errors import CommandRejected, InvalidRequest
-from servo_app.messages import End, Jog, JointTarget, PoseTarget, Request, Reset, Resume, Stop, Twist
+from servo_app.messages import End, Jog, JointTarget, PoseTarget, Request, Reset, Resume, SetTool, Stop, Twist
 from servo_app.safety import Mode
 from servo_app.supervision import next_step
 
@@ -48,6 +49,22 @@ def test_a_bad_request_after_a_hold_to_run_stop_changes_nothing(bad: Request) ->
     with pytest.raises(InvalidRequest):
         cell.sup.request(bad, cell.t)
     assert cell.sup.state == before and cell.sup.hold == hold  # not resumed, no hold-to-run timer
+
+
+def test_a_twist_whose_flange_swing_is_over_the_cap_after_a_hold_to_run_stop_changes_nothing() -> None:
+    """Within the cap at the TCP, over it at the flange (a turn about a long tool): refused by the cycle,
+    and refused before the gate, which would otherwise have resumed the stream and held a jog."""
+    cell = Cell()
+    cell.start()
+    cell.sup.request(SetTool(name="long", xyzwpr=(0.0, 0.0, 1500.0, 0.0, 0.0, 0.0)), cell.t)
+    stopped_by_hold_to_run(cell)
+    before, hold = cell.sup.state, cell.sup.hold
+    limit = cell.sup._flange_cap()
+    swing = math.degrees(0.5 * limit / 1500.0)
+    with pytest.raises(CommandRejected, match="flange-speed cap"):
+        cell.sup.request(Twist(linear=(0.8 * limit, 0.0, 0.0), angular=(0.0, 0.0, swing), frame="tool"), cell.t)
+    assert cell.sup.state == before and cell.sup.hold == hold  # not resumed, no hold-to-run timer
+    assert not cell.sup.cycle.ik_active
 
 
 def test_a_target_after_a_hold_to_run_stop_resumes_and_is_not_held() -> None:

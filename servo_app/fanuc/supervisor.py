@@ -194,7 +194,10 @@ class StreamSupervisor(SupervisorBase):
         if speed > cap:
             raise InvalidRequest(f"linear={list(cmd.linear)}: {speed:.1f} mm/s is above the flange-speed cap "
                                  f"{cap:.0f} mm/s")
-        self._hold_to_run(float(req.hold_s), now, "twist")  # checks hold_s before the gate
+        # The flange's own speed too (a turn about a long tool swings it), and hold_s, before the gate:
+        # the gate may resume a stream stopped by a hold-to-run, which a refused twist must not do.
+        self.cycle.check_twist(cmd)
+        self._hold_to_run(float(req.hold_s), now, "twist")
         self.cycle.twist(cmd)
 
     def _on_pose(self, req: msg.PoseTarget, now: float) -> None:
@@ -267,6 +270,7 @@ class StreamSupervisor(SupervisorBase):
         if cmd.kind == TWIST:
             twist = Twist(source=name, stamp=cmd.stamp, frame=cmd.frame, linear=cmd.values[:3],  # type: ignore[arg-type]
                           angular=cmd.values[3:6])
+            self.cycle.check_twist(twist)  # before the gate, as a requested twist (_on_twist)
             self._hold_to_run(hold, now, f"input {name}")
             self.cycle.twist(twist)
         else:

@@ -47,6 +47,11 @@ class HoldToRun:
     def deadline(self) -> float | None:
         return None if self.last_renewed is None else self.last_renewed + self.timeout_s
 
+    @classmethod
+    def renewed(cls, timeout_s: float, now: float) -> HoldToRun:
+        """``HoldToRun(timeout_s).renew(now)`` in one construction: a twist starts one at every renewal."""
+        return cls(timeout_s, _later(None, now))
+
     def renew(self, now: float) -> HoldToRun:
         # (by the constructor, not dataclasses.replace: a twist renews it 20 times a second, and replace
         # reads the fields anew each time)
