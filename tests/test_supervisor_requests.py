@@ -51,9 +51,10 @@ def test_a_bad_request_after_a_hold_to_run_stop_changes_nothing(bad: Request) ->
     assert cell.sup.state == before and cell.sup.hold == hold  # not resumed, no hold-to-run timer
 
 
-def test_a_twist_whose_flange_swing_is_over_the_cap_after_a_hold_to_run_stop_changes_nothing() -> None:
+@pytest.mark.parametrize("kind", ["twist", "pose target"])
+def test_a_motion_whose_flange_swing_is_over_the_cap_after_a_hold_to_run_stop_changes_nothing(kind: str) -> None:
     """Within the cap at the TCP, over it at the flange (a turn about a long tool): refused by the cycle,
-    and refused before the gate, which would otherwise have resumed the stream and held a jog."""
+    and refused before the gate, which would otherwise have resumed the stream (and held a jog)."""
     cell = Cell()
     cell.start()
     cell.sup.request(SetTool(name="long", xyzwpr=(0.0, 0.0, 1500.0, 0.0, 0.0, 0.0)), cell.t)
@@ -61,8 +62,12 @@ def test_a_twist_whose_flange_swing_is_over_the_cap_after_a_hold_to_run_stop_cha
     before, hold = cell.sup.state, cell.sup.hold
     limit = cell.sup._flange_cap()
     swing = math.degrees(0.5 * limit / 1500.0)
+    if kind == "twist":
+        req: Request = Twist(linear=(0.8 * limit, 0.0, 0.0), angular=(0.0, 0.0, swing), frame="tool")
+    else:
+        req = PoseTarget(xyzwpr=(400.0, 0.0, 300.0, 180.0, 0.0, 0.0), linear_speed=0.8 * limit, angular_speed=swing)
     with pytest.raises(CommandRejected, match="flange-speed cap"):
-        cell.sup.request(Twist(linear=(0.8 * limit, 0.0, 0.0), angular=(0.0, 0.0, swing), frame="tool"), cell.t)
+        cell.sup.request(req, cell.t)
     assert cell.sup.state == before and cell.sup.hold == hold  # not resumed, no hold-to-run timer
     assert not cell.sup.cycle.ik_active
 

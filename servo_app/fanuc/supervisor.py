@@ -211,6 +211,7 @@ class StreamSupervisor(SupervisorBase):
             raise InvalidRequest(f"linear_speed={pose.linear_speed:g} mm/s is above the flange-speed cap "
                                  f"{cap:.0f} mm/s")
         check_pose_plausible(pose.xyzwpr, self.cycle.profile, self.cycle.settings.tool_xyzwpr)
+        self.cycle.check_pose_target(pose)  # the flange's swing about the tool too, before the gate (_on_twist)
         self._target_gate("pose target", now)
         self.cycle.pose_target(pose)
 
@@ -276,6 +277,7 @@ class StreamSupervisor(SupervisorBase):
         else:
             pose = PoseTarget(source=name, stamp=cmd.stamp, xyzwpr=cmd.values[:6],  # type: ignore[arg-type]
                               linear_speed=cmd.linear_speed, angular_speed=cmd.angular_speed)
+            self.cycle.check_pose_target(pose)
             self._hold_to_run(hold, now, f"input {name}")
             self.cycle.pose_target(pose)
 

@@ -341,6 +341,13 @@ class ServoCycle:
             raise CommandRejected(f"linear speed {linear:.1f} mm/s{self._tool_note(cmd.angular)} is above the "
                                   f"flange-speed cap {limit:.0f} mm/s")
 
+    def check_pose_target(self, cmd: PoseTarget) -> None:
+        """:meth:`check_twist` for a pose target's speed caps. Changes nothing."""
+        limit = self.cap * self.settings.flange_speed_margin
+        if self._flange_speed_bound(cmd.linear_speed, cmd.angular_speed) > limit:
+            raise CommandRejected(f"linear_speed={cmd.linear_speed} mm/s{self._tool_note(cmd.angular_speed)} is "
+                                  f"above the flange-speed cap {limit:.0f} mm/s")
+
     def twist(self, cmd: Twist) -> None:
         """Move the TCP at a twist (base or tool frame) until replaced, stopped or the hold runs out."""
         self._require()
@@ -354,10 +361,7 @@ class ServoCycle:
         """Reach a TCP pose in a straight line at the command's speed caps (same configuration); the
         last millimetres of a target held still run as a joint move (:meth:`_finish_pose`)."""
         self._require()
-        limit = self.cap * self.settings.flange_speed_margin
-        if self._flange_speed_bound(cmd.linear_speed, cmd.angular_speed) > limit:
-            raise CommandRejected(f"linear_speed={cmd.linear_speed} mm/s{self._tool_note(cmd.angular_speed)} is "
-                                  f"above the flange-speed cap {limit:.0f} mm/s")
+        self.check_pose_target(cmd)
 
         def same(other: Twist | PoseTarget | None) -> bool:
             return (isinstance(other, PoseTarget) and other.xyzwpr == cmd.xyzwpr
