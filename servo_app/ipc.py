@@ -7,6 +7,7 @@ blocks the writer, so the servo cycle never waits on a reader.
 
 from __future__ import annotations
 
+import time
 from multiprocessing import shared_memory
 
 import numpy as np
@@ -46,9 +47,24 @@ class LatestValueSlot:
         written). While a write is in progress it is still the one before."""
         return int(self._seq[0]) >> 1
 
-    def read(self, retries: int = 1000) -> tuple[int, np.ndarray]:
-        """(version, copy of the values); version 0 means never written."""
+    def read(self, retries: int = 1000, patience_s: float = 0.0) -> tuple[int, np.ndarray]:
+        """(version, copy of the values); version 0 means never written. ``retries`` tries at once, then,
+        with ``patience_s``, more tries ~0.1 ms apart until that long has passed; TimeoutError after.
+
+        Why the patience: a write takes ~1 us, but a writer preempted in the middle of it (a busy
+        machine) leaves the counter odd for a scheduler tick or more, and 1000 tries at once took
+        ~0.1 ms: the service's /api/state then read no state at all (a CI run saw it). A reader that
+        may wait (the service's) waits it out; the servo cycle's own reads never wait."""
         for _ in range(retries):
+            s1 = int(self._seq[0])
+            if s1 % 2:
+                continue
+            out = self._data.copy()
+            if int(self._seq[0]) == s1:
+                return s1 // 2, out
+        deadline = time.monotonic() + patience_s
+        while time.monotonic() < deadline:
+            time.sleep(1e-4)  # (the writer may need this CPU to finish)
             s1 = int(self._seq[0])
             if s1 % 2:
                 continue

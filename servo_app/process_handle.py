@@ -443,7 +443,7 @@ class ServoProcessHandle:
                 self._cv.wait(left)
 
     def state(self) -> dict[str, Any]:
-        _, data = self.slot.read()
+        _, data = self.slot.read(patience_s=0.25)  # (a writer preempted mid-write: see LatestValueSlot.read)
         return decode_state(data)
 
     def expect_exit(self) -> None:
