@@ -34,8 +34,8 @@ _FLOAT_ONLY = {float}
 
 
 def _floats(name: str, value: Sequence[float], n: int) -> tuple[float, ...]:
-    # The usual case (a request's floats) as it is, by C calls alone (no generator: ~2 us a twist with
-    # caches cold here): a tuple of floats whose sum is finite has none NaN or infinite (a sum that
+    # The usual case (a request's floats) as it is, by C calls alone (a generator's 8 steps, 110 bytecodes,
+    # a twist before): a tuple of floats whose sum is finite has none NaN or infinite (a sum that
     # overflows takes the item-by-item path, which takes the values).
     if type(value) is tuple and len(value) == n and set(map(type, value)) <= _FLOAT_ONLY and math.isfinite(sum(value)):
         return value
