@@ -56,22 +56,24 @@ class LatestValueSlot:
         ~0.1 ms: the service's /api/state then read no state at all (a CI run saw it). A reader that
         may wait (the service's) waits it out; the servo cycle's own reads never wait."""
         for _ in range(retries):
-            s1 = int(self._seq[0])
-            if s1 % 2:
-                continue
-            out = self._data.copy()
-            if int(self._seq[0]) == s1:
-                return s1 // 2, out
+            got = self._try_read()
+            if got is not None:
+                return got
         deadline = time.monotonic() + patience_s
         while time.monotonic() < deadline:
             time.sleep(1e-4)  # (the writer may need this CPU to finish)
-            s1 = int(self._seq[0])
-            if s1 % 2:
-                continue
-            out = self._data.copy()
-            if int(self._seq[0]) == s1:
-                return s1 // 2, out
+            got = self._try_read()
+            if got is not None:
+                return got
         raise TimeoutError("slot kept changing while being read")
+
+    def _try_read(self) -> tuple[int, np.ndarray] | None:
+        """One try: (version, copy of the values), or None when a write was under way or landed meanwhile."""
+        s1 = int(self._seq[0])
+        if s1 % 2:
+            return None
+        out = self._data.copy()
+        return (s1 // 2, out) if int(self._seq[0]) == s1 else None
 
     def close(self) -> None:
         # Views into the buffer must go before the mapping can close.

@@ -336,17 +336,20 @@ class ServoCycle:
         """CommandRejected unless the flange stays within its speed cap at ``cmd``: the TCP's speed and
         the swing of a turn about a TCP away from the flange. Changes nothing."""
         linear = math.hypot(*cmd.linear)  # (not numpy's norm: ~5 us less each, on every twist request)
-        limit = self.cap * self.settings.flange_speed_margin
-        if self._flange_speed_bound(linear, math.hypot(*cmd.angular)) > limit:
-            raise CommandRejected(f"linear speed {linear:.1f} mm/s{self._tool_note(cmd.angular)} is above the "
-                                  f"flange-speed cap {limit:.0f} mm/s")
+        self._check_flange_speed(linear, math.hypot(*cmd.angular), f"linear speed {linear:.1f} mm/s", cmd.angular)
 
     def check_pose_target(self, cmd: PoseTarget) -> None:
         """:meth:`check_twist` for a pose target's speed caps. Changes nothing."""
+        self._check_flange_speed(cmd.linear_speed, cmd.angular_speed, f"linear_speed={cmd.linear_speed} mm/s",
+                                 cmd.angular_speed)
+
+    def _check_flange_speed(self, linear_mm_s: float, angular_deg_s: float, said: str,
+                            angular: float | tuple[float, ...]) -> None:
+        """CommandRejected, naming the request's speed as ``said`` (and the turn ``angular`` about the
+        tool, if any), when the flange's bound at those speeds is above its cap."""
         limit = self.cap * self.settings.flange_speed_margin
-        if self._flange_speed_bound(cmd.linear_speed, cmd.angular_speed) > limit:
-            raise CommandRejected(f"linear_speed={cmd.linear_speed} mm/s{self._tool_note(cmd.angular_speed)} is "
-                                  f"above the flange-speed cap {limit:.0f} mm/s")
+        if self._flange_speed_bound(linear_mm_s, angular_deg_s) > limit:
+            raise CommandRejected(f"{said}{self._tool_note(angular)} is above the flange-speed cap {limit:.0f} mm/s")
 
     def twist(self, cmd: Twist) -> None:
         """Move the TCP at a twist (base or tool frame) until replaced, stopped or the hold runs out."""
