@@ -83,6 +83,7 @@ class ServoProcessHost:
         self._replies: list[msg.Reply] = []  # answers made in this loop, sent after its publish
         self._last_phase: str | None = None
         self.log: SessionLogWriter | None = None
+        self._log_troubles: list[str] = []  # what the session log reported, handled by _housekeeping
         # The pipe polled by a poll object made once: Connection.poll() builds a selector per call
         # (4 us here, every loop iteration), this one call costs 0.6 us.
         self._pipe_poll = select.poll()
@@ -150,6 +151,8 @@ class ServoProcessHost:
                 pending = True
             if pending:
                 self._poll_requests()
+        if self._log_troubles:
+            self._on_log_trouble()
         sup = self.sup
         if sup.start_pending:  # (no call per cycle while none is)
             sup.watch_start(time.monotonic())
@@ -232,12 +235,22 @@ class ServoProcessHost:
         for rid in waiters:
             self._reply(rid, ok, error=error)
 
-    def _open_log(self, path: Path, header: dict[str, Any]) -> SessionLogWriter:
-        """Start a session log (closing one still open) and tell the parent."""
+    def _open_log(self, path: Path, header: dict[str, Any], reserve_bytes: int = 0) -> SessionLogWriter:
+        """Start a session log (closing one still open) and tell the parent; OSError if it cannot be
+        opened with ``reserve_bytes`` of disk kept free for it (see SessionLogWriter)."""
         self._close_log()
-        self.log = SessionLogWriter(path, header)
+        self.log = SessionLogWriter(path, header, reserve_bytes, on_trouble=self._log_troubles.append)
         self._event(msg.LogOpened(path=str(path)))
         return self.log
+
+    def _on_log_trouble(self) -> None:
+        """The session log's trouble (told while a record was written): the supervisor ends the stream
+        with a soft stop, while the log's reserve still takes its records."""
+        troubles, self._log_troubles = self._log_troubles, []
+        now = time.monotonic()
+        for trouble in troubles:
+            self.sup.log_failing(trouble, now)
+        self._after_request()  # what ending the stream sends at once
 
     def _close_log(self) -> None:
         if self.log is not None:

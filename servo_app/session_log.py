@@ -35,9 +35,14 @@ that answered it to the kernel in one ``write`` (one system call per status pack
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import errno
 import json
+import os
 import struct
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -77,16 +82,50 @@ def command_record(t: float, seq: int, last_data: int, data_format: int, io: int
 
 
 class SessionLogWriter:
-    def __init__(self, path: Path, header: dict[str, Any]) -> None:
+    """Appends records to a session log, each to the kernel as it is written.
+
+    ``reserve_bytes`` (0: none) keeps that much disk space allocated past the end of the file
+    (``fallocate`` without changing its size: a reader sees only whole records), topped up as the
+    log grows. When a top-up fails (the disk is filling up) the log still has the reserve to write
+    into: ``on_trouble`` is told at once, so the stream can be stopped and ended while every record
+    of the stop is still logged. A write that fails or is cut short (no reserve on this file system,
+    a file-size limit, an I/O error) ends the log at its last whole record: nothing is written after
+    it, so the file stays readable, and ``on_trouble`` is told. It is told once per kind of trouble;
+    ``trouble`` keeps the first. Why: an exception out of a write ended the servo process
+    mid-stream, and the controller then stopped the arm by its own alarm."""
+
+    def __init__(self, path: Path, header: dict[str, Any], reserve_bytes: int = 0,
+                 on_trouble: Callable[[str], None] | None = None) -> None:
+        """OSError if the file cannot be opened, its header written or its reserve allocated: the
+        stream should not start."""
         self.path = path
         path.parent.mkdir(parents=True, exist_ok=True)
         # Unbuffered: a record in a userspace buffer dies with the process (a SIGKILLed servo process
         # lost its unflushed records, issue 13). One 56-byte write measured 1.7 us here.
         self._f: IO[bytes] = open(path, "wb", buffering=0)  # noqa: SIM115 - closed by close()
-        meta = {"format_version": FORMAT_VERSION, "opened_unix": time.time(), **header}
-        blob = json.dumps(meta).encode()
-        self._f.write(MAGIC + struct.pack("<I", len(blob)) + blob)
         self.records = 0
+        self.trouble: str | None = None
+        self.failed = False  # a write failed: nothing more is written
+        self._on_trouble = on_trouble
+        self._reserve = reserve_bytes
+        self._reserved_to = 0
+        try:
+            meta = {"format_version": FORMAT_VERSION, "opened_unix": time.time(), **header}
+            blob = json.dumps(meta).encode()
+            head = MAGIC + struct.pack("<I", len(blob)) + blob
+            if self._f.write(head) != len(head):
+                raise OSError(errno.ENOSPC, "the header was cut short")
+            self._end = len(head)
+            # Top up when less than the reserve is left, by a quarter of it: one call every quarter.
+            self._top_up_at = self._end
+            if reserve_bytes > 0:
+                self._top_up()
+                if self.trouble is not None:
+                    raise OSError(errno.ENOSPC, self.trouble)
+        except OSError:
+            self._f.close()
+            path.unlink(missing_ok=True)
+            raise
 
     def status(self, t: float, seq: int, bits: int, io: int, joints: tuple[float, ...]) -> None:
         self.write_records([status_record(t, seq, bits, io, joints)])
@@ -98,17 +137,77 @@ class SessionLogWriter:
     def write_pair(self, buf: bytearray | np.ndarray) -> None:
         """Two records packed in place (a status and its command: the FANUC servo process's
         ``_exchange_into_state``), in one write."""
-        self._f.write(buf)
-        self.records += 2
+        self._write(buf, 2 * RECORD_SIZE, 2)
 
     def write_records(self, records: list[bytes]) -> None:
         """Records made by ``status_record`` / ``command_record``, to the kernel in one write."""
-        self._f.write(records[0] if len(records) == 1 else b"".join(records))
-        self.records += len(records)
+        data = records[0] if len(records) == 1 else b"".join(records)
+        self._write(data, len(data), len(records))
+
+    def _write(self, data: bytes | bytearray | np.ndarray, size: int, records: int) -> None:
+        if self.failed:
+            return
+        try:
+            written = self._f.write(data)
+        except OSError as exc:
+            self._fail(f"a write failed after record {self.records}: {exc}")
+            return
+        if written != size:
+            self._fail(f"a write was cut short after record {self.records} ({written} of {size} bytes: "
+                       "no space was left for the rest)")
+            return
+        self.records += records
+        self._end += size
+        if self._end > self._top_up_at:
+            self._top_up()
+
+    def _top_up(self) -> None:
+        """Allocate the reserve past the end again (a quarter more than needed: one call per quarter)."""
+        want = self._end + self._reserve + self._reserve // 4
+        err = _reserve_space(self._f.fileno(), self._reserved_to, want - self._reserved_to)
+        if err == 0:
+            self._reserved_to = want
+            self._top_up_at = want - self._reserve
+        elif err in (errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL):  # no reserve on this file system
+            self._reserve = 0
+            self._top_up_at = 1 << 62
+        else:
+            left = max(0, self._reserved_to - self._end)
+            self._tell(f"the disk is full: {os.strerror(err)} ({left} bytes reserved are left, "
+                       f"{left // RECORD_SIZE} records)")
+            self._top_up_at = 1 << 62  # (told once; the reserve is written into)
+
+    def _fail(self, why: str) -> None:
+        self.failed = True
+        with contextlib.suppress(OSError):  # the log ends at its last whole record
+            os.ftruncate(self._f.fileno(), self._end)
+        self._tell(why)
+
+    def _tell(self, why: str) -> None:
+        if self.trouble is None:
+            self.trouble = why
+        if self._on_trouble is not None:
+            self._on_trouble(why)
 
     def close(self) -> None:
         if not self._f.closed:
+            with contextlib.suppress(OSError):  # the reserve left unused goes back to the disk
+                os.ftruncate(self._f.fileno(), self._end)
             self._f.close()
+
+
+_FALLOC_FL_KEEP_SIZE = 1
+_libc = ctypes.CDLL(None, use_errno=True)
+_fallocate = _libc.fallocate
+_fallocate.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int64, ctypes.c_int64]
+_fallocate.restype = ctypes.c_int
+
+
+def _reserve_space(fd: int, offset: int, length: int) -> int:
+    """Allocate ``length`` bytes of disk from ``offset`` without changing the file's size; 0 or errno."""
+    if _fallocate(fd, _FALLOC_FL_KEEP_SIZE, offset, length) == 0:
+        return 0
+    return ctypes.get_errno()
 
 
 @dataclass

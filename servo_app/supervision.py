@@ -446,6 +446,17 @@ class SupervisorBase:
         elif self.state.status is None and self._link_closed() and not self.state.shutdown:
             self._feed(ConnectRequested(), now)
 
+    def log_failing(self, trouble: str, now: float) -> None:
+        """The session log cannot take the stream much longer (its disk is full, or a write failed):
+        a soft stop that ends the stream, named by ``trouble``, and a warning. Ended rather than held:
+        a held stream logs every status too. A start under way is given up (the next one opens a new
+        log, or is refused while the disk stays full)."""
+        self._warn("SESSION-LOG", f"session log: {trouble}", now)
+        self._cancel_start(f"the session log cannot be written: {trouble}")
+        if self.state.mode in STREAM_ALIVE:
+            self._feed(EndRequested(reason=f"session log: {trouble}"), now)
+        self.changed = True
+
     def _cancel_start(self, why: str) -> None:
         if self.start_pending:
             self.start_pending = False

@@ -522,6 +522,29 @@ def test_end_after_a_fast_stop_needs_no_acknowledgement():
     assert ts[0].actions == () and ts[1].actions == (SEND_LAST_DATA,)
 
 
+@pytest.mark.parametrize("start", ["streaming_running", "stopping_soft", "stopping_fast", "stopped_soft"])
+def test_an_end_with_a_reason_names_the_stop_through_to_ended(start: str):
+    """The service's own end (its session log cannot take the stream): whatever stop was under way, the
+    stream ends, softly unless already fast, and its reason is what the operator reads once ended."""
+    before = STATES[start]
+    s, ts = steps(before, EndRequested(reason="session log: the disk is full"), ShaperAtRest(), IDLE)
+    assert [t.error for t in ts] == [None, None, None]
+    assert s.mode is Mode.ENDED and s.stop_reason == "session log: the disk is full"
+    assert s.stop_fast == before.stop_fast  # an end never slows a fast stop down
+    if before.mode is Mode.STREAMING:
+        assert ts[0].actions == (BeginDeceleration(fast=False),)
+    elif before.mode is Mode.STOPPED:
+        assert ts[0].state.mode is Mode.ENDING and ts[0].actions == (SEND_LAST_DATA,)
+    else:
+        assert ts[0].actions == () and ts[1].actions == (SEND_LAST_DATA,)
+
+
+def test_an_end_without_a_reason_keeps_the_stop_under_way():
+    s = transition(STATES["stopped_soft"], EndRequested()).state
+    assert s.mode is Mode.ENDING and s.stop_reason == STATES["stopped_soft"].stop_reason
+    assert transition(STATES["stopping_end"], EndRequested()).state == STATES["stopping_end"]
+
+
 def test_controller_alarm_faults_with_the_manuals_cause_and_remedy():
     t = transition(STREAMING, alarm("MOTN-611", "MOTN-611 ST:Exceeded Jnt Jerk Limit.(A:3,Sq.12)"))
     assert t.state.mode is Mode.FAULT

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import errno
 import json
+import logging
 import os
 import secrets
 import threading
@@ -10,6 +12,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+_log = logging.getLogger(__name__)
 
 
 def resolve_token(configured: str | None, token_file: Path) -> tuple[str, bool]:
@@ -190,6 +194,8 @@ class AuditLog:
         self.backups = backups
         self._lock = threading.Lock()
         self._size = path.stat().st_size if path.exists() else 0
+        self.dropped = 0  # lines not written since the last that was (a full disk), with why
+        self.last_error = ""
 
     def _rotate(self) -> None:  # under the lock
         for i in range(self.backups, 0, -1):
@@ -207,8 +213,26 @@ class AuditLog:
                            "detail": detail}, default=str) + "\n"
         data = line.encode()
         with self._lock:
-            if self._size and self._size + len(data) > self.max_bytes:
-                self._rotate()
-            with open(self.path, "ab") as f:
-                f.write(data)
+            if self.dropped:  # the count of lines a full disk cost, first, once they can be written again
+                lost = json.dumps({"t": time.time(), "client": "", "action": "audit.dropped", "ok": False,
+                                   "detail": f"{self.dropped} lines not written: {self.last_error}"})
+                data = lost.encode() + b"\n" + data
+            try:
+                if self._size and self._size + len(data) > self.max_bytes:
+                    self._rotate()
+                with open(self.path, "ab", buffering=0) as f:
+                    if f.write(data) != len(data):  # cut short: no torn line is left behind
+                        f.truncate(self._size)
+                        raise OSError(errno.ENOSPC, "no space left for the whole line")
+            except OSError as exc:
+                # The request it records has been decided (a stop must answer on a full disk too): the
+                # line is counted as lost, and the loss written once the disk takes lines again.
+                if not self.dropped:
+                    _log.warning("audit log %s: %s (lines are counted, not written, until it works again)",
+                                 self.path, exc)
+                self.dropped += 1
+                self.last_error = str(exc)
+                self._size = self.path.stat().st_size if self.path.exists() else 0
+                return
             self._size += len(data)
+            self.dropped = 0

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from servo_app import messages as msg
+from servo_app.errors import CommandRejected
 from servo_app.fanuc.packets import (
     COMMAND_FORMAT_OFFSET,
     COMMAND_LAST_DATA_OFFSET,
@@ -82,6 +83,9 @@ assert all(m.value in MODES for m in Mode)
 # class costs ~0.1 us here, more with caches cold).
 _STREAMED_MODES = (Mode.STREAMING, Mode.STOPPING, Mode.STOPPED, Mode.ENDING)
 _STREAMING = Mode.STREAMING
+# Disk space kept allocated past the session log's end, in seconds of statuses and their commands: when
+# the disk fills up, the stream's stop and end (a few seconds at most) are still logged whole.
+LOG_RESERVE_S = 10.0
 
 
 @dataclass
@@ -805,20 +809,32 @@ class _ServoProcess(ServoProcessHost):
                             hist.at, values, lat_us, self.late_us, self.dt)
 
     def _open_stream_log(self) -> None:
+        """A new session log for the stream a start asks for; CommandRejected (the start refused, nothing
+        changed) when it cannot be opened with LOG_RESERVE_S of records' disk space kept for it."""
         if self.log is not None:
-            return
+            if self.log.trouble is None:
+                return
+            self._close_log()  # (a log in trouble takes no new stream: a new one, or the start refused)
+        t0 = time.monotonic()
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        path = Path(self.cfg.log_dir) / f"session-{stamp}-{os.getpid()}-{int(t0 * 1000) % 100000}.srvlog"
+        try:
+            self._open_log(path, {"model": self.profile.name, "interval_ms": self.dt * 1000,
+                                  "j23_factor": self.profile.j23_factor, "protocol": "fanuc-j519-v1",
+                                  "robot": f"{self.cfg.host}:{self.cfg.port}", "commands": "joint_format",
+                                  "fixed_interval": True},
+                           reserve_bytes=round(LOG_RESERVE_S / self.dt) * 2 * RECORD_SIZE)
+        except OSError as exc:
+            raise CommandRejected(
+                f"start refused: the session log cannot be opened in {self.cfg.log_dir} with "
+                f"{LOG_RESERVE_S:g} s of records' disk space kept for it ({exc}); free disk space there, "
+                "then start again") from exc
         self._log_streamed = False
-        self.t0 = time.monotonic()
+        self.t0 = t0
         self.latency = _Latency()
         self._exchange = None  # (a new latency window)
         self.hist.clear()
         self._logged_seq = None
-        stamp = time.strftime("%Y%m%d-%H%M%S")
-        path = Path(self.cfg.log_dir) / f"session-{stamp}-{os.getpid()}-{int(self.t0 * 1000) % 100000}.srvlog"
-        self._open_log(path, {"model": self.profile.name, "interval_ms": self.dt * 1000,
-                              "j23_factor": self.profile.j23_factor, "protocol": "fanuc-j519-v1",
-                              "robot": f"{self.cfg.host}:{self.cfg.port}", "commands": "joint_format",
-                              "fixed_interval": True})
 
     def _on_link_phase(self, phase: str) -> None:
         tables = self.sup.session.tables

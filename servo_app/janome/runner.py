@@ -41,6 +41,9 @@ from servo_app.state import FIELDS, MODES, OFFSET, PHASES, StateVector, command_
 assert all(p.value in PHASES for p in Phase)
 assert all(m.value in MODES for m in Mode)
 
+# Disk space kept allocated past the connection log's end (a few frames a second: minutes of them), so
+# that when the disk fills up the stream's end is still logged whole (see SessionLogWriter).
+LOG_RESERVE_BYTES = 256 * 1024
 DEFAULT_PORT = 10050  # any free port: the same number goes into the robot's client port settings
 
 
@@ -153,12 +156,19 @@ class _JanomeServoProcess(ServoProcessHost):
             sock.close()
             self._event(PeerRefused(peer=peer, reason=f"already serving {self.peer}"))
             return
+        try:  # every frame of a connection is logged: no connection without its log
+            self._open_connection_log(peer)
+        except OSError as exc:
+            sock.close()
+            self._event(PeerRefused(peer=peer, reason=(
+                f"the session log cannot be opened in {self.cfg.log_dir} with {LOG_RESERVE_BYTES // 1024} KiB "
+                f"of disk space kept for it ({exc}); free disk space there, then let the robot reconnect")))
+            return
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.setblocking(False)
         self.sock, self.peer = sock, peer
         self.settle.reset()  # another connection: its feedback is watched afresh
         self._settle_seq = None
-        self._open_connection_log()
         self.sup.on_connect(time.monotonic())
         self._event(PeerConnected(peer=peer))
 
@@ -222,11 +232,11 @@ class _JanomeServoProcess(ServoProcessHost):
                 continue
             log.command(t, tg.seq, int(tg.stop), int(tg.cmd), 0, latency_us, (tg.x, tg.y, tg.z, tg.r))
 
-    def _open_connection_log(self) -> None:
+    def _open_connection_log(self, peer: str) -> None:
         path = Path(self.cfg.log_dir) / f"janome-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.srvlog"
         self._open_log(path, {"model": self.profile.name, "protocol": "janome-pointjob-v1",
-                              "axes": ["X", "Y", "Z", "R"], "peer": self.peer, "commands": "all",
-                              "fixed_interval": False})
+                              "axes": ["X", "Y", "Z", "R"], "peer": peer, "commands": "all",
+                              "fixed_interval": False}, reserve_bytes=LOG_RESERVE_BYTES)
         self._logged_seq = None
 
     def _lost(self, reason: str) -> None:

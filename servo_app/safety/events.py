@@ -88,7 +88,10 @@ class ResumeRequested:
 
 @dataclass(frozen=True)
 class EndRequested:
-    pass
+    """End the stream: a soft stop, then last data. ``reason``, when given, names the stop (the
+    service's own end: its session log cannot take the stream); else a stop under way keeps its own."""
+
+    reason: str | None = None
 
 
 @dataclass(frozen=True)

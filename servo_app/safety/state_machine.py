@@ -17,6 +17,8 @@ ResumeRequested. Fast stops (StopRequested(fast=True), SensorFault, LimitApproac
 shortest ramp and, once at rest, need a ResetRequested (acknowledge) before ResumeRequested: the
 cause must be looked at before motion restarts. SIGTERM/SIGINT ramps softly, sends last data at rest,
 then stops status output; a second signal while still decelerating escalates to the fast ramp.
+EndRequested ramps softly and sends last data at rest; its reason, when it has one (the service's
+own end: its session log cannot take the stream), names the stop it starts or joins.
 
 Faults (controller alarm; status bit 0 falling or SYSRDY going off while the stream is alive; status
 lost or the link dropped while the stream is alive) abandon the stream and record the alarm code
@@ -397,12 +399,15 @@ def _on_end(s: SafetyState, e: EndRequested) -> Transition:
     m = s.mode
     if m is Mode.STREAMING:
         return _go(s, (BeginDeceleration(fast=False),), mode=Mode.STOPPING,
-                   stop=Stop("end requested", StopKind.SOFT, Then.END))
+                   stop=Stop(e.reason or "end requested", StopKind.SOFT, Then.END))
     if m is Mode.STOPPING:
         cur = _cur(s)
-        return _stay(s) if cur.then is Then.END else _go(s, stop=replace(cur, then=Then.END))
+        stop = replace(cur, then=Then.END, reason=e.reason or cur.reason)
+        return _stay(s) if stop == cur else _go(s, stop=stop)
     if m is Mode.STOPPED:
-        return _go(s, (SEND_LAST_DATA,), mode=Mode.ENDING, stop=replace(_cur(s), then=Then.END))
+        cur = _cur(s)
+        return _go(s, (SEND_LAST_DATA,), mode=Mode.ENDING, stop=replace(cur, then=Then.END,
+                                                                         reason=e.reason or cur.reason))
     if m in (Mode.ENDING, Mode.ENDED):
         return _stay(s)
     if m is Mode.FAULT:
