@@ -1,0 +1,145 @@
+"""The disk fills up mid-jog, end to end: `servo-app run` (API, servo process, embedded simulator) with its
+var directory on a small disk of its own (tests/small_disk.py), filled to its last byte by another
+process while a Cartesian jog runs over REST. The service must end the stream itself (a soft stop, then
+last data: the controller raises no alarm), log every record of it, say why, refuse a start until there
+is room again, and start again once there is, all without a restart."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from small_disk import fill, free, launch, unavailable
+from test_api_harness import assert_came_to_rest, assert_log_complete
+
+from servo_app.session_log import SessionLog, read_session_log
+
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(120),
+              pytest.mark.skipif(unavailable() is not None, reason=str(unavailable()))]
+
+ROOT = Path(__file__).resolve().parents[1]
+TOKEN = "disk-full-test"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def wait(c: httpx.Client, pred: Callable[[dict[str, Any]], bool], what: str, timeout: float = 15.0
+         ) -> dict[str, Any]:
+    deadline = time.monotonic() + timeout
+    while True:
+        s = c.get("/api/state").json()
+        if pred(s):
+            return s
+        if time.monotonic() > deadline:
+            raise AssertionError(f"not {what} within {timeout} s: {s['state']} ({s.get('stop_reason')})")
+        time.sleep(0.02)
+
+
+@pytest.fixture
+def service(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], httpx.Client, Path]]:
+    var = tmp_path / "var"
+    var.mkdir()
+    port = free_port()
+    p = launch(var, 4096, [sys.executable, "-m", "servo_app.cli", "run", "--http-port", str(port), "--token", TOKEN,
+                           "--var-dir", str(var), "--interval-ms", "8"],
+               env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    c = httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10)
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                if c.get("/api/health").status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            assert p.poll() is None and time.monotonic() < deadline, "the service did not come up"
+            time.sleep(0.1)
+        yield p, c, var
+    finally:
+        c.close()
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+        out, _ = p.communicate(timeout=30)
+        print(out[-3000:])
+
+
+def jog_until(c: httpx.Client, h: dict[str, str], done: threading.Event) -> None:
+    """Cartesian jogs over REST at 20 Hz (+-X 40 mm/s, flipping every second) until ``done``; refusals
+    (the stream ending under it) are what a client sees then, not errors."""
+    t0 = time.monotonic()
+    n = 0
+    while not done.is_set():
+        n += 1
+        if n % 40 == 0:
+            c.post("/api/lease/renew", headers=h)
+        sign = 1.0 if int(time.monotonic() - t0) % 2 == 0 else -1.0
+        c.post("/api/jog", headers=h, json={"linear": [40.0 * sign, 0, 0], "angular": [0, 0, 0], "frame": "base",
+                                            "hold_ms": 200})
+        done.wait(0.05)
+
+
+def newest_log(c: httpx.Client, var: Path) -> SessionLog:
+    name = max((s["name"] for s in c.get("/api/sessions").json()), key=lambda n: n)
+    r = c.get(f"/api/sessions/{name}")
+    assert r.status_code == 200, r.text
+    path = var.parent / name  # (outside the small disk: the test's own)
+    path.write_bytes(r.content)
+    return read_session_log(path)
+
+
+def test_a_disk_filling_up_mid_jog_ends_the_stream_softly_logged_whole_and_recovers(
+        service: tuple[subprocess.Popen[str], httpx.Client, Path]) -> None:
+    p, c, var = service
+    h = {**AUTH, "X-Lease-Id": c.post("/api/lease", json={"client": "disk-test"}, headers=AUTH).json()["lease_id"]}
+    assert c.post("/api/session/start", headers=h).status_code == 200
+    wait(c, lambda s: s["state"] == "streaming", "streaming")
+    done = threading.Event()
+    jogger = threading.Thread(target=jog_until, args=(httpx.Client(base_url=str(c.base_url), timeout=10), h, done))
+    jogger.start()
+    try:
+        wait(c, lambda s: s["state"] == "streaming" and max(map(abs, s["vel"])) > 2.0, "jogging")
+        fill(p.pid, var / "filler")  # another process takes the disk's last byte
+        s = wait(c, lambda s: s["state"] == "ended", "ended")
+    finally:
+        done.set()
+        jogger.join()
+    assert s["stop_reason"].startswith("session log: the disk is full: No space left on device"), s["stop_reason"]
+    assert any(w["code"] == "SESSION-LOG" for w in s["warnings"]), s["warnings"]
+    assert not [a for a in s.get("alarm_history") or [] if a["code"] != "SESSION-LOG"], s["alarm_history"]
+
+    # The stream's stop and end are in the log, every command of them: the reserve took them.
+    log = newest_log(c, var)
+    assert_log_complete(log, ended=True)
+    assert_came_to_rest(log, 0.008)
+
+    # No room for a new log: the start is refused, naming why and what to do, and nothing changes.
+    r = c.post("/api/session/start", headers=h)
+    assert r.status_code == 409, r.text
+    detail = r.json()["detail"]
+    assert "session log cannot be opened" in detail and "free disk space there, then start again" in detail, detail
+    assert c.get("/api/state").json()["state"] == "ended"
+
+    # Room again: the same service starts a new stream and ends it cleanly.
+    free(p.pid, var / "filler")
+    assert c.post("/api/session/start", headers=h).status_code == 200
+    wait(c, lambda s: s["state"] == "streaming", "streaming again")
+    assert c.post("/api/session/end", headers=h).status_code == 200
+    s = wait(c, lambda s: s["state"] == "ended" and s["link"] == "closed", "ended again")
+    assert s["stop_reason"] == "end requested"
+    assert_log_complete(newest_log(c, var), ended=True, min_records=3)
+    assert p.poll() is None
