@@ -205,3 +205,30 @@ def test_input_twist_through_the_slot_moves_the_robot_and_stale_stops_it() -> No
         sim.stop()
         sp.shutdown()
         writer.close()
+
+
+def test_a_robot_is_refused_while_its_log_cannot_be_opened_and_served_once_it_can(tmp_path: Any) -> None:
+    """Every frame of a connection is logged: a robot that connects while its session log cannot be
+    opened (here its directory is blocked by a file; a full disk is refused the same way) is closed at
+    once with the reason, and the process serves the next connection once the log can be opened."""
+    blocker = tmp_path / "var"
+    blocker.write_text("")
+    sp = JanomeProcess(JanomeConfig(port=0, log_dir=str(blocker / "sessions")))
+    sp.start()
+    try:
+        with socket.create_connection(sp.address, timeout=2.0) as robot:
+            assert robot.recv(16) == b""  # closed at once
+        refused = sp.wait_event(PeerRefused, 5.0)
+        assert isinstance(refused, PeerRefused)
+        assert refused.reason.startswith(f"the session log cannot be opened in {blocker / 'sessions'}")
+        assert "Not a directory" in refused.reason and refused.reason.endswith("then let the robot reconnect")
+        assert sp.alive and sp.state()["state"] == "disconnected"
+        blocker.unlink()
+        sim = JanomeSimulator(sp.address, "jr3000").start()
+        try:
+            wait_state(sp, "ready")
+            assert (blocker / "sessions").is_dir() and any((blocker / "sessions").glob("janome-*.srvlog"))
+        finally:
+            sim.stop()
+    finally:
+        sp.shutdown()
