@@ -13,7 +13,20 @@ from test_safety_state_machine import STATES
 from test_servo_cycle_property import Cell
 
 from servo_app.errors import CommandRejected, InvalidRequest
-from servo_app.messages import End, Jog, JointTarget, PoseTarget, Request, Reset, Resume, SetTool, Stop, Twist
+from servo_app.input_slot import POSE, TWIST, InputCommand
+from servo_app.messages import (
+    ConfigureInputs,
+    End,
+    Jog,
+    JointTarget,
+    PoseTarget,
+    Request,
+    Reset,
+    Resume,
+    SetTool,
+    Stop,
+    Twist,
+)
 from servo_app.safety import Mode
 from servo_app.supervision import next_step
 
@@ -132,3 +145,28 @@ def test_a_steady_status_skips_the_state_machine_and_a_changed_one_still_reaches
     for _ in range(3):
         cell.cycle()
     assert cell.sup.state.mode is Mode.FAULT and "StatusReceived" in fed[-3:]
+
+
+@pytest.mark.parametrize("kind", ["twist", "pose target"])
+def test_an_input_whose_flange_swing_is_over_the_cap_after_a_hold_to_run_stop_changes_nothing(kind: str) -> None:
+    """As a requested motion (above), for the inputs' live command: refused by the cycle before the gate,
+    which resumes a hold-to-run stop for an input's move; the refusal is the inputs' error."""
+    cell = Cell()
+    cell.start()
+    cell.sup.request(SetTool(name="long", xyzwpr=(0.0, 0.0, 1500.0, 0.0, 0.0, 0.0)), cell.t)
+    cell.sup.request(ConfigureInputs(enable=True, sources=("tracker",)), cell.t)
+    stopped_by_hold_to_run(cell)
+    before, hold = cell.sup.state, cell.sup.hold
+    limit = cell.sup._flange_cap()
+    swing = math.degrees(0.5 * limit / 1500.0)
+    if kind == "twist":
+        cmd = InputCommand(kind=TWIST, frame="tool", values=(0.8 * limit, 0.0, 0.0, 0.0, 0.0, swing),
+                           linear_speed=0.0, angular_speed=0.0, stamp=cell.t, timeout_s=0.2, source=0, stale=False)
+    else:
+        cmd = InputCommand(kind=POSE, frame="base", values=(400.0, 0.0, 300.0, 180.0, 0.0, 0.0),
+                           linear_speed=0.8 * limit, angular_speed=swing, stamp=cell.t, timeout_s=0.2, source=0,
+                           stale=False)
+    cell.sup.on_input(cmd, cell.t)
+    assert "flange-speed cap" in cell.sup.inputs.error
+    assert cell.sup.state == before and cell.sup.hold == hold  # not resumed, no hold-to-run timer
+    assert not cell.sup.cycle.ik_active
