@@ -48,3 +48,9 @@ def free(pid: int, path: Path) -> None:
     """Remove the file at ``path`` from the small disk of process ``pid``."""
     subprocess.run(["nsenter", "--target", str(pid), "--mount", "--", "rm", "-f", str(path)], check=True,
                    timeout=10)
+
+
+def read(pid: int, path: Path) -> str:
+    """The text of the file at ``path`` on the small disk of process ``pid``."""
+    return subprocess.run(["nsenter", "--target", str(pid), "--mount", "--", "cat", str(path)], check=True,
+                          capture_output=True, text=True, timeout=10).stdout

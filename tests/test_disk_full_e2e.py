@@ -6,6 +6,7 @@ is room again, and start again once there is, all without a restart."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -19,7 +20,7 @@ from typing import Any
 
 import httpx
 import pytest
-from small_disk import fill, free, launch, unavailable
+from small_disk import fill, free, launch, read, unavailable
 from test_api_harness import assert_came_to_rest, assert_log_complete
 
 from servo_app.session_log import SessionLog, read_session_log
@@ -143,3 +144,7 @@ def test_a_disk_filling_up_mid_jog_ends_the_stream_softly_logged_whole_and_recov
     assert s["stop_reason"] == "end requested"
     assert_log_complete(newest_log(c, var), ended=True, min_records=3)
     assert p.poll() is None
+    # The audit log lost the lines of the full disk's requests, not their answers, and says how many.
+    lines = [json.loads(line) for line in read(p.pid, var / "audit.log").splitlines()]  # (none torn)
+    dropped = [a for a in lines if a["action"] == "audit.dropped"]
+    assert len(dropped) == 1 and "lines not written" in dropped[0]["detail"], dropped
