@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import time
 from collections.abc import Iterator
@@ -232,3 +233,57 @@ def test_a_robot_is_refused_while_its_log_cannot_be_opened_and_served_once_it_ca
             sim.stop()
     finally:
         sp.shutdown()
+
+
+@contextlib.contextmanager
+def janome_with_file_size_limit(tmp_path: Any, limit: int) -> Iterator[tuple[JanomeProcess, JanomeSimulator]]:
+    """A Janome servo process held to ``limit`` bytes per file (RLIMIT_FSIZE, inherited by the spawned
+    process only: its log's writes past it fail as on a full disk), and a robot connected to it."""
+    import resource
+
+    sp = JanomeProcess(JanomeConfig(port=0, log_dir=str(tmp_path / "sessions")))
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, hard))
+    try:
+        sp.start()
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+    sim = JanomeSimulator(sp.address, "jr3000").start()
+    try:
+        wait_state(sp, "ready")
+        yield sp, sim
+    finally:
+        sim.stop()
+        sp.shutdown()
+
+
+def test_a_connection_whose_log_fails_mid_stream_ends_it_softly_with_the_reason(tmp_path: Any) -> None:
+    with janome_with_file_size_limit(tmp_path, 6000) as (sp, _):
+        sp.request(Start())
+        wait_state(sp, "streaming")
+        deadline = time.monotonic() + 20.0
+        while sp.state()["state"] == "streaming" and time.monotonic() < deadline:
+            with contextlib.suppress(CommandRejected):
+                sp.request(Jog(joints=(20.0, 0.0, 0.0, 0.0), hold_s=0.5))
+            time.sleep(0.1)
+        wait_state(sp, "ended")
+        view = last_safety(sp, "ended")
+        assert view is not None
+        reason = view["stop_reason"]
+        assert reason.startswith("session log: a write ") and ("File too large" in reason or "cut short" in reason)
+        assert any(w["code"] == "SESSION-LOG" for w in view["warnings"]), view["warnings"]
+        assert sp.alive
+
+
+def test_a_connection_whose_log_failed_takes_no_stream(tmp_path: Any) -> None:
+    """The log failed before any stream (the robot's statuses filled it): a start on that connection is
+    refused with the reason, and nothing changes."""
+    with janome_with_file_size_limit(tmp_path, 900) as (sp, _):
+        wait_safety(sp, 20.0, state="ready")
+        deadline = time.monotonic() + 20.0
+        while not any(w["code"] == "SESSION-LOG" for w in (last_safety(sp) or {}).get("warnings", [])):
+            assert time.monotonic() < deadline, "the log never failed"
+            time.sleep(0.05)
+        with pytest.raises(CommandRejected, match=r"start refused: the session log janome-.* cannot take a stream"):
+            sp.request(Start())
+        assert sp.alive and sp.state()["state"] == "ready"

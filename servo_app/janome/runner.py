@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from servo_app import messages as msg
+from servo_app.errors import CommandRejected
 from servo_app.input_slot import InputSlotReader
 from servo_app.janome.motion import JanomeMotion, MotionSettings
 from servo_app.janome.profile import load_janome_profile
@@ -129,6 +131,13 @@ class _JanomeServoProcess(ServoProcessHost):
 
     def _deliver_signal(self, sig: int, now: float) -> None:
         self.sup.signal(sig, now)
+
+    def _before_request(self, req: msg.Request) -> None:
+        # The connection's log takes its streams: none starts once it is in trouble (a full disk).
+        if isinstance(req, msg.Start) and self.log is not None and self.log.trouble is not None:
+            raise CommandRejected(f"start refused: the session log {self.log.path.name} cannot take a stream "
+                                  f"({self.log.trouble}); free disk space in {self.cfg.log_dir}, then let the "
+                                  "robot reconnect")
 
     def _after_request(self) -> None:
         self._maybe_close()
