@@ -247,6 +247,7 @@ def test_janome_robot_error_is_an_active_alarm_until_reset(tmp_path: Path) -> No
         s = rig.wait(lambda s: s["state"] != "fault", 5.0, "out of fault")
         assert s["alarms"] == [] and codes(s["alarm_history"]) == [code]
     finally:
+        rig.http.close()
         sim.stop()
         server.stop()
         service.close()
