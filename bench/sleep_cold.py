@@ -32,11 +32,11 @@ import numpy as np
 from servo_app.fanuc.packets import Status
 from servo_app.motion.commands import Twist
 from servo_app.motion.servo import ServoCycle, ServoSettings
-from servo_app.realtime import WakeLatencyHold, make_realtime
 from servo_app.robots.profile import load_profile
 
 sys.path.insert(0, str(Path(__file__).parent))
 from results import command_line, write_section
+from servo_loop import FLIP_S, schedule_as_live
 
 HOME = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
 SPEED_MM_S = 40.0
@@ -48,7 +48,7 @@ def run(cycles: int, gap_s: float, dt: float = 0.008) -> tuple[float | None, flo
     cycle = ServoCycle(load_profile("lrmate200id"), dt, ServoSettings())
     cycle.begin(HOME, None)
     status = Status(seq=1)
-    flip = round(1.0 / dt)
+    flip = round(FLIP_S / dt)
     solve_ahead = getattr(cycle, "solve_ahead", None)
     ahead, command, both = [], [], []
     for k in range(cycles + 100):  # the first 100: the jog gets going, lazy set-up is paid
@@ -77,8 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--gaps-ms", type=float, nargs="+", default=[0.0, 0.5, 2.0, 4.0, 8.0])
     ap.add_argument("--no-write", action="store_true", help="print only, leave bench/RESULTS.md alone")
     args = ap.parse_args(argv)
-    scheduling = make_realtime(20)
-    hold = WakeLatencyHold(0)
+    hold = schedule_as_live()
     try:
         rows = [(gap, *run(args.cycles, gap / 1000)) for gap in args.gaps_ms]
     finally:
@@ -94,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(f"| {gap:g} | {ahead} | {c:.0f} | {b:.0f} | {ratio} |")
     text = "\n".join(lines)
     print(text)
-    print(f"sleep cold: the motion step alone in this process ({scheduling}; {hold.status})")
+    print(f"sleep cold: the motion step alone in this process, scheduled as the live servo process ({hold.status})")
     if not args.no_write:
         print(f"written to {write_section('sleep_cold', command_line(__file__, argv), text)}")
     return 0
