@@ -40,7 +40,7 @@ from servo_app.api import session as session_routes
 from servo_app.api.app import _json_safe
 from servo_app.api.auth import token_matches
 from servo_app.api.deps import lease_holder
-from servo_app.api.models import JogBody, JointTarget, LeaseRequest, PoseTargetBody, StopRequest
+from servo_app.api.models import JogBody, LeaseRequest, StopRequest, TargetBody
 from servo_app.api.motion import admit_jog, jog_request, target_request
 from servo_app.api.state import state_snapshot
 from servo_app.ros import messages as ros
@@ -520,7 +520,7 @@ class ZenohInterface:
 FRAMES = {"": "base", "base_link": "base", "world": "base", "tool0": "tool", "flange": "tool"}
 
 _JOG: TypeAdapter[Any] = TypeAdapter(JogBody)
-_TARGET: TypeAdapter[Any] = TypeAdapter(JointTarget | PoseTargetBody)
+_TARGET: TypeAdapter[Any] = TypeAdapter(TargetBody)
 
 
 def _validated(model: Any, body: dict[str, Any]) -> Any:

@@ -168,6 +168,12 @@ def test_request_types_are_strict_and_a_refusal_changes_nothing(rig: Rig) -> Non
     assert r.status_code == 422 and "joints[0]=nan" in r.text
     r = rig.http.post("/api/jog", json={"joints": [0] * 6, "hold": 1}, headers=h)
     assert r.status_code == 422 and r.json()["detail"][0]["type"] == "extra_forbidden"
+    # A target's errors are its own model's alone: a bad pose is not also a joint target missing "joints".
+    for body, field, value in (({"xyzwpr": [400.0, 0.0, 300.0, 180.0, 0.0, 0.0], "angular_speed": 500}, "angular_speed",
+                                500), ({"joints": [0, 0, 0, 0, -90, 0], "speed_scale": 2}, "speed_scale", 2)):
+        r = rig.http.post("/api/target", json=body, headers=h)
+        errors = r.json()["detail"]
+        assert r.status_code == 422 and [(e["loc"][-1], e["input"]) for e in errors] == [(field, value)], r.text
     assert rig.http.post("/api/jog", json={"joints": [0, 0, 0, 0, 0, 1], "hold_ms": 100}, headers=h).status_code == 200
     # The schema refusals of motion routes are in the audit log (as 409s and 429s are).
     mine = [x for x in audit_lines(rig) if x["action"] == "POST /api/session/stop" and not x["ok"]]

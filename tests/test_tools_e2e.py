@@ -5,6 +5,7 @@ refusal and the command line's check of a bad file too."""
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 import time
@@ -169,6 +170,34 @@ def test_a_tool_change_while_jogging_is_refused_and_changes_nothing(rig: Rig) ->
     states = hold_twist(rig, h, 0.8, linear=[0.0, 0.0, 0.0], angular=[0.0, 12.0, 0.0], frame="tool")
     drift = max(float(np.linalg.norm(np.subtract(s["cart_servo"][:3], s0["cart_servo"][:3]))) for s in states)
     assert drift < 1.0
+    assert rig.sim_alarms() == []
+
+
+def test_a_turn_too_fast_for_the_flange_is_422_and_changes_nothing(rig: Rig) -> None:
+    """A turn about the gripper's TCP (150 mm out) swings the flange at |w| 150 mm/s: above the flange's
+    speed cap it is the request's own values (422, naming the turn, the tool and the cap, and what to
+    send), as a TCP speed above it is; the arm stays where it was and the stream streaming. (A pose
+    target within its REST bounds cannot reach the cap with this tool: the supervisor's tests cover it.)"""
+    h = at_rest_with(rig, "gripper")
+    s0 = settled(rig)
+    vmax = rig.http.get("/api/limits").json()["max_flange_speed_mm_s"]
+    # The TCP at 0.6 of the cap (taken alone) and a swing of 0.6 of it: the flange at up to 1.2 times.
+    linear, turn = 0.6 * vmax, round(math.degrees(0.6 * vmax / 150.0), 1)
+    assert turn <= 1000.0, "within the request's own bound, so the cap is what refuses it"
+    r = rig.http.post("/api/jog", json={"linear": [linear, 0.0, 0.0], "angular": [0.0, 0.0, turn], "frame": "tool"},
+                      headers=h)
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"]
+    for words in (f"linear speed {linear:.1f} mm/s + {turn:g} deg/s about a TCP 150 mm from the flange",
+                  "is above the flange-speed cap", "send a slower turn or linear speed"):
+        assert words in detail, (words, detail)
+    s = rig.state()
+    assert s["state"] == "streaming" and s["at_rest"] and s["q_cmd"] == s0["q_cmd"], s["state"]
+    # A slow turn about the same TCP is taken.
+    rig.post("/api/jog", h, {"linear": [0.0, 0.0, 0.0], "angular": [0.0, 0.0, turn / 10], "frame": "tool",
+                             "hold_ms": 100})
+    rig.wait(lambda s: not s["at_rest"], 5.0, "turning")
+    settled(rig)
     assert rig.sim_alarms() == []
 
 

@@ -88,6 +88,17 @@ class PoseTargetBody(BaseModel):
         return _finite("xyzwpr", v)
 
 
+def _target_kind(body: Any) -> str:
+    # As _jog_kind: a bad pose is reported against PoseTargetBody's fields alone, not also as a
+    # JointTarget missing its joints. Tagged with the models' names, as the plain union's errors were
+    # ("loc": ["body", "JointTarget", "speed_scale"]: clients drop the capitalised tag).
+    return "JointTarget" if isinstance(body, dict) and "joints" in body else "PoseTargetBody"
+
+
+TargetBody = Annotated[Annotated[JointTarget, Tag("JointTarget")] | Annotated[PoseTargetBody, Tag("PoseTargetBody")],
+                       Discriminator(_target_kind)]
+
+
 class StopRequest(BaseModel):
     model_config = _CLOSED
     fast: bool = False

@@ -9,7 +9,17 @@ from fastapi.concurrency import run_in_threadpool
 
 from servo_app import messages as msg
 from servo_app.api.deps import ApiContext, Calls, Controlling, api_of
-from servo_app.api.models import REFUSALS, Ack, JogBody, JointJog, JointTarget, PoseTargetBody, Problem, TwistJog
+from servo_app.api.models import (
+    REFUSALS,
+    Ack,
+    JogBody,
+    JointJog,
+    JointTarget,
+    PoseTargetBody,
+    Problem,
+    TargetBody,
+    TwistJog,
+)
 
 router = APIRouter(tags=["motion"], responses=REFUSALS)
 
@@ -57,7 +67,7 @@ def jog_request(body: JointJog | TwistJog) -> msg.Request:
 
 
 @router.post("/api/target", summary="Move to a joint or pose target")
-def target(body: JointTarget | PoseTargetBody, client: Controlling, calls: Calls) -> Ack:
+def target(body: TargetBody, client: Controlling, calls: Calls) -> Ack:
     """Go to ``{"joints": [...]}`` (deg, or mm for a linear axis) or ``{"xyzwpr": [X, Y, Z, W, P, R]}``
     (mm, deg; world frame) along a jerk-limited path; a pose out of reach, or given in metres, is
     refused up front (422). Resumes a hold-to-run stop. Token and lease."""

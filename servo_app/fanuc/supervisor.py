@@ -19,7 +19,8 @@ returns the datagrams to send. Every decision about motion goes through
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from collections.abc import Callable
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 
@@ -47,6 +48,8 @@ from servo_app.safety import (
     transition,
 )
 from servo_app.supervision import SupervisorBase, axis_values, check_count, check_speeds, next_step
+
+_C = TypeVar("_C", Twist, PoseTarget)
 
 # The status bits a StatusReceived event carries (bit 0, bit 1, SYSRDY, moving).
 _STATUS_EVENT_BITS = int(StatusBit.WAITING_FOR_COMMAND | StatusBit.COMMAND_RECEIVED | StatusBit.SYSRDY
@@ -193,10 +196,11 @@ class StreamSupervisor(SupervisorBase):
         speed, cap = math.hypot(*cmd.linear), self._flange_cap()
         if speed > cap:
             raise InvalidRequest(f"linear={list(cmd.linear)}: {speed:.1f} mm/s is above the flange-speed cap "
-                                 f"{cap:.0f} mm/s")
+                                 f"{cap:.0f} mm/s; send at most {cap:.0f} mm/s")
         # The flange's own speed too (a turn about a long tool swings it), and hold_s, before the gate:
         # the gate may resume a stream stopped by a hold-to-run, which a refused twist must not do.
-        self.cycle.check_twist(cmd)
+        # Too fast for the flange is the request's own values, as too fast for the TCP is (422).
+        _as_invalid(self.cycle.check_twist, cmd)
         self._hold_to_run(float(req.hold_s), now, "twist")
         self.cycle.twist(cmd)
 
@@ -209,9 +213,9 @@ class StreamSupervisor(SupervisorBase):
         cap = self._flange_cap()
         if pose.linear_speed > cap:
             raise InvalidRequest(f"linear_speed={pose.linear_speed:g} mm/s is above the flange-speed cap "
-                                 f"{cap:.0f} mm/s")
+                                 f"{cap:.0f} mm/s; send at most {cap:.0f} mm/s")
         check_pose_plausible(pose.xyzwpr, self.cycle.profile, self.cycle.settings.tool_xyzwpr)
-        self.cycle.check_pose_target(pose)  # the flange's swing about the tool too, before the gate (_on_twist)
+        _as_invalid(self.cycle.check_pose_target, pose)  # the flange's swing about the tool too, before the gate
         self._target_gate("pose target", now)
         self.cycle.pose_target(pose)
 
@@ -403,3 +407,13 @@ def _io_type(value: Any) -> int:
             raise InvalidRequest(f"io type={value!r} is unknown (DI, DO, RI, RO, ..., F, M)") from None
     return int(IoType(int(value)))
 
+
+
+def _as_invalid(check: Callable[[_C], None], cmd: _C) -> None:
+    """Run a check of the request's own values; its refusal is an InvalidRequest (422), not the state's."""
+    try:
+        check(cmd)
+    except InvalidRequest:
+        raise
+    except CommandRejected as exc:
+        raise InvalidRequest(str(exc)) from None

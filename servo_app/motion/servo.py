@@ -349,7 +349,9 @@ class ServoCycle:
         tool, if any), when the flange's bound at those speeds is above its cap."""
         limit = self.cap * self.settings.flange_speed_margin
         if self._flange_speed_bound(linear_mm_s, angular_deg_s) > limit:
-            raise CommandRejected(f"{said}{self._tool_note(angular)} is above the flange-speed cap {limit:.0f} mm/s")
+            note = self._tool_note(angular)
+            raise CommandRejected(f"{said}{note} is above the flange-speed cap {limit:.0f} mm/s; "
+                                  + ("send a slower turn or linear speed" if note else "send it slower"))
 
     def twist(self, cmd: Twist) -> None:
         """Move the TCP at a twist (base or tool frame) until replaced, stopped or the hold runs out."""
