@@ -121,6 +121,37 @@ def test_a_csv_body_replays_its_rows(rig: Rig) -> None:
     assert rig.sim_alarms() == []
 
 
+def test_a_csv_of_thousands_of_rows_is_taken_and_bodies_past_the_routes_limit_are_not(rig: Rig) -> None:
+    """The trajectory upload's own body limit (2 MiB; 64 KiB elsewhere took only ~1000 rows): 4000 rows at
+    full precision (~400 KB) replay to the end; 2.5 MB is 413 before it is read, a JSON body of more values
+    than the largest valid one is 422 before it is parsed, and neither changes anything."""
+    from servo_app.api.body_limit import MAX_BODY_BYTES
+    from servo_app.api.trajectory import MAX_BODY_BYTES as TRAJECTORY_BODY_BYTES
+
+    h = at_home(rig)
+    t = np.linspace(0.0, 1.0, 4000)[:, None]
+    rows = np.array(HOME) + np.hstack([12.0 * np.sin(np.pi * t / 2), -4.0 * t, np.zeros((4000, 3)), 8.0 * t])
+    text = "j1,j2,j3,j4,j5,j6\n" + "\n".join(",".join(repr(float(v)) for v in r) for r in rows)
+    assert len(text) > 4 * MAX_BODY_BYTES
+    r = rig.http.post("/api/trajectory", content=text.encode(), params={"pace": "limits"},
+                      headers={**h, "Content-Type": "text/csv"})
+    assert r.status_code == 200, r.text
+    s = rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "done" and s["at_rest"], 30.0, "done")
+    assert np.allclose(s["q_cmd"][:6], rows[-1], atol=1e-3)
+    before = rig.state()
+    too_big = b"j1,j2,j3,j4,j5,j6\n" + b"0,0,0,0,0,0\n" * 210_000  # 2.5 MB
+    assert len(too_big) > TRAJECTORY_BODY_BYTES
+    r = rig.http.post("/api/trajectory", content=too_big, headers={**h, "Content-Type": "text/csv"})
+    assert r.status_code == 413 and f"at most {TRAJECTORY_BODY_BYTES} bytes" in r.json()["detail"], r.text[:300]
+    many = b'{"joints": [[' + b"0," * 200_000 + b'0]]}'  # 400 KB of one waypoint's values
+    r = rig.http.post("/api/trajectory", content=many, headers={**h, "Content-Type": "application/json"})
+    assert r.status_code == 422 and "more than 100000 values" in r.json()["detail"][0]["msg"], r.text[:300]
+    s = rig.state()
+    assert s["state"] == "streaming" and s["at_rest"] and s["q_cmd"] == before["q_cmd"]
+    assert s["trajectory"] == before["trajectory"]
+    assert rig.sim_alarms() == []
+
+
 def test_a_recorded_jog_replays_from_its_session_log(rig: Rig) -> None:
     h = at_home(rig)
     name, from_s = log_now(rig)

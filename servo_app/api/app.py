@@ -11,7 +11,8 @@ the models of :mod:`servo_app.api.models`, and send every request to the servo p
 :meth:`servo_app.api.calls.ServiceCalls.forward`.
 
 In front of everything, :class:`~servo_app.api.body_limit.BodyLimit` refuses bodies over
-:data:`~servo_app.api.body_limit.MAX_BODY_BYTES` (413) before any parsing or authentication. The
+:data:`~servo_app.api.body_limit.MAX_BODY_BYTES` (413; the trajectory upload has a limit of its own)
+before any parsing or authentication. The
 interactive documentation (``/docs``) is served from the ``fastapi-offline`` package's copy of
 Swagger UI: no CDN, so it works on a machine cut off from the internet.
 """
@@ -140,7 +141,8 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
                               "Janome). Reads are open; anything that moves the arm or changes state needs "
                               "`Authorization: Bearer <token>`, and most also the control lease "
                               "(`X-Lease-Id`, from `POST /api/lease`). Request bodies: at most "
-                              f"{MAX_BODY_BYTES} bytes (413).")
+                              f"{MAX_BODY_BYTES} bytes, {trajectory.MAX_BODY_BYTES} for `POST /api/trajectory` "
+                              "(413).")
     _offline_docs(app)
     app.state.api = api
     app.state.service, app.state.leases, app.state.metrics = service, api.leases, api.metrics
@@ -170,7 +172,8 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
                          {"status": 413, "detail": detail})
 
     # In front of the feed's fast path and of every route: before authentication and parsing.
-    app.add_middleware(BodyLimit, limit=MAX_BODY_BYTES, on_refused=body_refused)
+    app.add_middleware(BodyLimit, limit=MAX_BODY_BYTES, on_refused=body_refused,
+                       routes={"/api/trajectory": trajectory.MAX_BODY_BYTES})  # the one upload
 
     if cors_origins:  # added last: the outermost middleware, in front of the feed's fast path too
         from fastapi.middleware.cors import CORSMiddleware

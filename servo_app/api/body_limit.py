@@ -10,17 +10,18 @@ limit, one 2-million-element array from the lease holder held the event loop 16 
 (no stop, no telemetry, no lease watch meanwhile), and 10 MB bodies without a token slowed
 ``/api/health`` to 1.3 s.
 
-The limit, :data:`MAX_BODY_BYTES` (64 KiB), is far above the largest legitimate body: every request
-the API takes is one command or one sample. A jog, a target or a lease request is under 300 bytes;
-the largest are feed samples (``POST /api/feed/{source}``), and among them a measurement, a map of
-named values: a 6-axis force/torque sensor's is about 150 bytes, and even 500 named channels fit in
-about 16 KiB. There are no trajectory uploads (targets go one at a time).
+The limit, :data:`MAX_BODY_BYTES` (64 KiB), is far above the largest legitimate body of a command or
+a sample. A jog, a target or a lease request is under 300 bytes; the largest samples are the feed's
+(``POST /api/feed/{source}``), and among them a measurement, a map of named values: a 6-axis
+force/torque sensor's is about 150 bytes, and even 500 named channels fit in about 16 KiB. The one
+upload, ``POST /api/trajectory``, has a limit of its own (``routes``), sized for its largest valid
+body: at 64 KiB a CSV of only ~1000 rows fitted, below the route's own 10,000 waypoints.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -40,22 +41,25 @@ class BodyTooLarge(HTTPException):
 def too_large_detail(limit: int, size: int, *, counted: bool = False) -> str:
     what = f"more than {size} bytes received" if counted else f"Content-Length {size}"
     return (f"request body too large: {what}, the API takes at most {limit} bytes per request "
-            "(one command or one sample per request)")
+            + ("(one command or one sample per request)" if limit <= MAX_BODY_BYTES else "on this route"))
 
 
 Refused = Callable[[Scope, str], None]
 
 
 class BodyLimit:
-    """ASGI middleware: bodies of HTTP requests larger than ``limit`` bytes are answered 413.
+    """ASGI middleware: bodies of HTTP requests larger than ``limit`` bytes are answered 413, or than
+    ``routes[path]`` on the paths it names.
 
     ``on_refused(scope, detail)`` is called for each refusal (the app writes motion routes' refusals
     to the audit log)."""
 
-    def __init__(self, app: ASGIApp, limit: int = MAX_BODY_BYTES, on_refused: Refused | None = None) -> None:
+    def __init__(self, app: ASGIApp, limit: int = MAX_BODY_BYTES, on_refused: Refused | None = None,
+                 routes: Mapping[str, int] | None = None) -> None:
         self.app = app
         self.limit = limit
         self.on_refused = on_refused
+        self.routes = dict(routes or {})
 
     def _note(self, scope: Scope, detail: str) -> None:
         if self.on_refused is not None:
@@ -72,15 +76,17 @@ class BodyLimit:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
+        limit = self.routes.get(scope["path"], self.limit)
         for name, value in scope["headers"]:
             if name == b"content-length":
                 try:
                     size = int(value)
                 except ValueError:
                     break  # the server refuses a malformed Content-Length itself
-                if size > self.limit:
-                    self._note(scope, too_large_detail(self.limit, size))
-                    await self._refuse(scope, send, too_large_detail(self.limit, size), close=size > CLOSE_ABOVE_BYTES)
+                if size > limit:
+                    detail = too_large_detail(limit, size)
+                    self._note(scope, detail)
+                    await self._refuse(scope, send, detail, close=size > max(CLOSE_ABOVE_BYTES, limit))
                     return
                 break
 
@@ -92,8 +98,8 @@ class BodyLimit:
             message = await receive()
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
-                if received > self.limit:
-                    exc = BodyTooLarge(self.limit, self.limit)
+                if received > limit:
+                    exc = BodyTooLarge(limit, limit)
                     self._note(scope, str(exc.detail))
                     raise exc
             return message
