@@ -116,6 +116,19 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Rig, ZenohI
             assert rig.sim_alarms() == [], "the controller alarmed"
 
 
+def send_fresh(client: Client, topic: str, typename: str, message_at: Callable[[int], Any], tries: int = 5
+               ) -> dict[str, Any]:
+    """A hold-to-run command stamped now (``message_at(time.time_ns())``), sent again freshly stamped while
+    it is refused as stale, as a teleoperation node sends a new one every cycle anyway. Stale means it
+    was handled over its 0.2 s hold after its stamp: the service shares this process, and a full garbage
+    collection of the whole suite's heap here takes 0.1-0.3 s. Any other refusal is returned at once."""
+    for _ in range(tries):
+        r = client.send(topic, typename, message_at(time.time_ns()))
+        if r["ok"] or r["status"] != 409 or not str(r["detail"]).startswith("stale hold-to-run"):
+            break
+    return r
+
+
 def streaming_for_zenoh(rig: Rig, client: Client) -> str:
     """A running stream, the lease taken through the queryable (it stops the arm: resume over Zenoh)."""
     rig.streaming()
@@ -191,15 +204,15 @@ def test_ros_commands_move_the_arm(cell: tuple[Rig, ZenohInterface, Client]) -> 
     q0 = rig.state()["q_cmd"]
     # delta_joint_cmds, held by repeating it (hold-to-run, as MoveIt Servo publishes)
     for _ in range(10):
-        r = client.send("delta_joint_cmds", ros.JOINT_JOG, ros.joint_jog(time.time_ns(), ["joint_1"], [0.3]))
+        r = send_fresh(client, "delta_joint_cmds", ros.JOINT_JOG, lambda t: ros.joint_jog(t, ["joint_1"], [0.3]))
         assert r["ok"], json.dumps(r)
     s = rig.wait(lambda s: s["q_cmd"][0] > q0[0] + 0.5, 5.0, "J1 moved")
     assert abs(s["q_cmd"][3] - q0[3]) < 1e-6, "an axis not commanded moved"
     # delta_twist_cmds: +z in the base frame
     z0 = rig.state()["cart_servo"][2]
     for _ in range(10):
-        up = ros.twist_stamped(time.time_ns(), (0, 0, 0.05), (0, 0, 0))
-        r = client.send("delta_twist_cmds", ros.TWIST_STAMPED, up)
+        r = send_fresh(client, "delta_twist_cmds", ros.TWIST_STAMPED,
+                       lambda t: ros.twist_stamped(t, (0, 0, 0.05), (0, 0, 0)))
         assert r["ok"], json.dumps(r)
     rig.wait(lambda s: s["cart_servo"][2] > z0 + 2.0, 5.0, "the TCP rose")
     # joint_target (rad, the model's chain): J1 to 5 deg
@@ -335,8 +348,9 @@ def test_two_services_in_two_processes_one_monitor(tmp_path: Path) -> None:
             assert monitor.cells()["cell_a"]["lease_held"] and not monitor.cells()["cell_b"]["lease_held"]
             a0, b0 = monitor.cells()["cell_a"]["q_cmd"], monitor.cells()["cell_b"]["q_cmd"]
             for _ in range(10):
-                assert client.send("delta_joint_cmds", ros.JOINT_JOG,
-                                   ros.joint_jog(time.time_ns(), ["joint_1"], [0.3]))["ok"]
+                r = send_fresh(client, "delta_joint_cmds", ros.JOINT_JOG,
+                               lambda t: ros.joint_jog(t, ["joint_1"], [0.3]))
+                assert r["ok"], json.dumps(r)
             wait_for(lambda: monitor.cells()["cell_a"]["q_cmd"][0] > a0[0] + 0.5, 10.0, "cell a moved")
             assert monitor.cells()["cell_b"]["q_cmd"] == b0, "cell b moved on a command to cell a"
             assert math.isfinite(monitor.cells()["cell_a"]["latency_p99_us"])
