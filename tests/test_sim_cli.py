@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import select
 import signal
 import socket
 import subprocess
@@ -37,7 +38,8 @@ def test_bad_settings_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
 
 @pytest.mark.e2e
 def test_fanuc_standalone_serves_status_until_ctrl_c() -> None:
-    code = ("import argparse, sys\n"
+    code = ("import argparse, faulthandler, signal, sys\n"
+            "faulthandler.register(signal.SIGUSR1, all_threads=True)  # the test's view of a hang\n"
             "from servo_app.sim.cli import add_sim_parser\n"
             "p = argparse.ArgumentParser(); add_sim_parser(p.add_subparsers())\n"
             "a = p.parse_args(sys.argv[1:]); sys.exit(a.handler(a))\n")
@@ -55,7 +57,14 @@ def test_fanuc_standalone_serves_status_until_ctrl_c() -> None:
         assert all(isinstance(st, Status) and st.status & 0x05 == 0x05 for st in statuses)
     finally:
         proc.send_signal(signal.SIGINT)
-        proc.wait(timeout=10)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:  # (once in a full run): fail with every thread's stack
+            proc.send_signal(signal.SIGUSR1)
+            select.select([proc.stderr], [], [], 5.0)
+            proc.kill()
+            proc.wait(5)
+            pytest.fail(f"no exit 10 s after SIGINT; stderr, with its threads' stacks:\n{proc.stderr.read()}")
     out, err = proc.stdout.read(), proc.stderr.read()  # the buffered readers: readline() above used them
     proc.stdout.close()
     proc.stderr.close()
