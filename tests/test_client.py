@@ -203,6 +203,9 @@ def test_refusals_carry_the_field_and_the_next_step(arm: ServoClient) -> None:
     with pytest.raises(RefusedError) as schema:
         arm.move_joints(HOME, speed_scale=2.0)
     assert schema.value.status == 422 and schema.value.field == "body.speed_scale" and schema.value.errors
+    with pytest.raises(RefusedError) as jog_schema:  # the union's member is not in the field either
+        arm.jog(linear=(1.0, 2.0), duration=0.1)
+    assert jog_schema.value.status == 422 and jog_schema.value.field == "body.linear", jog_schema.value.errors
     with pytest.raises(RefusedError, match="out of the LR Mate 200iD's reach"):
         arm.move_pose((10_000.0, 0, 0, 0, 0, 0))
     arm.end()

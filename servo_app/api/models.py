@@ -57,11 +57,14 @@ class JointJog(BaseModel):
 
 
 def _jog_kind(body: Any) -> str:
-    # Pick the model by its key, so a bad value is reported against that model's field alone.
-    return "joint" if isinstance(body, dict) and "joints" in body else "twist"
+    # Pick the model by its key, so a bad value is reported against that model's field alone. Tagged
+    # with the models' names, as a plain union's errors are ("loc": ["body", "TwistJog", "linear"]):
+    # clients drop the capitalised tag (servo_app.client: field "body.linear").
+    return "JointJog" if isinstance(body, dict) and "joints" in body else "TwistJog"
 
 
-JogBody = Annotated[Annotated[JointJog, Tag("joint")] | Annotated[TwistJog, Tag("twist")], Discriminator(_jog_kind)]
+JogBody = Annotated[Annotated[JointJog, Tag("JointJog")] | Annotated[TwistJog, Tag("TwistJog")],
+                    Discriminator(_jog_kind)]
 
 
 class JointTarget(BaseModel):
@@ -90,8 +93,7 @@ class PoseTargetBody(BaseModel):
 
 def _target_kind(body: Any) -> str:
     # As _jog_kind: a bad pose is reported against PoseTargetBody's fields alone, not also as a
-    # JointTarget missing its joints. Tagged with the models' names, as the plain union's errors were
-    # ("loc": ["body", "JointTarget", "speed_scale"]: clients drop the capitalised tag).
+    # JointTarget missing its joints.
     return "JointTarget" if isinstance(body, dict) and "joints" in body else "PoseTargetBody"
 
 
