@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import select
 import signal
 import socket
 import subprocess
@@ -36,17 +35,39 @@ def test_bad_settings_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
     assert "pkt_stack=11" in capsys.readouterr().err
 
 
+# A shim that runs ``servo-app sim``'s parser: ``ignore_sigint`` starts it with SIGINT ignored, as a
+# script's background job inherits it (Python then raises no KeyboardInterrupt).
+SHIM = ("import argparse, signal, sys\n"
+        "if sys.argv[1] == 'ignore_sigint': signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+        "from servo_app.sim.cli import add_sim_parser\n"
+        "p = argparse.ArgumentParser(); add_sim_parser(p.add_subparsers())\n"
+        "a = p.parse_args(sys.argv[2:]); sys.exit(a.handler(a))\n")
+STOPS = [("ctrl-c", signal.SIGINT), ("ignore_sigint", signal.SIGINT), ("sigterm", signal.SIGTERM)]
+
+
+def stopped(proc: subprocess.Popen[str], sig: int) -> str:
+    """Send ``sig``; the process must end by itself with 0. Its whole output."""
+    proc.send_signal(sig)
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(5)
+        pytest.fail(f"still running 10 s after {signal.Signals(sig).name}")
+    out, err = proc.stdout.read(), proc.stderr.read()  # type: ignore[union-attr]
+    proc.stdout.close()  # type: ignore[union-attr]
+    proc.stderr.close()  # type: ignore[union-attr]
+    assert proc.returncode == 0, err
+    return out
+
+
 @pytest.mark.e2e
-def test_fanuc_standalone_serves_status_until_ctrl_c() -> None:
-    code = ("import argparse, faulthandler, signal, sys\n"
-            "faulthandler.register(signal.SIGUSR1, all_threads=True)  # the test's view of a hang\n"
-            "from servo_app.sim.cli import add_sim_parser\n"
-            "p = argparse.ArgumentParser(); add_sim_parser(p.add_subparsers())\n"
-            "a = p.parse_args(sys.argv[1:]); sys.exit(a.handler(a))\n")
-    proc = subprocess.Popen([sys.executable, "-c", code, "sim", "fanuc", "--port", "0", "--interval-ms", "4"],
+@pytest.mark.parametrize(("how", "sig"), STOPS, ids=[how for how, _ in STOPS])
+def test_fanuc_standalone_serves_status_until_stopped(how: str, sig: int) -> None:
+    proc = subprocess.Popen([sys.executable, "-c", SHIM, how, "sim", "fanuc", "--port", "0", "--interval-ms", "4"],
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        first = proc.stdout.readline()
+        first = proc.stdout.readline()  # type: ignore[union-attr]
         assert "listening on udp://127.0.0.1:" in first, proc.stderr.read() if proc.poll() is not None else first
         port = int(first.rsplit(":", 1)[1])
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
@@ -56,17 +77,29 @@ def test_fanuc_standalone_serves_status_until_ctrl_c() -> None:
         assert [st.seq for st in statuses] == [1, 2, 3, 4, 5]
         assert all(isinstance(st, Status) and st.status & 0x05 == 0x05 for st in statuses)
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:  # (once in a full run): fail with every thread's stack
-            proc.send_signal(signal.SIGUSR1)
-            select.select([proc.stderr], [], [], 5.0)
-            proc.kill()
-            proc.wait(5)
-            pytest.fail(f"no exit 10 s after SIGINT; stderr, with its threads' stacks:\n{proc.stderr.read()}")
-    out, err = proc.stdout.read(), proc.stderr.read()  # the buffered readers: readline() above used them
-    proc.stdout.close()
-    proc.stderr.close()
-    assert proc.returncode == 0, err
+        out = stopped(proc, sig)  # the buffered reader: readline() above used it
     assert "Ctrl-C to stop" in out and "intervals:" in out
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize(("how", "sig"), STOPS, ids=[how for how, _ in STOPS])
+def test_janome_standalone_runs_until_stopped(how: str, sig: int) -> None:
+    """Connected to a server that sends nothing: the point job waits (a minute before its receive timeout),
+    and the signal ends it with its summary."""
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        server.settimeout(30.0)
+        port = server.getsockname()[1]
+        proc = subprocess.Popen([sys.executable, "-c", SHIM, how, "sim", "janome", "--connect", f"127.0.0.1:{port}",
+                                 "--timeout-ms", "60000"],
+                                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            conn, _ = server.accept()
+            with conn:
+                conn.settimeout(10.0)
+                assert conn.recv(4096), "the robot's hello"
+                out = stopped(proc, sig)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(5)
+    assert "Ctrl-C to stop" in out and "moves: 0;" in out, out

@@ -1,13 +1,13 @@
-"""``servo-app sim fanuc|janome``: run a controller simulator standalone until Ctrl-C."""
+"""``servo-app sim fanuc|janome``: run a controller simulator standalone until Ctrl-C or SIGTERM."""
 
 from __future__ import annotations
 
 import argparse
 import sys
-import time
 from typing import Any
 
 from servo_app.fanuc.packets import ROBOT_PORT
+from servo_app.sim.stop_signals import stop_requested
 
 
 def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
@@ -57,24 +57,23 @@ def _run_fanuc(args: argparse.Namespace) -> int:
     except (ValueError, ProfileError) as exc:
         print(f"servo-app sim fanuc: {exc}", file=sys.stderr)
         return 2
-    try:
-        sim.start()
-    except OSError as exc:
-        print(f"servo-app sim fanuc: cannot bind {args.host}:{args.port}: {exc}", file=sys.stderr)
-        return 2
-    host, port = sim.address
-    c = sim.controller
-    print(f"FANUC J519 simulator ({c.profile.display_name}, {c.interval_ms} ms) listening on udp://{host}:{port}",
-          flush=True)
-    print("IBGN start program running and looping; Ctrl-C to stop", flush=True)
-    try:
-        while True:
-            time.sleep(0.5)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        sim.stop()
-        s = sim.interval_stats()
-        print(f"intervals: {s.count} measured, mean {s.mean_ms:.3f} ms, min {s.min_ms:.3f}, max {s.max_ms:.3f}, "
-              f"p99 {s.p99_ms:.3f}, overruns {s.overruns}", flush=True)
+    with stop_requested() as stop:
+        try:
+            sim.start()
+        except OSError as exc:
+            print(f"servo-app sim fanuc: cannot bind {args.host}:{args.port}: {exc}", file=sys.stderr)
+            return 2
+        try:
+            host, port = sim.address
+            c = sim.controller
+            print(f"FANUC J519 simulator ({c.profile.display_name}, {c.interval_ms} ms) listening on "
+                  f"udp://{host}:{port}", flush=True)
+            print("IBGN start program running and looping; Ctrl-C to stop", flush=True)
+            while not stop.wait(0.5):
+                pass
+        finally:
+            sim.stop()
+            s = sim.interval_stats()
+            print(f"intervals: {s.count} measured, mean {s.mean_ms:.3f} ms, min {s.min_ms:.3f}, max {s.max_ms:.3f}, "
+                  f"p99 {s.p99_ms:.3f}, overruns {s.overruns}", flush=True)
     return 0

@@ -29,6 +29,7 @@ from servo_app.janome.profile import JanomeProfile, load_janome_profile
 from servo_app.janome.protocol import Arm, ErrorCode, RobotKind
 from servo_app.sim.janome_pointjob import Decision, PointJob, PointJobSettings
 from servo_app.sim.janome_robot import JanomeRobot, MovePlan
+from servo_app.sim.stop_signals import stop_requested
 
 _SLICE_S = 0.005  # how often a running move updates the position and checks for kill_link
 
@@ -300,7 +301,7 @@ def _host_port(spec: str) -> tuple[str, int]:
 
 
 def run_janome_sim(args: argparse.Namespace) -> int:
-    """``servo-app sim janome``: run the point job against servo_app until it ends or Ctrl-C."""
+    """``servo-app sim janome``: run the point job against servo_app until it ends, Ctrl-C or SIGTERM."""
     from servo_app.robots.profile import ProfileError
 
     try:
@@ -318,19 +319,18 @@ def run_janome_sim(args: argparse.Namespace) -> int:
     kind = "SCARA" if p.kind == RobotKind.SCARA else "cartesian"
     print(f"Janome point-job simulator ({p.display_name}, {kind}) connecting to {server[0]}:{server[1]}; "
           "Ctrl-C to stop", flush=True)
-    sim.start()
     seen = 0
-    try:
-        while not sim.done.wait(0.2):
-            seen = _print_events(sim, seen)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        sim.stop()
-        _print_events(sim, seen)
-        x, y, z, r = sim.position
-        print(f"moves: {sim.moves}; position X {x:.3f} Y {y:.3f} Z {z:.3f} R {r:.3f}; ended: {sim.end_reason}",
-              flush=True)
+    with stop_requested() as stop:
+        sim.start()
+        try:
+            while not (sim.done.wait(0.2) or stop.is_set()):
+                seen = _print_events(sim, seen)
+        finally:
+            sim.stop()
+            _print_events(sim, seen)
+            x, y, z, r = sim.position
+            print(f"moves: {sim.moves}; position X {x:.3f} Y {y:.3f} Z {z:.3f} R {r:.3f}; ended: {sim.end_reason}",
+                  flush=True)
     return 0
 
 

@@ -1,0 +1,34 @@
+"""A standalone simulator stops on SIGINT (Ctrl-C) and on SIGTERM, both handled explicitly.
+
+Python raises KeyboardInterrupt on SIGINT only when the process did not inherit it ignored, and a
+script's background job does inherit it ignored (POSIX shells without job control): such a simulator
+ignored Ctrl-C and ``kill -INT`` alike (seen: a test's SIGINT left one running). SIGTERM (``kill``,
+systemd, ``docker stop``) ended it at once, without its closing summary.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+from collections.abc import Iterator
+from types import FrameType
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextlib.contextmanager
+def stop_requested() -> Iterator[threading.Event]:
+    """An event set by SIGINT or SIGTERM while the block runs (main thread only); the previous
+    handlers come back after it."""
+    requested = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        requested.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in STOP_SIGNALS}
+    try:
+        yield requested
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
