@@ -18,6 +18,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
+from servo_app.stop_signals import stop_requested
 from servo_app.zenoh_api import JSON_ROOT, STATUS_SUFFIX, ZenohSettings, session_config
 
 STALE_S = 2.0  # a cell publishes its status at least every 0.2 s
@@ -106,20 +107,18 @@ def run_monitor(args: argparse.Namespace) -> int:
         print(f"servo_app monitor: http://127.0.0.1:{server.server_address[1]}/", flush=True)
     end = time.monotonic() + args.seconds if args.seconds is not None else float("inf")
     live = sys.stdout.isatty() and not args.once
-    try:
-        while time.monotonic() < end:
-            time.sleep(min(0.5, max(0.0, end - time.monotonic())))
-            if live:  # redraw in place
-                sys.stdout.write("\x1b[H\x1b[J" + "\n".join(monitor.lines()) + "\n")
-                sys.stdout.flush()
-            elif not args.once:
+    with stop_requested() as stop:
+        try:
+            while time.monotonic() < end and not stop.wait(min(0.5, max(0.0, end - time.monotonic()))):
+                if live:  # redraw in place
+                    sys.stdout.write("\x1b[H\x1b[J" + "\n".join(monitor.lines()) + "\n")
+                    sys.stdout.flush()
+                elif not args.once:
+                    print("\n".join(monitor.lines()), flush=True)
+        finally:
+            if args.once:
                 print("\n".join(monitor.lines()), flush=True)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        if args.once:
-            print("\n".join(monitor.lines()), flush=True)
-        if server is not None:
-            server.shutdown()
-        monitor.close()
+            if server is not None:
+                server.shutdown()
+            monitor.close()
     return 0

@@ -22,6 +22,7 @@ from typing import Any
 
 from servo_app.client import FaultError, RefusedError, ServoClient, ServoError, StoppedError
 from servo_app.client import TimeoutError as ClientTimeout
+from servo_app.stop_signals import stop_requested
 
 _POLL_S = 0.2
 
@@ -88,11 +89,11 @@ def run_replay(args: argparse.Namespace) -> int:
 
 
 def _follow(arm: ServoClient, timeout: float) -> int:
-    """Print progress until the replay is done at rest; Ctrl-C stops the arm."""
+    """Print progress until the replay is done at rest; Ctrl-C (or SIGTERM) stops the arm."""
     deadline = time.monotonic() + timeout
     last = ""
-    try:
-        while True:
+    with stop_requested() as interrupted:
+        while not interrupted.is_set():
             s = arm.state()
             t = s.trajectory
             if s.state == "fault":
@@ -112,8 +113,7 @@ def _follow(arm: ServoClient, timeout: float) -> int:
             if time.monotonic() > deadline:
                 print(f"servo-app replay: not done within {timeout:g} s", file=sys.stderr)
                 return 1
-            time.sleep(_POLL_S)
-    except KeyboardInterrupt:
+            interrupted.wait(_POLL_S)
         arm.stop(fast=False, wait=False)
         print("servo-app replay: interrupted: the arm pauses along the path (POST /api/session/resume "
               "continues it)", file=sys.stderr)

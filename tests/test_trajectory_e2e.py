@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -248,6 +249,45 @@ def test_the_client_replays_and_servo_app_replay_runs_a_csv_file(rig: Rig, tmp_p
     assert "done" in r.stdout
     s = rig.state()
     assert np.allclose(s["q_cmd"][:6], last, atol=1e-3) and rig.sim_alarms() == []
+
+
+# ``servo-app`` run through a shim: "ignore_sigint" starts it with SIGINT ignored, as a script's
+# background job inherits it (Python then raises no KeyboardInterrupt).
+CLI_SHIM = ("import signal, sys\n"
+            "if sys.argv[1] == 'ignore_sigint': signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+            "from servo_app.cli import main\n"
+            "sys.exit(main(sys.argv[2:]))\n")
+
+
+@pytest.mark.parametrize(("how", "sig"), [("ctrl-c", signal.SIGINT), ("ignore_sigint", signal.SIGINT),
+                                          ("sigterm", signal.SIGTERM)], ids=["ctrl-c", "ignore_sigint", "sigterm"])
+def test_servo_app_replay_interrupted_pauses_the_arm_on_its_path(rig: Rig, tmp_path: Path, how: str,
+                                                                 sig: int) -> None:
+    """Ctrl-C or SIGTERM while ``servo-app replay`` follows its replay: the arm pauses along the path
+    (a soft stop, resumable) and the command exits 130 saying so, however it was started."""
+    at_home(rig)
+    t = np.linspace(0.0, 1.0, 1000)[:, None]  # 8 s at the recorded pace
+    rows = np.array(HOME) + np.hstack([15.0 * t, np.zeros((1000, 4)), -15.0 * t])
+    csv = tmp_path / "long.csv"
+    csv.write_text("j1,j2,j3,j4,j5,j6\n" + "\n".join(",".join(f"{v:.5f}" for v in r) for r in rows))
+    proc = subprocess.Popen([sys.executable, "-c", CLI_SHIM, how, "replay", str(csv), "--url", rig.base_url,
+                             "--token", TOKEN, "--take-over"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "playing" and not s["at_rest"], 30.0,
+                 "the replay playing")
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+    assert proc.returncode == 130, out + err
+    assert "interrupted: the arm pauses along the path" in err, err
+    s = rig.wait(lambda s: s["state"] == "stopped" and s["at_rest"], 10.0, "paused")
+    assert s["trajectory"]["state"] == "paused", s["trajectory"]
+    assert not np.allclose(s["q_cmd"][:6], rows[-1], atol=1e-3)  # stopped on the way, not at the end
+    assert rig.sim_alarms() == []
 
 
 def test_the_client_records_a_jog_and_replays_it(rig: Rig) -> None:

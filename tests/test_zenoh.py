@@ -8,6 +8,7 @@ import contextlib
 import json
 import math
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -359,3 +360,41 @@ def test_two_services_in_two_processes_one_monitor(tmp_path: Path) -> None:
         finally:
             session.close()
             monitor.close()
+
+
+# A shim for ``servo-app``: "ignore_sigint" starts it with SIGINT ignored, as a script's background job
+# inherits it (Python then raises no KeyboardInterrupt: Ctrl-C used to leave the monitor running).
+CLI_SHIM = ("import signal, sys\n"
+            "if sys.argv[1] == 'ignore_sigint': signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+            "from servo_app.cli import main\n"
+            "sys.exit(main(sys.argv[2:]))\n")
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize(("how", "sig"), [("ctrl-c", signal.SIGINT), ("ignore_sigint", signal.SIGINT),
+                                          ("sigterm", signal.SIGTERM)], ids=["ctrl-c", "ignore_sigint", "sigterm"])
+def test_the_monitor_command_serves_the_cells_until_stopped(cell: tuple[Rig, ZenohInterface, Client], how: str,
+                                                            sig: int) -> None:
+    _, iface, _ = cell
+    http_port = free_port()
+    proc = subprocess.Popen([sys.executable, "-c", CLI_SHIM, how, "monitor", "--connect", iface.settings.listen[0],
+                             "--http-port", str(http_port)], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert f"http://127.0.0.1:{http_port}/" in (proc.stdout.readline() if proc.stdout else "")
+
+        def page() -> str:
+            with contextlib.suppress(httpx.HTTPError):
+                text = httpx.get(f"http://127.0.0.1:{http_port}/", timeout=5.0).text
+                return text if "cell_a" in text else ""
+            return ""
+
+        wait_for(page, 60.0, "cell_a on the monitor's page")
+        proc.send_signal(sig)
+        proc.wait(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+    _, err = proc.communicate()
+    assert proc.returncode == 0, err

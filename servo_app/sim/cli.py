@@ -7,7 +7,7 @@ import sys
 from typing import Any
 
 from servo_app.fanuc.packets import ROBOT_PORT
-from servo_app.sim.stop_signals import stop_requested
+from servo_app.stop_signals import stop_requested
 
 
 def add_sim_parser(sub: Any) -> argparse.ArgumentParser:

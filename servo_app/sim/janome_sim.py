@@ -29,7 +29,7 @@ from servo_app.janome.profile import JanomeProfile, load_janome_profile
 from servo_app.janome.protocol import Arm, ErrorCode, RobotKind
 from servo_app.sim.janome_pointjob import Decision, PointJob, PointJobSettings
 from servo_app.sim.janome_robot import JanomeRobot, MovePlan
-from servo_app.sim.stop_signals import stop_requested
+from servo_app.stop_signals import stop_requested
 
 _SLICE_S = 0.005  # how often a running move updates the position and checks for kill_link
 

@@ -1,9 +1,11 @@
-"""A standalone simulator stops on SIGINT (Ctrl-C) and on SIGTERM, both handled explicitly.
+"""The command-line tools that run until stopped (``servo-app sim``, ``monitor``, ``replay``) stop on
+SIGINT (Ctrl-C) and on SIGTERM, both handled explicitly. (``servo-app run`` has handlers of its own
+around uvicorn's; the servo process its own.)
 
 Python raises KeyboardInterrupt on SIGINT only when the process did not inherit it ignored, and a
-script's background job does inherit it ignored (POSIX shells without job control): such a simulator
-ignored Ctrl-C and ``kill -INT`` alike (seen: a test's SIGINT left one running). SIGTERM (``kill``,
-systemd, ``docker stop``) ended it at once, without its closing summary.
+script's background job does inherit it ignored (POSIX shells without job control): such a tool
+ignored Ctrl-C and ``kill -INT`` alike (seen: a test's SIGINT left a simulator running). SIGTERM
+(``kill``, systemd, ``docker stop``) ended it at once, without its closing work.
 """
 
 from __future__ import annotations
