@@ -37,9 +37,16 @@ def run_in(tree: Path, command: list[str], timeout: float) -> tuple[list[str], s
     r = subprocess.run([sys.executable, *command], cwd=tree, env=env, capture_output=True, text=True,
                        timeout=timeout)
     lines = [line for line in r.stdout.splitlines() if line.strip()]
-    rows = [line for line in lines if line.startswith("| ") and not line.startswith("| run")]
     last = lines[-1] if lines else f"(no output; exit {r.returncode}: {r.stderr.strip()[-300:]})"
-    return rows, last
+    return table_rows(lines), last
+
+
+def table_rows(lines: list[str]) -> list[str]:
+    """The data rows of the tables in ``lines``: not a header (the line above a ``|---`` separator, or
+    one starting ``| run`` where a table has none), not a separator."""
+    return [line for i, line in enumerate(lines)
+            if line.startswith("| ") and not line.startswith("| run")
+            and not (i + 1 < len(lines) and lines[i + 1].startswith("|-"))]
 
 
 def main(argv: list[str] | None = None) -> int:
