@@ -408,7 +408,6 @@ def _io_type(value: Any) -> int:
     return int(IoType(int(value)))
 
 
-
 def _as_invalid(check: Callable[[_C], None], cmd: _C) -> None:
     """Run a check of the request's own values; its refusal is an InvalidRequest (422), not the state's."""
     try:
