@@ -49,7 +49,8 @@ from servo_app.safety import (
 )
 from servo_app.supervision import SupervisorBase, axis_values, check_count, check_speeds, next_step
 
-_C = TypeVar("_C", Twist, PoseTarget)
+_A = TypeVar("_A")
+_R = TypeVar("_R")
 
 # The status bits a StatusReceived event carries (bit 0, bit 1, SYSRDY, moving).
 _STATUS_EVENT_BITS = int(StatusBit.WAITING_FOR_COMMAND | StatusBit.COMMAND_RECEIVED | StatusBit.SYSRDY
@@ -182,10 +183,7 @@ class StreamSupervisor(SupervisorBase):
 
     def _check_joint_target(self, q: np.ndarray, speed_scale: float) -> None:
         check_count("joints", q, self.cycle.profile.dof, ", ".join(self._names()) + " in deg")
-        try:
-            self.cycle.check_joint_target(q)
-        except CommandRejected as exc:
-            raise InvalidRequest(str(exc)) from None
+        _as_invalid(self.cycle.check_joint_target, q)
 
     def _on_twist(self, req: msg.Twist, now: float) -> None:
         try:
@@ -239,10 +237,7 @@ class StreamSupervisor(SupervisorBase):
         ramp = int(req.ramp_steps)
         if ramp < 1 or ramp % 2 == 0:
             raise InvalidRequest(f"ramp_steps={req.ramp_steps} must be odd and positive")
-        try:
-            q = self.cycle.check_replay(req.joints)
-        except CommandRejected as exc:
-            raise InvalidRequest(str(exc)) from None
+        q = _as_invalid(self.cycle.check_replay, req.joints)
         why = self.cycle.replay_start_mismatch(q)
         if why:
             raise CommandRejected(f"trajectory refused: {why}")
@@ -408,11 +403,10 @@ def _io_type(value: Any) -> int:
     return int(IoType(int(value)))
 
 
-def _as_invalid(check: Callable[[_C], None], cmd: _C) -> None:
-    """Run a check of the request's own values; its refusal is an InvalidRequest (422), not the state's."""
+def _as_invalid(check: Callable[[_A], _R], value: _A) -> _R:
+    """``check(value)``, a check of the request's own values: its refusal is an InvalidRequest (422),
+    not the state's (409)."""
     try:
-        check(cmd)
-    except InvalidRequest:
-        raise
+        return check(value)
     except CommandRejected as exc:
         raise InvalidRequest(str(exc)) from None
