@@ -7,6 +7,8 @@ Imported by tests/test_api_e2e.py and tests/test_faults_e2e.py; its own test che
 from __future__ import annotations
 
 import contextlib
+import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -27,6 +29,19 @@ from servo_app.sim.janome_sim import JanomeSimulator
 
 TOKEN = "test-token-0123456789"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
+
+# The ways a command-line tool is stopped: Ctrl-C, Ctrl-C to one started with SIGINT ignored (a script's
+# background job inherits it, and Python then raises no KeyboardInterrupt), and SIGTERM.
+STOP_WAYS = [("ctrl-c", signal.SIGINT), ("ignore_sigint", signal.SIGINT), ("sigterm", signal.SIGTERM)]
+_CLI_SHIM = ("import signal, sys\n"
+             "if sys.argv[1] == 'ignore_sigint': signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+             "from servo_app.cli import main\n"
+             "sys.exit(main(sys.argv[2:]))\n")
+
+
+def servo_app_argv(how: str, *argv: str) -> list[str]:
+    """The command line of ``servo-app *argv`` started as ``how`` (a first word of STOP_WAYS) says."""
+    return [sys.executable, "-c", _CLI_SHIM, how, *argv]
 
 
 class LiveServer:

@@ -6,10 +6,10 @@ import argparse
 import signal
 import socket
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from test_api_harness import STOP_WAYS, servo_app_argv
 
 from servo_app.fanuc.packets import Status, StatusStart, decode_from_robot
 from servo_app.sim.cli import add_sim_parser
@@ -35,16 +35,6 @@ def test_bad_settings_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
     assert "pkt_stack=11" in capsys.readouterr().err
 
 
-# A shim that runs ``servo-app sim``'s parser: ``ignore_sigint`` starts it with SIGINT ignored, as a
-# script's background job inherits it (Python then raises no KeyboardInterrupt).
-SHIM = ("import argparse, signal, sys\n"
-        "if sys.argv[1] == 'ignore_sigint': signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
-        "from servo_app.sim.cli import add_sim_parser\n"
-        "p = argparse.ArgumentParser(); add_sim_parser(p.add_subparsers())\n"
-        "a = p.parse_args(sys.argv[2:]); sys.exit(a.handler(a))\n")
-STOPS = [("ctrl-c", signal.SIGINT), ("ignore_sigint", signal.SIGINT), ("sigterm", signal.SIGTERM)]
-
-
 def stopped(proc: subprocess.Popen[str], sig: int) -> str:
     """Send ``sig``; the process must end by itself with 0. Its whole output."""
     proc.send_signal(sig)
@@ -62,9 +52,9 @@ def stopped(proc: subprocess.Popen[str], sig: int) -> str:
 
 
 @pytest.mark.e2e
-@pytest.mark.parametrize(("how", "sig"), STOPS, ids=[how for how, _ in STOPS])
+@pytest.mark.parametrize(("how", "sig"), STOP_WAYS, ids=[how for how, _ in STOP_WAYS])
 def test_fanuc_standalone_serves_status_until_stopped(how: str, sig: int) -> None:
-    proc = subprocess.Popen([sys.executable, "-c", SHIM, how, "sim", "fanuc", "--port", "0", "--interval-ms", "4"],
+    proc = subprocess.Popen(servo_app_argv(how, "sim", "fanuc", "--port", "0", "--interval-ms", "4"),
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         first = proc.stdout.readline()  # type: ignore[union-attr]
@@ -82,15 +72,15 @@ def test_fanuc_standalone_serves_status_until_stopped(how: str, sig: int) -> Non
 
 
 @pytest.mark.e2e
-@pytest.mark.parametrize(("how", "sig"), STOPS, ids=[how for how, _ in STOPS])
+@pytest.mark.parametrize(("how", "sig"), STOP_WAYS, ids=[how for how, _ in STOP_WAYS])
 def test_janome_standalone_runs_until_stopped(how: str, sig: int) -> None:
     """Connected to a server that sends nothing: the point job waits (a minute before its receive timeout),
     and the signal ends it with its summary."""
     with socket.create_server(("127.0.0.1", 0)) as server:
         server.settimeout(30.0)
         port = server.getsockname()[1]
-        proc = subprocess.Popen([sys.executable, "-c", SHIM, how, "sim", "janome", "--connect", f"127.0.0.1:{port}",
-                                 "--timeout-ms", "60000"],
+        proc = subprocess.Popen(servo_app_argv(how, "sim", "janome", "--connect", f"127.0.0.1:{port}",
+                                               "--timeout-ms", "60000"),
                                 cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             conn, _ = server.accept()

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import math
-import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -16,7 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_api_harness import TOKEN, Rig, running_janome_rig, running_rig
+from test_api_harness import STOP_WAYS, TOKEN, Rig, running_janome_rig, running_rig, servo_app_argv
 
 from servo_app.client import ServoClient
 from servo_app.messages import LogOpened
@@ -251,16 +250,7 @@ def test_the_client_replays_and_servo_app_replay_runs_a_csv_file(rig: Rig, tmp_p
     assert np.allclose(s["q_cmd"][:6], last, atol=1e-3) and rig.sim_alarms() == []
 
 
-# ``servo-app`` run through a shim: "ignore_sigint" starts it with SIGINT ignored, as a script's
-# background job inherits it (Python then raises no KeyboardInterrupt).
-CLI_SHIM = ("import signal, sys\n"
-            "if sys.argv[1] == 'ignore_sigint': signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
-            "from servo_app.cli import main\n"
-            "sys.exit(main(sys.argv[2:]))\n")
-
-
-@pytest.mark.parametrize(("how", "sig"), [("ctrl-c", signal.SIGINT), ("ignore_sigint", signal.SIGINT),
-                                          ("sigterm", signal.SIGTERM)], ids=["ctrl-c", "ignore_sigint", "sigterm"])
+@pytest.mark.parametrize(("how", "sig"), STOP_WAYS, ids=[how for how, _ in STOP_WAYS])
 def test_servo_app_replay_interrupted_pauses_the_arm_on_its_path(rig: Rig, tmp_path: Path, how: str,
                                                                  sig: int) -> None:
     """Ctrl-C or SIGTERM while ``servo-app replay`` follows its replay: the arm pauses along the path
@@ -270,8 +260,8 @@ def test_servo_app_replay_interrupted_pauses_the_arm_on_its_path(rig: Rig, tmp_p
     rows = np.array(HOME) + np.hstack([15.0 * t, np.zeros((1000, 4)), -15.0 * t])
     csv = tmp_path / "long.csv"
     csv.write_text("j1,j2,j3,j4,j5,j6\n" + "\n".join(",".join(f"{v:.5f}" for v in r) for r in rows))
-    proc = subprocess.Popen([sys.executable, "-c", CLI_SHIM, how, "replay", str(csv), "--url", rig.base_url,
-                             "--token", TOKEN, "--take-over"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    proc = subprocess.Popen(servo_app_argv(how, "replay", str(csv), "--url", rig.base_url, "--token", TOKEN,
+                                           "--take-over"), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     try:
         rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "playing" and not s["at_rest"], 30.0,

@@ -8,7 +8,6 @@ import contextlib
 import json
 import math
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -24,7 +23,7 @@ import pytest
 import zenoh  # a test dependency (pyproject's test extra): missing, the tests must fail, not skip
 from hypothesis import given
 from hypothesis import strategies as st
-from test_api_harness import AUTH, TOKEN, Rig, running_rig
+from test_api_harness import AUTH, STOP_WAYS, TOKEN, Rig, running_rig, servo_app_argv
 
 from servo_app.monitor import FleetMonitor
 from servo_app.ros import messages as ros
@@ -362,23 +361,14 @@ def test_two_services_in_two_processes_one_monitor(tmp_path: Path) -> None:
             monitor.close()
 
 
-# A shim for ``servo-app``: "ignore_sigint" starts it with SIGINT ignored, as a script's background job
-# inherits it (Python then raises no KeyboardInterrupt: Ctrl-C used to leave the monitor running).
-CLI_SHIM = ("import signal, sys\n"
-            "if sys.argv[1] == 'ignore_sigint': signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
-            "from servo_app.cli import main\n"
-            "sys.exit(main(sys.argv[2:]))\n")
-
-
 @pytest.mark.e2e
-@pytest.mark.parametrize(("how", "sig"), [("ctrl-c", signal.SIGINT), ("ignore_sigint", signal.SIGINT),
-                                          ("sigterm", signal.SIGTERM)], ids=["ctrl-c", "ignore_sigint", "sigterm"])
+@pytest.mark.parametrize(("how", "sig"), STOP_WAYS, ids=[how for how, _ in STOP_WAYS])
 def test_the_monitor_command_serves_the_cells_until_stopped(cell: tuple[Rig, ZenohInterface, Client], how: str,
                                                             sig: int) -> None:
     _, iface, _ = cell
     http_port = free_port()
-    proc = subprocess.Popen([sys.executable, "-c", CLI_SHIM, how, "monitor", "--connect", iface.settings.listen[0],
-                             "--http-port", str(http_port)], cwd=ROOT, stdout=subprocess.PIPE,
+    proc = subprocess.Popen(servo_app_argv(how, "monitor", "--connect", iface.settings.listen[0], "--http-port",
+                                           str(http_port)), cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
         assert f"http://127.0.0.1:{http_port}/" in (proc.stdout.readline() if proc.stdout else "")
