@@ -121,7 +121,7 @@ def send_fresh(client: Client, topic: str, typename: str, message_at: Callable[[
     """A hold-to-run command stamped now (``message_at(time.time_ns())``), sent again freshly stamped while
     it is refused as stale, as a teleoperation node sends a new one every cycle anyway. Stale means it
     was handled over its 0.2 s hold after its stamp: the service shares this process, and a full garbage
-    collection of the whole suite's heap here takes 0.1-0.3 s. Any other refusal is returned at once."""
+    collection of the whole suite's heap took up to 0.6 s here. Any other refusal is returned at once."""
     for _ in range(tries):
         r = client.send(topic, typename, message_at(time.time_ns()))
         if r["ok"] or r["status"] != 409 or not str(r["detail"]).startswith("stale hold-to-run"):
