@@ -6,10 +6,13 @@
   answers 422). It is a CommandRejected too, so a caller that only asks "was it refused?" keeps
   working; the API tells them apart by catching InvalidRequest first.
 
-Either way the message names the field and the value, and nothing changed.
+Either way the message names the field and the value, and nothing changed. :func:`json_safe` makes a
+refusal's details, which echo the input, encodable.
 """
 
 from __future__ import annotations
+
+import math
 
 
 class CommandRejected(ValueError):
@@ -18,3 +21,19 @@ class CommandRejected(ValueError):
 
 class InvalidRequest(CommandRejected):
     """A request refused for its own values before anything changed (the API answers 422)."""
+
+
+def json_safe(value: object) -> object:
+    """``value`` in a form JSON can carry: non-finite numbers become their names ("nan", "inf"),
+    exceptions (pydantic's ``ctx``) their messages, mapping keys strings, and any other object JSON has
+    no type for its text. A validation error echoes the bad input: NaN there made the refusal itself
+    fail to encode (a 500)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else str(value)
+    if value is None or isinstance(value, str | int):  # (bool is an int)
+        return value
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    return str(value)

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import math
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -42,23 +41,10 @@ from servo_app.api.body_limit import MAX_BODY_BYTES, BodyLimit
 from servo_app.api.calls import ServiceCalls
 from servo_app.api.deps import ApiContext, api_of, client_of, controlling
 from servo_app.api.metrics import Metrics
+from servo_app.errors import json_safe
 from servo_app.service import ServoService
 
 WEB_DIR = Path(__file__).resolve().parents[2] / "web"
-
-
-def _json_safe(value: Any) -> Any:
-    """A validation error echoes its input: NaN or Infinity there would make the 422 itself fail to
-    encode (a 500). Non-finite numbers become their names, exceptions their messages."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return str(value)
-    if isinstance(value, BaseException):
-        return str(value)
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_json_safe(v) for v in value]
-    return value
 
 
 def audited(method: str, path: str) -> bool:
@@ -74,7 +60,7 @@ def _client_of_scope(scope: Scope) -> str:
 
 async def _invalid_request(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
-    detail = jsonable_encoder(_json_safe(list(exc.errors())))
+    detail = jsonable_encoder(json_safe(list(exc.errors())))
     if audited(request.method, request.url.path):
         api = api_of(request)
         api.metrics.count("invalid")

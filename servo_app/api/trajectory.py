@@ -12,7 +12,6 @@ upload.
 
 # No `from __future__ import annotations`: FastAPI reads the dependency annotations at runtime.
 import json
-import math
 from typing import Any, Literal
 
 from fastapi import APIRouter, Request
@@ -75,17 +74,6 @@ _CSV_FORM = ("A CSV body (Content-Type: text/csv) in `servo-app check`'s form: o
              "faster than one row per interval; limits: as fast as the limits allow) as query parameters.")
 
 
-def _json_safe(errors: list[Any]) -> list[Any]:
-    out = []
-    for e in errors:
-        e = dict(e)
-        e.pop("ctx", None)
-        if isinstance(e.get("input"), float) and not math.isfinite(e["input"]):
-            e["input"] = str(e["input"])
-        out.append(e)
-    return out
-
-
 def _parse_json(raw: bytes) -> TrajectoryBody:
     """The JSON body, validated (a worker thread: up to 2 MB), or RequestValidationError naming the field."""
     if raw.count(b",") >= _MAX_JSON_VALUES:
@@ -96,7 +84,7 @@ def _parse_json(raw: bytes) -> TrajectoryBody:
         return TrajectoryBody.model_validate(json.loads(raw))
     except ValidationError as exc:
         errors = [{**e, "loc": ("body", *e["loc"])} for e in exc.errors()]
-        raise RequestValidationError(_json_safe(errors)) from None
+        raise RequestValidationError(errors) from None
     except ValueError as exc:  # (json's and a bad UTF-8's)
         raise RequestValidationError([{"type": "json_invalid", "loc": ("body",),
                                        "msg": f"the body is not JSON ({exc}): send JSON or text/csv",

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import inspect
 import json
-import math
 from collections.abc import Callable, Coroutine
 from dataclasses import asdict
 from typing import Any
@@ -29,21 +28,9 @@ from fastapi.routing import APIRoute
 from pydantic import ValidationError
 from starlette.types import ASGIApp, Receive, Scope, Send
 
+from servo_app.errors import json_safe
 from servo_app.inputs.feed.models import FeedAck
 from servo_app.inputs.feed.registry import _MESSAGE, FeedRegistry, FeedRejected, UnknownSource, field_path
-
-
-def _json_safe(v: Any) -> Any:
-    if isinstance(v, float) and not math.isfinite(v):
-        return repr(v)
-    if isinstance(v, dict):
-        return {str(k): _json_safe(x) for k, x in v.items()}
-    if isinstance(v, list | tuple):
-        return [_json_safe(x) for x in v]
-    if v is None or isinstance(v, str | int | float | bool):
-        return v
-    return repr(v)
-
 
 MAX_FEED_MESSAGE_BYTES = 64 * 1024  # one sample per message; as servo_app.api.body_limit.MAX_BODY_BYTES
 
@@ -62,7 +49,7 @@ def _validation_detail(errors: Any) -> list[dict[str, Any]]:
     for e in errors:
         out.append({
             "loc": list(e.get("loc", ())), "type": e.get("type"), "msg": e.get("msg"),
-            "input": _json_safe(e.get("input")),
+            "input": json_safe(e.get("input")),
             "message": f"field {field_path(e.get('loc', ()))!r} value {e.get('input')!r}: {e.get('msg')}",
         })
     return out
@@ -184,7 +171,7 @@ def feed_router(registry: FeedRegistry, auth_dependency: Callable[..., Any] | No
     async def feed_stats() -> list[dict[str, Any]]:
         """Per feed source: samples accepted, rejected, out of order and resynchronised, the rate, the
         latency (last, mean, max) and the last error. Token only."""
-        return [_json_safe(asdict(s)) for s in registry.all_stats()]
+        return [json_safe(asdict(s)) for s in registry.all_stats()]
 
     @router.websocket("/ws/feed/{source}", dependencies=deps)
     async def ws_feed(ws: WebSocket, source: str, ack: bool = False) -> None:
