@@ -24,6 +24,7 @@ a rework of everything beside the motion could save.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import multiprocessing as mp
 import os
@@ -45,13 +46,12 @@ WARM_STATUSES = 100  # answered at normal priority first: the first solves fill 
 def _floor_servo(port: int, interval_ms: int, ready: Any) -> None:  # (ready: an mp Event)
     import numba
     import numpy as np
-    from servo_loop import schedule_as_live
+    from servo_loop import scheduled_as_live
 
     from servo_app.fanuc.packets import decode_from_robot, pack_command
     from servo_app.ipc import LatestValueSlot
     from servo_app.motion.commands import Twist
     from servo_app.motion.servo import ServoCycle, ServoSettings
-    from servo_app.realtime import WakeLatencyHold
     from servo_app.robots.profile import load_profile
     from servo_app.state import STATE_SIZE
 
@@ -70,14 +70,13 @@ def _floor_servo(port: int, interval_ms: int, ready: Any) -> None:  # (ready: an
     state = np.zeros(STATE_SIZE)
     into_state(state, np.zeros(6), 0.0)
     record = struct.Struct("<dIId6fdIId6f")  # a status and its command, as the session log's pair
-    with tempfile.TemporaryDirectory(prefix="motion-floor-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="motion-floor-") as tmp, contextlib.ExitStack() as live:
         log = os.open(Path(tmp) / "floor.log", os.O_WRONLY | os.O_CREAT)
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.bind(("127.0.0.1", port))
         ready.set()
         renew_every, flip_every = round(1 / (JOG_HZ * dt)), round(FLIP_S / dt)
         n = 0
-        hold = WakeLatencyHold(None)  # (none until warm)
         while True:
             data, addr = sock.recvfrom(1024)
             if data == b"q":
@@ -100,11 +99,9 @@ def _floor_servo(port: int, interval_ms: int, ready: Any) -> None:  # (ready: an
             n += 1
             if n == WARM_STATUSES:  # then scheduled as the live servo process is once warm, start-up objects
                 # out of the gc's scans
-                hold.close()
-                hold = schedule_as_live()
+                live.enter_context(scheduled_as_live())
                 gc.collect()
                 gc.freeze()
-        hold.close()
         os.close(log)
     slot.close()
 

@@ -31,7 +31,7 @@ import socket
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from multiprocessing.connection import Connection
 from pathlib import Path
 
@@ -81,13 +81,20 @@ def run(statuses: int, interval_ms: int, prepare: Callable[[_ServoProcess], None
             slot.close()
 
 
-def schedule_as_live() -> WakeLatencyHold:
-    """From here on, this process scheduled as the live servo process is once warm (``_ServoProcess.run``
-    with StreamConfig's defaults: SCHED_FIFO 20, the CPU wake-up latency held at 0 us); the hold, to close.
-    Without them a status cost up to a third more here."""
+@contextlib.contextmanager
+def scheduled_as_live() -> Iterator[WakeLatencyHold]:
+    """This process scheduled as the live servo process is once warm (``_ServoProcess.run`` with
+    StreamConfig's defaults: SCHED_FIFO 20, the CPU wake-up latency held at 0 us) until the block ends,
+    then back to SCHED_OTHER with the hold released. Without them a status cost up to a third more here."""
     cfg = StreamConfig()
     make_realtime(cfg.realtime_priority)
-    return WakeLatencyHold(cfg.wake_latency_us)
+    hold = WakeLatencyHold(cfg.wake_latency_us)
+    try:
+        yield hold
+    finally:
+        hold.close()
+        with contextlib.suppress(OSError):
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
 
 
 def _measure(proc: _ServoProcess, controller_sock: socket.socket, parent_end: Connection, statuses: int, dt: float,
@@ -116,11 +123,11 @@ def _measure(proc: _ServoProcess, controller_sock: socket.socket, parent_end: Co
     per_status, beside = [], []
     t_ctrl = time.monotonic()
     renew_every, flip_every = round(JOG_EVERY_S / dt), round(FLIP_S / dt)
-    try:
+    with contextlib.ExitStack() as live:
         for i in range(WARM_STATUSES + statuses):
             if i == WARM_STATUSES:
                 proc.wake.close()
-                proc.wake = schedule_as_live()
+                proc.wake = live.enter_context(scheduled_as_live())
             t_ctrl += dt
             raw = ctrl.tick(t_ctrl)
             if raw is not None:
@@ -153,10 +160,6 @@ def _measure(proc: _ServoProcess, controller_sock: socket.socket, parent_end: Co
                 per_status.append(spent)
                 beside.append(spent - solve - ahead)
             time.sleep(dt)  # asleep between packets, as the live process is
-    finally:
-        proc.wake.close()
-        with contextlib.suppress(OSError):
-            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     if proc.sup.state.mode.value != "streaming":
         raise RuntimeError(f"the stream did not hold: {proc.sup.describe()}")
     return {"n": len(per_status), "p50": float(np.median(per_status)), "p99": float(np.percentile(per_status, 99)),

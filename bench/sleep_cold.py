@@ -21,8 +21,6 @@ doing: no change to the cycle's code lowers it, only less code and data touched 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import os
 import sys
 import time
 from pathlib import Path
@@ -36,7 +34,7 @@ from servo_app.robots.profile import load_profile
 
 sys.path.insert(0, str(Path(__file__).parent))
 from results import command_line, write_section
-from servo_loop import FLIP_S, schedule_as_live
+from servo_loop import FLIP_S, scheduled_as_live
 
 HOME = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
 SPEED_MM_S = 40.0
@@ -77,13 +75,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--gaps-ms", type=float, nargs="+", default=[0.0, 0.5, 2.0, 4.0, 8.0])
     ap.add_argument("--no-write", action="store_true", help="print only, leave bench/RESULTS.md alone")
     args = ap.parse_args(argv)
-    hold = schedule_as_live()
-    try:
+    with scheduled_as_live() as hold:
         rows = [(gap, *run(args.cycles, gap / 1000)) for gap in args.gaps_ms]
-    finally:
-        hold.close()
-        with contextlib.suppress(OSError):
-            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     tight = next((b for gap, _, _, b in rows if gap == 0.0), None)
     lines = ["| asleep before each cycle ms | IK ahead p50 us | command p50 us | both p50 us | x tight |",
              "|---|---|---|---|---|"]
