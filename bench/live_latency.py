@@ -30,6 +30,7 @@ bench/RESULTS.md with the command line. Works under ``bench/ab.py`` (table rows,
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import re
@@ -39,6 +40,8 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -201,7 +204,10 @@ def jog(c: httpx.Client, headers: dict[str, str], run: Run, seconds: float) -> N
         time.sleep(max(0.0, t0 + n / JOG_HZ - time.monotonic()))
 
 
-def one_interval(interval_ms: int, seconds: float, lead: int | None) -> Run:
+def one_interval(interval_ms: int, seconds: float, lead: int | None,
+                 watch: Callable[[int], AbstractContextManager[Any]] | None = None) -> Run:
+    """One run at ``interval_ms``; ``watch(servo pid)``, if given, is entered for the jog window
+    (bench/servo_profile.py attaches its sampler so)."""
     run = Run(interval_ms=interval_ms, seconds=seconds)
     port = free_port()
     # The service runs the servo_app this script imported (a tree under test, e.g. from bench/ab.py).
@@ -236,9 +242,10 @@ def one_interval(interval_ms: int, seconds: float, lead: int | None) -> Run:
                     raise RuntimeError(f"start refused: {r.text}")
                 logs = wait_until("the session log", lambda: sorted((var / "sessions").glob("*.srvlog")), 10.0)
                 run.servo_pid = pid = servo_pid(logs[-1])
-                cpu0, t0 = cpu_seconds(pid), time.monotonic()
-                jog(c, headers, run, seconds)
-                cpu1, t1 = cpu_seconds(pid), time.monotonic()
+                with watch(pid) if watch is not None else contextlib.nullcontext():
+                    cpu0, t0 = cpu_seconds(pid), time.monotonic()
+                    jog(c, headers, run, seconds)
+                    cpu1, t1 = cpu_seconds(pid), time.monotonic()
                 run.cpu_pct = 100.0 * (cpu1 - cpu0) / (t1 - t0)
                 c.post("/api/session/end", headers=headers)
                 def ended() -> dict[str, Any] | None:
