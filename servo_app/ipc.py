@@ -18,6 +18,7 @@ class LatestValueSlot:
         nbytes = 8 * (size + 1)
         self._shm = shared_memory.SharedMemory(name=name, create=create, size=nbytes if create else 0)
         self._owner = create
+        self._closed = False
         buf = np.ndarray((size + 1,), dtype=np.float64, buffer=self._shm.buf)
         self._seq = buf[:1].view(np.uint64)
         self._data = buf[1:]
@@ -76,6 +77,11 @@ class LatestValueSlot:
         return (s1 // 2, out) if int(self._seq[0]) == s1 else None
 
     def close(self) -> None:
+        """Unmap (and, as the creator, unlink) the slot; again: nothing (a dead process's handle is shut
+        down once by the reset that replaces it and again at the service's close)."""
+        if self._closed:
+            return
+        self._closed = True
         # Views into the buffer must go before the mapping can close.
         del self._seq, self._data
         self._shm.close()

@@ -354,13 +354,19 @@ class ServoProcessHandle:
         return self.process.pid
 
     def start(self, timeout: float = 30.0) -> msg.Ready:
-        """Start the process and its reader; returns its ``Ready`` event."""
+        """Start the process and its reader; returns its ``Ready`` event. A process that dies, crashes or
+        stays silent before it is ready is shut down (killed if need be, its slot closed) and the
+        error raised: RuntimeError naming how it ended, or TimeoutError."""
         with single_threaded_blas():
             self.process.start()
         self._child_conn.close()  # ours is the only copy left: the child's death shows as end of file
         self._reader = threading.Thread(target=self._read_loop, name=f"{self.name} pipe", daemon=True)
         self._reader.start()
-        ev = self.wait_event(msg.Ready, timeout)
+        try:
+            ev = self.wait_event(msg.Ready, timeout)
+        except (RuntimeError, TimeoutError):
+            self.shutdown(timeout=2.0)
+            raise
         assert isinstance(ev, msg.Ready)
         return ev
 

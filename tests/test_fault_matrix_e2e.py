@@ -8,6 +8,7 @@ phantom record. (SIGTERM while the arm moves: tests/test_faults_e2e.py::test_sig
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
@@ -279,6 +280,48 @@ def test_servo_process_killed(tmp_path: Path) -> None:
         rig.post("/api/session/stop", h)  # a stop is never refused
         recover(rig, h)
         assert rig.state()["servo_starts"] == 2
+    assert_logs_sound(tmp_path)
+    no_children_left()
+
+
+def _spawned_servo_processes(before: set[int]) -> list[int]:
+    """This process's children started since ``before`` by multiprocessing's spawn (servo processes)."""
+    out = []
+    for pid in set(children_of(os.getpid())) - before:
+        with contextlib.suppress(OSError):
+            if b"spawn_main" in Path(f"/proc/{pid}/cmdline").read_bytes():
+                out.append(pid)
+    return out
+
+
+def test_servo_process_killed_again_while_reset_starts_its_replacement(tmp_path: Path) -> None:
+    """SIGKILL mid-jog, reset, then SIGKILL to the new servo process while it warms up: that reset
+    answers 503 naming how the new process ended and what to do; the state names the fault (not
+    "starting"); the next reset recovers, over REST alone."""
+    with running_rig(tmp_path) as rig:
+        h = rig.lease()
+        rig.start_streaming(h)
+        rig.jog_for(h, JOG, 0.3)
+        os.kill(rig.service.stream.pid, signal.SIGKILL)  # type: ignore[union-attr]
+        rig.wait_state("fault", timeout=2)
+        before = set(children_of(os.getpid()))
+        answer: list[httpx.Response] = []
+        reset = threading.Thread(target=lambda: answer.append(
+            httpx.post(f"{rig.base_url}/api/reset", headers=h, timeout=60)))
+        reset.start()
+        assert eventually(lambda: bool(_spawned_servo_processes(before)), timeout=10), "no new servo process"
+        for pid in _spawned_servo_processes(before):
+            os.kill(pid, signal.SIGKILL)
+        reset.join(60)
+        assert answer and answer[0].status_code == 503, answer and answer[0].text
+        detail = answer[0].json()["detail"]
+        assert "signal 9" in detail and "before it was ready" in detail and "POST /api/reset" in detail, detail
+        s = rig.state()
+        assert s["state"] == "fault" and "before it was ready" in s["fault"]["message"], s
+        assert s["servo_process"].startswith("ended by signal 9"), s["servo_process"]
+        rig.post("/api/jog", h, json={"joints": JOG}, expect=409)  # refused, naming the way out
+        recover(rig, h)
+        assert rig.state()["servo_starts"] == 2  # the first and the replacement that came up
     assert_logs_sound(tmp_path)
     no_children_left()
 

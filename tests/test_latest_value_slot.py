@@ -44,3 +44,16 @@ def test_a_reader_with_patience_waits_out_a_write_left_half_done(slots) -> None:
     waiting.join(10.0)
     version, values = got[0]
     assert version == 2 and values.tolist() == [9.0] * 4
+
+
+def test_closing_twice_is_harmless_and_the_creator_unlinks_once() -> None:
+    """A dead servo process's handle is shut down by the reset that replaces it and again at the
+    service's close: the second close must do nothing (it raised AttributeError, a 500)."""
+    writer = LatestValueSlot(4)
+    reader = LatestValueSlot(4, name=writer.name, create=False)
+    reader.close()
+    reader.close()
+    writer.close()
+    writer.close()
+    with pytest.raises(FileNotFoundError):  # unlinked by the creator's first close
+        LatestValueSlot(4, name=writer.name, create=False)

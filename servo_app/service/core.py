@@ -60,6 +60,7 @@ class ServoService:
         self._sim_lock = threading.Lock()
         self.servo_fault: dict[str, Any] | None = None  # the servo process died: why, and what to do
         self.servo_starts = 0
+        self.spawning = False  # a servo process is being started (its predecessor, if any, is gone)
         self.inputs: Any = None  # the InputsBridge, with cfg.inputs_config
         self.alarm_forwarder = AlarmForwarder(self.backend, self.sim_call, self.send, cfg.alarm_poll_s)
         self.io = StreamIo(self.backend, self.request, self.state_vector, cfg.lead)
@@ -115,16 +116,28 @@ class ServoService:
             self.inputs.start(request=self.request, feedback=self.state_vector, act=self.io.on_action)
 
     def _spawn(self) -> None:
-        """Start a servo process (the first, or one replacing a dead one). Holds ``_lifecycle``."""
-        if self.stream is not None:
-            self.stream.shutdown(timeout=2.0)
-        with self._safety_cv:
-            self._safety = {}
-        assert self.robot_address is not None
-        # A replacement listens or connects where the first one did: the robot is configured for it.
-        target = replace(self.backend.target, host=self.robot_address[0], port=self.robot_address[1])
-        handle = self.backend.make_process(target, self.options, self._on_event, self._on_servo_exit)
-        ready = handle.start()
+        """Start a servo process (the first, or one replacing a dead one). Holds ``_lifecycle``.
+
+        One that dies or stays silent before it is ready (killed while warming up, say) becomes the
+        stream's fault: the state names it, the next reset tries again, and TimeoutError (503) says so."""
+        self.spawning = True
+        try:
+            if self.stream is not None:
+                self.stream.shutdown(timeout=2.0)
+            with self._safety_cv:
+                self._safety = {}
+            assert self.robot_address is not None
+            # A replacement listens or connects where the first one did: the robot is configured for it.
+            target = replace(self.backend.target, host=self.robot_address[0], port=self.robot_address[1])
+            handle = self.backend.make_process(target, self.options, self._on_event, self._on_servo_exit)
+            try:
+                ready = handle.start()  # (on failure it has shut the process down)
+            except (RuntimeError, TimeoutError) as exc:
+                how = "stayed silent" if isinstance(exc, TimeoutError) else handle.exit_cause
+                why = self._start_failed(handle, how)
+                raise TimeoutError(f"{why}; reset again to start another: POST /api/reset") from None
+        finally:
+            self.spawning = False
         if ready.address is not None:  # a listening backend: where it listens (port 0: any free port)
             self.robot_address = (str(ready.address[0]), int(ready.address[1]))
         if self.sim is not None:
@@ -132,6 +145,23 @@ class ServoService:
         self.stream = handle
         self.servo_fault = None
         self.servo_starts += 1
+
+    def _start_failed(self, handle: ServoProcessHandle, cause: str) -> str:
+        """A new servo process ended (``cause``: how) before it was ready. It stays the stream, dead: the
+        state shows this fault and a reset replaces it as it would any dead process. Returns the fault's
+        message."""
+        message = f"servo process {cause} before it was ready"
+        self.stream = handle
+        self.servo_fault = {
+            "message": message,
+            "code": None,
+            "cause": "The new servo process did not come up; nothing streams to the robot.",
+            "remedy": "Reset again (POST /api/reset) to start another servo process; if it keeps failing, "
+                      "the service's output says why.",
+            "during": "starting",
+        }
+        self.alarm_forwarder.record_fault("SERVO", message)
+        return message
 
     def _on_servo_exit(self, cause: str) -> None:
         """The servo process ended unasked (the pipe's end of file): a fault the operator can leave

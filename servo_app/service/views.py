@@ -67,9 +67,12 @@ class StateViews:
         svc = self.service
         if svc.stream is None:
             return {"state": "disconnected", "link": "idle"}
-        # Being replaced: the old one's fault stands until the new one is up.
-        return {"state": "fault" if svc.servo_fault else "disconnected", "link": "fault" if svc.servo_fault else "idle",
-                "servo_process": "starting", "fault": svc.servo_fault, "status_live": False, "status_bits": None,
+        # Being replaced: the old one's fault stands until the new one is up. Not being replaced: the new
+        # one failed to start (its fault says how), and a reset tries again.
+        fault = svc.servo_fault
+        process = "starting" if svc.spawning or fault is None else fault["message"].removeprefix("servo process ")
+        return {"state": "fault" if fault else "disconnected", "link": "fault" if fault else "idle",
+                "servo_process": process, "fault": fault, "status_live": False, "status_bits": None,
                 "alarms": svc.alarm_forwarder.alarms(), "alarm_history": svc.alarm_forwarder.history()}
 
     def state_vector(self) -> dict[str, Any]:
