@@ -33,7 +33,7 @@ def add_replay_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("file", help="CSV (as `servo-app check` reads), JSON body, or session log (.srvlog)")
     p.add_argument("--url", default="http://127.0.0.1:8000", help="the service (default: %(default)s)")
     p.add_argument("--token", default=None, help="bearer token (default: $SERVO_APP_TOKEN)")
-    p.add_argument("--speed-scale", type=float, default=1.0, help="share of the joint speed limits (0, 1]")
+    p.add_argument("--speed-scale", type=float, default=1.0, help="share of the joint speed limits, 0.001 to 1")
     p.add_argument("--pace", choices=("recorded", "limits"), default="recorded",
                    help="a CSV or log: no faster than recorded (default), or as fast as the limits allow")
     p.add_argument("--take-over", action="store_true", help="take the lease from another holder")

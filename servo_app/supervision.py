@@ -31,6 +31,7 @@ import numpy as np
 from servo_app import messages as msg
 from servo_app.errors import CommandRejected, InvalidRequest
 from servo_app.input_slot import InputCommand, InputControl
+from servo_app.motion.commands import check_speed_scale
 from servo_app.safety import (
     STREAM_ALIVE,
     AbandonStream,
@@ -147,10 +148,11 @@ def axis_values(name: str, values: Any) -> np.ndarray:
 
 
 def checked_speed_scale(value: Any) -> float:
-    f = float(value)
-    if not (np.isfinite(f) and 0.0 < f <= 1.0):
-        raise InvalidRequest(f"speed_scale={value} must be in (0, 1]")
-    return f
+    """A target's ``speed_scale`` as motion.commands.check_speed_scale takes it; InvalidRequest if not."""
+    try:
+        return check_speed_scale(value)
+    except ValueError as exc:
+        raise InvalidRequest(str(exc)) from None
 
 
 def check_count(name: str, v: np.ndarray, n: int, axes: str) -> None:

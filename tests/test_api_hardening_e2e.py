@@ -27,8 +27,10 @@ from hypothesis import strategies as st
 from test_api_harness import AUTH, Rig, running_rig
 from websockets.exceptions import ConnectionClosed
 
+from servo_app import messages as msg
 from servo_app.api.auth import AuditLog, LeaseManager, RateLimiter
 from servo_app.api.body_limit import MAX_BODY_BYTES
+from servo_app.errors import InvalidRequest
 
 JSON = {"Content-Type": "application/json"}
 
@@ -178,6 +180,47 @@ def test_request_types_are_strict_and_a_refusal_changes_nothing(rig: Rig) -> Non
     # The schema refusals of motion routes are in the audit log (as 409s and 429s are).
     mine = [x for x in audit_lines(rig) if x["action"] == "POST /api/session/stop" and not x["ok"]]
     assert mine and mine[-1]["detail"]["status"] == 422 and mine[-1]["detail"]["errors"][0]["loc"][-1] == "fast"
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(120)
+def test_a_speed_too_small_to_end_a_move_is_refused_and_the_servo_process_lives_on(rig: Rig) -> None:
+    """A pose target at 5e-324 mm/s (a subnormal: above 0) was accepted, reached the shaper as a
+    speed of 0, raised inside the cycle and ended the servo process. Every way in now refuses a
+    speed below the floor by its own values (422 naming the field), the servo process too, and a
+    move at the floor itself is taken."""
+    h = rig.streaming("slow")
+    pid, starts = rig.service.stream.pid, rig.state()["servo_starts"]  # type: ignore[union-attr]
+    pose = [round(v, 3) for v in rig.state()["cart_servo"]]
+    q = [round(v, 3) for v in rig.state()["q_cmd"]]
+    refused = [
+        ("/api/target", {"xyzwpr": pose, "linear_speed": 5e-324, "angular_speed": 30}, "linear_speed"),
+        ("/api/target", {"xyzwpr": pose, "linear_speed": 100, "angular_speed": 5e-324}, "angular_speed"),
+        ("/api/target", {"xyzwpr": pose, "linear_speed": 0.09}, "linear_speed"),
+        ("/api/target", {"joints": q, "speed_scale": 5e-324}, "speed_scale"),
+        ("/api/target", {"joints": q, "speed_scale": 1e-12}, "speed_scale"),
+        ("/api/trajectory", {"joints": [q], "speed_scale": 5e-324}, "speed_scale"),
+    ]
+    for path, body, field in refused:
+        r = rig.http.post(path, json=body, headers=h)
+        assert r.status_code == 422, (path, body, r.status_code, r.text)
+        assert any(field in e["loc"] for e in r.json()["detail"]), (path, r.json())
+    # The servo process checks them itself (another client of its pipe: Zenoh, a plug-in).
+    for req in (msg.PoseTarget(xyzwpr=tuple(pose), linear_speed=5e-324),
+                msg.JointTarget(joints=tuple(q), speed_scale=5e-324)):
+        with pytest.raises(InvalidRequest, match="speed"):
+            rig.service.request(req)
+    s = rig.state()
+    assert s["state"] == "streaming" and s["fault"] is None and s["servo_starts"] == starts, s
+    assert rig.service.stream.pid == pid  # type: ignore[union-attr]
+    # At the floor: taken, and it moves.
+    q_to = [q[0] + 0.05, *q[1:]]
+    rig.post("/api/target", h, json={"joints": q_to, "speed_scale": 0.001})
+    rig.wait(lambda s: s["q_cmd"][0] > q[0] + 0.001, timeout=10, what="J1 moving at the floor speed")
+    rig.post("/api/session/stop", h)
+    rig.wait_state("stopped")
+    rig.post("/api/session/resume", h)
+    rig.wait_state("streaming")
 
 
 @pytest.mark.e2e

@@ -15,6 +15,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationInfo, field_validator
 
+from servo_app.motion.commands import MIN_ANGULAR_DEG_S, MIN_LINEAR_MM_S, MIN_SPEED_SCALE
 from servo_app.state import MODES, PHASES
 
 _OPEN = ConfigDict(extra="allow")
@@ -71,7 +72,7 @@ class JointTarget(BaseModel):
     model_config = _CLOSED
     joints: list[float] = Field(min_length=1, max_length=9, description=(
         "per axis: deg (FANUC convention), or mm and deg (Janome X Y Z R); the backend checks the count"))
-    speed_scale: float = Field(1.0, gt=0, le=1)
+    speed_scale: float = Field(1.0, ge=MIN_SPEED_SCALE, le=1)
 
     @field_validator("joints")
     @classmethod
@@ -82,8 +83,8 @@ class JointTarget(BaseModel):
 class PoseTargetBody(BaseModel):
     model_config = _CLOSED
     xyzwpr: list[float] = Field(min_length=6, max_length=6, description="TCP pose: X Y Z mm, W P R deg (world)")
-    linear_speed: float = Field(100.0, gt=0, le=2000, description="mm/s")
-    angular_speed: float = Field(30.0, gt=0, le=360, description="deg/s")
+    linear_speed: float = Field(100.0, ge=MIN_LINEAR_MM_S, le=2000, description="mm/s")
+    angular_speed: float = Field(30.0, ge=MIN_ANGULAR_DEG_S, le=360, description="deg/s")
 
     @field_validator("xyzwpr")
     @classmethod

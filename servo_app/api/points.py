@@ -20,6 +20,7 @@ from servo_app import messages as msg
 from servo_app.api.deps import Calls, Controlling, Service
 from servo_app.api.models import REFUSALS, Ack, Problem
 from servo_app.errors import CommandRejected
+from servo_app.motion.commands import MIN_SPEED_SCALE
 from servo_app.service import ServoService
 from servo_app.service.points import POINT_NAME_PATTERN
 
@@ -49,7 +50,7 @@ class PointView(BaseModel):
 
 class MoveToPoint(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True)
-    speed_scale: float = Field(1.0, gt=0, le=1, description="share of the joint speed limits")
+    speed_scale: float = Field(1.0, ge=MIN_SPEED_SCALE, le=1, description="share of the joint speed limits")
 
 
 def _unknown(name: str) -> HTTPException:

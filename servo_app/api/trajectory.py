@@ -21,6 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from servo_app.api.deps import Calls, Controlling, Service
 from servo_app.api.models import REFUSALS, Ack
+from servo_app.motion.commands import MIN_SPEED_SCALE
 from servo_app.service.trajectory import TrajectoryInput, plan_trajectory
 
 router = APIRouter(tags=["motion"])
@@ -52,7 +53,7 @@ class TrajectoryBody(BaseModel):
     to_s: float | None = Field(None, description="with log: end of the window (default: the log's end)")
     from_unix: float | None = Field(None, description="with log: the window's start as wall-clock time (Unix s)")
     to_unix: float | None = Field(None, description="with log: the window's end as wall-clock time (Unix s)")
-    speed_scale: float = Field(1.0, gt=0, le=1, description="share of the joint speed limits")
+    speed_scale: float = Field(1.0, ge=MIN_SPEED_SCALE, le=1, description="share of the joint speed limits")
     pace: Literal["recorded", "limits"] = Field("recorded", description=(
         "with log: 'recorded' replays no faster along the path than it was recorded (times speed_scale), "
         "'limits' as fast as the controller's limits allow"))

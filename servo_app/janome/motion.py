@@ -20,6 +20,7 @@ from servo_app.errors import CommandRejected, InvalidRequest
 from servo_app.janome.kinematics import AXES, UNITS, Workspace
 from servo_app.janome.profile import JanomeProfile
 from servo_app.janome.protocol import SCALE, Arm, Cmd, RobotKind
+from servo_app.motion.commands import check_speed_scale
 from servo_app.motion.shaper import JointShaper, ShaperLimits
 
 _MOVE_EPS = 0.5 / SCALE  # below half a wire unit a step does not exist on the wire
@@ -131,8 +132,10 @@ class JanomeMotion:
         """The target X Y Z R if it is in the work envelope (and, while streaming, the straight path to
         it too); else InvalidRequest naming the axis and its stroke. Changes nothing."""
         p = self._checked(xyzr, name)
-        if not (np.isfinite(speed_scale) and 0.0 < speed_scale <= 1.0):
-            raise InvalidRequest(f"speed_scale={speed_scale} must be in (0, 1]")
+        try:
+            check_speed_scale(speed_scale)
+        except ValueError as exc:
+            raise InvalidRequest(str(exc)) from None
         why = self.ws.check(p, self.arm)
         if why is not None:
             raise InvalidRequest(f"target refused: {why.message}")

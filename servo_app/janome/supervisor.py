@@ -42,6 +42,7 @@ from servo_app.janome.kinematics import AXES, UNITS
 from servo_app.janome.motion import JanomeMotion
 from servo_app.janome.protocol import FrameError, RobotState, Status
 from servo_app.janome.session import JanomeSession, Phase, SessionConfig
+from servo_app.motion.commands import MIN_ANGULAR_DEG_S, MIN_LINEAR_MM_S
 from servo_app.safety import (
     ControllerAlarm,
     Disconnected,
@@ -159,9 +160,10 @@ class JanomeSupervisor(SupervisorBase):
     def _pose_speed_scale(self, target: np.ndarray, linear: float, angular: float) -> float:
         """The share of the axis speeds that keeps the move within ``linear`` mm/s (X Y Z) and
         ``angular`` deg/s (R), counting only what moves."""
-        for field, value in (("linear_speed", linear), ("angular_speed", angular)):
-            if not (np.isfinite(value) and value > 0):
-                raise InvalidRequest(f"{field}={value} must be a positive number")
+        for field, value, lowest, unit in (("linear_speed", linear, MIN_LINEAR_MM_S, "mm/s"),
+                                           ("angular_speed", angular, MIN_ANGULAR_DEG_S, "deg/s")):
+            if not (np.isfinite(value) and value >= lowest):
+                raise InvalidRequest(f"{field}={value} must be a number of at least {lowest} {unit}")
         m = self.motion
         here = m.last if m.last is not None else target
         d = np.abs(target - here)

@@ -25,6 +25,12 @@ MAX_ANGULAR_DEG_S = 1000.0  # the fastest FANUC wrist axis
 MAX_JOINT_DEG_S = 1000.0
 MAX_POSITION_MM = 100_000.0  # 100 m: anything beyond is a units mistake
 MAX_JOINT_DEG = 1080.0  # three turns: the widest joint range we know is +-360
+# The slowest motion a target may ask for. Slower, a move never ends in practice, and the product with
+# the flange-speed guard's reduction could underflow to zero: a speed of 5e-324 (subnormal, above 0)
+# once reached the shaper as 0, which raised inside the cycle and ended the servo process.
+MIN_SPEED_SCALE = 0.001  # of the joint speed limits: a few tenths of a degree a second
+MIN_LINEAR_MM_S = 0.1
+MIN_ANGULAR_DEG_S = 0.1
 N_JOINTS = 6
 
 Frame = Literal["base", "tool"]
@@ -62,6 +68,12 @@ def _bounded(name: str, values: tuple[float, ...], limit: float, unit: str) -> N
     for i, v in enumerate(values):
         if abs(v) > limit:
             raise ValueError(f"{name}[{i}]={v} {unit} is outside [-{limit}, {limit}]")
+
+
+def check_speed_scale(value: float) -> float:
+    """A target's ``speed_scale`` (a share of the joint speed limits) as a float in
+    [MIN_SPEED_SCALE, 1]; ValueError naming the value otherwise."""
+    return _scalar("speed_scale", value, MIN_SPEED_SCALE, 1.0)
 
 
 def _scalar(name: str, value: float, lo: float, hi: float, *, lo_open: bool = False) -> float:
@@ -145,9 +157,9 @@ class PoseTarget(_Stamped):
                 raise ValueError(f"xyzwpr[{i}]={pose[i]} deg is outside [-360, 360]")
         object.__setattr__(self, "xyzwpr", pose)
         object.__setattr__(self, "linear_speed",
-                           _scalar("linear_speed", self.linear_speed, 0.0, MAX_LINEAR_MM_S, lo_open=True))
+                           _scalar("linear_speed", self.linear_speed, MIN_LINEAR_MM_S, MAX_LINEAR_MM_S))
         object.__setattr__(self, "angular_speed",
-                           _scalar("angular_speed", self.angular_speed, 0.0, MAX_ANGULAR_DEG_S, lo_open=True))
+                           _scalar("angular_speed", self.angular_speed, MIN_ANGULAR_DEG_S, MAX_ANGULAR_DEG_S))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -166,7 +178,7 @@ class JointJog(_Stamped):
 @dataclass(frozen=True, kw_only=True)
 class JointTarget(_Stamped):
     """Absolute joint position, deg, FANUC convention, reached in a straight joint-space line at
-    ``speed_scale`` (0, 1] times the joint speed limits."""
+    ``speed_scale`` [MIN_SPEED_SCALE, 1] times the joint speed limits."""
 
     position: tuple[float, ...] = (0.0,) * N_JOINTS
     speed_scale: float = 0.1
@@ -176,7 +188,7 @@ class JointTarget(_Stamped):
         pos = _floats("position", self.position, N_JOINTS)
         _bounded("position", pos, MAX_JOINT_DEG, "deg")
         object.__setattr__(self, "position", pos)
-        object.__setattr__(self, "speed_scale", _scalar("speed_scale", self.speed_scale, 0.0, 1.0, lo_open=True))
+        object.__setattr__(self, "speed_scale", check_speed_scale(self.speed_scale))
 
 
 Command = Twist | PoseTarget | JointJog | JointTarget

@@ -21,6 +21,7 @@ import numpy as np
 
 from servo_app import messages as msg
 from servo_app.errors import CommandRejected, InvalidRequest
+from servo_app.motion.commands import check_speed_scale
 from servo_app.motion.limit_tables import default_tables
 from servo_app.motion.trajectory import TimedTrajectory, TrajectoryPlanner, TrajectoryRefused
 
@@ -134,8 +135,10 @@ def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory,
     given = [k for k in ("joints", "poses", "csv_text", "log") if getattr(req, k) is not None]
     if len(given) != 1:
         raise InvalidRequest(f"give exactly one of joints, poses, a CSV body or log (got {given or 'none'})")
-    if not (math.isfinite(req.speed_scale) and 0.0 < req.speed_scale <= 1.0):
-        raise InvalidRequest(f"speed_scale={req.speed_scale} must be in (0, 1]")
+    try:
+        check_speed_scale(req.speed_scale)
+    except ValueError as exc:
+        raise InvalidRequest(str(exc)) from None
     if req.pace not in ("recorded", "limits"):
         raise InvalidRequest(f"pace={req.pace!r} must be 'recorded' or 'limits'")
     profile = service.profile
