@@ -157,6 +157,11 @@ def test_request_types_are_strict_and_a_refusal_changes_nothing(rig: Rig) -> Non
         ("/api/lease", {"client": "x", "force": "true"}, "force"),
         ("/api/lease", {"client": "x", "ttl_s": "5"}, "ttl_s"),
         ("/api/lease", {"client": 5}, "client"),
+        # The trajectory upload parses its own body (up to 2 MiB, in a worker thread): as strict.
+        ("/api/trajectory", {"joints": [["5", 0, 0, 0, -90, 0]]}, "joints"),  # once replayed to J1 = 5
+        ("/api/trajectory", {"joints": [[True, 0, 0, 0, -90, 0]]}, "joints"),
+        ("/api/trajectory", {"joints": [[0, 0, 0, 0, -90, 0]], "times": [True]}, "times"),
+        ("/api/trajectory", {"joints": [[0, 0, 0, 0, -90, 0]], "speed_scale": "0.5"}, "speed_scale"),
     ]
     for path, body, field in refused:
         r = rig.http.post(path, json=body, headers=h)
@@ -436,6 +441,25 @@ def test_a_body_that_is_not_text_is_422_naming_it(rig: Rig, path: str) -> None:
     r = rig.http.post(path, content=b'{"joints": [1, \xff\xfe]}', headers={**h, "Content-Type": "application/json"})
     assert r.status_code == 422, r.text  # FastAPI's own answer: 400 "There was an error parsing the body"
     assert "not UTF-8" in r.json()["detail"][0]["msg"], r.text
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize("path", ["/api/jog", "/api/target", "/api/trajectory", "/api/lease", "/api/io"])
+@pytest.mark.parametrize("body", [b'{"joints": ' + b"[" * 5000 + b"]" * 5000 + b"}", b"[" * 60_000],
+                         ids=["nested-5000", "open-60000"])
+def test_a_body_nested_too_deep_to_parse_is_422_naming_it_and_changes_nothing(rig: Rig, path: str,
+                                                                              body: bytes) -> None:
+    """JSON's parser recurses: thousands of brackets raised RecursionError, which the trajectory upload
+    answered with a 500 and every other route with a bare 400 "There was an error parsing the body"."""
+    h = rig.lease("deep")
+    before = rig.wait(lambda s: s["at_rest"], what="at rest (an earlier test's jog, or the take-over's stop)")
+    r = rig.http.post(path, content=body, headers={**h, **JSON})
+    assert r.status_code == 422, r.text[:300]
+    assert r.json()["detail"][0]["msg"].startswith("the body nests lists or objects"), r.text[:300]
+    after = rig.state()
+    assert (after["state"], after["q_cmd"], after["stops_by_reason"]) == (
+        before["state"], before["q_cmd"], before["stops_by_reason"])
+    assert rig.http.get("/api/lease").json()["client"] == "deep"
 
 
 @pytest.mark.e2e

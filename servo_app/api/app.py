@@ -41,6 +41,7 @@ from servo_app.api.body_limit import MAX_BODY_BYTES, BodyLimit
 from servo_app.api.calls import ServiceCalls
 from servo_app.api.deps import ApiContext, api_of, client_of, controlling
 from servo_app.api.metrics import Metrics
+from servo_app.api.models import TOO_DEEP
 from servo_app.errors import json_safe
 from servo_app.service import ServoService
 
@@ -70,9 +71,13 @@ async def _invalid_request(request: Request, exc: Exception) -> JSONResponse:
 
 
 async def _http_error(request: Request, exc: Exception) -> Any:
-    """A body that is not text (not UTF-8) is a bad request like any other: 422 naming it, not
-    FastAPI's 400 "There was an error parsing the body" (a JSON syntax error is a 422 already)."""
+    """A body that is not text (not UTF-8), or nested too deep to parse, is a bad request like any
+    other: 422 naming it, not FastAPI's 400 "There was an error parsing the body" (a JSON syntax error
+    is a 422 already)."""
     assert isinstance(exc, StarletteHTTPException)
+    if exc.status_code == 400 and isinstance(exc.__cause__, RecursionError):
+        return await _invalid_request(request, RequestValidationError([{
+            "type": "json_invalid", "loc": ("body",), "msg": TOO_DEEP, "input": None}]))
     if exc.status_code == 400 and isinstance(exc.__cause__, UnicodeDecodeError):
         err = exc.__cause__
         return await _invalid_request(request, RequestValidationError([{

@@ -512,6 +512,10 @@ class InputsView(BaseModel):
     applications: list[dict[str, Any]] | None = None
 
 
+# A body nested deeper than the JSON parser recurses (thousands of brackets): its 422's message.
+TOO_DEEP = ("the body nests lists or objects thousands of levels deep, too deep to parse; no request nests more "
+            "than three: send the documented shape")
+
 # What the routes that change something may answer besides 200 (and 422 for a malformed body).
 REFUSALS: dict[int | str, dict[str, Any]] = {
     401: {"model": Problem, "description": "missing or wrong bearer token"},

@@ -20,7 +20,7 @@ from fastapi.exceptions import RequestValidationError
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from servo_app.api.deps import Calls, Controlling, Service
-from servo_app.api.models import REFUSALS, Ack
+from servo_app.api.models import REFUSALS, TOO_DEEP, Ack
 from servo_app.motion.commands import MIN_SPEED_SCALE
 from servo_app.service.trajectory import TrajectoryInput, plan_trajectory
 
@@ -36,9 +36,10 @@ _MAX_JSON_VALUES = MAX_WAYPOINTS * 10
 
 
 class TrajectoryBody(BaseModel):
-    """One of ``joints``, ``poses`` or ``log``; ``times`` only with waypoints."""
+    """One of ``joints``, ``poses`` or ``log``; ``times`` only with waypoints. Strict types, as every
+    request's (api.models): "5" or true is not a number."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
     joints: list[list[float]] | None = Field(None, max_length=MAX_WAYPOINTS, description=(
         "joint waypoints, FANUC J1..J6 deg: straight joint-space segments, at rest at each waypoint"))
     poses: list[list[float]] | None = Field(None, max_length=MAX_WAYPOINTS, description=(
@@ -89,6 +90,9 @@ def _parse_json(raw: bytes) -> TrajectoryBody:
     except ValueError as exc:  # (json's and a bad UTF-8's)
         raise RequestValidationError([{"type": "json_invalid", "loc": ("body",),
                                        "msg": f"the body is not JSON ({exc}): send JSON or text/csv",
+                                       "input": None}]) from None
+    except RecursionError:  # json's parser on thousands of nested brackets
+        raise RequestValidationError([{"type": "json_invalid", "loc": ("body",), "msg": TOO_DEEP,
                                        "input": None}]) from None
 
 
