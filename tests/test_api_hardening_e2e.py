@@ -462,6 +462,37 @@ def test_a_body_nested_too_deep_to_parse_is_422_naming_it_and_changes_nothing(ri
     assert rig.http.get("/api/lease").json()["client"] == "deep"
 
 
+NO_BODY_ROUTES = [("POST", "/api/session/start"), ("POST", "/api/session/resume"), ("POST", "/api/session/end"),
+                  ("POST", "/api/reset"), ("POST", "/api/lease/renew"), ("DELETE", "/api/lease"),
+                  ("POST", "/api/points/nobody"), ("DELETE", "/api/points/nobody")]
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(90)
+def test_a_route_that_takes_no_body_refuses_one_and_changes_nothing(rig: Rig) -> None:
+    """``POST /api/session/end`` with ``{"fast": NaN}`` ended the stream, ``/api/session/start`` with a
+    broken body started one: a body there is a mistake (meant for another route, or malformed), refused
+    before anything happens. No body, ``{}`` and ``null`` are still none."""
+    h = rig.streaming("nobody")
+    before = rig.wait(lambda s: s["at_rest"], what="at rest")
+    points = rig.http.get("/api/points").json()
+    for method, path in NO_BODY_ROUTES:
+        for body in (b'{"fast": NaN}', b'{"linear": [1, 0, 0', b"fast=true"):
+            r = rig.http.request(method, path, content=body, headers={**h, **JSON})
+            assert r.status_code == 422, (method, path, body, r.status_code, r.text)
+            assert f"{method} {path} takes no body" in r.json()["detail"][0]["msg"], r.text
+    after = rig.state()
+    assert (after["state"], after["q_cmd"], after["stops_by_reason"]) == (
+        before["state"], before["q_cmd"], before["stops_by_reason"])
+    assert rig.http.get("/api/lease").json()["client"] == "nobody"
+    assert rig.http.get("/api/points").json() == points
+    for body in (b"", b"{}", b"null"):  # none, as clients send it
+        r = rig.http.post("/api/lease/renew", content=body, headers={**h, **JSON})
+        assert r.status_code == 200, (body, r.text)
+    rig.post("/api/session/end", h, json={})
+    rig.wait_state("ended")
+
+
 @pytest.mark.e2e
 @pytest.mark.timeout(90)
 def test_the_log_of_a_running_stream_downloads_whole_as_far_as_written(rig: Rig) -> None:

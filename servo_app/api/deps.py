@@ -9,7 +9,8 @@ thread, so a flood of jogs is refused without tying up the threads the real requ
 from dataclasses import dataclass
 from typing import Annotated
 
-from fastapi import Depends, Header, HTTPException
+from fastapi import Depends, Header, HTTPException, Request
+from fastapi.exceptions import RequestValidationError
 from starlette.requests import HTTPConnection
 
 from servo_app.api.auth import AuditLog, LeaseManager, RateLimiter, token_matches
@@ -85,6 +86,18 @@ async def controlling(conn: HTTPConnection, client: Annotated[str, Depends(authe
     return lease_holder(api_of(conn), client, x_lease_id, f"{conn.scope.get('method', 'WS')} {conn.url.path}")
 
 
+async def no_body(request: Request) -> None:
+    """For a route that takes no body: refuse one (422), so a request meant for another route, or
+    malformed, is not carried out as if it were empty. Nothing, blanks, ``{}`` and ``null`` are no body
+    (what clients send for none)."""
+    body = await request.body()
+    if body.strip() in (b"", b"{}", b"null"):
+        return
+    raise RequestValidationError([{
+        "type": "no_body_expected", "loc": ("body",), "input": None,
+        "msg": f"{request.method} {request.url.path} takes no body ({len(body)} bytes sent): send none"}])
+
+
 def lease_holder(api: ApiContext, client: str, lease_id: str | None, action: str) -> str:
     """``lease-holder@client`` if ``lease_id`` is the current lease's, else 409 (counted and audited).
     Shared with the Zenoh interface (servo_app/zenoh_api.py): one rule for both."""
@@ -106,3 +119,4 @@ JogLimiter = Annotated[RateLimiter, Depends(jog_limiter)]
 Calls = Annotated[ServiceCalls, Depends(calls)]
 Authed = Annotated[str, Depends(authed)]
 Controlling = Annotated[str, Depends(controlling)]
+NO_BODY = [Depends(no_body)]  # a route's ``dependencies`` when it takes no body

@@ -15,7 +15,7 @@ from typing import Annotated
 from fastapi import APIRouter, Header, HTTPException
 
 from servo_app import messages as msg
-from servo_app.api.deps import ApiContext, Audit, Authed, Context, Leases
+from servo_app.api.deps import NO_BODY, ApiContext, Audit, Authed, Context, Leases
 from servo_app.api.models import Ack, LeaseGranted, LeaseRenewed, LeaseRequest, LeaseView, Problem
 from servo_app.errors import CommandRejected
 
@@ -50,7 +50,7 @@ def lease_acquire(body: LeaseRequest, client: Authed, api: Context) -> LeaseGran
     return LeaseGranted(lease_id=lease.lease_id, client=lease.client, ttl_s=lease.ttl_s)
 
 
-@router.post("/api/lease/renew", summary="Renew the control lease",
+@router.post("/api/lease/renew", summary="Renew the control lease", dependencies=NO_BODY,
              responses={**_NO_TOKEN, 409: {"model": Problem, "description": "not the holder, or expired"}})
 def lease_renew(client: Authed, leases: Leases, x_lease_id: Annotated[str | None, Header()] = None) -> LeaseRenewed:
     """Push the expiry of the lease named by ``X-Lease-Id`` one TTL ahead (send it well within the TTL)."""
@@ -61,7 +61,7 @@ def lease_renew(client: Authed, leases: Leases, x_lease_id: Annotated[str | None
     return LeaseRenewed(lease_id=lease.lease_id, ttl_s=lease.ttl_s)
 
 
-@router.delete("/api/lease", summary="Release the control lease",
+@router.delete("/api/lease", summary="Release the control lease", dependencies=NO_BODY,
                responses={**_NO_TOKEN, 409: {"model": Problem, "description": "the X-Lease-Id is not the holder's"}})
 def lease_release(client: Authed, api: Context, audit: Audit,
                   x_lease_id: Annotated[str | None, Header()] = None) -> Ack:

@@ -17,7 +17,7 @@ from fastapi import Path as PathParam
 from pydantic import BaseModel, ConfigDict, Field
 
 from servo_app import messages as msg
-from servo_app.api.deps import Calls, Controlling, Service
+from servo_app.api.deps import NO_BODY, Calls, Controlling, Service
 from servo_app.api.models import REFUSALS, Ack, Problem
 from servo_app.errors import CommandRejected
 from servo_app.motion.commands import MIN_SPEED_SCALE
@@ -85,7 +85,7 @@ def points_list(service: Service) -> list[dict[str, Any]]:
 
 
 @router.post("/api/points/{name}", summary="Teach a point: save the arm's current joints and pose",
-             responses=REFUSALS)
+             responses=REFUSALS, dependencies=NO_BODY)
 def point_teach(name: PointName, client: Controlling, service: Service, calls: Calls) -> PointView:
     """Save the commanded joints and the pose the controller reports under ``name`` (replacing a point
     of that name), with the robot model and the time. Only while a stream runs and the arm has
@@ -94,7 +94,8 @@ def point_teach(name: PointName, client: Controlling, service: Service, calls: C
     return PointView.model_validate(ack.detail)
 
 
-@router.delete("/api/points/{name}", summary="Delete a teach point", responses={**REFUSALS, **_UNKNOWN})
+@router.delete("/api/points/{name}", summary="Delete a teach point", responses={**REFUSALS, **_UNKNOWN},
+               dependencies=NO_BODY)
 def point_delete(name: PointName, client: Controlling, service: Service, calls: Calls) -> Ack:
     """Forget the point ``name`` (404 if nobody taught it). Token and lease."""
     if not calls.call(client, "points.delete", lambda: service.points.delete(name), {"name": name}).detail:

@@ -8,13 +8,13 @@ the arm, with or without it (a stop must never wait for control).
 from fastapi import APIRouter
 
 from servo_app import messages as msg
-from servo_app.api.deps import Authed, Calls, Controlling, Service
+from servo_app.api.deps import NO_BODY, Authed, Calls, Controlling, Service
 from servo_app.api.models import REFUSALS, Ack, StopRequest
 
 router = APIRouter(tags=["session"], responses=REFUSALS)
 
 
-@router.post("/api/session/start", summary="Start a stream")
+@router.post("/api/session/start", summary="Start a stream", dependencies=NO_BODY)
 def session_start(client: Controlling, calls: Calls) -> Ack:
     """Open the link if needed and start streaming, holding the current position (token and lease)."""
     return calls.forward(client, "session.start", msg.Start())
@@ -28,13 +28,13 @@ def session_stop(client: Authed, calls: Calls, body: StopRequest | None = None) 
     return calls.forward(client, "session.stop", msg.Stop(fast=fast))
 
 
-@router.post("/api/session/resume", summary="Resume after a stop")
+@router.post("/api/session/resume", summary="Resume after a stop", dependencies=NO_BODY)
 def session_resume(client: Controlling, calls: Calls) -> Ack:
     """Move on from a soft stop (an interrupted target continues); token and lease."""
     return calls.forward(client, "session.resume", msg.Resume())
 
 
-@router.post("/api/session/end", summary="End the stream")
+@router.post("/api/session/end", summary="End the stream", dependencies=NO_BODY)
 def session_end(client: Controlling, calls: Calls) -> Ack:
     """Decelerate, send last data at rest and close the stream and its session log (token and lease:
     ending takes the arm away from whoever controls it; to stop it, any client may POST
@@ -42,7 +42,7 @@ def session_end(client: Controlling, calls: Calls) -> Ack:
     return calls.forward(client, "session.end", msg.End())
 
 
-@router.post("/api/reset", summary="Leave a fault or acknowledge a fast stop")
+@router.post("/api/reset", summary="Leave a fault or acknowledge a fast stop", dependencies=NO_BODY)
 def reset(client: Controlling, service: Service, calls: Calls) -> Ack:
     """Leave a fault (the embedded simulator's alarm too, as an operator at the pendant would), or
     acknowledge a fast stop before resuming; token and lease."""
