@@ -494,6 +494,21 @@ def test_a_route_that_takes_no_body_refuses_one_and_changes_nothing(rig: Rig) ->
 
 
 @pytest.mark.e2e
+@pytest.mark.timeout(60)
+def test_an_io_read_mask_out_of_range_is_422_whatever_the_state(rig: Rig) -> None:
+    """The mask is the request's own value: checked first, not after "only while streaming" (409)."""
+    h = rig.lease("io")
+    if rig.state()["state"] != "ended" and rig.state()["link"] == "streaming":
+        rig.post("/api/session/end", h)
+        rig.wait_state("ended")
+    for mask in (70000, -1):
+        r = rig.http.get("/api/io", params={"type": "DO", "index": 1, "mask": mask}, headers=AUTH)
+        assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["query", "mask"], r.text
+    r = rig.http.get("/api/io", params={"type": "DO", "index": 1, "mask": 1}, headers=AUTH)
+    assert r.status_code == 409 and "only while streaming" in r.text, r.text  # a good mask: the state's turn
+
+
+@pytest.mark.e2e
 @pytest.mark.timeout(90)
 def test_the_log_of_a_running_stream_downloads_whole_as_far_as_written(rig: Rig) -> None:
     """A session log grows while it is sent (a record every few ms): each download is the file as it
@@ -519,6 +534,18 @@ def test_telemetry_refuses_a_rate_outside_1_to_100(rig: Rig, hz: str) -> None:
         ws.recv(timeout=5)
     assert closed.value.rcvd is not None and closed.value.rcvd.code == 1008
     assert closed.value.rcvd.reason.startswith("hz=") and "1..100" in closed.value.rcvd.reason
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("query", ["hz=abc", "hz=", "hz=50&hz=abc"])
+def test_telemetry_refuses_a_rate_that_is_no_number_with_a_reason(rig: Rig, query: str) -> None:
+    """It was a bare HTTP 403 before the handshake (FastAPI's own refusal), with no reason to read."""
+    with websockets.sync.client.connect(f"{rig.ws_url}/ws/telemetry?{query}") as ws, \
+            pytest.raises(ConnectionClosed) as closed:
+        ws.recv(timeout=5)
+    assert closed.value.rcvd is not None and closed.value.rcvd.code == 1008
+    assert "is not a number of messages per second" in closed.value.rcvd.reason, closed.value.rcvd.reason
 
 
 @pytest.mark.e2e

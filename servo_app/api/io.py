@@ -3,7 +3,9 @@ Reading needs the token, writing the token and the control lease. The answer nam
 written: ``{"ok": true, "type": "DO", "index": 1, "mask": 1, "value": 1}``."""
 
 # No `from __future__ import annotations`: FastAPI reads the dependency annotations at runtime.
-from fastapi import APIRouter
+from typing import Annotated
+
+from fastapi import APIRouter, Query
 from pydantic import BaseModel, Field
 
 from servo_app.api.deps import Authed, Calls, Controlling, Service
@@ -34,7 +36,8 @@ class IoRead(BaseModel):
 
 
 @router.get("/api/io", summary="Read 16 I/O points")
-def io_read(type: str, index: int, client: Authed, service: Service, calls: Calls, mask: int = 0xFFFF) -> IoRead:
+def io_read(type: str, index: int, client: Authed, service: Service, calls: Calls,
+            mask: Annotated[int, Query(ge=0, le=0xFFFF, description="the points to read")] = 0xFFFF) -> IoRead:
     """Read 16 points from ``index`` through the command packets (only while streaming; the types and
     indexes allowed are in GET /api/limits, ``io_allow``). Token only."""
     ack = calls.call(client, "io.read", lambda: service.io_read(type, index, mask),

@@ -1,9 +1,10 @@
 """``/ws/telemetry``: the state (:class:`~servo_app.api.models.StateView`, as ``GET /api/state``
 answers it) pushed at ``?hz=`` (1..100, default 50).
 
-A rate outside 1..100 (NaN, infinity, 0, negative, huge) is refused: the socket is accepted and
-closed at once with code 1008 and a reason naming the value, so a client sees why. (``hz=nan`` used
-to make the period NaN, and the loop sent as fast as it could to anyone who asked.)
+A rate that is not a number, or outside 1..100 (NaN, infinity, 0, negative, huge), is refused: the
+socket is accepted and closed at once with code 1008 and a reason naming the value, so a client sees
+why. (``hz=nan`` used to make the period NaN, and the loop sent as fast as it could to anyone who
+asked.)
 """
 
 # No `from __future__ import annotations`: FastAPI reads the annotations at runtime.
@@ -29,15 +30,21 @@ def telemetry_rate_error(hz: float) -> str | None:
 
 
 @router.websocket("/ws/telemetry")
-async def telemetry(ws: WebSocket, hz: float = 50.0) -> None:
-    """The state at ``hz`` messages a second (1..100)."""
+async def telemetry(ws: WebSocket, hz: str = "50") -> None:
+    """The state at ``hz`` messages a second (1..100). ``hz`` is parsed here, not by FastAPI: its
+    refusal of a non-number (``hz=abc``) was a bare HTTP 403 before the handshake, with no reason."""
     api = api_of(ws)
     await ws.accept()
-    error = telemetry_rate_error(hz)
+    try:
+        rate = float(hz)
+    except ValueError:
+        error: str | None = f"hz={hz!r} is not a number of messages per second: connect with e.g. ?hz=50"
+    else:
+        error = telemetry_rate_error(rate)
     if error is not None:
         await ws.close(code=status.WS_1008_POLICY_VIOLATION, reason=error)
         return
-    period = 1.0 / hz
+    period = 1.0 / rate
     loop = asyncio.get_running_loop()
     due = loop.time()
     try:
