@@ -7,12 +7,14 @@
   working; the API tells them apart by catching InvalidRequest first.
 
 Either way the message names the field and the value, and nothing changed. :func:`json_safe` makes a
-refusal's details, which echo the input, encodable.
+refusal's details, which echo the input, encodable; :func:`validation_errors` also keeps the echo short.
 """
 
 from __future__ import annotations
 
+import json
 import math
+from typing import Any
 
 
 class CommandRejected(ValueError):
@@ -37,3 +39,24 @@ def json_safe(value: object) -> object:
     if isinstance(value, list | tuple):
         return [json_safe(v) for v in value]
     return str(value)
+
+
+ECHO_CHARS = 500  # of a refusal's echo of the bad input, as JSON text
+
+
+def echoed(value: object) -> object:
+    """A refusal's echo of the bad input: as :func:`json_safe` makes it, or, when its JSON text is
+    longer than ECHO_CHARS, the start of that text and its length (a 1.9 MB junk field came back
+    whole in its 422)."""
+    safe = json_safe(value)
+    text = json.dumps(safe)
+    if len(text) <= ECHO_CHARS:
+        return safe
+    return f"{text[:ECHO_CHARS]}... ({len(text)} characters in all)"
+
+
+def validation_errors(errors: list[Any]) -> list[Any]:
+    """A validation error list (pydantic's, FastAPI's) as a refusal carries it: JSON-safe, each input
+    echoed within ECHO_CHARS."""
+    return [json_safe({**e, "input": echoed(e["input"])} if isinstance(e, dict) and "input" in e else e)
+            for e in errors]

@@ -42,7 +42,7 @@ from servo_app.api.deps import lease_holder
 from servo_app.api.models import JogBody, LeaseRequest, StopRequest, TargetBody
 from servo_app.api.motion import admit_jog, jog_request, target_request
 from servo_app.api.state import state_snapshot
-from servo_app.errors import json_safe
+from servo_app.errors import validation_errors
 from servo_app.ros import messages as ros
 
 if TYPE_CHECKING:
@@ -529,5 +529,5 @@ def _validated(model: Any, body: dict[str, Any]) -> Any:
     try:
         return adapter.validate_python(body)
     except ValidationError as exc:
-        raise Refused(422, jsonable_encoder(json_safe(list(exc.errors())))) from None
+        raise Refused(422, jsonable_encoder(validation_errors(list(exc.errors())))) from None
 

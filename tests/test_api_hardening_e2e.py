@@ -509,6 +509,22 @@ def test_an_io_read_mask_out_of_range_is_422_whatever_the_state(rig: Rig) -> Non
 
 
 @pytest.mark.e2e
+@pytest.mark.timeout(60)
+def test_a_refusal_echoes_a_huge_input_cut_short_and_a_bad_csv_says_what_to_send(rig: Rig) -> None:
+    """The trajectory upload takes 2 MiB: a 1.5 MB junk field came back whole in its 422."""
+    h = rig.lease("echo")
+    r = rig.http.post("/api/trajectory", json={"joints": [[0, 0, 0, 0, -90, 0]], "junk": "x" * 1_500_000}, headers=h)
+    assert r.status_code == 422 and len(r.content) < 2000, (r.status_code, len(r.content))
+    error = r.json()["detail"][0]
+    assert error["loc"] == ["body", "junk"] and error["input"].endswith("(1500002 characters in all)"), error
+    csv = {**h, "Content-Type": "text/csv"}
+    r = rig.http.post("/api/trajectory", content=b"a,b,c\n", headers=csv)
+    assert r.status_code == 422 and r.json()["detail"].startswith("csv: no data rows; send rows of 6 numbers"), r.text
+    r = rig.http.post("/api/trajectory", content=b"0,0,0,0,-90,0\n1,2,x,4,5,6\n", headers=csv)
+    assert r.status_code == 422 and r.json()["detail"] == "csv line 2: not a number in '1,2,x,4,5,6'", r.text
+
+
+@pytest.mark.e2e
 @pytest.mark.timeout(90)
 def test_the_log_of_a_running_stream_downloads_whole_as_far_as_written(rig: Rig) -> None:
     """A session log grows while it is sent (a record every few ms): each download is the file as it

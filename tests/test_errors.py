@@ -9,7 +9,7 @@ from typing import Any
 from hypothesis import given
 from hypothesis import strategies as st
 
-from servo_app.errors import InvalidRequest, json_safe
+from servo_app.errors import ECHO_CHARS, InvalidRequest, echoed, json_safe, validation_errors
 
 _leaves = (st.none() | st.booleans() | st.integers() | st.text() | st.floats(allow_nan=True, allow_infinity=True)
            | st.builds(ValueError, st.text()) | st.binary(max_size=8))
@@ -51,3 +51,25 @@ def test_json_safe_keeps_a_validation_errors_fields_and_names_its_nan() -> None:
     assert json_safe([error]) == [{"type": "finite_number", "loc": ["body", "linear", 0],
                                    "msg": "Input should be a finite number", "input": "nan",
                                    "ctx": {"error": "linear[0] = nan: send a finite number"}}]
+
+
+@given(_details)
+def test_an_echo_is_the_value_or_the_start_of_its_json_within_the_bound(value: Any) -> None:
+    echo = echoed(value)
+    text = json.dumps(json_safe(value))
+    if len(text) <= ECHO_CHARS:
+        assert echo == json_safe(value)
+    else:  # a string of the bound's characters and the length
+        assert echo == f"{text[:ECHO_CHARS]}... ({len(text)} characters in all)"
+        assert isinstance(echo, str) and len(echo) <= ECHO_CHARS + 40
+    json.dumps(echo, allow_nan=False)
+
+
+def test_validation_errors_keep_every_field_and_cut_only_a_long_input() -> None:
+    errors = [{"type": "extra_forbidden", "loc": ("body", "junk"), "msg": "Extra inputs are not permitted",
+               "input": "x" * 1_900_000},
+              {"type": "finite_number", "loc": ("body", "joints", 0, 0), "msg": "m" * 600, "input": math.inf}]
+    out = validation_errors(errors)
+    assert out[0]["input"].endswith("... (1900002 characters in all)") and len(out[0]["input"]) < 600
+    assert out[0]["loc"] == ["body", "junk"] and out[0]["msg"] == "Extra inputs are not permitted"
+    assert out[1] == {"type": "finite_number", "loc": ["body", "joints", 0, 0], "msg": "m" * 600, "input": "inf"}

@@ -42,7 +42,7 @@ from servo_app.api.calls import ServiceCalls
 from servo_app.api.deps import ApiContext, api_of, client_of, controlling
 from servo_app.api.metrics import Metrics
 from servo_app.api.models import TOO_DEEP
-from servo_app.errors import json_safe
+from servo_app.errors import validation_errors
 from servo_app.service import ServoService
 
 WEB_DIR = Path(__file__).resolve().parents[2] / "web"
@@ -61,7 +61,7 @@ def _client_of_scope(scope: Scope) -> str:
 
 async def _invalid_request(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
-    detail = jsonable_encoder(json_safe(list(exc.errors())))
+    detail = jsonable_encoder(validation_errors(list(exc.errors())))
     if audited(request.method, request.url.path):
         api = api_of(request)
         api.metrics.count("invalid")

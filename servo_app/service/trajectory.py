@@ -82,7 +82,12 @@ def read_csv_rows(text: str) -> tuple[np.ndarray, str]:
         try:
             traj = load_trajectory(p)
         except TrajectoryError as exc:
-            raise InvalidRequest(f"csv: {str(exc).replace(str(p), 'line', 1)}") from None
+            # The checker names its file ("PATH:3: ...", "PATH: no data rows"): here the body's lines.
+            why = str(exc).removeprefix(f"{p}:")
+            if why[:1].isdigit():
+                raise InvalidRequest(f"csv line {why}") from None
+            raise InvalidRequest(f"csv:{why}; send rows of 6 numbers: J1..J6 in deg, or X Y Z mm W P R deg under "
+                                 "the header x,y,z,w,p,r") from None
     bad = np.argwhere(~np.isfinite(traj.values))
     if bad.size:
         i, a = (int(x) for x in bad[0])

@@ -28,7 +28,7 @@ from fastapi.routing import APIRoute
 from pydantic import ValidationError
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from servo_app.errors import json_safe
+from servo_app.errors import ECHO_CHARS, echoed, json_safe
 from servo_app.inputs.feed.models import FeedAck
 from servo_app.inputs.feed.registry import _MESSAGE, FeedRegistry, FeedRejected, UnknownSource, field_path
 
@@ -47,10 +47,12 @@ class Unreadable(ValueError):
 def _validation_detail(errors: Any) -> list[dict[str, Any]]:
     out = []
     for e in errors:
+        shown = repr(e.get("input"))
+        if len(shown) > ECHO_CHARS:
+            shown = f"{shown[:ECHO_CHARS]}... ({len(shown)} characters in all)"
         out.append({
-            "loc": list(e.get("loc", ())), "type": e.get("type"), "msg": e.get("msg"),
-            "input": json_safe(e.get("input")),
-            "message": f"field {field_path(e.get('loc', ()))!r} value {e.get('input')!r}: {e.get('msg')}",
+            "loc": list(e.get("loc", ())), "type": e.get("type"), "msg": e.get("msg"), "input": echoed(e.get("input")),
+            "message": f"field {field_path(e.get('loc', ()))!r} value {shown}: {e.get('msg')}",
         })
     return out
 
