@@ -256,6 +256,11 @@ def test_client_set_tool_and_move_pose(rig: Rig) -> None:
         assert defined.name == "probe" and "probe" in [t.name for t in arm.tools()]
         with pytest.raises(RefusedError, match="maximum payload"):
             arm.define_tool("anvil", [0, 0, 50, 0, 0, 0], 9.0)
+        for twin, of in (("PROBE", "probe"), ("Flange", "flange")):  # a name apart only in case: refused
+            with pytest.raises(RefusedError, match=f"differs from tool '{of}' only in case") as exc:
+                arm.define_tool(twin, [0, 0, 50, 0, 0, 0], 1.0)
+            assert exc.value.status == 422
+        assert [t.name for t in arm.tools()].count("probe") == 1 and "PROBE" not in [t.name for t in arm.tools()]
     assert rig.sim_alarms() == []
 
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import re
 import tomllib
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -104,6 +104,15 @@ def check_tool(name: str, xyzwpr: Any, payload_kg: Any, max_payload_kg: float | 
     return Tool(name, (values[0], values[1], values[2], values[3], values[4], values[5]), payload)
 
 
+def check_distinct(name: str, names: Iterable[str], where: str = "tool") -> None:
+    """ToolError if ``name`` differs from one of ``names`` only in case: an operator reading "Gripper"
+    and "gripper" in a list cannot tell which one the arm is using."""
+    twin = next((n for n in names if n != name and n.casefold() == name.casefold()), None)
+    if twin is not None:
+        raise ToolError(f"{where} {name!r} differs from tool {twin!r} only in case: use {twin!r} to redefine it, "
+                        "or a name of its own")
+
+
 def _checked_payload(key: str, value: Any, max_payload_kg: float | None) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise ToolError(f"{key}={value!r} must be a number of kg")
@@ -146,6 +155,7 @@ def parse_tools(data: Mapping[str, Any], *, max_payload_kg: float | None, flange
             if key not in table:
                 raise ToolError(f"{where}.{name}.{key} is missing")
         tools[name] = check_tool(name, table["xyzwpr"], table["payload_kg"], max_payload_kg, where)
+        check_distinct(name, tools, f"{where}.{name}: tool")
     chosen = active if active is not None else data.get("active", FLANGE)
     if not isinstance(chosen, str) or chosen not in tools:
         key = "--tool" if active is not None else f"{source}: active"

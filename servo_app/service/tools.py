@@ -20,7 +20,17 @@ from typing import Any
 
 from servo_app import messages as msg
 from servo_app.errors import CommandRejected
-from servo_app.robots.tool import FLANGE, Tool, ToolError, ToolSet, check_tool, load_tools, tcp_matrix, tcp_pose
+from servo_app.robots.tool import (
+    FLANGE,
+    Tool,
+    ToolError,
+    ToolSet,
+    check_distinct,
+    check_tool,
+    load_tools,
+    tcp_matrix,
+    tcp_pose,
+)
 from servo_app.service.config import ServiceConfig
 
 # Modes in which a stream is alive: a tool change then waits for the controller's feedback to settle.
@@ -112,6 +122,7 @@ class ActiveTool:
             if name == FLANGE:
                 raise ToolError(f"tool {FLANGE!r} is built in (zero offset, --payload-kg): name the tool otherwise")
             tool = check_tool(name, xyzwpr, payload_kg, self._max_payload_kg, where="tool")
+            check_distinct(name, self._tools.tools)
             self._tools = self._tools.with_tool(tool)
             return tool
 
