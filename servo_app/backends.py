@@ -117,7 +117,11 @@ class RobotBackend(ABC):
 
     def start_simulator(self, target: Target, sim_options: dict[str, Any], realtime_priority: int | None) -> Any:
         """Start the embedded simulator. A connecting backend's simulator serves ``target`` (port 0:
-        any) and has ``address``; a listening backend's connects to ``target``. ``None``: none."""
+        any) and has ``address``; a listening backend's connects to ``target``. ``None``: none.
+
+        The service calls its ``call(name, *args, timeout=S)`` (``events``: the alarm list; ``reset``;
+        the backend's own controls) from several threads at once, and ``stop(timeout)`` at the end.
+        A call not answered within ``timeout`` raises TimeoutError, a refused one RuntimeError."""
         return None
 
     @property

@@ -27,6 +27,7 @@ import pytest
 from test_api_harness import AUTH, TOKEN, Rig, assert_log_complete, running_rig
 
 from servo_app.fanuc.packets import StatusStart, StatusStop
+from servo_app.service.config import ServiceConfig
 from servo_app.session_log import read_session_log
 from servo_app.sim.fanuc_server import FaultConfig
 
@@ -414,3 +415,122 @@ def test_sigterm_to_the_servo_process_ends_it_cleanly(tmp_path: Path) -> None:
     assert_log_complete(log, ended=True)
     assert_logs_sound(tmp_path)
     no_children_left()
+
+
+# --------------------------------------------------------------------- the embedded controller frozen
+
+
+@contextlib.contextmanager
+def frozen(pid: int, seconds: float) -> Iterator[None]:
+    """The process stopped (SIGSTOP) for ``seconds`` (a deliberate freeze: the block's checks run
+    meanwhile, then the rest of it is waited out), then continued (SIGCONT) whatever happened."""
+    os.kill(pid, signal.SIGSTOP)
+    until = time.monotonic() + seconds
+    try:
+        yield
+        time.sleep(max(0.0, until - time.monotonic()))
+    finally:
+        os.kill(pid, signal.SIGCONT)
+
+
+def alarm_codes(s: dict[str, Any]) -> list[str]:
+    return [a["code"] for a in s["alarm_history"] or []]
+
+
+def test_embedded_controller_frozen_longer_than_a_call(tmp_path: Path) -> None:
+    """The embedded simulator's process stopped (SIGSTOP) mid-jog for longer than a call to it may
+    take, then continued: while frozen, a reset answers 503 within the call timeout, says what to do
+    and changes nothing; the alarm monitor's polls time out and it polls on. Afterwards the pipe is
+    in step again (before the fix, each call read the previous call's late reply: the monitor died,
+    new alarms went unseen): reset, start and jog recover, and a new controller alarm is shown."""
+    with running_rig(tmp_path) as rig:
+        svc = rig.service
+        timeout_s = svc.cfg.sim_call_timeout_s
+        h = rig.lease()
+        rig.start_streaming(h)
+        rig.jog_for(h, JOG, 0.3)
+        assert svc.sim is not None
+        with frozen(svc.sim.process.pid, timeout_s + 1.5):
+            s = rig.wait_state("fault", timeout=5)
+            t0 = time.monotonic()
+            r = rig.post("/api/reset", h, expect=503)
+            took = time.monotonic() - t0
+            assert took < timeout_s + 1.0, took  # well inside the 10 s lease
+            assert "did not answer reset" in r.json()["detail"] and "POST /api/reset" in r.json()["detail"], r.text
+            after = rig.state()
+            assert after["state"] == "fault" and after["servo_starts"] == s["servo_starts"] == 1, after
+            assert eventually(lambda: svc.alarm_forwarder.poll_failures > 0, timeout=timeout_s + 1.0)
+            assert svc.alarm_forwarder.alive
+        # The controller answers again: its alarm for the commands it missed is listed.
+        rig.wait(lambda s: (s["fault"] or {}).get("code") == "MOTN-603", timeout=10, what="MOTN-603")
+        assert svc.alarm_forwarder.alive and eventually(lambda: svc.alarm_forwarder.poll_error == "", timeout=5)
+        recover(rig, h)
+        # A new controller alarm after the recovery is seen (and a direct call gets its own reply).
+        rig.start_streaming(h)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as other:
+            other.sendto(StatusStop().encode(), svc.robot_address)
+        s = rig.wait(lambda s: (s["fault"] or {}).get("code") == "MOTN-608", timeout=5, what="MOTN-608")
+        assert alarm_codes(s)[-1] == "MOTN-608", alarm_codes(s)
+        assert rig.sim_alarms()[-1] == "MOTN-608"
+        recover(rig, h)
+        assert svc.alarm_forwarder.alive
+    assert_logs_sound(tmp_path)
+    no_children_left()
+
+
+def test_sigint_after_the_embedded_controller_was_frozen(tmp_path: Path) -> None:
+    """`servo-app run`: the embedded simulator stopped (SIGSTOP) mid-jog for longer than a call
+    timeout, continued, the operator recovers over REST, a new alarm is shown; then SIGINT ends it
+    with exit code 0, the controller's alarms in its summary, nothing left running (before the fix:
+    a TypeError in close() and exit code 1)."""
+    proc, base, err = _serve([], tmp_path)
+    out = ""
+    try:
+        with httpx.Client(base_url=base, timeout=15) as c:
+            lease = c.post("/api/lease", json={"client": "ops"}, headers=AUTH).json()["lease_id"]
+            h = {**AUTH, "X-Lease-Id": lease}
+
+            def state() -> dict[str, Any]:
+                return c.get("/api/state").json()  # type: ignore[no-any-return]
+
+            def post(path: str, expect: int = 200, **kw: Any) -> httpx.Response:
+                r = c.post(path, headers=h, **kw)
+                assert r.status_code == expect, (path, r.status_code, r.text)
+                return r
+
+            post("/api/session/start")
+            post("/api/jog", json={"joints": [30.0, 0, 0, 0, 0, 0], "hold_ms": 2000})
+            assert eventually(lambda: state()["vel"][0] > 10.0, timeout=5)
+            servo_pid = int(all_logs(tmp_path)[-1].name.split("-")[3])  # session-DATE-TIME-PID-N.srvlog
+            kids = [p for p in children_of(proc.pid) if p != servo_pid
+                    and b"resource_tracker" not in Path(f"/proc/{p}/cmdline").read_bytes()]
+            (sim_pid,) = kids  # the embedded simulator
+            timeout_s = ServiceConfig().sim_call_timeout_s
+            with frozen(sim_pid, timeout_s + 1.5):
+                assert eventually(lambda: state()["state"] == "fault", timeout=5)
+                t0 = time.monotonic()
+                post("/api/reset", expect=503)
+                assert time.monotonic() - t0 < timeout_s + 1.0
+            assert eventually(lambda: (state()["fault"] or {}).get("code") == "MOTN-603", timeout=10), state()
+            post("/api/reset")
+            assert eventually(lambda: state()["state"] in ("disconnected", "connected", "ready"), timeout=15)
+            post("/api/session/start")
+            q0 = state()["q_cmd"][0]
+            post("/api/jog", json={"joints": JOG, "hold_ms": 300})
+            assert eventually(lambda: abs(state()["q_cmd"][0] - q0) > 1.0, timeout=5), state()
+            robot = state()["robot"]
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as other:
+                other.sendto(StatusStop().encode(), ("127.0.0.1", int(robot.rsplit(":", 1)[1])))
+            assert eventually(lambda: (state()["fault"] or {}).get("code") == "MOTN-608", timeout=5), state()
+            assert alarm_codes(state())[-1] == "MOTN-608"
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    assert proc.returncode == 0, out + "".join(err)
+    assert "controller alarms ['MOTN-603', 'MOTN-608']" in out, out
+    assert "Traceback" not in "".join(err), "".join(err)
+    assert eventually(lambda: not children_of(proc.pid), timeout=5.0)
+    assert_logs_sound(tmp_path)

@@ -619,7 +619,7 @@ class ToyController:
         self.address = (str(host), int(port))
         return self
 
-    def call(self, name: str, *args: Any) -> Any:
+    def call(self, name: str, *args: Any, timeout: float = 5.0) -> Any:
         """The service's controls of an embedded simulator: the toy posts no alarms and has none to reset."""
         if name == "events":
             return []

@@ -14,11 +14,17 @@ clock at the alarm; null when the controller has none).
 The forwarder also watches the servo process's safety view (``attach``): leaving ``fault`` (a
 reset) or starting a new stream clears the active list, and each fault is counted by its cause
 for ``/metrics``, as are the alarms by code.
+
+The monitor thread outlives any poll: a simulator that does not answer in time (its process stopped
+or starved), or answers something unexpected, costs that one poll. It is counted
+(``poll_failures``, ``poll_error``), logged once when the polls start failing and once when they
+succeed again, and the next poll comes as usual.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import threading
 import time
 from collections import Counter, deque
@@ -27,6 +33,8 @@ from typing import Any
 
 from servo_app import messages as msg
 from servo_app.backends import RobotBackend
+
+log = logging.getLogger(__name__)
 
 HISTORY_LEN = 50
 FAULTS_KEPT = 100
@@ -74,6 +82,8 @@ class AlarmForwarder:
         self._thread: threading.Thread | None = None
         self._lock = threading.RLock()  # the lists; never held across a call to the simulator
         self._poll_lock = threading.Lock()  # one reader of the simulator's alarm list at a time
+        self.poll_failures = 0  # polls of the alarm list that failed (no answer in time, a bad answer)
+        self.poll_error = ""  # the last one's reason ("" once a poll succeeds again)
 
     def attach(self, safety: Callable[[], dict[str, Any]], servo_fault: Callable[[], dict[str, Any] | None],
                status_time_ms: Callable[[], int | None]) -> None:
@@ -95,8 +105,8 @@ class AlarmForwarder:
     def skip_past(self) -> None:
         """Alarms posted so far are not the next servo process's faults (it did not exist): they are
         listed (the old process's end left them), but not forwarded."""
-        with contextlib.suppress(TimeoutError, RuntimeError, OSError, EOFError), self._poll_lock:
-            events = self._sim_call("events")
+        with contextlib.suppress(TimeoutError, RuntimeError, OSError, EOFError, TypeError), self._poll_lock:
+            events = self._events()
             with self._lock:
                 for ev in events[self._seen:]:
                     self._add(ev)
@@ -113,15 +123,44 @@ class AlarmForwarder:
         with self._lock:
             self._active = []
 
+    @property
+    def alive(self) -> bool:
+        """The monitor thread is running."""
+        return self._thread is not None and self._thread.is_alive()
+
     def _loop(self) -> None:
         while not self._stop.wait(self._poll_s):
-            with contextlib.suppress(TimeoutError, RuntimeError, OSError, EOFError):
+            try:
                 self.forward()
+            except RuntimeError:
+                pass  # no embedded simulator (an external robot: nothing to poll), or a refusal
+            except Exception as exc:  # whatever one poll met, the next one comes
+                self._poll_failed(exc)
+            else:
+                if self.poll_error:
+                    log.warning("sim-alarms: the controller's alarm list answers again (%d polls failed)",
+                                self.poll_failures)
+                    self.poll_error = ""
+
+    def _poll_failed(self, exc: Exception) -> None:
+        first = not self.poll_error
+        self.poll_failures += 1
+        self.poll_error = f"{type(exc).__name__}: {exc}"
+        if first:  # once per run of failures, not every poll
+            log.warning("sim-alarms: reading the controller's alarm list failed (%s); polling on",
+                        self.poll_error, exc_info=not isinstance(exc, (TimeoutError, OSError, EOFError)))
+
+    def _events(self) -> list[dict[str, Any]]:
+        """The simulator's alarm list, all of it; TypeError if the answer is not one."""
+        events = self._sim_call("events")
+        if not isinstance(events, list) or not all(isinstance(e, dict) and "code" in e for e in events):
+            raise TypeError(f"the simulator's alarm list is not a list of alarms: {events!r:.120}")
+        return events
 
     def forward(self) -> None:
         with self._poll_lock:
             self.observe()  # a reset or a new stream first: the alarms seen now belong to what follows
-            events = self._sim_call("events")
+            events = self._events()
             with self._lock:
                 new = [self._add(ev) for ev in events[self._seen:]]
                 self._seen = len(events)

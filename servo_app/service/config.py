@@ -35,6 +35,10 @@ class ServiceConfig:
     # MOTN-603. Below the servo process's priority (20), so that one still comes first. None: leave.
     sim_realtime_priority: int | None = 10
     request_timeout_s: float = 2.0
+    # A control of the embedded simulator (reset, alarm list, override, ...) answers in milliseconds;
+    # one not answered in this time fails (a reset: 503), so a stopped controller process cannot hold
+    # a reset anywhere near the lease's 10 s, and the alarm monitor polls again.
+    sim_call_timeout_s: float = 2.0
     # A start waits for the stream to run (status output, limit tables, the controller's waiting bit):
     # given up after this, with the reason (the request then answers 409).
     start_timeout_s: float = 5.0

@@ -57,7 +57,6 @@ class ServoService:
         self._safety: dict[str, Any] = {}  # the servo process's last SafetyChanged view
         self._safety_cv = threading.Condition()
         self._lifecycle = threading.Lock()  # one open / replace / close at a time
-        self._sim_lock = threading.Lock()
         self.servo_fault: dict[str, Any] | None = None  # the servo process died: why, and what to do
         self.servo_starts = 0
         self.spawning = False  # a servo process is being started (its predecessor, if any, is gone)
@@ -214,8 +213,9 @@ class ServoService:
                     summary.update(state="fault", fault=self.servo_fault)
                 self.stream = None
         if self.sim is not None:
-            with contextlib.suppress(TimeoutError, RuntimeError, OSError, EOFError):
-                summary["alarms"] = [e["code"] for e in self.sim_call("events")]
+            # For the operator only: whatever the simulator answers (or not), the shutdown goes on.
+            with contextlib.suppress(Exception):
+                summary["alarms"] = [str(e["code"]) for e in self.sim_call("events")]
             self.sim.stop()
             self.sim = None
         if self.inputs is not None:
@@ -328,21 +328,32 @@ class ServoService:
             # alarm the old process's silence caused (MOTN-603) has been posted by then.
             self._replace_servo_process()
             if self.sim is not None:
-                self.sim_call("reset")
+                self._reset_simulator("a new servo process is up, but the controller's alarm is not reset")
             self.alarm_forwarder.clear_active()
             return
         if self.sim is not None:
-            self.sim_call("reset")
+            self._reset_simulator("the fault is not reset")  # first: if it fails, nothing has changed
         self.request(msg.Reset())
         self.alarm_forwarder.clear_active()  # a reset acknowledges warnings too, fault or not
 
+    def _reset_simulator(self, if_not: str) -> None:
+        """The embedded controller's reset (its alarm, as at the pendant), within
+        ``sim_call_timeout_s``: a stopped controller process makes the reset answer 503 well inside
+        the lease, and does not reset later (it drops a request it took up too late)."""
+        try:
+            self.sim_call("reset")
+        except TimeoutError as exc:
+            raise TimeoutError(f"{exc}; {if_not}: once the controller answers again "
+                               "(status_received grows in GET /api/state), reset again: POST /api/reset") from None
+
     # ------------------------------------------------------------ simulator
-    def sim_call(self, name: str, *args: Any) -> Any:
-        """A control of the embedded simulator (reset, set_override, ...): the teach pendant's part."""
+    def sim_call(self, name: str, *args: Any, timeout: float | None = None) -> Any:
+        """A control of the embedded simulator (reset, set_override, ...): the teach pendant's part.
+        From any thread at once (each call gets its own reply); TimeoutError after ``timeout``
+        (default ``cfg.sim_call_timeout_s``) when the simulator does not answer."""
         if self.sim is None:
             raise RuntimeError("no embedded simulator: the robot is external")
-        with self._sim_lock:
-            return self.sim.call(name, *args)
+        return self.sim.call(name, *args, timeout=self.cfg.sim_call_timeout_s if timeout is None else timeout)
 
     # ----------------------------------------------------- I/O and views (their own modules)
     def io_read(self, io_type: str, index: int, mask: int = 0xFFFF, timeout: float = 1.0) -> int:

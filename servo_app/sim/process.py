@@ -3,12 +3,21 @@
 ``servo-app run`` starts it beside the servo process, so neither the API's event loop nor the servo
 cycle shares a GIL with the simulator's tick thread (a late tick would look like a late controller).
 The parent calls simulator controls (reset, mode, override, program start, jog) through a pipe.
+
+Each request carries an id and a deadline, and its reply the same id (as the servo process's
+requests do, ``servo_app.process_handle``): a reply comes back to the call that asked for it, never to
+a later one. A call gives up at its deadline (TimeoutError); a reply that comes after that is
+discarded, and the simulator does not carry out a request whose deadline has passed before it took it
+up (a stopped or starved controller process answers late or not at all: it must not reset its alarm
+seconds after the operator was told the reset failed). ``time.monotonic`` is the system's clock,
+the same in both processes.
 """
 
 from __future__ import annotations
 
 import contextlib
 import multiprocessing as mp
+import threading
 import time
 from multiprocessing.connection import Connection
 from typing import Any
@@ -30,31 +39,40 @@ def _serve(kwargs: dict[str, Any], conn: Connection) -> None:
     sim = FanucSimulator(**kwargs).start()
     conn.send({"address": sim.address})
     try:
-        while True:
-            if not conn.poll(0.5):
-                continue
-            try:
-                msg = conn.recv()
-            except (EOFError, OSError):
-                _outlive_parent(sim)
-                return
-            name = msg["call"]
-            if name == "quit":
-                conn.send({"ok": True})
-                return
-            try:
-                if name == "events":
-                    result: Any = [_event_dict(e) for e in sim.events()]
-                elif name in _CALLS:
-                    with sim.lock:
-                        result = getattr(sim, name)(*msg.get("args", ()))
-                else:
-                    raise ValueError(f"unknown simulator call {name!r}")
-                conn.send({"ok": True, "result": result})
-            except Exception as exc:  # a refused control is reported, the simulator keeps running
-                conn.send({"ok": False, "error": f"{type(exc).__name__}: {exc}"})
+        serve_calls(sim, conn)
     finally:
         sim.stop()
+
+
+def serve_calls(sim: Any, conn: Connection) -> None:
+    """Answer the parent's calls until it says quit or goes away (then outlive it a moment)."""
+    while True:
+        if not conn.poll(0.5):
+            continue
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):
+            _outlive_parent(sim)
+            return
+        deadline = msg.get("deadline")
+        if deadline is not None and time.monotonic() > deadline:
+            continue  # the caller has given up on it (we were stopped or starved): not done late
+        name = msg["call"]
+        rid = msg.get("id")
+        if name == "quit":
+            conn.send({"id": rid, "ok": True})
+            return
+        try:
+            if name == "events":
+                result: Any = [_event_dict(e) for e in sim.events()]
+            elif name in _CALLS:
+                with sim.lock:
+                    result = getattr(sim, name)(*msg.get("args", ()))
+            else:
+                raise ValueError(f"unknown simulator call {name!r}")
+            conn.send({"id": rid, "ok": True, "result": result})
+        except Exception as exc:  # a refused control is reported, the simulator keeps running
+            conn.send({"id": rid, "ok": False, "error": f"{type(exc).__name__}: {exc}"})
 
 
 # The embedded controller stands in for a real one, which does not vanish with servo_app: after the
@@ -73,31 +91,119 @@ def _outlive_parent(sim: Any) -> None:
         time.sleep(0.01)
 
 
+class ControlPipe:
+    """The parent's end of the simulator's control pipe: calls from any thread, each answered by its
+    own reply (matched by id), within its timeout.
+
+    One reader thread owns the receiving end: a reply wakes the call waiting for it; one for a call
+    that has given up is counted (``late_replies``) and dropped. When the pipe ends (the simulator
+    process is gone), every waiting call fails at once."""
+
+    def __init__(self, conn: Connection, name: str = "simulator") -> None:
+        self._conn = conn
+        self.name = name
+        self._send_lock = threading.Lock()
+        self._cv = threading.Condition()
+        self._next_id = 0
+        self._waiting: set[int] = set()
+        self._replies: dict[int, dict[str, Any]] = {}
+        self._ended = False
+        self.late_replies = 0  # replies that came after their call had given up (discarded)
+        self._reader = threading.Thread(target=self._read_loop, name=f"{name} pipe", daemon=True)
+        self._reader.start()
+
+    def _read_loop(self) -> None:
+        while True:
+            try:
+                reply = self._conn.recv()
+            except (EOFError, OSError):
+                break
+            rid = reply.get("id") if isinstance(reply, dict) else None
+            with self._cv:
+                if rid in self._waiting:
+                    self._replies[rid] = reply
+                    self._cv.notify_all()
+                else:
+                    self.late_replies += 1
+        with self._cv:
+            self._ended = True
+            self._cv.notify_all()
+
+    def call(self, name: str, *args: Any, timeout: float = 5.0) -> Any:
+        """The simulator's answer to ``name(*args)``; RuntimeError if it refused, TimeoutError if it
+        did not answer within ``timeout`` s (then it will not carry the call out later either, unless
+        it had begun it already) or its process is gone."""
+        deadline = time.monotonic() + timeout
+        with self._send_lock:
+            self._next_id += 1
+            rid = self._next_id
+            with self._cv:
+                if self._ended:
+                    raise TimeoutError(f"the {self.name} process has ended: it cannot {name}")
+                self._waiting.add(rid)
+            try:
+                self._conn.send({"id": rid, "call": name, "args": args, "deadline": deadline})
+            except (OSError, ValueError) as exc:  # (ValueError: our end closed)
+                with self._cv:
+                    self._waiting.discard(rid)
+                raise TimeoutError(f"the {self.name} is not reachable: {exc}") from None
+        with self._cv:
+            try:
+                while rid not in self._replies:
+                    if self._ended:
+                        raise TimeoutError(f"the {self.name} process ended before answering {name}")
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        raise TimeoutError(
+                            f"the {self.name} did not answer {name} within {timeout:g} s (its process is "
+                            "stopped or overloaded); it drops the request rather than carry it out late")
+                    self._cv.wait(left)
+                reply = self._replies.pop(rid)
+            finally:
+                self._waiting.discard(rid)
+                self._replies.pop(rid, None)
+        if not reply.get("ok"):
+            raise RuntimeError(reply.get("error") or f"the {self.name} refused {name}")
+        return reply.get("result")
+
+    def close(self, timeout: float = 1.0) -> None:
+        """Once the other end is gone: the reader has seen the end of the pipe; then close ours."""
+        self._reader.join(timeout)
+        with contextlib.suppress(OSError):
+            self._conn.close()
+
+
 class SimulatorProcess:
     def __init__(self, **kwargs: Any) -> None:
         ctx = mp.get_context("spawn")
-        self._conn, child = ctx.Pipe()
+        self._conn, self._child_conn = ctx.Pipe()
         kwargs.setdefault("host", "127.0.0.1")
-        self.process = ctx.Process(target=_serve, args=(kwargs, child), name="fanuc-sim", daemon=True)
+        self.process = ctx.Process(target=_serve, args=(kwargs, self._child_conn), name="fanuc-sim",
+                                   daemon=True)
         self.address: tuple[str, int] = ("", 0)
         self.scheduling = "not set"  # its real-time priority, as make_realtime reports it
+        self.pipe: ControlPipe | None = None
 
     def start(self, timeout: float = 30.0) -> SimulatorProcess:
         with single_threaded_blas():
             self.process.start()
+        self._child_conn.close()  # ours is the only copy left: the child's death shows as end of file
         if not self._conn.poll(timeout):
             raise TimeoutError("simulator process did not start")
         self.address = tuple(self._conn.recv()["address"])  # type: ignore[assignment]
+        self.pipe = ControlPipe(self._conn, "embedded simulator")
         return self
 
+    @property
+    def late_replies(self) -> int:
+        """Replies discarded because their call had given up (the simulator answered too late)."""
+        return self.pipe.late_replies if self.pipe is not None else 0
+
     def call(self, name: str, *args: Any, timeout: float = 5.0) -> Any:
-        self._conn.send({"call": name, "args": args})
-        if not self._conn.poll(timeout):
-            raise TimeoutError(f"simulator did not answer {name}")
-        reply = self._conn.recv()
-        if not reply["ok"]:
-            raise RuntimeError(reply["error"])
-        return reply.get("result")
+        """A control (``reset``, ``set_override``, ``events``, ...): its result; thread-safe."""
+        if self.pipe is None:
+            raise RuntimeError("the simulator process is not started")
+        return self.pipe.call(name, *args, timeout=timeout)
 
     def events(self) -> list[dict[str, Any]]:
         return self.call("events")  # type: ignore[no-any-return]
@@ -107,14 +213,18 @@ class SimulatorProcess:
 
     def stop(self, timeout: float = 5.0) -> None:
         if self.process.is_alive():
-            with contextlib.suppress(TimeoutError, OSError, EOFError):
+            try:
                 self.call("quit", timeout=timeout)
+            except (TimeoutError, RuntimeError, OSError, EOFError):
+                self.process.kill()  # stopped or hung: it would not quit, nothing to wait for
             self.process.join(timeout)
             if self.process.is_alive():
                 self.process.kill()
         deadline = time.monotonic() + 1
         while self.process.is_alive() and time.monotonic() < deadline:
             time.sleep(0.01)
+        if self.pipe is not None:
+            self.pipe.close()
 
 
 def _serve_janome(server: tuple[str, int], model: str, conn: Connection) -> None:
