@@ -320,6 +320,11 @@ class SupervisorBase:
             raise CommandRejected(f"start refused in fault; {RESET}, then start")
         if self.state.shutdown:
             raise CommandRejected("start refused: the service is shutting down; restart the service")
+        if self._link_failure():
+            # Not in fault, so the link failed in an earlier start: it starts afresh (a new status output
+            # start), and this start neither gives up at once on that start's reason nor streams from it.
+            self._link_recover(now)
+            mode = self.state.mode
         if mode == Mode.READY or (mode == Mode.ENDED and self.state.status and self.state.status.waiting):
             self._request(StartRequested(), now)
             return

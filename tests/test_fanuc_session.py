@@ -232,6 +232,36 @@ def test_status_arriving_after_a_reset_shows_the_link_is_up() -> None:
     assert s.phase == Phase.WAITING_READY
 
 
+def test_relink_after_a_failed_status_output_start_is_connected_without_a_new_one() -> None:
+    """A status output start nobody answered within the link timeout (a frozen controller), then status
+    after all (it took the start late): relinked, the link is connected with its failure forgotten,
+    and a start streams from the next ready status without another status output start."""
+    s = StreamSession(Hold(), SessionConfig(fetch_tables=False, link_timeout_s=1.0))
+    s.open(0.0)
+    s.on_idle(1.1)
+    assert s.phase == Phase.FAULT and "after status output start" in s.fault_reason
+    assert s.on_datagram(status(1, bits=P.StatusBit.SYSRDY), 1.3) == []
+    assert s.phase == Phase.FAULT  # the session alone cannot tell a lost stream from a late answer
+    assert s.relink(1.3) and s.phase == Phase.CONNECTED and s.fault_reason == ""
+    assert not s.relink(1.31)  # only a failed link
+    s.arm()
+    out = s.on_datagram(status(2), 1.316)
+    assert s.phase == Phase.STREAMING and [c.seq for c in commands(out)] == [2]
+    s.on_idle(1.32)
+    assert s.phase == Phase.STREAMING  # silence is measured from the status, not from the failure
+
+
+def test_relink_fetches_the_limit_tables_a_failed_first_link_never_got() -> None:
+    s = StreamSession(Hold(), SessionConfig(fetch_tables=True, link_timeout_s=1.0))
+    s.open(0.0)
+    s.on_idle(1.1)
+    assert s.phase == Phase.FAULT and s.tables is None
+    s.on_datagram(status(1), 1.3)
+    assert s.relink(1.3) and s.phase == Phase.FETCHING_TABLES
+    out = s.on_datagram(status(2), 1.308)
+    assert [P.decode_from_pc(b) for b in out] == [P.LimitTableRequest(1, P.LimitType.VELOCITY)]
+
+
 def test_the_first_commands_are_the_hold_position_sent_before_the_motion_is_set_up() -> None:
     """The motion source's set-up takes most of a 4 ms interval: the hold position goes out first."""
     m = Hold()

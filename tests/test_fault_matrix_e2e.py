@@ -217,6 +217,54 @@ def test_controller_killed_and_restarted(tmp_path: Path, external_sim: SimProces
     no_children_left()
 
 
+def test_controller_frozen_then_back(tmp_path: Path, external_sim: SimProcess) -> None:
+    """The external controller stopped (SIGSTOP) mid-jog, reset and start tried while it is frozen,
+    then continued (SIGCONT): it takes that start's status output start late and streams status again,
+    holding MOTN-603 for the commands it missed (SYSRDY off). The link follows the status back, so the
+    state, reset and start agree and name the true reason; its alarm reset at its pendant (SIGUSR1 to
+    `servo-app sim fanuc`), a start streams and a jog moves the arm, without restarting the service.
+    (Before the fix: `disconnected` with link `fault` for good, reset refused "in connected", and every
+    start refused at once with the frozen start's "no status packet for 1.0 s".)"""
+    pid = external_sim.proc.pid  # type: ignore[union-attr]
+    with running_rig(tmp_path, robot=f"fanuc:127.0.0.1:{external_sim.port}", model=MODEL) as rig:
+        h = rig.lease()
+        rig.start_streaming(h)
+        rig.jog_for(h, JOG, 0.3)
+        os.kill(pid, signal.SIGSTOP)
+        thaw_at = time.monotonic() + 1.5  # a deliberate freeze
+        try:
+            s = rig.wait_state("fault", timeout=5)
+            assert "status packets lost while streaming" in s["fault"]["message"], s["fault"]
+            rig.post("/api/reset", h)
+            why = rig.post("/api/session/start", h, expect=409).json()["detail"]
+            assert "no status packet" in why and "after status output start" in why, why
+            assert rig.state()["state"] == "disconnected"
+            time.sleep(max(0.0, thaw_at - time.monotonic()))
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        s = rig.wait(lambda s: s["state"] == "connected" and s["link"] == "connected" and s["status_live"],
+                     timeout=5, what="connected again")
+        assert s["fault"] is None and s["link_error"] == "", s
+        assert eventually(lambda: any(a.startswith("MOTN-603") for a in external_sim.alarms()), timeout=5)
+        # Reset and start say what the state shows, and the true reason; a refusal changes nothing.
+        r = rig.post("/api/reset", h, expect=409)
+        assert "refused in connected: no fault to reset" in r.json()["detail"], r.text
+        r = rig.post("/api/session/start", h, expect=409)
+        assert "SYSRDY is off" in r.json()["detail"] and "no status packet" not in r.json()["detail"], r.text
+        s = rig.state()
+        assert (s["state"], s["link"], s["fault"]) == ("connected", "connected", None), s
+        # The controller's alarm reset at its pendant: it waits at IBGN start again, and the status
+        # still flowing is used.
+        os.kill(pid, signal.SIGUSR1)
+        rig.wait(lambda s: s["state"] == "ready", timeout=5, what="ready")
+        rig.post("/api/session/start", h)
+        assert rig.state()["state"] == "streaming"
+        moves(rig, h)
+    assert [a.split()[0] for a in external_sim.alarms()] == ["MOTN-603"], external_sim.stderr
+    assert_logs_sound(tmp_path)
+    no_children_left()
+
+
 @pytest.mark.parametrize("stray", ["status-start", "status-stop", "version-2"])
 def test_a_stray_datagram_to_the_controller_is_a_named_fault_then_recovered(tmp_path: Path, stray: str) -> None:
     """Another socket talks to the controller mid-stream: it takes the status output over, stops it,

@@ -368,6 +368,24 @@ class StreamSession:
         self._enter(Phase.IDLE, now)
         return True
 
+    def relink(self, now: float) -> bool:
+        """Status flows again on a failed link that had no stream to lose (its owner's word): the
+        controller took the status output start late (it was frozen, or its network was), and its
+        sequence began at 1. The link is up as after ``open``, its failure forgotten: a start streams
+        from the next ready status without a new status output start. True if the link had failed."""
+        if self.phase != Phase.FAULT:
+            return False
+        self.fault_reason = ""
+        self._armed = False
+        if self.config.fetch_tables and self.tables is None:
+            self._pending_tables = [(axis, lt) for axis in range(1, self.config.table_axes + 1)
+                                    for lt in LimitType]
+            self._table_tries, self._table_sent_at = 0, -1e9
+            self._enter(Phase.FETCHING_TABLES, now)
+        else:
+            self._enter(Phase.CONNECTED, now)
+        return True
+
     def write_io(self, req: IoRequest) -> None:
         self._io_writes.append(req)
 

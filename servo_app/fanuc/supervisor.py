@@ -62,6 +62,9 @@ _STARTS_FROM = (Phase.WAITING_READY, Phase.CONNECTED)
 # here, more with caches cold); the modes in which a failed link is a lost status.
 _STREAMING, _STOPPING, _ENDING, _CLOSED, _FAULT = Mode.STREAMING, Mode.STOPPING, Mode.ENDING, Phase.CLOSED, Phase.FAULT
 _LINK_ALIVE_MODES = (Mode.STREAMING, Mode.STOPPING, Mode.STOPPED, Mode.ENDING)
+# The modes a status leaves the safety state in when it holds no fault and no stream: a failed link is
+# then a start's failed status output start, which the status now flowing answers (StreamSession.relink).
+_LINK_UP_MODES = (Mode.CONNECTED, Mode.READY, Mode.ENDED)
 
 # A pose whose X, Y and Z all lie within this many mm of the base was almost surely sent in metres.
 METRES_SUSPECT_MM = 5.0
@@ -366,8 +369,15 @@ class StreamSupervisor(SupervisorBase):
         if self.session.phase == _CLOSED and self.state.mode == _ENDING:
             self._feed(StatusReceived(bit0=st.waiting_for_command, bit1=st.command_received, sysrdy=st.sysrdy),
                        now)
-        if self.session.phase == _FAULT and self.state.mode in _LINK_ALIVE_MODES:
-            self._feed(StatusLost(detail=self.session.fault_reason), now)
+        if self.session.phase == _FAULT:
+            mode = self.state.mode
+            if mode in _LINK_ALIVE_MODES:
+                self._feed(StatusLost(detail=self.session.fault_reason), now)
+            elif mode in _LINK_UP_MODES and not self.state.shutdown:
+                # Status flows again (a frozen controller thawed): the safety state follows it to
+                # connected or ready, and so does the link, instead of staying failed beside it.
+                self.session.relink(now)
+                self.changed = True  # (link_error changes with it)
 
     def on_idle(self, now: float) -> list[bytes]:
         self._out = []

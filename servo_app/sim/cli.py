@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
+import threading
+from collections.abc import Iterator
 from typing import Any
 
 from servo_app.fanuc.packets import ROBOT_PORT
@@ -41,6 +45,18 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
     return p
 
 
+@contextlib.contextmanager
+def _pendant_reset() -> Iterator[threading.Event]:
+    """An event set by SIGUSR1 while the block runs: the standalone simulator's teach-pendant RESET (a
+    real controller's alarm is reset at its pendant, never over the network)."""
+    requested = threading.Event()
+    previous = signal.signal(signal.SIGUSR1, lambda signum, frame: requested.set())
+    try:
+        yield requested
+    finally:
+        signal.signal(signal.SIGUSR1, previous)
+
+
 def _run_fanuc(args: argparse.Namespace) -> int:
     from servo_app.robots.profile import ProfileError
     from servo_app.sim.fanuc_model import ControllerConfig
@@ -68,9 +84,14 @@ def _run_fanuc(args: argparse.Namespace) -> int:
             c = sim.controller
             print(f"FANUC J519 simulator ({c.profile.display_name}, {c.interval_ms} ms) listening on "
                   f"udp://{host}:{port}", flush=True)
-            print("IBGN start program running and looping; Ctrl-C to stop", flush=True)
-            while not stop.wait(0.5):
-                pass
+            print("IBGN start program running and looping; SIGUSR1 resets an alarm (the teach pendant's "
+                  "RESET); Ctrl-C to stop", flush=True)
+            with _pendant_reset() as reset:
+                while not stop.wait(0.05):
+                    if reset.is_set():
+                        reset.clear()
+                        sim.reset()
+                        print("RESET (SIGUSR1): alarm cleared", flush=True)
         finally:
             sim.stop()
             s = sim.interval_stats()
