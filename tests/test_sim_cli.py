@@ -72,6 +72,35 @@ def test_fanuc_standalone_serves_status_until_stopped(how: str, sig: int) -> Non
 
 
 @pytest.mark.e2e
+def test_fanuc_standalone_resets_its_alarm_on_sigusr1() -> None:
+    """SIGUSR1 is the teach pendant's RESET (no reset comes over the network): an alarm (here MOTN-607,
+    a version-2 packet) clears, SYSRDY comes back in the status still flowing, and the simulator runs on."""
+    proc = subprocess.Popen(servo_app_argv("ctrl-c", "sim", "fanuc", "--port", "0"),
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        first = proc.stdout.readline()  # type: ignore[union-attr]
+        assert "listening on udp://127.0.0.1:" in first, proc.stderr.read() if proc.poll() is not None else first
+        port = int(first.rsplit(":", 1)[1])
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.settimeout(5.0)
+
+            def sysrdy() -> bool:
+                st = decode_from_robot(s.recvfrom(2048)[0])
+                assert isinstance(st, Status)
+                return bool(st.status & 0x04)
+
+            s.sendto(StatusStart().encode(), ("127.0.0.1", port))
+            assert sysrdy()
+            s.sendto(StatusStart(version=2).encode(), ("127.0.0.1", port))  # MOTN-607: SYSRDY off
+            assert any(not sysrdy() for _ in range(50))
+            proc.send_signal(signal.SIGUSR1)
+            assert any(sysrdy() for _ in range(200)), "SYSRDY did not come back after SIGUSR1"
+    finally:
+        out = stopped(proc, signal.SIGINT)
+    assert "RESET (SIGUSR1): alarm cleared" in out
+
+
+@pytest.mark.e2e
 @pytest.mark.parametrize(("how", "sig"), STOP_WAYS, ids=[how for how, _ in STOP_WAYS])
 def test_janome_standalone_runs_until_stopped(how: str, sig: int) -> None:
     """Connected to a server that sends nothing: the point job waits (a minute before its receive timeout),

@@ -80,13 +80,13 @@ def _run_fanuc(args: argparse.Namespace) -> int:
             print(f"servo-app sim fanuc: cannot bind {args.host}:{args.port}: {exc}", file=sys.stderr)
             return 2
         try:
-            host, port = sim.address
-            c = sim.controller
-            print(f"FANUC J519 simulator ({c.profile.display_name}, {c.interval_ms} ms) listening on "
-                  f"udp://{host}:{port}", flush=True)
-            print("IBGN start program running and looping; SIGUSR1 resets an alarm (the teach pendant's "
-                  "RESET); Ctrl-C to stop", flush=True)
-            with _pendant_reset() as reset:
+            with _pendant_reset() as reset:  # (before the address is printed: a SIGUSR1 once it is must not kill it)
+                host, port = sim.address
+                c = sim.controller
+                print(f"FANUC J519 simulator ({c.profile.display_name}, {c.interval_ms} ms) listening on "
+                      f"udp://{host}:{port}", flush=True)
+                print("IBGN start program running and looping; SIGUSR1 resets an alarm (the teach pendant's "
+                      "RESET); Ctrl-C to stop", flush=True)
                 while not stop.wait(0.05):
                     if reset.is_set():
                         reset.clear()
