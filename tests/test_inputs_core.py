@@ -331,3 +331,11 @@ def test_inputs_never_import_the_robot_side() -> None:
                 [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
             for n in names:
                 assert not n.startswith(forbidden), f"{path} imports {n}"
+
+
+def test_the_tracking_apps_slowest_speed_is_the_servos() -> None:
+    """The inputs never import the motion floor: the one number they share is checked here."""
+    from servo_app.inputs.apps.config import SLOWEST_POSE_SPEED
+    from servo_app.motion.commands import MIN_ANGULAR_DEG_S, MIN_LINEAR_MM_S
+
+    assert SLOWEST_POSE_SPEED == MIN_LINEAR_MM_S == MIN_ANGULAR_DEG_S

@@ -36,11 +36,16 @@ from servo_app.inputs.apps.standoff import StandoffParams
 from servo_app.inputs.apps.tracking import PoseExtrapolator
 from servo_app.inputs.config import InputsConfig, parse_inputs_config, read_toml
 from servo_app.inputs.errors import ConfigError, ConfigIssue, KeyedError, issues_from_validation
-from servo_app.motion.commands import MIN_ANGULAR_DEG_S, MIN_LINEAR_MM_S
 
 # What each adapter type publishes; feeds say it themselves (`kind`).
 ADAPTER_KINDS = {"spacemouse": "twist", "spacenav": "twist", "serial_line": "measurement",
                  "serial_binary": "measurement", "can": "measurement"}
+
+# The servo refuses a pose command slower than this (mm/s, deg/s: servo_app.motion.commands'
+# MIN_LINEAR_MM_S and MIN_ANGULAR_DEG_S; the inputs never import the motion floor, and a test checks
+# that the numbers agree): a tracking app set slower is refused when its file is read.
+SLOWEST_POSE_SPEED = 0.1
+
 
 class _App(BaseModel):
     model_config = ConfigDict(extra="forbid")
@@ -96,8 +101,8 @@ class TrackingConfig(_App):
     max_horizon_s: PositiveFloat = 0.2
     window: int = Field(3, ge=2)
     max_gap_s: PositiveFloat = 0.25
-    linear_speed: float = Field(150.0, ge=MIN_LINEAR_MM_S)  # caps of the pose command, mm/s and deg/s
-    angular_speed: float = Field(30.0, ge=MIN_ANGULAR_DEG_S)
+    linear_speed: float = Field(150.0, ge=SLOWEST_POSE_SPEED)  # caps of the pose command, mm/s and deg/s
+    angular_speed: float = Field(30.0, ge=SLOWEST_POSE_SPEED)
     update_hz: PositiveFloat = 125.0  # re-extrapolate this often between samples
 
     @model_validator(mode="after")
