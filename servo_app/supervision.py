@@ -147,14 +147,6 @@ def axis_values(name: str, values: Any) -> np.ndarray:
     return v
 
 
-def checked_speed_scale(value: Any) -> float:
-    """A target's ``speed_scale`` as motion.commands.check_speed_scale takes it; InvalidRequest if not."""
-    try:
-        return check_speed_scale(value)
-    except ValueError as exc:
-        raise InvalidRequest(str(exc)) from None
-
-
 def check_count(name: str, v: np.ndarray, n: int, axes: str) -> None:
     if v.size != n:
         raise InvalidRequest(f"{name} has {v.size} values, expected {n} ({axes})")
@@ -368,7 +360,7 @@ class SupervisorBase:
 
     def _on_joint_target(self, req: msg.JointTarget, now: float) -> None:
         q = axis_values("joints", req.joints)
-        speed_scale = checked_speed_scale(req.speed_scale)
+        speed_scale = check_speed_scale(req.speed_scale)
         self._check_joint_target(q, speed_scale)
         self._target_gate("target", now)
         self._joint_target(q, speed_scale)

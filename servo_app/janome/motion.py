@@ -132,10 +132,7 @@ class JanomeMotion:
         """The target X Y Z R if it is in the work envelope (and, while streaming, the straight path to
         it too); else InvalidRequest naming the axis and its stroke. Changes nothing."""
         p = self._checked(xyzr, name)
-        try:
-            check_speed_scale(speed_scale)
-        except ValueError as exc:
-            raise InvalidRequest(str(exc)) from None
+        check_speed_scale(speed_scale)
         why = self.ws.check(p, self.arm)
         if why is not None:
             raise InvalidRequest(f"target refused: {why.message}")

@@ -20,6 +20,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
+from servo_app.errors import InvalidRequest
+
 MAX_LINEAR_MM_S = 4000.0  # J519 $MAX_SPD order of magnitude
 MAX_ANGULAR_DEG_S = 1000.0  # the fastest FANUC wrist axis
 MAX_JOINT_DEG_S = 1000.0
@@ -72,8 +74,12 @@ def _bounded(name: str, values: tuple[float, ...], limit: float, unit: str) -> N
 
 def check_speed_scale(value: float) -> float:
     """A target's ``speed_scale`` (a share of the joint speed limits) as a float in
-    [MIN_SPEED_SCALE, 1]; ValueError naming the value otherwise."""
-    return _scalar("speed_scale", value, MIN_SPEED_SCALE, 1.0)
+    [MIN_SPEED_SCALE, 1]; otherwise InvalidRequest (a ValueError) naming the value: the request's own
+    fault wherever it is checked (REST, the servo process, the trajectory planner)."""
+    try:
+        return _scalar("speed_scale", value, MIN_SPEED_SCALE, 1.0)
+    except ValueError as exc:
+        raise InvalidRequest(str(exc)) from None
 
 
 def _scalar(name: str, value: float, lo: float, hi: float, *, lo_open: bool = False) -> float:

@@ -27,7 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from servo_app.errors import CommandRejected, InvalidRequest
+from servo_app.errors import CommandRejected
 from servo_app.motion import cycle_kernels
 from servo_app.motion.commands import PoseTarget, Twist, check_speed_scale
 from servo_app.motion.diffik import DifferentialIK, IkResult
@@ -296,10 +296,7 @@ class ServoCycle:
     def set_joint_target(self, q_fanuc_deg: np.ndarray, speed_scale: float = 1.0) -> None:
         shaper = self._require()
         q = self.check_joint_target(q_fanuc_deg)
-        try:
-            speed_scale = check_speed_scale(speed_scale)
-        except ValueError as exc:
-            raise InvalidRequest(str(exc)) from None
+        speed_scale = check_speed_scale(speed_scale)
         self._leave_replay("a joint target took over")
         self._target, self._jog = (q, speed_scale), None
         self._finishing = None

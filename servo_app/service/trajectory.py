@@ -140,10 +140,7 @@ def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory,
     given = [k for k in ("joints", "poses", "csv_text", "log") if getattr(req, k) is not None]
     if len(given) != 1:
         raise InvalidRequest(f"give exactly one of joints, poses, a CSV body or log (got {given or 'none'})")
-    try:
-        check_speed_scale(req.speed_scale)
-    except ValueError as exc:
-        raise InvalidRequest(str(exc)) from None
+    check_speed_scale(req.speed_scale)
     if req.pace not in ("recorded", "limits"):
         raise InvalidRequest(f"pace={req.pace!r} must be 'recorded' or 'limits'")
     profile = service.profile
