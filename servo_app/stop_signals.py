@@ -20,17 +20,22 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 @contextlib.contextmanager
-def stop_requested() -> Iterator[threading.Event]:
-    """An event set by SIGINT or SIGTERM while the block runs (main thread only); the previous
+def signal_event(*signals: signal.Signals) -> Iterator[threading.Event]:
+    """An event set by any of ``signals`` while the block runs (main thread only); the previous
     handlers come back after it."""
     requested = threading.Event()
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
         requested.set()
 
-    previous = {s: signal.signal(s, on_signal) for s in STOP_SIGNALS}
+    previous = {s: signal.signal(s, on_signal) for s in signals}
     try:
         yield requested
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
+
+
+def stop_requested() -> contextlib.AbstractContextManager[threading.Event]:
+    """An event set by SIGINT or SIGTERM while the block runs (main thread only)."""
+    return signal_event(*STOP_SIGNALS)

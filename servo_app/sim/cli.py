@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import signal
 import sys
-import threading
-from collections.abc import Iterator
 from typing import Any
 
 from servo_app.fanuc.packets import ROBOT_PORT
-from servo_app.stop_signals import stop_requested
+from servo_app.stop_signals import signal_event, stop_requested
 
 
 def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
@@ -45,18 +42,6 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
     return p
 
 
-@contextlib.contextmanager
-def _pendant_reset() -> Iterator[threading.Event]:
-    """An event set by SIGUSR1 while the block runs: the standalone simulator's teach-pendant RESET (a
-    real controller's alarm is reset at its pendant, never over the network)."""
-    requested = threading.Event()
-    previous = signal.signal(signal.SIGUSR1, lambda signum, frame: requested.set())
-    try:
-        yield requested
-    finally:
-        signal.signal(signal.SIGUSR1, previous)
-
-
 def _run_fanuc(args: argparse.Namespace) -> int:
     from servo_app.robots.profile import ProfileError
     from servo_app.sim.fanuc_model import ControllerConfig
@@ -80,7 +65,9 @@ def _run_fanuc(args: argparse.Namespace) -> int:
             print(f"servo-app sim fanuc: cannot bind {args.host}:{args.port}: {exc}", file=sys.stderr)
             return 2
         try:
-            with _pendant_reset() as reset:  # (before the address is printed: a SIGUSR1 once it is must not kill it)
+            # SIGUSR1 is the teach pendant's RESET (a real controller's alarm is reset there, never over
+            # the network); handled before the address is printed: a SIGUSR1 once it is must not kill it.
+            with signal_event(signal.SIGUSR1) as reset:
                 host, port = sim.address
                 c = sim.controller
                 print(f"FANUC J519 simulator ({c.profile.display_name}, {c.interval_ms} ms) listening on "
