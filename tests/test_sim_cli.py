@@ -51,15 +51,24 @@ def stopped(proc: subprocess.Popen[str], sig: int) -> str:
     return out
 
 
+def fanuc_sim(how: str, *args: str) -> tuple[subprocess.Popen[str], int]:
+    """``servo-app sim fanuc --port 0 ARGS`` started (``how``: as test_api_harness.servo_app_argv) and the
+    UDP port it printed."""
+    proc = subprocess.Popen(servo_app_argv(how, "sim", "fanuc", "--port", "0", *args),
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    first = proc.stdout.readline()  # type: ignore[union-attr]
+    if "listening on udp://127.0.0.1:" not in first:
+        proc.kill()
+        _, err = proc.communicate(timeout=10)
+        raise AssertionError(f"no address printed: {first!r}; {err}")
+    return proc, int(first.rsplit(":", 1)[1])
+
+
 @pytest.mark.e2e
 @pytest.mark.parametrize(("how", "sig"), STOP_WAYS, ids=[how for how, _ in STOP_WAYS])
 def test_fanuc_standalone_serves_status_until_stopped(how: str, sig: int) -> None:
-    proc = subprocess.Popen(servo_app_argv(how, "sim", "fanuc", "--port", "0", "--interval-ms", "4"),
-                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc, port = fanuc_sim(how, "--interval-ms", "4")
     try:
-        first = proc.stdout.readline()  # type: ignore[union-attr]
-        assert "listening on udp://127.0.0.1:" in first, proc.stderr.read() if proc.poll() is not None else first
-        port = int(first.rsplit(":", 1)[1])
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             s.settimeout(5.0)
             s.sendto(StatusStart().encode(), ("127.0.0.1", port))
@@ -75,12 +84,8 @@ def test_fanuc_standalone_serves_status_until_stopped(how: str, sig: int) -> Non
 def test_fanuc_standalone_resets_its_alarm_on_sigusr1() -> None:
     """SIGUSR1 is the teach pendant's RESET (no reset comes over the network): an alarm (here MOTN-607,
     a version-2 packet) clears, SYSRDY comes back in the status still flowing, and the simulator runs on."""
-    proc = subprocess.Popen(servo_app_argv("ctrl-c", "sim", "fanuc", "--port", "0"),
-                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc, port = fanuc_sim("ctrl-c")
     try:
-        first = proc.stdout.readline()  # type: ignore[union-attr]
-        assert "listening on udp://127.0.0.1:" in first, proc.stderr.read() if proc.poll() is not None else first
-        port = int(first.rsplit(":", 1)[1])
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             s.settimeout(5.0)
 

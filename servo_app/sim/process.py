@@ -159,7 +159,7 @@ class ControlPipe:
                             "stopped or overloaded); it drops the request rather than carry it out late")
                     self._cv.wait(left)
                 reply = self._replies.pop(rid)
-            finally:
+            finally:  # (also on an interrupt in the wait: a reply stored meanwhile goes with it)
                 self._waiting.discard(rid)
                 self._replies.pop(rid, None)
         if not reply.get("ok"):
@@ -193,11 +193,6 @@ class SimulatorProcess:
         self.address = tuple(self._conn.recv()["address"])  # type: ignore[assignment]
         self.pipe = ControlPipe(self._conn, "embedded simulator")
         return self
-
-    @property
-    def late_replies(self) -> int:
-        """Replies discarded because their call had given up (the simulator answered too late)."""
-        return self.pipe.late_replies if self.pipe is not None else 0
 
     def call(self, name: str, *args: Any, timeout: float = 5.0) -> Any:
         """A control (``reset``, ``set_override``, ``events``, ...): its result; thread-safe."""
