@@ -135,6 +135,15 @@ def not_waiting_why(state: SafetyState) -> str:
     return "the controller already received commands in this program run: restart the program"
 
 
+def not_ready(state: SafetyState) -> str | None:
+    """Why a start would wait now, while status flows but does not show the controller waiting (an alarm
+    held with SYSRDY off, no streaming program running, ...); None when it is ready or has no status."""
+    status = state.status
+    if status is None or status.waiting or state.mode not in (Mode.CONNECTED, Mode.ENDED):
+        return None
+    return not_waiting_why(state)
+
+
 def axis_values(name: str, values: Any) -> np.ndarray:
     """``values`` as a vector of finite numbers; InvalidRequest naming the first bad one."""
     try:
@@ -504,6 +513,7 @@ class SupervisorBase:
             "warnings": self.log.warnings[-10:],
             "start_pending": self.start_pending,
             "start_error": self.start_error or None,
+            "not_ready": not_ready(st),
             "inputs_enabled": self.inputs.enabled,
             "input_error": self.inputs.error,
         }

@@ -98,6 +98,7 @@ def test_a_frozen_controller_that_thaws_is_connected_and_gives_true_reasons() ->
     assert sup.state.mode is Mode.CONNECTED and sup.state.status is not None and not sup.state.status.sysrdy
     assert sup.session.phase == Phase.CONNECTED  # the link agrees with the safety state
     assert sup.describe()["link_error"] == "" and sup.describe()["fault"] is None
+    assert "SYSRDY is off" in (sup.describe()["not_ready"] or ""), sup.describe()  # the state says why
     # Reset has no fault to reset, as the state says; a start waits for the controller and then names
     # why it never became ready, not the failure of the start made while it was frozen.
     assert "reset refused in connected: no fault to reset" in cell.refused(Reset())
@@ -107,7 +108,7 @@ def test_a_frozen_controller_that_thaws_is_connected_and_gives_true_reasons() ->
     # The alarm reset at the controller's pendant: the next start streams from the flowing status.
     cell.ctrl.reset()
     cell.run(0.5)
-    assert sup.state.mode is Mode.READY
+    assert sup.state.mode is Mode.READY and sup.describe()["not_ready"] is None
     assert cell.start_outcome() == ""
     n = len(cell.sent)
     assert cell.request(Jog(joints=(20.0, 0, 0, 0, 0, 0), hold_s=0.5))

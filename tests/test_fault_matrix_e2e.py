@@ -246,6 +246,8 @@ def test_controller_frozen_then_back(tmp_path: Path, external_sim: SimProcess) -
                      timeout=5, what="connected again")
         assert s["fault"] is None and s["link_error"] == "", s
         assert eventually(lambda: any(a.startswith("MOTN-603") for a in external_sim.alarms()), timeout=5)
+        # The state itself says why a start would wait (it used to show "connected" and nothing more).
+        s = rig.wait(lambda s: "SYSRDY is off" in (s["not_ready"] or ""), timeout=5, what="not_ready")
         # Reset and start say what the state shows, and the true reason; a refusal changes nothing.
         r = rig.post("/api/reset", h, expect=409)
         assert "refused in connected: no fault to reset" in r.json()["detail"], r.text
@@ -256,7 +258,8 @@ def test_controller_frozen_then_back(tmp_path: Path, external_sim: SimProcess) -
         # The controller's alarm reset at its pendant: it waits at IBGN start again, and the status
         # still flowing is used.
         os.kill(pid, signal.SIGUSR1)
-        rig.wait(lambda s: s["state"] == "ready", timeout=5, what="ready")
+        s = rig.wait(lambda s: s["state"] == "ready", timeout=5, what="ready")
+        assert s["not_ready"] is None, s
         rig.post("/api/session/start", h)
         assert rig.state()["state"] == "streaming"
         moves(rig, h)

@@ -113,6 +113,13 @@ def test_header_never_shows_ready_beside_a_dead_link(page: Any, fanuc: Service) 
     }""")
     assert shown[0].lower() != "ready" and "fault" in shown[0].lower(), shown
     assert "no status for 1000 ms" in shown[1], shown
+    # Status flowing but not ready (an alarm held at the controller): the header says why a start waits.
+    why = page.evaluate("""async () => {
+        const v = await import('/web/views.js');
+        v.renderStatus({state: 'connected', link: 'connected', not_ready: 'SYSRDY is off (servo power not ready)'});
+        return document.querySelector('#stop-reason').textContent;
+    }""")
+    assert why == "not ready: SYSRDY is off (servo power not ready)", why
     # And live: the telemetry goes, the last state heard is not shown as the present one.
     live = fanuc.state()["state"]
     page.wait_for_function(f"document.querySelector('#mode').textContent === '{live}'")

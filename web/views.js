@@ -42,7 +42,8 @@ export function renderStatus(s, telemetryUp = true) {
   const why = s.state === "fault" && s.fault ? `fault: ${s.fault.message}`
     : s.stop_reason && ["stopping", "stopped"].includes(s.state)
       ? `stopped: ${s.stop_reason}${s.resumable ? " (resumable)" : ""}`
-      : s.link === "fault" && s.link_error ? `link fault: ${s.link_error}` : "";
+      : s.link === "fault" && s.link_error ? `link fault: ${s.link_error}`
+        : ["connected", "ended"].includes(s.state) && s.not_ready ? `not ready: ${s.not_ready}` : "";
   setText($("#stop-reason"), why);
   $("#stop-reason").title = why;
   setText($("#lease-holder"), s.lease && s.lease.held ? `control: ${s.lease.client}` : "control: free");

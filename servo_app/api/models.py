@@ -473,6 +473,9 @@ class StateView(BaseModel):
     warnings: list[WarningView] | None = Field(None, description="recent warnings")
     start_pending: bool | None = Field(None, description="a start waits for the controller (until the stream runs)")
     start_error: str | None = Field(None, description="why the last start was given up")
+    not_ready: str | None = Field(None, description="why a start would wait now: the controller's status "
+                                                    "flows but does not show it waiting for a stream (null: "
+                                                    "ready, streaming, or no status)")
     link_error: str | None = Field(None, description="the link's fault reason or last error")
     inputs_enabled: bool | None = Field(None, description="FANUC: the servo process takes the input slot")
     input_error: str | None = Field(None, description="FANUC: why the inputs were last refused")
