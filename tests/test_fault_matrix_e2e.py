@@ -24,6 +24,7 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
+from prometheus_client.parser import text_string_to_metric_families
 from test_api_harness import AUTH, TOKEN, Rig, assert_log_complete, running_rig
 
 from servo_app.fanuc.packets import StatusStart, StatusStop
@@ -488,6 +489,11 @@ def alarm_codes(s: dict[str, Any]) -> list[str]:
     return [a["code"] for a in s["alarm_history"] or []]
 
 
+def poll_failures_metric(rig: Rig) -> float:
+    fams = {f.name: f for f in text_string_to_metric_families(rig.http.get("/metrics").text)}
+    return next(x.value for x in fams["servo_alarm_poll_failures"].samples if x.name.endswith("_total"))
+
+
 def test_embedded_controller_frozen_longer_than_a_call(tmp_path: Path) -> None:
     """The embedded simulator's process stopped (SIGSTOP) mid-jog for longer than a call to it may
     take, then continued: while frozen, a reset answers 503 within the call timeout, says what to do
@@ -512,9 +518,14 @@ def test_embedded_controller_frozen_longer_than_a_call(tmp_path: Path) -> None:
             assert after["state"] == "fault" and after["servo_starts"] == s["servo_starts"] == 1, after
             assert eventually(lambda: svc.alarm_forwarder.poll_failures > 0, timeout=timeout_s + 1.0)
             assert svc.alarm_forwarder.alive
+            # The operator sees it: the state says the alarm list cannot be read, /metrics counts it.
+            s = rig.wait(lambda s: s["alarm_poll_error"] is not None, timeout=timeout_s + 1.0, what="poll error")
+            assert "TimeoutError" in s["alarm_poll_error"], s["alarm_poll_error"]
+            assert poll_failures_metric(rig) >= 1
         # The controller answers again: its alarm for the commands it missed is listed.
         rig.wait(lambda s: (s["fault"] or {}).get("code") == "MOTN-603", timeout=10, what="MOTN-603")
         assert svc.alarm_forwarder.alive and eventually(lambda: svc.alarm_forwarder.poll_error == "", timeout=5)
+        assert rig.state()["alarm_poll_error"] is None
         recover(rig, h)
         # A new controller alarm after the recovery is seen (and a direct call gets its own reply).
         rig.start_streaming(h)

@@ -77,6 +77,9 @@ class _StateCollector:
         for cause, n in sorted((state.get("fault_counts") or {}).items()):
             c.add_metric([cause], float(n))
         yield c
+        yield CounterMetricFamily("servo_alarm_poll_failures", "reads of the embedded controller's alarm list "
+                                  "that failed (no answer in time, a bad answer)",
+                                  value=float(state.get("alarm_poll_failures", 0)))
         c = CounterMetricFamily("servo_stops", "stops by reason", labels=["reason"])
         for reason, n in sorted(stops.items()):
             c.add_metric([reason], float(n))

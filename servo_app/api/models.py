@@ -495,6 +495,9 @@ class StateView(BaseModel):
     alarm_history: list[AlarmView] | None = Field(None, description="the last 50 alarms and warnings, oldest "
                                                                     "first, kept across resets")
     faults: list[AlarmView] | None = Field(None, description="recent alarms that stopped the robot")
+    alarm_poll_error: str | None = Field(None, description="the embedded controller's alarm list cannot be "
+                                                           "read now, and why (new alarms are listed once "
+                                                           "it answers); null: it answers")
     inputs: InputsSummary | None = Field(None, description="the input sources (servo-app run --inputs)")
 
     # The API's own.

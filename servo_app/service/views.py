@@ -85,6 +85,7 @@ class StateViews:
         if svc.servo_fault is not None:
             s["state"], s["link"], s["settled"] = "fault", "fault", False
         s["alarm_counts"], s["fault_counts"] = svc.alarm_forwarder.counts()
+        s["alarm_poll_failures"] = svc.alarm_forwarder.poll_failures
         return svc.tools.decorate(s)  # the pose is the active TCP's (servo_app.service.tools)
 
     def state(self) -> dict[str, Any]:
@@ -112,6 +113,8 @@ class StateViews:
         s["alarms"] = svc.alarm_forwarder.alarms()
         s["alarm_history"] = svc.alarm_forwarder.history()
         s["faults"] = svc.alarm_forwarder.faults[-10:]
+        # The embedded controller's alarm list cannot be read now (frozen or starved): new alarms wait.
+        s["alarm_poll_error"] = svc.alarm_forwarder.poll_error or None
         replay = s.get("trajectory")
         if replay is not None and replay["state"] == "ended":  # why it ended before its end
             left = svc.last_event(msg.ReplayLeft)
