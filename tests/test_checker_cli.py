@@ -238,3 +238,23 @@ def test_profiles_lists_the_janome_models_too() -> None:
     for name in ("lrmate200id", "jr3000", "jc3", "js3"):
         assert re.search(rf"^\s*{name}\s", r.stdout, re.M), (name, r.stdout)
     assert "scara" in r.stdout
+
+
+def test_a_log_with_no_command_passes_and_says_why(tmp_path: Path) -> None:
+    """A start that never streamed leaves a log of status packets and no command (both backends):
+    nothing the controller could refuse, so it passes (exit 0, where it was an error, exit 2)."""
+    from servo_app.session_log import SessionLogWriter
+
+    fanuc = SessionLogWriter(tmp_path / "fanuc.srvlog", {"model": "lrmate200id", "interval_ms": 8.0})
+    for i in range(3):
+        fanuc.status(0.008 * i, 100 + i, 0x03, 0, tuple(SMOOTH[0]))  # SYSRDY off: the start waited
+    fanuc.close()
+    r = servo_app_cli("check", str(tmp_path / "fanuc.srvlog"))
+    assert r.returncode == 0, (r.stdout, r.stderr)
+    assert "no commands were sent in this session (3 status packets logged" in r.stdout
+    assert "OK: no violation" in r.stdout
+    janome = write_janome_log(tmp_path / "janome.srvlog", [])
+    r = servo_app_cli("check", str(janome))
+    assert r.returncode == 0, (r.stdout, r.stderr)
+    assert "no target frames were sent in this session (1 status packet logged" in r.stdout
+
