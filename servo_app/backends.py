@@ -146,6 +146,12 @@ class RobotBackend(ABC):
         """The catalogue entry for a controller alarm code, or None."""
         return None
 
+    # -- poses
+    def check_pose(self, xyzwpr: tuple[float, ...], tool_xyzwpr: tuple[float, ...] | None = None) -> None:
+        """InvalidRequest for a pose (of the tool ``tool_xyzwpr``, None: the flange) that is surely wrong
+        before any solve: in the wrong units, out of reach. Default: none is."""
+        return None
+
     # -- I/O
     def io_allow(self) -> dict[str, int]:
         """I/O type -> assigned points that clients may read and write; empty: no I/O."""

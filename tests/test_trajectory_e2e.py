@@ -213,7 +213,10 @@ def test_a_jog_ends_the_replay_and_the_state_says_why(rig: Rig) -> None:
     ({"joints": [[0.0, 0.0, 0.0, 0.0, math.nan, 0.0]]}, "joints[0][4]=nan"),
     ({"joints": [[0.0, 0.0, 0.0]]}, "joints[0] has 3 values"),
     ({"joints": [[0.0, 0.0, 0.0, 0.0, -80.0, 500.0]]}, "joints[0]"),
-    ({"poses": [[3000.0, 0.0, 300.0, 180.0, 0.0, 0.0]]}, "poses[0]"),
+    ({"poses": [[3000.0, 0.0, 300.0, 180.0, 0.0, 0.0]]}, "poses[0]: xyzwpr X=3000 Y=0 Z=300 mm is 2"),
+    # In metres: said so (it was "no joint solution"), for the poses and for a CSV body's rows.
+    ({"poses": [[400.0, 0.0, 300.0, 180.0, 0.0, 0.0], [0.4, 0.0, 0.3, 180.0, 0.0, 0.0]]},
+     "poses[1]: xyzwpr X=0.4 Y=0 Z=0.3 all lie within +-5: units are mm (did you send metres?"),
     ({"joints": [HOME, HOME], "times": [1.0, 1.0]}, "times[1]=1.0"),
     ({"log": "no-such.srvlog"}, "log='no-such.srvlog'"),
     ({"log": "no-such.srvlog", "pace": "fast"}, "pace"),
@@ -230,6 +233,18 @@ def test_refusals_name_the_field_and_change_nothing(rig: Rig, body: dict[str, An
     assert after["state"] == before["state"] == "streaming"
     assert after["q_cmd"] == before["q_cmd"] and after["at_rest"]
     assert (after.get("trajectory") or {}).get("state") in (None, "done", "ended")
+
+
+def test_a_csv_of_poses_in_metres_is_refused_by_row_and_changes_nothing(rig: Rig) -> None:
+    h = at_home(rig)
+    before = rig.state()
+    text = "x,y,z,w,p,r\n400,0,300,180,0,0\n0.4,0,0.3,180,0,0\n"
+    r = rig.http.post("/api/trajectory", content=text.encode(), headers={**h, "Content-Type": "text/csv"})
+    assert r.status_code == 422, r.text
+    assert "csv row 2: xyzwpr X=0.4 Y=0 Z=0.3 all lie within +-5: units are mm (did you send metres?" in r.text
+    after = rig.state()
+    assert (after["state"], after["q_cmd"], after.get("trajectory")) == (before["state"], before["q_cmd"],
+                                                                          before.get("trajectory"))
 
 
 def test_the_client_replays_and_servo_app_replay_runs_a_csv_file(rig: Rig, tmp_path: Path) -> None:

@@ -11,6 +11,7 @@ from servo_app.backends import AlarmInfo, InvalidRequest, ProcessOptions, RobotB
 from servo_app.fanuc.alarms import ALARMS
 from servo_app.fanuc.packets import ROBOT_PORT, IoType
 from servo_app.fanuc.runner import StreamConfig, StreamProcess
+from servo_app.fanuc.supervisor import check_pose_plausible
 from servo_app.fanuc.view import fanuc_view
 from servo_app.messages import Event
 from servo_app.motion.limit_tables import default_tables
@@ -104,6 +105,9 @@ class FanucBackend(RobotBackend):
     def alarm(self, code: str) -> AlarmInfo | None:
         spec = ALARMS.get(code)
         return None if spec is None else AlarmInfo(code, spec.cause, spec.remedy, spec.warning)
+
+    def check_pose(self, xyzwpr: tuple[float, ...], tool_xyzwpr: tuple[float, ...] | None = None) -> None:
+        check_pose_plausible(xyzwpr, self.profile, tool_xyzwpr)
 
     # -- I/O: a command packet reads or writes 16 points from an index; anything outside the assigned
     # points makes the controller post PRIO-023 and stop, so it is refused here first.

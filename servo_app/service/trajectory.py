@@ -131,6 +131,17 @@ def read_log_window(path: Path, name: str, from_s: float | None, to_s: float | N
     return cmds["values"][pick, :6].astype(float)
 
 
+def _check_poses(backend: Any, poses: np.ndarray, what: str, tool_xyzwpr: tuple[float, ...] | None) -> None:
+    """The backend's check of each pose (units, reach), naming the first bad one: a pose in metres
+    would otherwise be refused as having no joint solution."""
+    for i, pose in enumerate(poses):
+        try:
+            backend.check_pose(tuple(float(v) for v in pose), tool_xyzwpr)
+        except InvalidRequest as exc:
+            where = f"poses[{i}]" if what == "poses" else f"{what} {i + 1}"
+            raise InvalidRequest(f"{where}: {exc}") from None
+
+
 def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory, dict[str, Any]]:
     """Validate, plan and check a replay for the arm as it rests now; the request and a summary."""
     if service.backend.name != "fanuc":
@@ -166,6 +177,11 @@ def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory,
             except FileNotFoundError:
                 raise InvalidRequest(f"log={req.log!r}: no such session log (GET /api/sessions lists them)") from None
             rows = read_log_window(path, str(req.log), req.from_s, req.to_s, req.from_unix, req.to_unix)
+    tool = service.tools.active
+    if poses is not None:  # the active tool's TCP
+        _check_poses(service.backend, poses, "poses", None if tool.is_flange else tool.xyzwpr)
+    elif rows is not None and fmt == "xyzwpr":  # the flange, as servo-app check reads them
+        _check_poses(service.backend, rows, "csv row", None)
     s = service.state()
     if s["state"] not in _PLANNABLE:
         raise CommandRejected(f"trajectory refused in {s['state']}: the plan starts where the arm rests in a "
@@ -180,7 +196,6 @@ def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory,
     # than the profile's), at the active tool's payload; Cartesian waypoints are that tool's TCP.
     received = service.last_event(msg.LimitTablesReceived) if s.get("tables_from_controller") else None
     tables = received.tables if isinstance(received, msg.LimitTablesReceived) else default_tables(profile)
-    tool = service.tools.active
     planner = TrajectoryPlanner.for_stream(profile, dt, tables, q_now,
                                            cap=cfg.flange_speed_cap, payload_kg=tool.payload_kg,
                                            limit_fraction=cfg.limit_fraction, speed_scale=req.speed_scale,
