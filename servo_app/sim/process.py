@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing as mp
+import signal
 import threading
 import time
 from multiprocessing.connection import Connection
@@ -225,6 +226,9 @@ class SimulatorProcess:
 def _serve_janome(server: tuple[str, int], model: str, conn: Connection) -> None:
     from servo_app.sim.janome_sim import JanomeSimulator
 
+    # Ctrl-C reaches the whole process group: the robot must keep answering while the servo process
+    # ends its stream (END, the robot's BYE). It ends when its parent says quit or goes away.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     # repeat: like a point job in a loop, it connects again after each session
     sim = JanomeSimulator(server, model, repeat=True).start()
     conn.send({"ok": True})
