@@ -8,8 +8,8 @@ import signal
 
 import httpx
 import pytest
-from test_api_harness import AUTH
-from test_fault_matrix_e2e import _serve, alive, children_of, eventually
+from test_api_harness import AUTH, running_rig
+from test_fault_matrix_e2e import _serve, alive, children_of, eventually, no_children_left
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(180)]
 
@@ -41,3 +41,27 @@ def test_ctrl_c_ends_the_janome_stream_cleanly(tmp_path: os.PathLike[str]) -> No
     assert "stream ended, link closed, servo process exit code 0" in out, out + "".join(err)
     assert "Traceback" not in "".join(err), "".join(err)
     assert eventually(lambda: not any(alive(p) for p in kids), timeout=5.0)
+
+
+def test_embedded_robot_killed_then_reset_brings_it_back(tmp_path: os.PathLike[str]) -> None:
+    """SIGKILL to the embedded robot's process mid-motion: a named fault; reset starts the robot again
+    (as its operator would start the point job), it connects, and a new stream moves. (It used to stay
+    "disconnected" for good: only a restart of servo_app brought the embedded robot back.)"""
+    with running_rig(tmp_path, robot="janome") as rig:  # type: ignore[arg-type]
+        h = rig.lease()
+        rig.wait_state("ready", timeout=30)
+        rig.start_streaming(h)
+        rig.jog_for(h, [40.0, 0.0, 0.0, 0.0], 0.4, hold_ms=500)
+        killed = rig.service.sim.process.pid
+        os.kill(killed, signal.SIGKILL)
+        s = rig.wait_state("fault", timeout=10)
+        assert s["fault"]["message"].startswith("connection lost while"), s["fault"]
+        rig.post("/api/reset", h)
+        s = rig.wait_state("ready", timeout=30)
+        assert s["fault"] is None and s["robot_connected"], s
+        assert rig.service.sim.process.pid != killed and not alive(killed)
+        s0 = rig.start_streaming(h)
+        rig.jog_for(h, [40.0, 0.0, 0.0, 0.0], 0.6, hold_ms=500)
+        s = rig.wait(lambda s: s["state"] == "stopped" and s["at_rest"], 10.0, "hold-to-run stop")
+        assert s["q_cmd"][0] > s0["q_cmd"][0] + 2.0, (s0["q_cmd"], s["q_cmd"])
+    no_children_left()

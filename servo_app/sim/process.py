@@ -245,11 +245,17 @@ class JanomeSimulatorProcess:
     """The embedded Janome robot (its point job) in a process of its own; it connects to ``server``."""
 
     def __init__(self, server: tuple[str, int], model: str = "jr3000") -> None:
+        self.address = server
+        self.model = model
+        self._lock = threading.Lock()  # a reset's restart and stop, one at a time
+        self._stopped = False
+        self._launch()
+
+    def _launch(self) -> None:
         ctx = mp.get_context("spawn")
         self._conn, child = ctx.Pipe()
-        self.process = ctx.Process(target=_serve_janome, args=(server, model, child), name="janome-sim",
+        self.process = ctx.Process(target=_serve_janome, args=(self.address, self.model, child), name="janome-sim",
                                    daemon=True)
-        self.address = server
 
     def start(self, timeout: float = 30.0) -> JanomeSimulatorProcess:
         self.process.start()
@@ -263,7 +269,16 @@ class JanomeSimulatorProcess:
         if name == "events":
             return []  # Janome faults reach the service through its own link supervisor
         if name == "reset":
-            return None  # robot-side errors are reported over the link and reset there
+            # Robot-side errors are reported over the link and reset there; a robot whose process is
+            # gone (killed) is started again, as its operator would start the point job again: it
+            # connects once up (the reset does not wait for it). Else only a restart of servo_app would.
+            with self._lock:
+                if not (self._stopped or self.process.is_alive()):
+                    self.process.join(0)
+                    self._conn.close()
+                    self._launch()
+                    self.process.start()
+            return None
         raise RuntimeError(f"the Janome simulator has no control {name!r}")
 
     def events(self) -> list[dict[str, Any]]:
@@ -273,9 +288,11 @@ class JanomeSimulatorProcess:
         """Nothing to reset on the robot side: its errors are reported over the link and reset there."""
 
     def stop(self, timeout: float = 5.0) -> None:
-        if self.process.is_alive():
-            with contextlib.suppress(OSError, BrokenPipeError):
-                self._conn.send({"call": "quit"})
-            self.process.join(timeout)
+        with self._lock:
+            self._stopped = True
             if self.process.is_alive():
-                self.process.kill()
+                with contextlib.suppress(OSError, BrokenPipeError):
+                    self._conn.send({"call": "quit"})
+                self.process.join(timeout)
+                if self.process.is_alive():
+                    self.process.kill()
