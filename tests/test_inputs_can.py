@@ -261,3 +261,31 @@ def test_slcan_reads_what_has_arrived_at_once_and_waits_without_polling() -> Non
     finally:
         bus.shutdown()
         dev.close()
+
+
+def test_garbled_slcan_lines_are_malformed_frames_and_the_port_stays_open() -> None:
+    """A line the USB-CAN adapter garbled (a non-ASCII byte, a bad hex digit) is counted as malformed
+    with its bytes; the port stays open and the frames around it are read. (A non-ASCII byte used to
+    be taken for an unplugged sensor: the port was closed and reopened, the readings stale meanwhile.)"""
+    dev = SlcanDevice()
+    a = create_adapter({"type": "can", "name": "dist", "interface": "slcan", "channel": dev.path,
+                        "bitrate": 500000, "bus_options": {"sleep_after_open": 0}, "dbc": str(DBC),
+                        "messages": ["Distance"], "poll_timeout_s": 0.02})
+    try:
+        with a:
+            dev.serve_until_open()
+            wait_until(lambda: a.connected)
+            dev.send_frame(DISTANCE_ID, struct.pack("<HBB", 1000, 80, 1))
+            wait_for(a.output, lambda m: m["Counter"] == 1)
+            os.write(dev.master, b"t2B04\xff\xfe\x00\x01\r" + b"tXYZ8zz\r")
+            dev.send_frame(DISTANCE_ID, struct.pack("<HBB", 1000, 80, 2))
+            wait_for(a.output, lambda m: m["Counter"] == 2)
+            status = a.status()
+            assert status.problems["malformed"] == 2, status.problems
+            assert status.problems["disconnected"] == 0 and status.problems["error"] == 0, status.problems
+            assert status.connects == 1 and status.connected
+            bad = [p for p in status.recent_problems if p.kind == "malformed"]
+            assert bad[0].data_hex == "74 32 42 30 34 ff fe 00 01 0d" and "does not parse" in bad[0].message
+            assert "invalid literal for int() with base 16: 'XYZ'" in bad[1].message
+    finally:
+        dev.close()

@@ -103,9 +103,16 @@ class CanSensorAdapter(InputAdapter):
         if bus is not None:
             bus.shutdown()
 
-    def _poll(self) -> None:
+    def _recv(self, timeout: float) -> can.Message | None:
         assert self._bus is not None
-        msg = self._bus.recv(self.config.poll_timeout_s)
+        try:
+            return self._bus.recv(timeout)
+        except FrameProblem as exc:  # a garbled line from a serial CAN adapter (slcan): the bus stays open
+            self.problems.record("malformed", str(exc), exc.data)
+            return None
+
+    def _poll(self) -> None:
+        msg = self._recv(self.config.poll_timeout_s)
         n = 0
         fresh = False
         # Take everything already queued, then publish once: the newest values (a sensor's force and
@@ -113,7 +120,7 @@ class CanSensorAdapter(InputAdapter):
         while msg is not None and n < self.config.max_frames_per_poll:
             fresh |= self._take(msg, self.clock())
             n += 1
-            msg = self._bus.recv(0.0)
+            msg = self._recv(0.0)
         if msg is not None:
             fresh |= self._take(msg, self.clock())
         if fresh:

@@ -4,6 +4,12 @@ The stock reader (python-can 4.6) takes one byte per ``read`` call and, with not
 every millisecond (its serial timeout): a force/torque sensor at 1 kHz on a USB-CAN adapter is
 then ~25,000 calls a second, each taking the GIL from the service's other threads. This one waits
 in ``select`` for the port and reads everything waiting; the protocol handling stays python-can's.
+
+A line that does not parse (a byte garbled on the wire, noise) raises :class:`FrameProblem` with its
+bytes, and the port stays open. python-can's reader decoded every line as UTF-8 inside its "could not
+read" guard, so one non-ASCII byte became a CanOperationError: the adapter took the sensor for
+unplugged and reopened the port, its readings stale meanwhile (the arm stopped); a bad hex digit
+escaped as a bare ValueError.
 """
 
 from __future__ import annotations
@@ -12,13 +18,25 @@ import math
 import select
 import time
 
+import can
 from can.exceptions import error_check
 from can.interfaces.slcan import slcanBus
+
+from servo_app.inputs.can_sensor.decoders import FrameProblem
 
 _TERMINATORS = (ord("\r"), ord("\a"))  # slcan ends every message (and every reply) with CR, errors with BEL
 
 
 class SlcanBus(slcanBus):
+    _line = b""  # the raw line being parsed, for a FrameProblem
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        self._line = b""
+        try:
+            return super()._recv_internal(timeout)
+        except (ValueError, IndexError) as exc:
+            raise FrameProblem(f"slcan line {self._line!r} does not parse: {exc}", self._line) from None
+
     def _read(self, timeout: float | None) -> str | None:
         port = self.serialPortOrig
         try:
@@ -40,6 +58,6 @@ class SlcanBus(slcanBus):
         end = next((i for i, b in enumerate(self._buffer) if b in _TERMINATORS), -1)
         if end < 0:
             return None
-        message = self._buffer[: end + 1].decode()
+        self._line = bytes(self._buffer[: end + 1])
         del self._buffer[: end + 1]
-        return message
+        return self._line.decode("latin-1")  # never fails: a non-ASCII line is refused by the parsing
