@@ -287,3 +287,25 @@ def test_a_connection_whose_log_failed_takes_no_stream(tmp_path: Any) -> None:
         with pytest.raises(CommandRejected, match=r"start refused: the session log janome-.* cannot take a stream"):
             sp.request(Start())
         assert sp.alive and sp.state()["state"] == "ready"
+
+
+def test_a_connection_closed_after_a_link_fault_shows_as_disconnected(
+        rig: tuple[JanomeProcess, JanomeSimulator]) -> None:
+    """A link fault closes the robot's connection (here: three malformed statuses in a row); the
+    safety view then says the robot is not connected. (It kept robot_connected true until a reset: the
+    close came after the fault, which changed no safety state, so no new view was sent.)"""
+    from servo_app.janome.protocol import STATUS_MAGIC
+
+    sp, sim = rig
+    wait_state(sp, "ready")
+    sp.request(Start())
+    wait_state(sp, "streaming")
+    for _ in range(3):  # the right magic and length, a wrong terminator: rejected frames
+        sim.inject(STATUS_MAGIC + bytes(52) + b"\n\n")
+    wait_state(sp, "fault")
+    assert sp.wait_event(PeerDisconnected, 5.0) is not None
+    deadline = time.monotonic() + 5.0
+    while (view := last_safety(sp)) is None or view["robot_connected"]:
+        assert time.monotonic() < deadline, view
+        time.sleep(0.01)
+    assert view["state"] == "fault" and "malformed" in view["fault"]["message"], view

@@ -194,9 +194,12 @@ class JanomeSupervisor(SupervisorBase):
     # ------------------------------------------------------------------ link
     def on_connect(self, now: float) -> None:
         self.session.on_connect(now)
+        self.changed = True  # robot_connected in the view, whether or not the safety state moves
 
     def on_disconnect(self, reason: str, now: float) -> None:
         self.session.on_disconnect(reason, now)
+        # A fault's close comes after the fault, and changes no safety state: the view must still say so.
+        self.changed = True
         self._feed(Disconnected(detail=reason), now, alarm=LINK_LOST,
                    message=f"connection lost while {self.state.mode.value}: {reason}")
 
