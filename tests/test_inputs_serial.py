@@ -204,3 +204,23 @@ def test_binary_sensor_on_pty_frames_garbage_checksums(tmp_path: Path) -> None:
             assert any("field 'fx' value 310.0 rejected" in p.message for p in a.status().recent_problems)
     finally:
         dev.close()
+
+
+def test_a_reading_that_overflows_once_scaled_is_rejected_and_the_next_is_read(tmp_path: Path) -> None:
+    """A huge reading (finite, but not once the adapter's scale is applied) is rejected naming the field
+    and the value; the line after it, in the same read, is published. (The overflow used to escape as
+    an unnamed "error" with a traceback, and took the lines read with it.)"""
+    dev = PtyDevice(tmp_path / "ttyBIG")
+    a = create_adapter({"type": "serial_line", "name": "distance", "port": str(dev.link), "poll_timeout_s": 0.02,
+                        "scale": 10.0, "fields": {"distance": {"pattern": r"D=\s*([^\s]+)"}}})
+    try:
+        with a:
+            wait_until(lambda: a.connected)
+            dev.write(b"D=1e308\r\nD=5\r\n")
+            assert wait_for(a.output, lambda m: True)["distance"] == 50.0
+            status = a.status()
+            assert status.problems["rejected"] == 1 and status.problems["error"] == 0, status.problems
+            message = status.last_problem.message if status.last_problem else None
+            assert message == "field 'distance' value 1e+308 rejected: not finite once scaled by 10.0"
+    finally:
+        dev.close()

@@ -11,6 +11,7 @@ adapter keeps polling.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from abc import ABC, abstractmethod
@@ -25,6 +26,7 @@ from servo_app.inputs.device_failure import DeviceFailure, generic_failure
 from servo_app.inputs.problems import Problem, ProblemLog
 from servo_app.inputs.samples import ButtonEvent
 from servo_app.inputs.slots import EventQueue, LatestValue
+from servo_app.inputs.validate import ValueRejected
 from servo_app.realtime import make_realtime
 
 Clock = Callable[[], float]
@@ -223,12 +225,16 @@ class InputAdapter(ABC):
         self.events.put(event)  # looked up each time: the bridge replaces the queue before start
 
     def _condition(self, field: str, value: float) -> float:
-        """Apply the common deadband (hard zero, for measurements) and scale."""
+        """Apply the common deadband (hard zero, for measurements) and scale; ValueRejected if the scaled
+        value overflows (a huge reading would otherwise fail the sample, and its neighbours, unnamed)."""
         scale = self.config.scale
         factor = scale.get(field, 1.0) if isinstance(scale, dict) else scale
         if self.config.deadband and abs(value) <= self.config.deadband:
             value = 0.0
-        return value * factor
+        out = value * factor
+        if not math.isfinite(out):
+            raise ValueRejected(field, value, f"not finite once scaled by {factor}")
+        return out
 
     def status(self, now: float | None = None) -> AdapterStatus:
         now = self.clock() if now is None else now

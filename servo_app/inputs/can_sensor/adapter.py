@@ -140,16 +140,17 @@ class CanSensorAdapter(InputAdapter):
             return False
         try:
             decoded = self.decoder.decode(msg.arbitration_id, msg.is_extended_id, bytes(msg.data))
+            if decoded is None:
+                return False  # not ours (filters are only a hint on some interfaces)
+            name, values = decoded
+            conditioned = {k: self._condition(k, v) for k, v in values.items()}
         except FrameProblem as exc:
             self.problems.record("malformed", str(exc), exc.data)
             return False
         except ValueRejected as exc:
             self.problems.record("rejected", f"0x{msg.arbitration_id:X}: {exc}", bytes(msg.data))
             return False
-        if decoded is None:
-            return False  # not ours (filters are only a hint on some interfaces)
-        name, values = decoded
-        self._latest[name] = (now, {k: self._condition(k, v) for k, v in values.items()})
+        self._latest[name] = (now, conditioned)
         return True
 
     def _publish_latest(self) -> None:
