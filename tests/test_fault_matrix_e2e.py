@@ -542,6 +542,35 @@ def test_embedded_controller_frozen_longer_than_a_call(tmp_path: Path) -> None:
     no_children_left()
 
 
+def test_embedded_controller_killed_then_reset_starts_it_again(tmp_path: Path) -> None:
+    """The embedded simulator's process killed (SIGKILL) mid-jog: a named fault, the state says its
+    alarm list cannot be read; reset starts a new controller at the same address (before the fix:
+    every reset answered 503 "once the controller answers again", and only a restart got out), a
+    start and jog move the arm, and a new alarm of the new controller is shown."""
+    with running_rig(tmp_path) as rig:
+        svc = rig.service
+        assert svc.sim is not None
+        address, old_pid = svc.sim.address, svc.sim.process.pid
+        h = rig.lease()
+        rig.start_streaming(h)
+        rig.jog_for(h, JOG, 0.3)
+        os.kill(old_pid, signal.SIGKILL)
+        s = rig.wait_state("fault", timeout=5)
+        assert "status packets lost while streaming" in s["fault"]["message"], s["fault"]
+        s = rig.wait(lambda s: "process has ended" in (s["alarm_poll_error"] or ""), timeout=5, what="poll error")
+        recover(rig, h)
+        assert svc.sim.process.pid != old_pid and svc.sim.address == address and svc.sim.alive
+        assert rig.state()["alarm_poll_error"] is None
+        rig.start_streaming(h)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as other:
+            other.sendto(StatusStop().encode(), svc.robot_address)
+        s = rig.wait(lambda s: (s["fault"] or {}).get("code") == "MOTN-608", timeout=5, what="MOTN-608")
+        assert rig.sim_alarms() == ["MOTN-608"]  # the new controller's list, from the start
+        recover(rig, h)
+    assert_logs_sound(tmp_path)
+    no_children_left()
+
+
 def test_sigint_after_the_embedded_controller_was_frozen(tmp_path: Path) -> None:
     """`servo-app run`: the embedded simulator stopped (SIGSTOP) mid-jog for longer than a call
     timeout, continued, the operator recovers over REST, a new alarm is shown; then SIGINT ends it

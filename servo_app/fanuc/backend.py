@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import signal
-import threading
 from collections.abc import Callable
 from typing import Any
 
@@ -15,7 +13,6 @@ from servo_app.fanuc.supervisor import check_pose_plausible
 from servo_app.fanuc.view import fanuc_view
 from servo_app.messages import Event
 from servo_app.motion.limit_tables import default_tables
-from servo_app.realtime import make_realtime
 from servo_app.robots.profile import RobotProfile, available_profiles, load_profile
 
 IO_SPAN = 16  # a command packet's read or write covers 16 points from its index (manual 61.7)
@@ -58,19 +55,7 @@ class FanucBackend(RobotBackend):
         # The embedded controller starts at the usual FANUC home (wrist bent down), as a cell would
         # after a taught joint move before IBGN start; all-zero joints would be a wrist singularity.
         options = {"initial_joints": [0.0, 0.0, 0.0, 0.0, -90.0, 0.0], **sim_options}
-        sim = SimulatorProcess(model=self.model, port=target.port, **options)
-        # Ctrl-C reaches the whole process group: the simulator (the "controller") must keep sending
-        # status while the servo process decelerates and sends last data. A child inherits SIG_IGN.
-        if threading.current_thread() is not threading.main_thread():
-            sim.start()
-        else:
-            old = signal.signal(signal.SIGINT, signal.SIG_IGN)
-            try:
-                sim.start()
-            finally:
-                signal.signal(signal.SIGINT, old)
-        sim.scheduling = make_realtime(realtime_priority, sim.process.pid)
-        return sim
+        return SimulatorProcess(realtime_priority, model=self.model, port=target.port, **options).start()
 
     # -- views
     def axes(self) -> list[dict[str, Any]]:

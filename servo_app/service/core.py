@@ -17,6 +17,7 @@ never queues behind other requests; events and the process's death are passed he
 from __future__ import annotations
 
 import contextlib
+import logging
 import threading
 import time
 from collections import Counter, deque
@@ -35,6 +36,8 @@ from servo_app.service.io import StreamIo
 from servo_app.service.points import PointStore
 from servo_app.service.tools import ActiveTool, load_tool_set
 from servo_app.service.views import StateViews
+
+log = logging.getLogger(__name__)
 
 
 class ServoService:
@@ -340,6 +343,8 @@ class ServoService:
         """The embedded controller's reset (its alarm, as at the pendant), within
         ``sim_call_timeout_s``: a stopped controller process makes the reset answer 503 well inside
         the lease, and does not reset later (it drops a request it took up too late)."""
+        if not self.sim.alive:  # its process died (killed): started again where the servo process sends
+            self._restart_simulator()
         try:
             self.sim_call("reset")
         except TimeoutError as exc:
@@ -347,6 +352,14 @@ class ServoService:
                                "(status_received grows in GET /api/state), reset again: POST /api/reset") from None
 
     # ------------------------------------------------------------ simulator
+    def _restart_simulator(self) -> None:
+        """A new embedded simulator in place of one whose process died: as a controller after a power
+        cycle, no alarm posted, the tool's payload set again; its alarm list starts anew."""
+        log.warning("the embedded simulator's process has ended: starting it again")
+        self.sim.restart()
+        self._set_simulator_payload(self.tools.active.payload_kg)
+        self.alarm_forwarder.skip_past()
+
     def sim_call(self, name: str, *args: Any, timeout: float | None = None) -> Any:
         """A control of the embedded simulator (reset, set_override, ...): the teach pendant's part.
         From any thread at once (each call gets its own reply); TimeoutError after ``timeout``

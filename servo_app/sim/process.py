@@ -20,10 +20,11 @@ import multiprocessing as mp
 import signal
 import threading
 import time
+from collections.abc import Iterator
 from multiprocessing.connection import Connection
 from typing import Any
 
-from servo_app.realtime import single_threaded_blas
+from servo_app.realtime import make_realtime, single_threaded_blas
 
 _CALLS = {"reset", "start_program", "abort_program", "set_mode", "set_override", "set_joints", "jog_to",
           "set_payload"}
@@ -37,6 +38,9 @@ def _event_dict(ev: Any) -> dict[str, Any]:
 def _serve(kwargs: dict[str, Any], conn: Connection) -> None:
     from servo_app.sim.fanuc_server import FanucSimulator
 
+    # Ctrl-C reaches the whole process group: the controller must keep sending status while the servo
+    # process decelerates and sends last data. It ends when its parent says quit or goes away.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     sim = FanucSimulator(**kwargs).start()
     conn.send({"address": sim.address})
     try:
@@ -174,26 +178,62 @@ class ControlPipe:
             self._conn.close()
 
 
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored while a child starts, which inherits that before it can set it itself (its
+    start-up takes a second); only the main thread may set a handler (a restart from another thread
+    leaves it to the child)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
 class SimulatorProcess:
-    def __init__(self, **kwargs: Any) -> None:
-        ctx = mp.get_context("spawn")
-        self._conn, self._child_conn = ctx.Pipe()
+    """The embedded FANUC controller (``FanucSimulator(**kwargs)``) in a process of its own, at
+    ``realtime_priority`` (None: as the service runs)."""
+
+    def __init__(self, realtime_priority: int | None = None, **kwargs: Any) -> None:
         kwargs.setdefault("host", "127.0.0.1")
-        self.process = ctx.Process(target=_serve, args=(kwargs, self._child_conn), name="fanuc-sim",
-                                   daemon=True)
+        self._kwargs = kwargs
+        self.realtime_priority = realtime_priority
         self.address: tuple[str, int] = ("", 0)
         self.scheduling = "not set"  # its real-time priority, as make_realtime reports it
         self.pipe: ControlPipe | None = None
+        self._launch()
+
+    def _launch(self) -> None:
+        ctx = mp.get_context("spawn")
+        self._conn, self._child_conn = ctx.Pipe()
+        self.process = ctx.Process(target=_serve, args=(self._kwargs, self._child_conn), name="fanuc-sim",
+                                   daemon=True)
 
     def start(self, timeout: float = 30.0) -> SimulatorProcess:
-        with single_threaded_blas():
+        with single_threaded_blas(), _sigint_ignored():
             self.process.start()
         self._child_conn.close()  # ours is the only copy left: the child's death shows as end of file
         if not self._conn.poll(timeout):
             raise TimeoutError("simulator process did not start")
         self.address = tuple(self._conn.recv()["address"])  # type: ignore[assignment]
         self.pipe = ControlPipe(self._conn, "embedded simulator")
+        self.scheduling = make_realtime(self.realtime_priority, self.process.pid)
         return self
+
+    @property
+    def alive(self) -> bool:
+        return self.process.is_alive()
+
+    def restart(self, timeout: float = 30.0) -> None:
+        """After its process died (killed): a new controller at the same address, where the servo
+        process sends, with no alarm posted, as a controller after a power cycle."""
+        self.stop(timeout=1.0)
+        self._kwargs["port"] = self.address[1]
+        self._launch()
+        self.start(timeout)
 
     def call(self, name: str, *args: Any, timeout: float = 5.0) -> Any:
         """A control (``reset``, ``set_override``, ``events``, ...): its result; thread-safe."""
@@ -269,17 +309,23 @@ class JanomeSimulatorProcess:
         if name == "events":
             return []  # Janome faults reach the service through its own link supervisor
         if name == "reset":
-            # Robot-side errors are reported over the link and reset there; a robot whose process is
-            # gone (killed) is started again, as its operator would start the point job again: it
-            # connects once up (the reset does not wait for it). Else only a restart of servo_app would.
-            with self._lock:
-                if not (self._stopped or self.process.is_alive()):
-                    self.process.join(0)
-                    self._conn.close()
-                    self._launch()
-                    self.process.start()
-            return None
+            return None  # robot-side errors are reported over the link and reset there
         raise RuntimeError(f"the Janome simulator has no control {name!r}")
+
+    @property
+    def alive(self) -> bool:
+        return self.process.is_alive()
+
+    def restart(self, timeout: float = 30.0) -> None:
+        """After its process died (killed): the point job started again, as its operator would; it
+        connects once up (this does not wait for that)."""
+        with self._lock:
+            if self._stopped or self.process.is_alive():
+                return
+            self.process.join(0)
+            self._conn.close()
+            self._launch()
+            self.process.start()
 
     def events(self) -> list[dict[str, Any]]:
         return self.call("events")  # type: ignore[no-any-return]
