@@ -309,3 +309,17 @@ def test_a_connection_closed_after_a_link_fault_shows_as_disconnected(
         assert time.monotonic() < deadline, view
         time.sleep(0.01)
     assert view["state"] == "fault" and "malformed" in view["fault"]["message"], view
+    # Reset, and the robot's point job connects again: the old connection's end is no longer the
+    # link's error (it stayed in link_error while the new connection streamed).
+    sp.request(Reset())
+    seen = len(sp.events)
+    again = JanomeSimulator(sp.address, "jr3000").start()
+    try:
+        deadline = time.monotonic() + 10.0
+        while not (views := [ev.view for ev in list(sp.events)[seen:] if isinstance(ev, SafetyChanged)
+                             and ev.view.get("state") == "ready"]):
+            assert time.monotonic() < deadline, sp.events[-4:]
+            time.sleep(0.01)
+        assert views[-1]["robot_connected"] and views[-1]["link_error"] == "", views[-1]
+    finally:
+        again.stop()

@@ -326,6 +326,7 @@ class JanomeSession:
             self._awaiting = False
             return []
         self.handshaken = True
+        self.stats.last_error = ""  # an earlier connection's end is history once a new one is up
         self.last_status = st
         self.stats.status_received += 1
         self._awaiting = False
