@@ -19,7 +19,7 @@ from waiting import wait_for, wait_until
 from servo_app.inputs import ConfigError, Measurement, create_adapter, load_inputs_config
 from servo_app.inputs.can_sensor.adapter import CanSensorAdapter
 from servo_app.inputs.can_sensor.decoders import CanMessageLayout, DbcDecoder, FrameProblem, LayoutDecoder
-from servo_app.inputs.can_sensor.slcan import SlcanBus
+from servo_app.inputs.can_sensor.slcan import MAX_LINE, SlcanBus
 from servo_app.inputs.validate import ValueRejected
 
 DBC = Path(__file__).resolve().parents[1] / "configs" / "inputs" / "sensors.dbc"
@@ -287,5 +287,15 @@ def test_garbled_slcan_lines_are_malformed_frames_and_the_port_stays_open() -> N
             bad = [p for p in status.recent_problems if p.kind == "malformed"]
             assert bad[0].data_hex == "74 32 42 30 34 ff fe 00 01 0d" and "does not parse" in bad[0].message
             assert "invalid literal for int() with base 16: 'XYZ'" in bad[1].message
+            # Bytes that never end a line (a wrong serial speed): dropped past MAX_LINE as one malformed
+            # problem, the buffer does not grow, and the port stays open.
+            os.write(dev.master, b"\x55" * 3000 + b"\r")
+            dev.send_frame(DISTANCE_ID, struct.pack("<HBB", 1000, 80, 3))
+            wait_for(a.output, lambda m: m["Counter"] == 3)
+            status = a.status()
+            assert status.problems["disconnected"] == 0 and status.connects == 1, status.problems
+            overlong = [p for p in status.recent_problems if "no line end" in p.message]
+            assert overlong and all(p.kind == "malformed" for p in overlong), status.recent_problems
+            assert a._bus is not None and len(a._bus._buffer) <= MAX_LINE
     finally:
         dev.close()

@@ -73,6 +73,24 @@ def test_line_parser_fields_garbage_partial_overflow() -> None:
     out = p.feed(b"x" * 40)
     assert len(out) == 1 and out[0].kind == "overflow"
     assert p.feed(b"D=7\n") == [Decoded({"distance": 7.0}, b"D=7")]
+    # A line longer than max_line that does end, read at once: refused whole, not searched for a field
+    # (its D=5 was taken as a reading).
+    out = p.feed(b"@" * 40 + b"D=5\r\nD=6\n")
+    assert [r.kind for r in out if isinstance(r, Bad)] == ["overflow"] and "43 bytes" in out[0].message
+    assert out[1:] == [Decoded({"distance": 6.0}, b"D=6")]
+
+
+def test_problem_log_keeps_a_bounded_sample_of_the_bytes() -> None:
+    import logging
+
+    from servo_app.inputs.problems import MAX_DATA, ProblemLog
+
+    log = ProblemLog(logging.getLogger("test"), lambda: 0.0)
+    small = log.record("malformed", "short", b"\x01\x02")
+    assert small.data_hex == "01 02"
+    big = log.record("malformed", "a flood", bytes(range(256)) * 40)
+    assert big.data_hex is not None and big.data_hex.endswith(" ... (10240 bytes)")
+    assert big.data_hex.startswith(bytes(range(MAX_DATA)).hex(" ")) and len(big.data_hex) < 4 * MAX_DATA
 
 
 def test_binary_parser_garbage_partial_and_bad_checksum() -> None:

@@ -12,6 +12,16 @@ from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
+# The offending bytes kept per problem: enough to see what came, never a flood's whole read (kept whole,
+# 32 problems per adapter of up to ~12 KB of hex each made GET /api/inputs hundreds of KB).
+MAX_DATA = 64
+
+
+def _hex(data: bytes) -> str:
+    if len(data) <= MAX_DATA:
+        return data.hex(" ")
+    return f"{data[:MAX_DATA].hex(' ')} ... ({len(data)} bytes)"
+
 
 @dataclass(frozen=True, slots=True)
 class Problem:
@@ -36,7 +46,7 @@ class ProblemLog:
     def record(self, kind: str, message: str, data: bytes | None = None,
                level: int = logging.WARNING, exc_info: bool = False) -> Problem:
         now = self._clock()
-        p = Problem(now, kind, message, None if data is None else data.hex(" "))
+        p = Problem(now, kind, message, None if data is None else _hex(data))
         with self._lock:
             self.counts[kind] += 1
             self.recent.append(p)

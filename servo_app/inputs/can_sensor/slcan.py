@@ -25,17 +25,25 @@ from can.interfaces.slcan import slcanBus
 from servo_app.inputs.can_sensor.decoders import FrameProblem
 
 _TERMINATORS = (ord("\r"), ord("\a"))  # slcan ends every message (and every reply) with CR, errors with BEL
+# The longest slcan line is a CAN FD frame's (D/B, 8-digit id, 64 data bytes, a time stamp): ~150 bytes.
+# Bytes with no terminator past this are noise (a wrong baud rate): dropped, so they cannot grow the buffer.
+MAX_LINE = 256
 
 
 class SlcanBus(slcanBus):
     _line = b""  # the raw line being parsed, for a FrameProblem
+    _overlong = b""  # bytes dropped for want of a terminator within MAX_LINE
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
-        self._line = b""
+        self._line = self._overlong = b""
         try:
-            return super()._recv_internal(timeout)
+            got = super()._recv_internal(timeout)
         except (ValueError, IndexError) as exc:
             raise FrameProblem(f"slcan line {self._line!r} does not parse: {exc}", self._line) from None
+        if self._overlong:
+            raise FrameProblem(f"slcan: {len(self._overlong)} bytes with no line end (CR) within {MAX_LINE}: "
+                               "dropped; check the adapter's serial speed", self._overlong)
+        return got
 
     def _read(self, timeout: float | None) -> str | None:
         port = self.serialPortOrig
@@ -56,8 +64,13 @@ class SlcanBus(slcanBus):
 
     def _take_message(self) -> str | None:
         end = next((i for i, b in enumerate(self._buffer) if b in _TERMINATORS), -1)
-        if end < 0:
+        if end < 0 and len(self._buffer) <= MAX_LINE:
             return None
+        if end < 0 or end >= MAX_LINE:  # noise, ended or not: dropped whole (_recv_internal raises it)
+            cut = len(self._buffer) if end < 0 else end + 1
+            self._overlong = bytes(self._buffer[:cut])
+            del self._buffer[:cut]
+            return ""  # no message
         self._line = bytes(self._buffer[: end + 1])
         del self._buffer[: end + 1]
         return self._line.decode("latin-1")  # never fails: a non-ASCII line is refused by the parsing

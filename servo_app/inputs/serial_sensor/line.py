@@ -2,7 +2,8 @@
 
 Each field has a regular expression searched in every line; its first group (or the group named
 `value`) is the number. A line where no field matches, or a number that does not parse, is
-malformed. A line that never ends is cut at `max_line` bytes so garbage cannot grow the buffer.
+malformed. A line that never ends is cut at `max_line` bytes so garbage cannot grow the buffer, and
+a line longer than that is refused whole (garbage ending in `D=5` is not a reading of 5).
 """
 
 from __future__ import annotations
@@ -40,7 +41,9 @@ class LineParser:
             raw = bytes(self._buf[:i])
             del self._buf[:i + len(self.terminator)]
             line = raw.strip(b"\r\n")
-            if line:
+            if len(line) > self.max_line:
+                out.append(Bad("overflow", f"a line of {len(line)} bytes, longer than max_line {self.max_line}", line))
+            elif line:
                 out.append(self._parse(line))
 
     def _parse(self, line: bytes) -> ParseResult:
