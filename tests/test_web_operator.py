@@ -120,6 +120,13 @@ def test_header_never_shows_ready_beside_a_dead_link(page: Any, fanuc: Service) 
         return document.querySelector('#stop-reason').textContent;
     }""")
     assert why == "not ready: SYSRDY is off (servo power not ready)", why
+    # The embedded controller's alarm list unreadable (its process stopped or gone): the alarms say so.
+    item = page.evaluate("""async () => {
+        const v = await import('/web/views.js');
+        v.renderAlarms({state: 'fault', alarm_poll_error: 'TimeoutError: the embedded simulator process has ended'});
+        return document.querySelector('#alarm-list').textContent;
+    }""")
+    assert "alarm list cannot be read: TimeoutError: the embedded simulator process has ended" in item, item
     # And live: the telemetry goes, the last state heard is not shown as the present one.
     live = fanuc.state()["state"]
     page.wait_for_function(f"document.querySelector('#mode').textContent === '{live}'")

@@ -222,11 +222,14 @@ export function renderAlarms(s) {
   const items = [];
   if (s.state === "fault" && s.fault) items.push(alarmItem({ ...s.fault, kind: "fault" }, alarmWhen(s.fault)));
   if (s.link_error) items.push(el("li", { class: "alarm warn" }, el("b", {}, "link "), s.link_error));
+  if (s.alarm_poll_error) {  // new controller alarms wait until its list can be read again
+    items.push(el("li", { class: "alarm warn" }, el("b", {}, "alarm list "), `cannot be read: ${s.alarm_poll_error}`));
+  }
   for (const a of [...active].reverse()) items.push(alarmItem({ ...a, kind: a.warning ? "warning" : "alarm" }, when(a)));
   for (const w of [...(s.warnings || [])].reverse()) items.push(alarmItem({ ...w, kind: "warning" }, when(w)));
   const history = Array.isArray(s.alarm_history) ? s.alarm_history
     : [...firstSeen.values()].map(({ a }) => a).slice(-50);
-  const key = JSON.stringify([s.state, s.fault, s.link_error, active, s.warnings, history]);
+  const key = JSON.stringify([s.state, s.fault, s.link_error, s.alarm_poll_error, active, s.warnings, history]);
   if (box.dataset.key === key) return; // same content: keep the DOM (and any text selection)
   box.dataset.key = key;
   box.replaceChildren(...(items.length ? items : [el("li", { class: "muted" }, "no alarms")]));
