@@ -168,6 +168,31 @@ def test_a_point_taught_on_another_model_is_refused_409(rig: Rig) -> None:
                                   "lrmate200id; teach it again on this robot: POST /api/points/elsewhere")
 
 
+@pytest.mark.parametrize("text, what", [
+    ('{"version": 1, "points": {"a1": {"name": "a1", "joints": [0', "cannot be read"),  # cut short
+    ('{"version": 1, "points": {"a1": 5}}', "points.a1=5 is not a point"),
+    ('{"version": 1, "points": {"a1": {"name": "a1", "joints": [0, "x"]}}}', "is not a point"),
+    ('{"version": 1, "points": {"a1": {"name": "a1", "joints": [0, 0, 0, 0, -90, 0]}}}', "xyzwpr: Field required"),
+])
+def test_a_damaged_points_file_is_refused_409_by_every_route_and_left_alone(rig: Rig, text: str, what: str) -> None:
+    h = settled_streaming(rig)
+    path = rig.var_dir / "points.json"
+    path.write_text(text)
+    try:
+        r = rig.http.get("/api/points")  # was a 500 (an exception or the response model's)
+        assert r.status_code == 409 and what in r.json()["detail"], r.text
+        assert r.json()["detail"].endswith("fix it or move it away, then teach again")
+        if "xyzwpr" not in what:  # (a point missing only its pose can still be moved to and deleted)
+            for method, route in (("POST", "/api/points/a1/move"), ("POST", "/api/points/a1"),
+                                  ("DELETE", "/api/points/a1")):
+                r = rig.http.request(method, route, headers=h)
+                assert r.status_code == 409 and what in r.json()["detail"], (method, route, r.text)
+        assert path.read_text() == text  # nothing lost: the file is left for the operator to fix
+        assert rig.state()["at_rest"]
+    finally:
+        path.unlink()
+
+
 def test_a_bad_move_body_is_refused_422(rig: Rig) -> None:
     h = settled_streaming(rig)
     rig.post("/api/points/body", h)

@@ -14,7 +14,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, HTTPException
 from fastapi import Path as PathParam
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from servo_app import messages as msg
 from servo_app.api.deps import NO_BODY, Calls, Controlling, Service
@@ -80,8 +80,20 @@ def _capture(service: ServoService, name: str, client: str) -> dict[str, Any]:
 @router.get("/api/points", summary="List the teach points", response_model=list[PointView])
 def points_list(service: Service) -> list[dict[str, Any]]:
     """Every taught point, by name, with its joints, TCP pose, robot model and when it was taught
-    (open: no token)."""
-    return service.points.all()
+    (open: no token). A points file that cannot be read is 409, naming it and what is wrong."""
+    try:
+        points = service.points.all()
+        for point in points:  # a hand-edited point missing a field: named here, not a 500 from the response
+            try:
+                PointView.model_validate(point)
+            except ValidationError as exc:
+                err = exc.errors()[0]
+                where = ".".join(str(p) for p in err["loc"])
+                raise CommandRejected(f"the teach point file {service.points.path}: point {point['name']!r}: "
+                                      f"{where}: {err['msg']}; fix it or move it away, then teach again") from None
+    except CommandRejected as exc:
+        raise HTTPException(409, str(exc)) from None
+    return points
 
 
 @router.post("/api/points/{name}", summary="Teach a point: save the arm's current joints and pose",
@@ -110,7 +122,11 @@ def point_move(name: PointName, client: Controlling, service: Service, calls: Ca
     """Go to the point's joints along a jerk-limited path, as ``POST /api/target`` with ``{"joints":
     [...]}`` would (the configuration exactly as taught; refused in the same states; resumes a
     hold-to-run stop). A point taught on another robot model is refused (409). Token and lease."""
-    point = service.points.get(name)
+    try:
+        point = service.points.get(name)
+    except CommandRejected as exc:  # the file cannot be read: as every refusal, audited with its reason
+        calls.audit.record(client, "points.move", False, str(exc))
+        raise HTTPException(409, str(exc)) from None
     if point is None:
         calls.audit.record(client, "points.move", False, f"no teach point named {name!r}")
         raise _unknown(name)

@@ -9,6 +9,7 @@ copied from another cell) is taken as it is.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import tempfile
@@ -41,6 +42,13 @@ class PointStore:
         if not isinstance(points, dict):
             raise CommandRejected(f"the teach point file {self.path} has no 'points' object; "
                                   "fix it or move it away, then teach again")
+        for name, point in points.items():  # a hand-edited entry: refused here, not a 500 where it is used
+            joints = point.get("joints") if isinstance(point, dict) else None
+            if not isinstance(joints, list) or point.get("name") != name or not all(
+                    isinstance(q, (int, float)) and not isinstance(q, bool) and math.isfinite(q) for q in joints):
+                raise CommandRejected(f"the teach point file {self.path}: points.{name}={json.dumps(point)[:200]} is "
+                                      "not a point (an object with its name and joints, a list of finite numbers); "
+                                      "fix it or move it away, then teach again")
         return points
 
     def _store(self, points: dict[str, dict[str, Any]]) -> None:
