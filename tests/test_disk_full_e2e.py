@@ -148,3 +148,30 @@ def test_a_disk_filling_up_mid_jog_ends_the_stream_softly_logged_whole_and_recov
     lines = [json.loads(line) for line in read(p.pid, var / "audit.log").splitlines()]  # (none torn)
     dropped = [a for a in lines if a["action"] == "audit.dropped"]
     assert len(dropped) == 1 and "lines not written" in dropped[0]["detail"], dropped
+
+
+def test_a_full_disk_refuses_a_points_change_409_and_keeps_the_file(
+        service: tuple[subprocess.Popen[str], httpx.Client, Path]) -> None:
+    p, c, var = service
+    h = {**AUTH, "X-Lease-Id": c.post("/api/lease", json={"client": "disk-test"}, headers=AUTH).json()["lease_id"]}
+    assert c.post("/api/session/start", headers=h).status_code == 200
+    wait(c, lambda s: s["state"] == "streaming" and s["settled"], "streaming, settled")
+    assert c.post("/api/points/kept", headers=h).status_code == 200
+    before = read(p.pid, var / "points.json")
+    fill(p.pid, var / "filler")
+    # The points file is rewritten whole for a change: on a full disk that is refused (was a 500), naming
+    # the file, the reason and what to do, and the old file stands.
+    r = c.delete("/api/points/kept", headers=h)
+    assert r.status_code == 409, r.text
+    detail = r.json()["detail"]
+    assert "points.json cannot be written (No space left on device)" in detail, detail
+    assert detail.endswith("free disk space in " + str(var) + " (or make it writable), then try again"), detail
+    assert [pt["name"] for pt in c.get("/api/points").json()] == ["kept"]
+    assert read(p.pid, var / "points.json") == before
+    listing = subprocess.run(["nsenter", "--target", str(p.pid), "--mount", "--", "ls", "-A", str(var)],
+                             capture_output=True, text=True, check=True).stdout.split()
+    assert not [n for n in listing if n.startswith(".points-")], listing  # no temporary file left behind
+    free(p.pid, var / "filler")
+    assert c.delete("/api/points/kept", headers=h).status_code == 200
+    assert c.get("/api/points").json() == []
+    assert p.poll() is None

@@ -52,18 +52,28 @@ class PointStore:
         return points
 
     def _store(self, points: dict[str, dict[str, Any]]) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         text = json.dumps({"version": FILE_VERSION, "points": points}, indent=2, sort_keys=True)
-        fd, tmp = tempfile.mkstemp(prefix=".points-", suffix=".json", dir=self.path.parent)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=".points-", suffix=".json", dir=self.path.parent)
+        except OSError as exc:
+            raise self._unwritable(exc) from None
         try:
             with os.fdopen(fd, "w", encoding="utf-8") as f:
                 f.write(text)
                 f.flush()
                 os.fsync(f.fileno())
             os.replace(tmp, self.path)
-        except BaseException:
+        except BaseException as exc:
             Path(tmp).unlink(missing_ok=True)
+            if isinstance(exc, OSError):  # a full or read-only disk: the old file stands, the change is refused
+                raise self._unwritable(exc) from None
             raise
+
+    def _unwritable(self, exc: OSError) -> CommandRejected:
+        return CommandRejected(f"the teach point file {self.path} cannot be written ({exc.strerror or exc}); "
+                               f"nothing changed: free disk space in {self.path.parent} (or make it writable), "
+                               "then try again")
 
     def all(self) -> list[dict[str, Any]]:
         with self._lock:
