@@ -300,3 +300,27 @@ def test_janome_refuses_a_tool_offset(tmp_path: Path) -> None:
         assert service.tools.active.name == "flange"
     finally:
         service.close()
+
+
+def test_a_tool_change_the_embedded_controller_cannot_take_is_refused_and_changes_nothing(tmp_path: Path) -> None:
+    (tmp_path / "tools.toml").write_text(TOOLS)
+    with running_rig(tmp_path, tools_file=tmp_path / "tools.toml") as rig:
+        h = at_rest_with(rig, "gripper")
+        rig.service.sim.process.kill()  # the controller's process dies: its payload cannot follow the tool
+        rig.wait_state("fault")
+        r = rig.http.put("/api/tool", json={"name": "heavy"}, headers=h)
+        assert r.status_code == 503, r.text
+        assert "the tool is not changed ('gripper' is active)" in r.json()["detail"], r.text
+        # Refused, so nothing changed: the service's tool (was 'heavy' after the 503) and the servo process's.
+        assert rig.http.get("/api/tools").json()["active"] == "gripper"
+        assert rig.state()["tool"]["name"] == "gripper"
+        rig.post("/api/reset", h)
+        rig.wait_state("disconnected", "connected", "ready", "ended")
+        rig.start_streaming(h)
+        s = rig.wait_at_rest_settled()
+        assert rig.http.get("/api/limits").json()["payload_kg"] == 2.5
+        # The servo process moves the gripper's TCP: a pose target at the pose shown is where the arm is.
+        rig.post("/api/target", h, {"xyzwpr": s["cart_servo"], "linear_speed": 50.0})
+        after = rig.wait_at_rest_settled()
+        np.testing.assert_allclose(after["q_cmd"][:6], s["q_cmd"][:6], atol=1e-3)
+        assert rig.sim_alarms() == []

@@ -106,10 +106,19 @@ class ActiveTool:
                                       "or let the motion end, wait until GET /api/state shows settled, then "
                                       "change the tool")
             self._request(msg.SetTool(tool.name, tool.xyzwpr, tool.payload_kg))  # refused: raises, unchanged
-            self._active = tool
             if self._set_simulator_payload is not None:
                 # The embedded controller's payload follows, as a cell's PAYLOAD[] instruction would.
-                self._set_simulator_payload(tool.payload_kg)
+                try:
+                    self._set_simulator_payload(tool.payload_kg)
+                except BaseException as exc:  # not taken (its process ended or froze): refused, so undone
+                    old = self._active
+                    self._request(msg.SetTool(old.name, old.xyzwpr, old.payload_kg))
+                    if isinstance(exc, TimeoutError):
+                        raise TimeoutError(f"{exc}; the tool is not changed ({old.name!r} is active): once the "
+                                           "controller answers again (reset: POST /api/reset), change the tool "
+                                           "again") from None
+                    raise
+            self._active = tool
             return tool
 
     def define(self, name: str, xyzwpr: Any, payload_kg: Any) -> Tool:
