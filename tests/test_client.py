@@ -321,3 +321,14 @@ def test_a_controller_alarm_is_a_fault_error_with_its_code_cause_and_remedy(tmp_
         arm.start()
         arm.move_joints(HOME)
         assert arm.state().alarms == ()
+
+
+def test_teach_without_a_stream_is_refused_at_once_saying_to_start_one(tmp_path: Path) -> None:
+    with running_rig(tmp_path) as rig, ServoClient(rig.base_url, TOKEN, name="teacher") as arm:
+        assert arm.state().state == "disconnected"
+        t0 = time.monotonic()
+        # It waited for a settled arm that no stream reports, then raised TimeoutError ('settled: not within').
+        with pytest.raises(RefusedError, match="start one: POST /api/session/start") as refused:
+            arm.teach("nowhere", settle_timeout=10.0)
+        assert time.monotonic() - t0 < 5.0 and refused.value.status == 409
+        assert arm.points() == []

@@ -544,7 +544,9 @@ class ServoClient:
     # ----------------------------------------------------------- teach points
     def teach(self, name: str, settle_timeout: float = 30.0) -> Point:
         """Save the current TCP pose and joints as ``name`` (once the arm has settled)."""
-        self.wait_settled(settle_timeout)
+        # Without a stream the arm never reports settled: the service's refusal says to start one.
+        if self.state().state in ("streaming", "stopping", "stopped", "ending"):
+            self.wait_settled(settle_timeout)
         return Point.from_json(self._post(f"/api/points/{quote(name, safe='')}"))
 
     def points(self) -> list[Point]:
