@@ -156,6 +156,7 @@ def test_request_types_are_strict_and_a_refusal_changes_nothing(rig: Rig) -> Non
         ("/api/io", {"type": "DO", "index": 1, "value": "1"}, "value"),
         ("/api/lease", {"client": "x", "force": "true"}, "force"),
         ("/api/lease", {"client": "x", "ttl_s": "5"}, "ttl_s"),
+        ("/api/lease", {"client": "x", "ttl_s": 1e-6, "force": True}, "ttl_s"),  # took the lease, gone at once
         ("/api/lease", {"client": 5}, "client"),
         # The trajectory upload parses its own body (up to 2 MiB, in a worker thread): as strict.
         ("/api/trajectory", {"joints": [["5", 0, 0, 0, -90, 0]]}, "joints"),  # once replayed to J1 = 5

@@ -332,3 +332,29 @@ def test_teach_without_a_stream_is_refused_at_once_saying_to_start_one(tmp_path:
             arm.teach("nowhere", settle_timeout=10.0)
         assert time.monotonic() - t0 < 5.0 and refused.value.status == 409
         assert arm.points() == []
+        # wait_settled likewise: it waited out its whole timeout for what no stream reports.
+        t0 = time.monotonic()
+        with pytest.raises(RefusedError, match=r"settled: no stream runs \(state disconnected\).*start one"):
+            arm.wait_settled(timeout=10.0)
+        assert time.monotonic() - t0 < 5.0
+        # A second acquire while the lease is held keeps the one renewal thread (two outlived release()).
+        renewer = arm._lease_thread
+        arm.acquire()
+        assert arm._lease_thread is renewer and renewer is not None and renewer.is_alive()
+        arm.release()
+        assert not renewer.is_alive() and arm.lease_id is None
+
+
+def test_the_blocks_own_error_is_raised_when_the_release_fails_too(tmp_path: Path) -> None:
+    """A script's block raises after the service went away: its error comes out, not the release's
+    "cannot reach the service" (which used to replace it)."""
+    service = running_rig(tmp_path)
+    rig = service.__enter__()
+    try:
+        with pytest.raises(ValueError, match="the script's own error"), \
+                ServoClient(rig.base_url, TOKEN, name="script") as arm:
+            assert arm.lease_id is not None
+            service.__exit__(None, None, None)  # the service (its uvicorn too) goes away mid-script
+            raise ValueError("the script's own error")
+    finally:
+        service.__exit__(None, None, None)  # (a second exit: nothing left to stop)

@@ -111,7 +111,10 @@ class LeaseRequest(BaseModel):
     model_config = _CLOSED
     client: str = Field(min_length=1, max_length=64)
     force: bool = False
-    ttl_s: float | None = Field(None, gt=0, description="shorter than the server's TTL if given (never longer)")
+    # At least 0.1 s: a lease must outlive a renewal's round trip (a client renews every third of it;
+    # 1e-6 s had it renew in a busy loop, and a forced take stopped the holder for a lease gone at once).
+    ttl_s: float | None = Field(None, ge=0.1, description="shorter than the server's TTL if given (never longer), "
+                                                          "at least 0.1 s")
 
 
 class IoWrite(BaseModel):

@@ -48,6 +48,7 @@ _LEASE_WORDS = re.compile(r"control lease|control is held|X-Lease-Id")
 _SENTENCE_FIELD = re.compile(r"^([A-Za-z_]+(?:\[\d+\])?)(?:=| has )")
 # States in which a motion the client waits for is still on its way.
 _MOVING_STATES = ("streaming",)
+_STREAM_STATES = ("streaming", "stopping", "stopped", "ending")  # a stream runs: the robot reports
 _POLL_S = 0.02  # state polls while waiting: 50 a second, a cycle's worth of the telemetry rate
 
 
@@ -186,10 +187,19 @@ class ServoClient:
         return self
 
     def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
-        self.close()
+        if kind is None:
+            self.close()
+            return
+        # The block raised: that is the error to see. A release that fails too (the service gone, say)
+        # must not replace it; the lease then runs out by itself.
+        with contextlib.suppress(ServoError):
+            self.close()
 
     def acquire(self) -> None:
-        """Take the control lease and keep it renewed in the background."""
+        """Take the control lease and keep it renewed in the background (held already: nothing to do)."""
+        if self.lease_id is not None and self._lease_lost is None and self._lease_thread is not None \
+                and self._lease_thread.is_alive():
+            return  # a second renewal thread would outlive release(), which stops one
         body: dict[str, Any] = {"client": self.name, "force": self.take_over}
         if self.lease_ttl_s is not None:
             body["ttl_s"] = self.lease_ttl_s
@@ -336,7 +346,12 @@ class ServoClient:
         return self._wait(lambda s: s.at_rest, timeout, "at rest")
 
     def wait_settled(self, timeout: float = 30.0) -> State:
-        """Until the commanded motion is at rest and the robot's feedback has stopped moving."""
+        """Until the commanded motion is at rest and the robot's feedback has stopped moving (a stream
+        must run: without one the robot reports nothing, and RefusedError says so at once)."""
+        s = self.state()
+        if s.state not in _STREAM_STATES and s.state != "fault":
+            raise RefusedError(f"settled: no stream runs (state {s.state}), so the robot's feedback cannot show the "
+                               "arm settled; start one: POST /api/session/start (ServoClient.start())")
         return self._wait(lambda s: s.settled, timeout, "settled")
 
     def wait_state(self, *states: str, timeout: float = 15.0) -> State:
@@ -545,7 +560,7 @@ class ServoClient:
     def teach(self, name: str, settle_timeout: float = 30.0) -> Point:
         """Save the current TCP pose and joints as ``name`` (once the arm has settled)."""
         # Without a stream the arm never reports settled: the service's refusal says to start one.
-        if self.state().state in ("streaming", "stopping", "stopped", "ending"):
+        if self.state().state in _STREAM_STATES:
             self.wait_settled(settle_timeout)
         return Point.from_json(self._post(f"/api/points/{quote(name, safe='')}"))
 
