@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import itertools
 import json
 import logging
 import math
@@ -58,6 +59,7 @@ STATUS_SUFFIX = "status"
 LEASE_SUFFIX = "lease"
 REPLY_SUFFIX = "reply"
 JOINT_NAMES_RE = re.compile(r"joint_(\d+)$")
+COMMAND_QUEUE = 256  # commands waiting for the command thread; stops have as many places again
 
 
 def cell_name(text: str | None = None) -> str:
@@ -171,7 +173,9 @@ class ZenohInterface:
         self.linear = np.array([a["unit"] == "mm" for a in self.axes])
         self.j23 = float(getattr(service.profile, "j23_factor", 0.0) or 0.0)
         self.session: zenoh.Session | None = None
-        self._commands: queue.Queue[tuple[str, str, Any] | None] = queue.Queue(maxsize=256)
+        # (priority, order, command): a stop goes ahead of every queued command (0), the rest in turn (1)
+        self._commands: queue.PriorityQueue[tuple[int, int, _Queued | None]] = queue.PriorityQueue()
+        self._order = itertools.count()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._declared: list[Any] = []
@@ -220,8 +224,7 @@ class ZenohInterface:
 
     def close(self) -> None:
         self._stop.set()
-        with contextlib.suppress(queue.Full):
-            self._commands.put_nowait(None)
+        self._commands.put((-1, next(self._order), None))
         for t in self._threads:
             t.join(5.0)
         if self.session is not None:
@@ -231,31 +234,39 @@ class ZenohInterface:
 
     # -------------------------------------------------------------------------------- commands
     def _enqueue(self, encoding: str, kind: str) -> Callable[[Any], None]:
+        # A stop jumps the queue and is not dropped while jogs fill it: behind a flood of jogs it was
+        # dropped (or waited for them all) while they kept the arm moving.
+        urgent = kind == "stop"
+        limit = 2 * COMMAND_QUEUE if urgent else COMMAND_QUEUE
+
         def on_sample(sample: Any) -> None:  # a Zenoh thread: queue only, never block it
             attachment = sample.attachment.to_bytes() if sample.attachment is not None else None
-            try:
-                self._commands.put_nowait((encoding, kind, (sample.payload.to_bytes(), attachment)))
-            except queue.Full:
+            if self._commands.qsize() >= limit:
                 log.warning("zenoh: command queue full, %s dropped", kind)
+                return
+            self._commands.put((0 if urgent else 1, next(self._order),
+                                _Queued(encoding, kind, sample.payload.to_bytes(), attachment, time.monotonic_ns())))
 
         return on_sample
 
     def _command_loop(self) -> None:
         while True:
-            item = self._commands.get()
+            _, _, item = self._commands.get()
             if item is None or self._stop.is_set():
                 return
-            encoding, kind, (payload, attachment) = item
-            self.handle(encoding, kind, payload, attachment)
+            self.handle(item.encoding, item.kind, item.payload, item.attachment, item.arrived_ns)
 
-    def handle(self, encoding: str, kind: str, payload: bytes, attachment: bytes | None) -> dict[str, Any]:
-        """Run one command; its answer goes on the reply keys (and is returned)."""
+    def handle(self, encoding: str, kind: str, payload: bytes, attachment: bytes | None,
+               arrived_ns: int | None = None) -> dict[str, Any]:
+        """Run one command; its answer goes on the reply keys (and is returned). ``arrived_ns``
+        (``time.monotonic_ns()``): when it was queued, so a jog that waited past its hold is refused."""
         rmw = parse_rmw_attachment(attachment)
         source = rmw[2].hex() if rmw else "zenoh"
         reply: dict[str, Any] = {"cell": self.cell, "command": kind, "encoding": encoding,
                                  "seq": rmw[0] if rmw else None, "source": source}
         try:
-            ack = self._run_cdr(kind, payload, source) if encoding == "cdr" else self._run_json(kind, payload)
+            ack = (self._run_cdr(kind, payload, source, arrived_ns) if encoding == "cdr"
+                   else self._run_json(kind, payload, arrived_ns))
             reply.update(ok=True, status=200, detail=jsonable_encoder(ack.detail) if ack.detail is not None else None)
         except Refused as exc:
             reply.update(ok=False, status=exc.status, detail=exc.detail)
@@ -279,7 +290,7 @@ class ZenohInterface:
     def _controlling(self, client: str, lease_id: str | None, kind: str) -> str:
         return lease_holder(self.api, client, lease_id, f"ZENOH {kind}")
 
-    def _run_cdr(self, kind: str, payload: bytes, source: str) -> Any:
+    def _run_cdr(self, kind: str, payload: bytes, source: str, arrived_ns: int | None = None) -> Any:
         typename = next(t for t, k in self.ROS_COMMANDS.values() if k == kind)
         try:
             message = ros.deserialize(payload, typename)
@@ -292,10 +303,10 @@ class ZenohInterface:
         if kind == "resume":
             return session_routes.session_resume(controller, self.api.calls)
         if kind in ("twist", "joint_jog"):
-            return self._jog(controller, self._jog_body(kind, message))
+            return self._jog(controller, self._jog_body(kind, message), arrived_ns)
         return self._target(controller, self._target_body(kind, message))
 
-    def _run_json(self, kind: str, payload: bytes) -> Any:
+    def _run_json(self, kind: str, payload: bytes, arrived_ns: int | None = None) -> Any:
         try:
             body = json.loads(payload)
             if not isinstance(body, dict):
@@ -314,11 +325,18 @@ class ZenohInterface:
         if kind == "resume":
             return session_routes.session_resume(controller, self.api.calls)
         if kind == "jog":
-            return self._jog(controller, body)
+            return self._jog(controller, body, arrived_ns)
         return self._target(controller, body)
 
-    def _jog(self, controller: str, body: dict[str, Any]) -> Any:
+    def _jog(self, controller: str, body: dict[str, Any], arrived_ns: int | None = None) -> Any:
         validated = _validated(_JOG, body)
+        if arrived_ns is not None:  # an unstamped jog counts from its arrival, not from its turn in the queue
+            waited_ms = (time.monotonic_ns() - arrived_ns) / 1e6
+            if waited_ms > validated.hold_ms:
+                raise Refused(409, f"stale hold-to-run command: received {waited_ms:.0f} ms ago, past its hold "
+                                   f"time of {validated.hold_ms:.0f} ms, while the commands queued before it ran; "
+                                   f"send a fresh one to keep moving, at most {self.api.jog_limiter.per_second} "
+                                   "a second")
         admitted = admit_jog(self.api, controller)
         return self.api.calls.forward(controller, "jog", jog_request(validated), at=admitted)
 
@@ -514,6 +532,17 @@ class ZenohInterface:
     def _json_put(self, suffix: str, value: Any) -> None:
         assert self.session is not None
         self.session.put(self.json_key(suffix), json.dumps(value, default=str).encode())
+
+
+@dataclass(frozen=True)
+class _Queued:
+    """A command as a Zenoh callback queued it."""
+
+    encoding: str
+    kind: str
+    payload: bytes
+    attachment: bytes | None
+    arrived_ns: int  # time.monotonic_ns()
 
 
 # The frames MoveIt Servo users name in a TwistStamped's header: ours are "base" and "tool".

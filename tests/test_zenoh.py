@@ -388,3 +388,35 @@ def test_the_monitor_command_serves_the_cells_until_stopped(cell: tuple[Rig, Zen
             proc.wait(5)
     _, err = proc.communicate()
     assert proc.returncode == 0, err
+
+
+@pytest.mark.e2e
+def test_a_stop_goes_ahead_of_a_flood_of_jogs_and_the_backlog_does_not_move_the_arm(
+        cell: tuple[Rig, ZenohInterface, Client]) -> None:
+    """A node publishing unstamped jogs far faster than they are handled fills the command queue. A
+    stop published then is handled next (it was dropped for the full queue, or waited behind every
+    jog), and a jog that waited in the queue past its hold is refused as stale (the backlog kept the
+    arm moving for a second after its sender had stopped)."""
+    rig, _, client = cell
+    streaming_for_zenoh(rig, client)
+    jogs = client.session.declare_publisher(ros_key(0, "/cell_a/delta_joint_cmds", ros.JOINT_JOG))
+    stop = client.session.declare_publisher(ros_key(0, "/cell_a/stop", ros.EMPTY),
+                                            congestion_control=zenoh.CongestionControl.BLOCK)
+    n = len(client.replies)
+    jog = ros.serialize(ros.joint_jog(0, ["joint_1"], [0.1], duration_s=0.05), ros.JOINT_JOG)
+    for _ in range(3000):
+        jogs.put(jog)
+    stop.put(ros.serialize(ros.Empty(), ros.EMPTY))
+    i = wait_for(lambda: next((k for k, r in enumerate(client.replies[n:]) if r["command"] == "stop"), None), 10.0,
+                 "the stop's reply")
+    assert client.replies[n + i]["ok"], client.replies[n + i]
+    rig.wait_state("stopped")
+    # the end of the backlog: a command queued after it is answered after it
+    unmatched = ros.JointState(header=ros.header(0, ""), name=["joint_1", "joint_2"], position=np.zeros(1),
+                               velocity=np.zeros(0), effort=np.zeros(0))
+    assert client.send("joint_target", ros.JOINT_STATE, unmatched)["status"] == 422
+    after_stop = [r for r in client.replies[n + i + 1:] if r["command"] == "joint_jog"]
+    assert after_stop and not any(r["ok"] for r in after_stop), "a jog queued before the stop ran after it"
+    assert any(str(r["detail"]).startswith("stale hold-to-run command: received") for r in client.replies[n:])
+    jogs.undeclare()
+    stop.undeclare()
