@@ -354,8 +354,9 @@ class ZenohInterface:
         out = np.where(linear, v * 1000.0, np.degrees(v)) if linear.any() else model_rad_to_fanuc_deg(v, self.j23)
         return [float(x) for x in out]
 
-    def _by_name(self, names: list[str], values: np.ndarray, what: str) -> np.ndarray:
-        """Values per axis from a named list (axes not named: 0); unknown names are refused."""
+    def _by_name(self, names: list[str], values: np.ndarray, what: str, every: bool = False) -> np.ndarray:
+        """Values per axis from a named list (axes not named: 0, or refused when ``every`` axis must be
+        named: a position target's 0 would move that axis); unknown names are refused."""
         if not names:
             return np.asarray(values, dtype=float)
         if len(names) != len(values):
@@ -366,6 +367,10 @@ class ZenohInterface:
             if m is None or not 1 <= int(m.group(1)) <= self.n:
                 raise Refused(422, f"{what}: unknown joint {name!r}: this arm has {ros.joint_names(self.n)}")
             out[int(m.group(1)) - 1] = v
+        missing = [n for n in ros.joint_names(self.n) if n not in names]
+        if every and missing:
+            raise Refused(422, f"{what}: no position for {missing}: name every joint of {ros.joint_names(self.n)} "
+                               "(or none, positions in that order)")
         return out
 
     def _check_fresh(self, header: Any, hold_ms: float) -> None:
@@ -403,7 +408,7 @@ class ZenohInterface:
             except ValueError as exc:
                 raise Refused(422, f"pose_target: {exc}") from None
             return {"xyzwpr": [float(v) for v in matrix_to_xyzwpr(pose)]}
-        q = self._by_name(list(m.name), np.asarray(m.position, float), "joint_target")
+        q = self._by_name(list(m.name), np.asarray(m.position, float), "joint_target", every=True)
         return {"joints": self.joints_to_service(q)}
 
     # ----------------------------------------------------------------------------------- lease

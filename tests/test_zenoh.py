@@ -420,3 +420,25 @@ def test_a_stop_goes_ahead_of_a_flood_of_jogs_and_the_backlog_does_not_move_the_
     assert any(str(r["detail"]).startswith("stale hold-to-run command: received") for r in client.replies[n:])
     jogs.undeclare()
     stop.undeclare()
+
+
+@pytest.mark.e2e
+def test_a_joint_target_naming_some_joints_is_refused_and_moves_nothing(
+        cell: tuple[Rig, ZenohInterface, Client]) -> None:
+    """A JointState naming joint_1 and joint_5 only: the joints it leaves out were sent to 0 (J4 swung
+    from 10 deg to 0); now it is refused, naming them, and the arm stays where it is."""
+    rig, iface, client = cell
+    lease_id = streaming_for_zenoh(rig, client)
+    rig.post("/api/target", {**AUTH, "X-Lease-Id": lease_id}, json={"joints": [0, 0, 0, 10, -90, 0]})
+    s0 = rig.wait(lambda s: abs(s["q_cmd"][3] - 10.0) < 0.01 and s["at_rest"], 10.0, "J4 at 10 deg")
+    goal = iface.joints_to_ros(s0["q_cmd"][:6])
+    partial = ros.JointState(header=ros.header(0, ""), name=["joint_1", "joint_5"],
+                             position=np.array([goal[0] + 0.05, goal[4]]), velocity=np.zeros(0), effort=np.zeros(0))
+    r = client.send("joint_target", ros.JOINT_STATE, partial)
+    assert r["status"] == 422 and "['joint_2', 'joint_3', 'joint_4', 'joint_6']" in r["detail"], r
+    s = rig.state()
+    assert s["q_cmd"] == s0["q_cmd"] and s["state"] == s0["state"] == "streaming"
+    # the same joints all named, in another order, are a target
+    full = ros.JointState(header=ros.header(0, ""), name=[f"joint_{i}" for i in (6, 5, 4, 3, 2, 1)],
+                          position=goal[::-1].copy(), velocity=np.zeros(0), effort=np.zeros(0))
+    assert client.send("joint_target", ros.JOINT_STATE, full)["ok"]
