@@ -403,6 +403,12 @@ class ZenohInterface:
         from servo_app.robots.conventions import matrix_to_xyzwpr
 
         if kind == "pose_target":
+            # Taken in the world frame: a pose in another (the tool's, a camera's) was taken as a
+            # world pose, and the arm went there.
+            if FRAMES.get(m.header.frame_id, m.header.frame_id) != "base":
+                world = sorted({"base", *(f for f, ours in FRAMES.items() if ours == "base")})
+                raise Refused(422, f"pose_target: frame_id {m.header.frame_id!r} is not the world frame: give the "
+                                   f"pose in the robot's world frame, with frame_id one of {world}")
             try:
                 pose = ros.pose_matrix(m.pose)
             except ValueError as exc:

@@ -442,3 +442,24 @@ def test_a_joint_target_naming_some_joints_is_refused_and_moves_nothing(
     full = ros.JointState(header=ros.header(0, ""), name=[f"joint_{i}" for i in (6, 5, 4, 3, 2, 1)],
                           position=goal[::-1].copy(), velocity=np.zeros(0), effort=np.zeros(0))
     assert client.send("joint_target", ros.JOINT_STATE, full)["ok"]
+
+
+@pytest.mark.e2e
+def test_a_pose_target_in_another_frame_than_the_world_is_refused(cell: tuple[Rig, ZenohInterface, Client]) -> None:
+    """A PoseStamped 10 mm along the tool's z (frame_id tool0) was taken as the world pose (0, 0, 10 mm)
+    and the arm went there; now a frame other than the world's is refused and the arm stays."""
+    rig, _, client = cell
+    streaming_for_zenoh(rig, client)
+    s0 = rig.wait_at_rest_settled()
+    in_tool = ros.PoseStamped(header=ros.header(0, "tool0"), pose=ros.Pose(
+        position=ros.Point(x=0.0, y=0.0, z=0.01), orientation=ros.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)))
+    r = client.send("pose_target", ros.POSE_STAMPED, in_tool)
+    assert r["status"] == 422 and "frame_id 'tool0'" in r["detail"] and "'base_link'" in r["detail"], r
+    s = rig.state()
+    assert s["q_cmd"] == s0["q_cmd"] and s["state"] == "streaming" and s["at_rest"]
+    # the pose the cell publishes (frame "base") is a target as it is
+    from servo_app.robots.conventions import xyzwpr_to_matrix
+
+    here = ros.pose_stamped(0, xyzwpr_to_matrix(s0["cart_servo"][:6]))
+    assert here.header.frame_id == "base"
+    assert client.send("pose_target", ros.POSE_STAMPED, here)["ok"]
