@@ -55,6 +55,19 @@ def echoed(value: object) -> object:
     return f"{text[:ECHO_CHARS]}... ({len(text)} characters in all)"
 
 
+CLOSE_REASON_BYTES = 123  # RFC 6455: a close frame's payload is at most 125 bytes, 2 of them the code
+
+
+def close_reason(text: str) -> str:
+    """``text`` as a WebSocket close frame can carry it: at most 123 UTF-8 bytes, cut short with "...".
+    A longer reason (one echoing a long query value or path) made the close itself fail: the server
+    logged a ProtocolError and the socket ended with no code and no reason."""
+    data = text.encode()
+    if len(data) <= CLOSE_REASON_BYTES:
+        return text
+    return data[: CLOSE_REASON_BYTES - 3].decode(errors="ignore") + "..."
+
+
 def validation_errors(errors: list[Any]) -> list[Any]:
     """A validation error list (pydantic's, FastAPI's) as a refusal carries it: JSON-safe, each input
     echoed within ECHO_CHARS."""

@@ -190,3 +190,20 @@ def test_every_frame_is_answered_or_closes_and_only_sound_samples_are_taken(
     # Still serving: the statistics over plain HTTP.
     r = httpx.get(f"http://{address}/api/feed", params={"token": TOKEN}, timeout=10)
     assert r.status_code == 200 and {s["source"] for s in r.json()} == set(SOURCES)
+
+
+@pytest.mark.parametrize("source", ["nope", "s" * 300])
+def test_an_unknown_source_closes_with_1008_naming_it_whatever_its_length(server: tuple[str, FeedRegistry],
+                                                                          source: str) -> None:
+    """A source name long enough to make the reason over a close frame's 123 bytes made the close itself
+    fail: the socket ended with no code and no reason (and the server logged a ProtocolError)."""
+    address, _ = server
+    with connect(f"ws://{address}/ws/feed/{source}?token={TOKEN}", open_timeout=10) as ws, \
+            pytest.raises(ConnectionClosed) as closed:
+        ws.recv(timeout=5)
+    assert closed.value.rcvd is not None and closed.value.rcvd.code == 1008
+    assert closed.value.rcvd.reason.startswith(f"unknown feed source '{source[:20]}"), closed.value.rcvd.reason
+    assert len(closed.value.rcvd.reason.encode()) <= 123
+    with connect(f"ws://{address}/ws/feed/jog?token={TOKEN}&ack=true", open_timeout=10) as ws:  # still serving
+        ws.send(json.dumps({"kind": "twist", "linear": [0, 0, 0]}))
+        assert json.loads(ws.recv(timeout=5))["accepted"]

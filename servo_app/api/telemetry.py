@@ -16,6 +16,7 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect, status
 from servo_app.api.deps import api_of
 from servo_app.api.models import StateView
 from servo_app.api.state import state_snapshot
+from servo_app.errors import close_reason
 
 router = APIRouter()
 
@@ -38,11 +39,15 @@ async def telemetry(ws: WebSocket, hz: str = "50") -> None:
     try:
         rate = float(hz)
     except ValueError:
-        error: str | None = f"hz={hz!r} is not a number of messages per second: connect with e.g. ?hz=50"
+        # The value cut short, so the reason still says what to do within a close frame's 123 bytes
+        shown = repr(hz)
+        if len(shown.encode()) > 32:
+            shown = f"{shown.encode()[:28].decode(errors='ignore')}... ({len(hz)} characters)"
+        error: str | None = f"hz={shown} is not a number of messages per second: connect with e.g. ?hz=50"
     else:
         error = telemetry_rate_error(rate)
     if error is not None:
-        await ws.close(code=status.WS_1008_POLICY_VIOLATION, reason=error)
+        await ws.close(code=status.WS_1008_POLICY_VIOLATION, reason=close_reason(error))
         return
     period = 1.0 / rate
     loop = asyncio.get_running_loop()

@@ -28,7 +28,7 @@ from fastapi.routing import APIRoute
 from pydantic import ValidationError
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from servo_app.errors import ECHO_CHARS, echoed, json_safe
+from servo_app.errors import ECHO_CHARS, close_reason, echoed, json_safe
 from servo_app.inputs.feed.models import FeedAck
 from servo_app.inputs.feed.registry import _MESSAGE, FeedRegistry, FeedRejected, UnknownSource, field_path
 
@@ -180,7 +180,7 @@ def feed_router(registry: FeedRegistry, auth_dependency: Callable[..., Any] | No
         """One JSON feed message per text frame. Replies only to rejected messages unless ?ack=true."""
         await ws.accept()
         if source not in registry.names():
-            await ws.close(code=1008, reason=f"unknown feed source {source!r}")
+            await ws.close(code=1008, reason=close_reason(f"unknown feed source {source!r}"))
             return
         try:
             while True:
@@ -191,7 +191,7 @@ def feed_router(registry: FeedRegistry, auth_dependency: Callable[..., Any] | No
                     reply = _submit_text(registry, source, _frame_text(message))
                 except Unreadable as exc:
                     registry.note_rejected(source, exc.reason)
-                    await ws.close(code=exc.code, reason=exc.reason)
+                    await ws.close(code=exc.code, reason=close_reason(exc.reason))
                     return
                 if ack or not reply["accepted"]:
                     await ws.send_text(json.dumps(reply, allow_nan=False))
