@@ -393,6 +393,9 @@ class ZenohInterface:
                     "angular": [math.degrees(ang.x), math.degrees(ang.y), math.degrees(ang.z)]}
         if len(m.displacements) and not len(m.velocities):
             raise Refused(422, "delta_joint_cmds: displacements are not supported; send velocities (rad/s, m/s)")
+        if math.isnan(m.duration):  # NaN > 0 is false: it was taken as no duration, the default hold
+            raise Refused(422, f"delta_joint_cmds: duration={m.duration} is not a number: send the hold time in "
+                               f"seconds, up to 2, or 0 for the default {hold_ms / 1000:g} s")
         if m.duration > 0:
             hold_ms = m.duration * 1000.0
         self._check_fresh(m.header, hold_ms)

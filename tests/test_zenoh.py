@@ -463,3 +463,17 @@ def test_a_pose_target_in_another_frame_than_the_world_is_refused(cell: tuple[Ri
     here = ros.pose_stamped(0, xyzwpr_to_matrix(s0["cart_servo"][:6]))
     assert here.header.frame_id == "base"
     assert client.send("pose_target", ros.POSE_STAMPED, here)["ok"]
+
+
+
+@pytest.mark.e2e
+def test_a_joint_jog_with_a_nan_duration_is_refused_naming_it(cell: tuple[Rig, ZenohInterface, Client]) -> None:
+    """NaN > 0 is false: a JointJog whose duration was NaN moved the arm with the default hold."""
+    rig, _, client = cell
+    streaming_for_zenoh(rig, client)
+    s0 = rig.wait_at_rest_settled()
+    r = send_fresh(client, "delta_joint_cmds", ros.JOINT_JOG,
+                   lambda t: ros.joint_jog(t, ["joint_1"], [0.1], duration_s=math.nan))
+    assert r["status"] == 422 and "duration=nan" in r["detail"], r
+    s = rig.state()
+    assert s["q_cmd"] == s0["q_cmd"] and s["at_rest"] and s["state"] == "streaming"
