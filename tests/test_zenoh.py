@@ -85,13 +85,17 @@ class Client:
         replies = wait_for(ask, 20.0, "the lease queryable's answer")
         return json.loads(replies[0].ok.payload.to_bytes())  # type: ignore[no-any-return]
 
-    def send(self, topic: str, typename: str, message: Any) -> dict[str, Any]:
-        """Publish a ROS command and wait for its answer on the reply key."""
+    def pub_put(self, topic: str, typename: str, message: Any) -> None:
+        """Publish a ROS command."""
         key = ros_key(0, f"/{self.cell}/{topic}", typename)
         if key not in self._pubs:
             self._pubs[key] = self.session.declare_publisher(key)
-        n = len(self.replies)
         self._pubs[key].put(ros.serialize(message, typename))
+
+    def send(self, topic: str, typename: str, message: Any) -> dict[str, Any]:
+        """Publish a ROS command and wait for its answer on the reply key."""
+        n = len(self.replies)
+        self.pub_put(topic, typename, message)
         return wait_for(lambda: self.replies[n] if len(self.replies) > n else None, 10.0, f"a reply to {topic}")
 
     def send_json(self, kind: str, body: dict[str, Any]) -> dict[str, Any]:
@@ -407,17 +411,19 @@ def test_a_stop_goes_ahead_of_a_flood_of_jogs_and_the_backlog_does_not_move_the_
     for _ in range(3000):
         jogs.put(jog)
     stop.put(ros.serialize(ros.Empty(), ros.EMPTY))
-    i = wait_for(lambda: next((k for k, r in enumerate(client.replies[n:]) if r["command"] == "stop"), None), 10.0,
-                 "the stop's reply")
-    assert client.replies[n + i]["ok"], client.replies[n + i]
-    rig.wait_state("stopped")
+    i = n + wait_for(lambda: next((k for k, r in enumerate(client.replies[n:]) if r["command"] == "stop"), None),
+                     10.0, "the stop's reply")
+    assert client.replies[i]["ok"], client.replies[i]
     # the end of the backlog: a command queued after it is answered after it
     unmatched = ros.JointState(header=ros.header(0, ""), name=["joint_1", "joint_2"], position=np.zeros(1),
                                velocity=np.zeros(0), effort=np.zeros(0))
-    assert client.send("joint_target", ros.JOINT_STATE, unmatched)["status"] == 422
-    after_stop = [r for r in client.replies[n + i + 1:] if r["command"] == "joint_jog"]
-    assert after_stop and not any(r["ok"] for r in after_stop), "a jog queued before the stop ran after it"
-    assert any(str(r["detail"]).startswith("stale hold-to-run command: received") for r in client.replies[n:])
+    client.pub_put("joint_target", ros.JOINT_STATE, unmatched)
+    end = i + wait_for(lambda: next((k for k, r in enumerate(client.replies[i:]) if r["command"] == "joint_target"),
+                                    None), 20.0, "the backlog's end")
+    assert client.replies[end]["status"] == 422
+    assert any(r["command"] == "joint_jog" for r in client.replies[i + 1:end]), "the stop waited for every jog"
+    assert any(str(r["detail"]).startswith("stale hold-to-run command: received") for r in client.replies[n:end])
+    rig.wait_state("stopped")
     jogs.undeclare()
     stop.undeclare()
 
