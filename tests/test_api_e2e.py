@@ -99,6 +99,25 @@ def test_an_expiring_lease_stops_a_moving_arm(rig: Rig) -> None:
 # --------------------------------------------------------------------------------------- motion
 
 
+def test_a_stop_after_a_hold_to_run_ran_out_needs_a_resume(rig: Rig) -> None:
+    """The arm stopped by itself (hold-to-run expired), then an operator's stop: a jog press no longer
+    resumes it (it did: the stop answered 200 and changed nothing); resume does."""
+    h = rig.streaming()
+    rig.jog_for(h, [20.0, 0, 0, 0, 0, 0], 0.4)
+    s = rig.wait(lambda s: s["state"] == "stopped" and s["at_rest"], 3.0, "hold-to-run stop")
+    assert s["stop_reason"] == "hold-to-run expired"
+    rig.post("/api/session/stop", AUTH)
+    s = rig.state()
+    assert (s["state"], s["stop_reason"], s["resumable"]) == ("stopped", "stop requested", True), s
+    q = s["q_cmd"]
+    r = rig.http.post("/api/jog", json={"joints": [20.0, 0, 0, 0, 0, 0], "hold_ms": 200}, headers=h)
+    assert r.status_code == 409 and "resume" in r.text, r.text
+    assert rig.state()["state"] == "stopped" and rig.state()["q_cmd"] == q
+    rig.post("/api/session/resume", h)
+    assert rig.jog_for(h, [20.0, 0, 0, 0, 0, 0], 0.4) >= 4
+    assert rig.state()["q_cmd"][0] > q[0] + 1.0
+
+
 def test_start_jog_hold_to_run_target_stop_resume_end(rig: Rig) -> None:
     h = rig.streaming()
     s = rig.state()

@@ -516,6 +516,26 @@ def test_fast_trigger_escalates_a_soft_stop():
     assert ts[0].actions == () and s.stop_fast and not s.resumable
 
 
+def test_an_explicit_stop_over_a_soft_stop_takes_its_place():
+    """A stop requested while a hold-to-run that ran out (or a stale input) holds the arm: its reason
+    stands, so only a resume moves on (a jog press resumed after it, as if it had not been sent)."""
+    s, _ = steps(STATES["streaming_running"], JogExpired(), ShaperAtRest())
+    assert s.mode is Mode.STOPPED and s.stop_reason == "hold-to-run expired"
+    for start in (s, STATES["stopping_soft"]):
+        t = transition(start, StopRequested("operator stop"))
+        assert t.state.mode is start.mode and t.state.stop_reason == "operator stop" and t.actions == ()
+        assert not t.state.stop_fast and t.state.resumable
+    # A later trigger does not take it back; a fast stop is not made soft; an ending stays an ending.
+    s2, _ = steps(s, StopRequested("operator stop"), JogExpired(), InputStale("x"))
+    assert s2.stop_reason == "operator stop"
+    fast = transition(STATES["stopped_fast"], StopRequested("soft again")).state
+    assert fast.stop_fast and fast.stop_reason == STATES["stopped_fast"].stop_reason
+    ending, _ = steps(STATES["streaming_running"], EndRequested("done"))
+    assert transition(ending, StopRequested("x")).state.stop_reason == ending.stop_reason
+    s3, ts = steps(s, StopRequested("operator stop"), ResumeRequested())
+    assert s3.mode is Mode.STREAMING and ts[-1].actions == (RESUME_MOTION,)
+
+
 def test_end_after_a_fast_stop_needs_no_acknowledgement():
     _, ts = steps(STATES["stopping_fast"], EndRequested(), ShaperAtRest(), LastDataProcessed())
     assert [t.state.mode for t in ts] == [Mode.STOPPING, Mode.ENDING, Mode.ENDED]

@@ -69,6 +69,8 @@ After SIGTERM/SIGINT ("shut down") Connect, Start and Resume are refused and sta
       Signal [again, soft stop: escalate]  -> =             BEGIN_DECELERATION
   stopping, stopped:
       ResumeRequested [soft, then hold]    -> streaming     RESUME_MOTION
+  stopping, stopped:
+      StopRequested [soft on soft: its reason] -> =         -
   stopped:
       triggers [fast on soft: needs reset] -> =             -
       ResetRequested [fast: acknowledge]   -> =             -
@@ -371,7 +373,15 @@ def _stop(s: SafetyState, reason: str, fast: bool) -> Transition:
 
 
 def _on_stop(s: SafetyState, e: StopRequested) -> Transition:
-    return _stop(s, e.reason or "stop requested", bool(e.fast))
+    reason = e.reason or "stop requested"
+    t = _stop(s, reason, bool(e.fast))
+    if t.state is s and s.mode in (Mode.STOPPING, Mode.STOPPED):
+        cur = _cur(s)
+        if not cur.fast and cur.then is Then.HOLD and cur.reason != reason:
+            # An explicit stop over a soft one (a hold-to-run that ran out, a stale input): its reason
+            # stands, so what resumes by itself after those (a jog press) no longer does: resume does.
+            return _go(s, stop=replace(cur, reason=reason))
+    return t
 
 
 def _on_resume(s: SafetyState, e: ResumeRequested) -> Transition:
