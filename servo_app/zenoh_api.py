@@ -176,6 +176,8 @@ class ZenohInterface:
         # (priority, order, command): a stop goes ahead of every queued command (0), the rest in turn (1)
         self._commands: queue.PriorityQueue[tuple[int, int, _Queued | None]] = queue.PriorityQueue()
         self._order = itertools.count()
+        self.dropped = 0  # commands the full queue could not take
+        self._drop_logged_at = -math.inf
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._declared: list[Any] = []
@@ -242,12 +244,22 @@ class ZenohInterface:
         def on_sample(sample: Any) -> None:  # a Zenoh thread: queue only, never block it
             attachment = sample.attachment.to_bytes() if sample.attachment is not None else None
             if self._commands.qsize() >= limit:
-                log.warning("zenoh: command queue full, %s dropped", kind)
+                self._drop(kind)
                 return
             self._commands.put((0 if urgent else 1, next(self._order),
                                 _Queued(encoding, kind, sample.payload.to_bytes(), attachment, time.monotonic_ns())))
 
         return on_sample
+
+    def _drop(self, kind: str) -> None:
+        """A command the full queue cannot take: counted, and logged at most once a second (a flood
+        logged a line per command, thousands a second)."""
+        self.dropped += 1
+        now = time.monotonic()
+        if now - self._drop_logged_at >= 1.0:
+            self._drop_logged_at = now
+            log.warning("zenoh: command queue full: %s dropped (%d dropped since the start): a publisher sends "
+                        "faster than commands are handled", kind, self.dropped)
 
     def _command_loop(self) -> None:
         while True:
@@ -359,6 +371,9 @@ class ZenohInterface:
         named: a position target's 0 would move that axis); unknown names are refused."""
         if not names:
             return np.asarray(values, dtype=float)
+        if len(set(names)) != len(names):  # the last value won, silently
+            twice = sorted({n for n in names if names.count(n) > 1})
+            raise Refused(422, f"{what}: {twice} named more than once: name each joint once")
         if len(names) != len(values):
             raise Refused(422, f"{what}: {len(names)} joint names but {len(values)} values")
         out = np.zeros(self.n)
@@ -393,9 +408,9 @@ class ZenohInterface:
                     "angular": [math.degrees(ang.x), math.degrees(ang.y), math.degrees(ang.z)]}
         if len(m.displacements) and not len(m.velocities):
             raise Refused(422, "delta_joint_cmds: displacements are not supported; send velocities (rad/s, m/s)")
-        if math.isnan(m.duration):  # NaN > 0 is false: it was taken as no duration, the default hold
-            raise Refused(422, f"delta_joint_cmds: duration={m.duration} is not a number: send the hold time in "
-                               f"seconds, up to 2, or 0 for the default {hold_ms / 1000:g} s")
+        if not m.duration >= 0:  # NaN or negative: both were taken as no duration, the default hold
+            raise Refused(422, f"delta_joint_cmds: duration={m.duration} is not a hold time: send the hold time "
+                               f"in seconds, up to 2, or 0 for the default {hold_ms / 1000:g} s")
         if m.duration > 0:
             hold_ms = m.duration * 1000.0
         self._check_fresh(m.header, hold_ms)

@@ -396,12 +396,12 @@ def test_the_monitor_command_serves_the_cells_until_stopped(cell: tuple[Rig, Zen
 
 @pytest.mark.e2e
 def test_a_stop_goes_ahead_of_a_flood_of_jogs_and_the_backlog_does_not_move_the_arm(
-        cell: tuple[Rig, ZenohInterface, Client]) -> None:
+        cell: tuple[Rig, ZenohInterface, Client], caplog: pytest.LogCaptureFixture) -> None:
     """A node publishing unstamped jogs far faster than they are handled fills the command queue. A
     stop published then is handled next (it was dropped for the full queue, or waited behind every
     jog), and a jog that waited in the queue past its hold is refused as stale (the backlog kept the
     arm moving for a second after its sender had stopped)."""
-    rig, _, client = cell
+    rig, iface, client = cell
     streaming_for_zenoh(rig, client)
     jogs = client.session.declare_publisher(ros_key(0, "/cell_a/delta_joint_cmds", ros.JOINT_JOG))
     stop = client.session.declare_publisher(ros_key(0, "/cell_a/stop", ros.EMPTY),
@@ -426,6 +426,9 @@ def test_a_stop_goes_ahead_of_a_flood_of_jogs_and_the_backlog_does_not_move_the_
     rig.wait_state("stopped")
     jogs.undeclare()
     stop.undeclare()
+    # The jogs the full queue dropped are counted and logged at most once a second (a line each before).
+    lines = [r for r in caplog.records if "command queue full" in r.getMessage()]
+    assert len(lines) <= min(max(1, iface.dropped), 10), (len(lines), iface.dropped)
 
 
 @pytest.mark.e2e
@@ -481,5 +484,12 @@ def test_a_joint_jog_with_a_nan_duration_is_refused_naming_it(cell: tuple[Rig, Z
     r = send_fresh(client, "delta_joint_cmds", ros.JOINT_JOG,
                    lambda t: ros.joint_jog(t, ["joint_1"], [0.1], duration_s=math.nan))
     assert r["status"] == 422 and "duration=nan" in r["detail"], r
+    # A negative duration (taken as the default hold) and a joint named twice (the last value won).
+    r = send_fresh(client, "delta_joint_cmds", ros.JOINT_JOG,
+                   lambda t: ros.joint_jog(t, ["joint_1"], [0.1], duration_s=-1.0))
+    assert r["status"] == 422 and "duration=-1.0 is not a hold time" in r["detail"], r
+    r = send_fresh(client, "delta_joint_cmds", ros.JOINT_JOG,
+                   lambda t: ros.joint_jog(t, ["joint_1", "joint_1"], [0.0, 0.1]))
+    assert r["status"] == 422 and "['joint_1'] named more than once" in r["detail"], r
     s = rig.state()
     assert s["q_cmd"] == s0["q_cmd"] and s["at_rest"] and s["state"] == "streaming"
