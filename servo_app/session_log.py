@@ -246,8 +246,10 @@ def parse_header(data: bytes, path: object = "session log") -> tuple[dict[str, A
         return None
     try:
         header = json.loads(data[start:start + n])
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:  # (bytes that are not UTF-8: the latter)
         raise SessionLogError(f"{path}: header is not valid JSON: {exc}") from exc
+    if not isinstance(header, dict):  # every reader looks keys up in it
+        raise SessionLogError(f"{path}: header is not a JSON object: {json.dumps(header)[:80]}")
     return header, start + n
 
 

@@ -213,6 +213,20 @@ def test_unusable_input_exits_2_naming_the_file_and_what_to_do(tmp_path: Path) -
     assert not (tmp_path / "x.mcap").exists() and not (tmp_path / "y.mcap").exists()
     done = export(nameless, tmp_path / "y.mcap", "--model", MODEL)
     assert done.returncode == 0, done.stderr
+    # A header that is no JSON object, or no UTF-8: refused as the file's fault (a traceback before),
+    # by export and check alike.
+    import struct
+
+    from servo_app.session_log import MAGIC
+
+    for name, header in (("list.srvlog", b"[1, 2]"), ("latin.srvlog", b'{"model": "\xe9"}')):
+        bad = tmp_path / name
+        bad.write_bytes(MAGIC + struct.pack("<I", len(header)) + header)
+        for cmd in (["export", str(bad), "--mcap", str(tmp_path / "z.mcap")], ["check", str(bad)]):
+            done = subprocess.run([sys.executable, "-m", "servo_app.cli", *cmd], capture_output=True, text=True,
+                                  timeout=120)
+            assert done.returncode == 2 and "Traceback" not in done.stderr, (cmd, done.stderr)
+            assert str(bad) in done.stderr and "header is not" in done.stderr, done.stderr
 
 
 @settings(max_examples=200, deadline=None)
