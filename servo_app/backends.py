@@ -121,7 +121,9 @@ class RobotBackend(ABC):
 
         The service calls its ``call(name, *args, timeout=S)`` (``events``: the alarm list; ``reset``;
         the backend's own controls) from several threads at once, and ``stop(timeout)`` at the end.
-        A call not answered within ``timeout`` raises TimeoutError, a refused one RuntimeError."""
+        A call not answered within ``timeout`` raises TimeoutError, a refused one RuntimeError.
+        Optionally ``alive`` (its process runs) and ``restart()``: a reset starts again a simulator
+        whose process died."""
         return None
 
     @property

@@ -343,7 +343,9 @@ class ServoService:
         """The embedded controller's reset (its alarm, as at the pendant), within
         ``sim_call_timeout_s``: a stopped controller process makes the reset answer 503 well inside
         the lease, and does not reset later (it drops a request it took up too late)."""
-        if not self.sim.alive:  # its process died (killed): started again where the servo process sends
+        # Its process died (killed): started again where the servo process sends, where the simulator
+        # can (a plug-in's may have neither ``alive`` nor ``restart``).
+        if not getattr(self.sim, "alive", True) and hasattr(self.sim, "restart"):
             self._restart_simulator()
         try:
             self.sim_call("reset")
