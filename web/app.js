@@ -19,6 +19,9 @@ import {
 
 const ROBOT_POLL_MS = 100; // arm view refresh (FK on the server)
 const INPUTS_POLL_MS = 1000; // GET /api/inputs: each source's connection and errors
+// A start answers once the stream runs, or with the reason it cannot (409): that takes up to the service's
+// start_timeout_s (5 s) and request timeout (2 s), after bringing up a new servo process if one died.
+const START_TIMEOUT_MS = 15000;
 
 const api = new Api();
 const ui = { tel: null, limits: null, robot: null, lastMode: null, telemetryUp: false, inputs: null };
@@ -120,7 +123,7 @@ function stop(fast = false) {
 
 const actions = {
   start: () => action("Start", async () => {
-    await api.post("/api/session/start");
+    await api.post("/api/session/start", undefined, { timeoutMs: START_TIMEOUT_MS });
     say("session starting");
   }),
   resume: () => action("Resume", () => api.post("/api/session/resume")),
