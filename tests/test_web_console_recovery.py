@@ -16,7 +16,7 @@ from typing import Any
 
 import pytest
 import test_web_console as console
-from test_web_console import Service, sign_in, take_control_and_stream
+from test_web_console import Service, call, hold, sign_in, take_control_and_stream
 
 # The console tests' fixtures, found by pytest under these names: one browser and one service per module.
 browser = console.browser
@@ -61,3 +61,29 @@ def test_a_start_that_cannot_stream_shows_the_services_reason(page: Any, fanuc: 
     text = page.text_content("#message") or ""
     assert "no answer" not in text and "SYSRDY is off" in text, text
     streaming_again(page, fanuc)
+
+
+def test_a_takeover_mid_jog_shows_at_once_who_has_control(page: Any, fanuc: Service) -> None:
+    """Another client takes the lease (force) while the operator holds a jog button: the arm stops, the
+    pad lets go, and the console says at once that control is lost and to whom. It went on showing
+    "control: you" with Release and the pad enabled until its next lease renewal, up to 2.5 s later."""
+    sign_in(page, fanuc)
+    take_control_and_stream(page, fanuc)
+    page.check("input[name=jog-kind][value=joint]", force=True)
+    hold(page, "[data-jog='+J1']", 0.3)
+    try:
+        # Just after a renewal of the console's lease: the next one is a quarter of the TTL (2.5 s) away.
+        with page.expect_request("**/api/lease/renew", timeout=5000):
+            pass
+        call(fanuc, "POST", "/api/lease", {"client": "intruder", "force": True})
+        page.wait_for_function("document.querySelector('#release').hidden"
+                               " && document.querySelector('#take').textContent === 'Take over from intruder'"
+                               " && document.querySelector('#lease-holder').textContent === 'control: intruder'",
+                               timeout=1500)
+        assert page.locator("#jog-pad").get_attribute("class") == "jog-pad disabled"
+        assert page.locator("button.jog.held").count() == 0
+        assert "intruder" in (page.text_content("#message") or "")
+        s = fanuc.wait(lambda s: s["state"] == "stopped" and s["at_rest"], "stopped by the takeover")
+        assert s["stop_reason"].startswith("control lease lost"), s["stop_reason"]
+    finally:
+        page.mouse.up()

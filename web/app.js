@@ -255,10 +255,12 @@ function onState(s) {
     if (s.state === "fault" && jog.holding) jog.end();
     ui.lastMode = s.state;
   }
-  // Someone else may hold the lease now: the take button says so.
+  // Someone else may hold the lease now: the take button says so. Where we held it, ask the server at
+  // once whether it is still ours (a takeover would otherwise show only at the next renewal, seconds on).
   const holder = s.lease && s.lease.held ? s.lease.client : null;
   if (holder !== ui.lastHolder) {
     ui.lastHolder = holder;
+    if (lease.held) lease.renew();
     refreshControls();
   }
 }
