@@ -87,3 +87,33 @@ def test_a_takeover_mid_jog_shows_at_once_who_has_control(page: Any, fanuc: Serv
         assert s["stop_reason"].startswith("control lease lost"), s["stop_reason"]
     finally:
         page.mouse.up()
+
+
+@pytest.mark.parametrize("how", ["window-blur", "page-hidden"])
+def test_a_jog_stopped_for_lost_attention_keeps_saying_why(page: Any, fanuc: Service, how: str) -> None:
+    """The console stops a held jog when its window loses focus or its page is hidden, and says why. The
+    STOP's answer then replaced that with a bare "stop requested": an operator coming back saw a
+    stopped arm and no cause."""
+    sign_in(page, fanuc)
+    take_control_and_stream(page, fanuc)
+    page.check("input[name=jog-kind][value=joint]", force=True)
+    hold(page, "[data-jog='+J1']", 0.3)
+    try:
+        if how == "window-blur":
+            page.evaluate("window.dispatchEvent(new Event('blur'))")
+            why = "the window lost focus"
+        else:  # another tab in front: the page is hidden
+            page.evaluate("Object.defineProperty(document, 'hidden', {configurable: true, get: () => true});"
+                          " document.dispatchEvent(new Event('visibilitychange'))")
+            why = "the page was hidden"
+        # Once the STOP is answered, the message still names the cause.
+        page.wait_for_function("why => document.querySelector('#message').textContent"
+                               " === `Jog stopped: ${why} (stop requested)`", arg=why, timeout=5000)
+        assert page.locator("button.jog.held").count() == 0
+        s = fanuc.wait(lambda s: s["state"] == "stopped" and s["at_rest"], "stopped at rest")
+        assert s["stop_reason"] == "stop requested", s["stop_reason"]
+    finally:
+        page.evaluate("delete document.hidden")
+        page.mouse.up()
+    page.click("#resume")
+    fanuc.wait(lambda s: s["state"] == "streaming", "streaming after resume")

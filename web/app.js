@@ -109,15 +109,18 @@ async function action(label, fn) {
   }
 }
 
-/** STOP: never waits for anything else (jog requests queue separately), any signed-in client. */
-function stop(fast = false) {
+/** STOP: never waits for anything else (jog requests queue separately), any signed-in client.
+ * ``why``: the console stopped a jog by itself (focus or telemetry lost); the message keeps saying why. */
+function stop(fast = false, why = "") {
   jog.end();
+  if (why) sayError(`Jog stopped: ${why}`);
   if (!api.signedIn) {
     sayError("STOP needs a signed-in console: the server takes motion requests only with the token");
     return;
   }
   api.post("/api/session/stop", { fast }, { timeoutMs: 2000 })
-    .then(() => say(fast ? "fast stop requested" : "stop requested"))
+    .then(() => (why ? sayError(`Jog stopped: ${why} (stop requested)`)
+      : say(fast ? "fast stop requested" : "stop requested")))
     .catch((exc) => (exc.status === 409 ? say(`stop: ${exc.message}`) : sayError(`STOP failed: ${exc.message}`)));
 }
 
@@ -275,18 +278,14 @@ function onLink(up, why) {
   document.body.classList.toggle("offline", !up);
   if (!up && jog.holding) {
     // The operator can no longer see what the arm does: stop it (the server's hold-to-run would too).
-    stop(false);
-    sayError(`Jog stopped: ${why}`);
+    stop(false, why);
   }
 }
 
 /** Stop a held jog when the operator's attention is elsewhere. */
 function watchFocus() {
   const lost = (why) => {
-    if (jog.holding) {
-      stop(false);
-      sayError(`Jog stopped: ${why}`);
-    }
+    if (jog.holding) stop(false, why);
   };
   window.addEventListener("blur", () => lost("the window lost focus"));
   document.addEventListener("visibilitychange", () => { if (document.hidden) lost("the page was hidden"); });
