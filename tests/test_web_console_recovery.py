@@ -36,6 +36,21 @@ def servo_pid(svc: Service) -> int:
     return pid
 
 
+def simulator_pid(svc: Service) -> int:
+    """The embedded controller's process: the service's other child started by multiprocessing's spawn."""
+    servo = servo_pid(svc)
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit() and int(entry.name) != servo:
+            try:
+                status = (entry / "status").read_text()
+                cmdline = (entry / "cmdline").read_bytes()
+            except OSError:
+                continue
+            if f"PPid:\t{svc.proc.pid}\n" in status and b"spawn_main" in cmdline:
+                return int(entry.name)
+    raise AssertionError("no embedded simulator process found")
+
+
 def streaming_again(pg: Any, svc: Service) -> None:
     """Back to streaming through the console's own buttons: Reset (which also clears the embedded
     controller's alarm, as at its pendant, even where the service has no fault to reset), then Start."""
@@ -117,3 +132,28 @@ def test_a_jog_stopped_for_lost_attention_keeps_saying_why(page: Any, fanuc: Ser
         page.mouse.up()
     page.click("#resume")
     fanuc.wait(lambda s: s["state"] == "streaming", "streaming after resume")
+
+
+def test_a_reset_that_succeeds_replaces_the_refusal_of_the_one_before(page: Any, fanuc: Service) -> None:
+    """The embedded controller frozen mid-stream (SIGSTOP): Reset is refused (503, "the fault is not
+    reset: ... reset again"). Once it runs again (SIGCONT) Reset succeeds, but the console said nothing
+    and left the refusal on screen beside a state that was no longer a fault."""
+    sign_in(page, fanuc)
+    take_control_and_stream(page, fanuc)
+    sim = simulator_pid(fanuc)
+    os.kill(sim, signal.SIGSTOP)
+    try:
+        fanuc.wait(lambda s: s["state"] == "fault", "a fault for the frozen controller")
+        page.wait_for_function("document.querySelector('#mode').textContent === 'fault'")
+        page.click("#reset")
+        page.wait_for_function("document.querySelector('#message').textContent.includes('the fault is not reset')",
+                               timeout=10000)
+    finally:
+        os.kill(sim, signal.SIGCONT)
+    received = fanuc.state()["status_received"]
+    fanuc.wait(lambda s: s["status_received"] > received, "the controller answering again")
+    page.click("#reset")
+    fanuc.wait(lambda s: s["state"] != "fault", "the fault reset")
+    page.wait_for_function("document.querySelector('#message').textContent === 'reset done'", timeout=5000)
+    page.click("#start")
+    fanuc.wait(lambda s: s["state"] == "streaming", "streaming again", timeout=30)

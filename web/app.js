@@ -135,7 +135,10 @@ const actions = {
     await api.post("/api/session/end");
     setTimeout(() => logs.refresh(), 1500);
   }),
-  reset: () => action("Reset", () => api.post("/api/reset")),
+  reset: () => action("Reset", async () => {
+    await api.post("/api/reset");
+    say("reset done"); // replaces a refusal of an earlier reset ("the fault is not reset")
+  }),
   take: () => action("Take control", async () => {
     const other = ui.tel && ui.tel.lease && ui.tel.lease.held ? ui.tel.lease.client : null;
     if (other && !window.confirm(`Take control from ${other}? Their jogs will be refused.`)) return;
