@@ -339,6 +339,33 @@ def test_servo_process_killed(tmp_path: Path) -> None:
     no_children_left()
 
 
+def test_servo_process_killed_then_a_start_alone(tmp_path: Path) -> None:
+    """SIGKILL mid-jog, then a start without a reset: it brings up a new servo process, but the embedded
+    controller holds the alarm of the stream it was starved of, so the start is refused naming it. A
+    reset then clears that alarm as at the pendant and answers 200 saying so (it answered 409 "no fault
+    to reset" while it had cleared it: a refusal that changed something); a second reset has nothing
+    left to do and is refused."""
+    with running_rig(tmp_path) as rig:
+        h = rig.lease()
+        rig.start_streaming(h)
+        rig.jog_for(h, JOG, 0.3)
+        os.kill(rig.service.stream.pid, signal.SIGKILL)  # type: ignore[union-attr]
+        rig.wait_state("fault", timeout=2)
+        r = rig.post("/api/session/start", h, expect=409)
+        assert "SYSRDY is off" in r.json()["detail"], r.text
+        s = rig.state()
+        assert s["state"] == "connected" and "SYSRDY is off" in (s["not_ready"] or ""), s
+        r = rig.post("/api/reset", h)
+        assert "the embedded controller was reset, as at its pendant" in r.json()["detail"], r.text
+        rig.wait(lambda s: s["state"] == "ready" and s["not_ready"] is None, timeout=5, what="ready")
+        r = rig.post("/api/reset", h, expect=409)
+        assert "no fault to reset" in r.json()["detail"], r.text
+        rig.post("/api/session/start", h)
+        moves(rig, h)
+    assert_logs_sound(tmp_path)
+    no_children_left()
+
+
 def _spawned_servo_processes(before: set[int]) -> list[int]:
     """This process's children started since ``before`` by multiprocessing's spawn (servo processes)."""
     out = []

@@ -323,9 +323,10 @@ class ServoService:
         self.stops_by_reason[reason] += 1
         self.request(msg.Stop(reason=reason, fast=fast))
 
-    def reset(self) -> None:
+    def reset(self) -> str | None:
         """Clear a fault: the simulator's alarm (as an operator at the pendant would), then the
-        supervisor; a dead servo process is replaced by a new one (in disconnected: start next)."""
+        supervisor; a dead servo process is replaced by a new one (in disconnected: start next).
+        Returns what was done where it is not the usual (the embedded controller's alarm alone)."""
         if not self.servo_alive and self.stream is not None:
             # First the new process (about a second of warm-up), then the controller's reset: the
             # alarm the old process's silence caused (MOTN-603) has been posted by then.
@@ -333,11 +334,22 @@ class ServoService:
             if self.sim is not None:
                 self._reset_simulator("a new servo process is up, but the controller's alarm is not reset")
             self.alarm_forwarder.clear_active()
-            return
+            return None
+        not_ready = self._safety.get("not_ready")  # (before the reset: why the controller would not stream)
         if self.sim is not None:
             self._reset_simulator("the fault is not reset")  # first: if it fails, nothing has changed
-        self.request(msg.Reset())
+        try:
+            self.request(msg.Reset())
+        except CommandRejected:
+            # No fault here, but the embedded controller held one (a start alone after the servo process
+            # died found MOTN-603): its reset at the pendant was this reset's work, so it is no refusal.
+            if self.sim is None or not not_ready:
+                raise
+            self.alarm_forwarder.clear_active()
+            return (f"no fault in the service; the embedded controller was reset, as at its pendant "
+                    f"(it was not ready: {not_ready}): start when it is ready")
         self.alarm_forwarder.clear_active()  # a reset acknowledges warnings too, fault or not
+        return None
 
     def _reset_simulator(self, if_not: str) -> None:
         """The embedded controller's reset (its alarm, as at the pendant), within

@@ -144,7 +144,7 @@ class ControlPipe:
             rid = self._next_id
             with self._cv:
                 if self._ended:
-                    raise TimeoutError(f"the {self.name} process has ended: it cannot {name}")
+                    raise TimeoutError(f"the {self.name} process has ended: it cannot answer {name!r}")
                 self._waiting.add(rid)
             try:
                 self._conn.send({"id": rid, "call": name, "args": args, "deadline": deadline})
