@@ -75,6 +75,10 @@ def test_a_start_that_cannot_stream_shows_the_services_reason(page: Any, fanuc: 
                            timeout=20000)
     text = page.text_content("#message") or ""
     assert "no answer" not in text and "SYSRDY is off" in text, text
+    # Reset: what it did is said (the embedded controller's alarm, as at its pendant; no fault here).
+    page.click("#reset")
+    page.wait_for_function("document.querySelector('#message').textContent.includes('as at its pendant')",
+                           timeout=15000)
     streaming_again(page, fanuc)
 
 

@@ -22,6 +22,7 @@ const INPUTS_POLL_MS = 1000; // GET /api/inputs: each source's connection and er
 // A start answers once the stream runs, or with the reason it cannot (409): that takes up to the service's
 // start_timeout_s (5 s) and request timeout (2 s), after bringing up a new servo process if one died.
 const START_TIMEOUT_MS = 15000;
+const RESET_TIMEOUT_MS = 10000;
 
 const api = new Api();
 const ui = { tel: null, limits: null, robot: null, lastMode: null, telemetryUp: false, inputs: null };
@@ -136,8 +137,11 @@ const actions = {
     setTimeout(() => logs.refresh(), 1500);
   }),
   reset: () => action("Reset", async () => {
-    await api.post("/api/reset");
-    say("reset done"); // replaces a refusal of an earlier reset ("the fault is not reset")
+    // A reset may bring up a new servo process (about a second) and then reset the embedded
+    // controller (up to its 2 s call timeout): more than the default 3 s on a loaded PC.
+    const done = await api.post("/api/reset", undefined, { timeoutMs: RESET_TIMEOUT_MS });
+    // replaces a refusal of an earlier reset ("the fault is not reset"); says what it did where unusual
+    say(done && done.detail ? `reset: ${done.detail}` : "reset done");
   }),
   take: () => action("Take control", async () => {
     const other = ui.tel && ui.tel.lease && ui.tel.lease.held ? ui.tel.lease.client : null;
