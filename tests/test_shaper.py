@@ -12,6 +12,7 @@ from ruckig import ControlInterface, InputParameter, Ruckig, RuckigError, Synchr
 
 from servo_app.motion.limit_tables import default_tables
 from servo_app.motion.shaper import DiscreteGuard, Envelope, JointShaper, ShaperLimits, to_f32
+from servo_app.motion.stops import stop_path
 from servo_app.robots.profile import load_profile
 
 PROFILE = load_profile("lrmate200id")
@@ -329,3 +330,23 @@ def test_ruckig_errors_fall_back_without_breaking_the_limits(fail: int) -> None:
     assert sh.planning_errors >= 1 and "test" in sh.last_planning_error
     assert_within(np.array(out), dt, sh.check_limits())
     assert sh.guard.failures == 0
+
+
+def test_stop_path_where_ruckig_cannot_synchronise_is_the_less_synchronised_stop() -> None:
+    # A state seen braking between two joint targets (v and a along one line, 2 cycles from rest),
+    # from which ruckig's phase and time synchronisation raise "error in step 2": it killed the servo
+    # process (MOTN-608). The stop's path is then the unsynchronised one, as the shaper's retry makes.
+    p = np.array([0.0, 18.7537131914738, 14.5842030108084, 54.52960684713487, -93.95602147042459,
+                  14.58372181684615])
+    v = np.array([0.0, -1.720520701352601, -2.3656400562328033, 2.5038799179925375, 2.4808399410328152,
+                  -4.57747784439249])
+    a = np.array([0.0, 215.0650876690723, 295.7050070290722, -312.9849897490723, -310.1049926290718,
+                  572.1847305490716])
+    vmax = np.array([404.8633464252105, 341.8630755962448, 467.8635262177033, 494.8635841221478,
+                     490.3635751285086, 899.863837301264])
+    amax = np.array([2024.044301637268, 1709.044616637268, 2339.043986637268, 2474.043851637268,
+                     2451.543874137268, 4499.041826637268])
+    jmax = np.array([15961.56545931702, 13441.56797931702, 18481.56293931702, 19561.56185931701,
+                     19381.56203931702, 35761.54565931702])
+    path = stop_path(p, v, a, vmax, amax, jmax)
+    assert path.shape == (16, 6) and np.abs(path[-1] - p).max() < 0.05

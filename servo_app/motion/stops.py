@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from ruckig import ControlInterface, InputParameter, Result, Ruckig, Synchronization, Trajectory
+from ruckig import ControlInterface, InputParameter, Result, Ruckig, RuckigError, Synchronization, Trajectory
 
 StopMode = Literal["soft", "fast"]
 STOP_MODES: tuple[StopMode, ...] = ("soft", "fast")
@@ -19,7 +19,8 @@ STOP_MODES: tuple[StopMode, ...] = ("soft", "fast")
 
 def _plan_stop(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, vmax: np.ndarray, amax: np.ndarray,
                jmax: np.ndarray, sync: Synchronization) -> Trajectory:
-    """Ruckig's time-optimal profile from the state to rest (velocity interface)."""
+    """Ruckig's time-optimal profile from the state to rest (velocity interface); ValueError if it
+    cannot plan one."""
     n = len(pos)
     inp = InputParameter(n)
     inp.control_interface = ControlInterface.Velocity
@@ -33,7 +34,10 @@ def _plan_stop(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, vmax: np.ndarr
     inp.max_acceleration = [float(x) for x in amax]
     inp.max_jerk = [float(x) for x in jmax]
     traj = Trajectory(n)
-    result = Ruckig(n).calculate(inp, traj)
+    try:
+        result = Ruckig(n).calculate(inp, traj)
+    except RuckigError as exc:  # its rare numerical edge cases, as a failed result
+        raise ValueError(f"ruckig could not plan the stop: {exc}") from None
     if result not in (Result.Working, Result.Finished):
         raise ValueError(f"ruckig could not plan the stop: {result}")
     return traj
@@ -52,7 +56,18 @@ def time_optimal_stop_duration(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray
 def stop_path(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, vmax: np.ndarray, amax: np.ndarray,
               jmax: np.ndarray, samples: int = 16) -> np.ndarray:
     """Positions along the phase-synchronised stop the shaper would make, ``samples`` of them ending at
-    the rest position: lets a caller check a stop's path before choosing it."""
-    traj = _plan_stop(pos, vel, acc, vmax, amax, jmax, Synchronization.Phase)
+    the rest position: lets a caller check a stop's path before choosing it. Where ruckig cannot
+    synchronise (it raised "error in step 2" for a new target about once a second when joint targets
+    replaced each other every 5 ms: from the states of the stops they cause), the less synchronised
+    stop the shaper then makes (``JointShaper._replan``); ValueError if none plans."""
+    error = ValueError("no synchronization tried")
+    for sync in (Synchronization.Phase, Synchronization.Time, Synchronization.No):
+        try:
+            traj = _plan_stop(pos, vel, acc, vmax, amax, jmax, sync)
+            break
+        except ValueError as exc:
+            error = exc
+    else:
+        raise error
     times = np.linspace(traj.duration / samples, traj.duration, samples)
     return np.array([traj.at_time(float(t))[0] for t in times])
