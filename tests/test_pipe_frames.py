@@ -93,3 +93,45 @@ def test_a_request_goes_through_whole_and_a_closed_parent_is_end_of_file() -> No
     with pytest.raises(EOFError):
         end.read()
     child.close()
+
+
+def test_a_big_request_is_read_over_several_passes_of_the_servo_loop() -> None:
+    """The servo process's request poll reads at most READS_PER_PASS times a pass: a request of
+    megabytes (a long trajectory's plan) arrives over several passes, the statuses between them
+    answered (read whole in one pass, 9.5 MB held a 4 ms cycle up ~17 ms: MOTN-603)."""
+    import threading
+
+    from servo_app.process_handle import READS_PER_PASS, ServoProcessHost
+
+    class Host(ServoProcessHost):
+        def __init__(self, conn: mp.connection.Connection) -> None:  # only the pipe's part
+            self.pipe, self.parent_gone = PipeEnd(conn), False
+            self._pipe_poll = select.poll()
+            self._pipe_poll.register(conn.fileno(), select.POLLIN)
+            self.handled: list[msg.Envelope] = []
+
+        def _handle(self, env: msg.Envelope) -> None:
+            self.handled.append(env)
+
+    parent, child = mp.Pipe()
+    with parent, child:
+        host = Host(child)
+        big = msg.Envelope(9, msg.Twist(linear=(0.0, 0.0, 0.0), source="s" * (4 * READS_PER_PASS << 16)))
+        sender = threading.Thread(target=parent.send, args=(big,))  # (~4 passes' worth)
+        sender.start()
+        passes = 0
+        while not host.handled:
+            assert select.select([child], [], [], 5.0)[0] and passes < 100, passes
+            host._poll_requests()
+            passes += 1
+        sender.join(5.0)
+        assert host.handled == [big] and passes >= 4, passes
+        small = [msg.Envelope(i, msg.Twist(linear=(float(i), 0.0, 0.0))) for i in range(3)]
+        for env in small:  # the usual requests: one read each, all in one pass
+            parent.send(env)
+        host.handled.clear()
+        while len(host.handled) < 3:
+            assert select.select([child], [], [], 5.0)[0]
+            host._poll_requests()
+        assert host.handled == small
+
