@@ -20,6 +20,7 @@ from servo_app.motion.limit_tables import default_tables
 from servo_app.motion.servo import ServoCycle
 from servo_app.motion.trajectory import (
     DONE,
+    MAX_SAMPLES,
     PAUSED,
     TrajectoryPlanner,
     TrajectoryRefused,
@@ -167,6 +168,16 @@ def test_times_are_honoured_when_feasible_and_refused_when_not() -> None:
     assert abs(slow.duration_s - 3.0) < 0.05
     with pytest.raises(TrajectoryRefused, match="times"):
         p.plan(p.joint_segments(HOME, w, [0.0, 0.05]))
+
+
+def test_a_plan_the_servo_process_could_not_take_between_two_statuses_is_refused() -> None:
+    """790 s at 4 ms (197 504 samples) was planned, and the servo process taking it whole between two
+    statuses held the cycle up long enough for MOTN-603; over MAX_SAMPLES is refused, saying to split."""
+    p = TrajectoryPlanner.for_stream(PROFILE, 0.004, TABLES, HOME)  # type: ignore[arg-type]
+    w = np.array([HOME, HOME + np.array([90.0, 0, 0, 0, 0, 0])])
+    with pytest.raises(TrajectoryRefused, match="would last over 400 s: split it"):
+        p.plan(p.joint_segments(HOME, w, [0.0, 790.0]))
+    assert len(p.plan(p.joint_segments(HOME, w, [0.0, 390.0])).samples) <= MAX_SAMPLES
 
 
 def test_a_waypoint_out_of_range_is_refused_by_index() -> None:

@@ -56,7 +56,10 @@ SLOWDOWN = 0.8
 DENSE_KNOT_DEG = 0.25  # a dense path keeps a knot every this many deg (chord) for its spline
 CART_STEP_MM = 2.0  # Cartesian segments are solved every this many mm ...
 CART_STEP_DEG = 1.0  # ... and this many deg of orientation
-MAX_SAMPLES = 200_000  # 26 min at 8 ms: a plan beyond this is refused
+# 13 min at 8 ms, 6.7 at 4 ms: a plan beyond this is refused. The servo process takes a plan whole
+# between two statuses (unpickled, checked, copied: ~95 ns a sample here, 9.5 ms for 100 000, no alarm
+# at 4 ms with lead 2); 197 504 samples at 4 ms held the cycle up long enough for MOTN-603.
+MAX_SAMPLES = 100_000
 
 
 class TrajectoryRefused(ValueError):
