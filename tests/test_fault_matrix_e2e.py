@@ -339,6 +339,16 @@ def test_servo_process_killed(tmp_path: Path) -> None:
     no_children_left()
 
 
+def servo_killed_mid_jog(rig: Rig) -> dict[str, str]:
+    """Stream, jog, SIGKILL the servo process, and wait for the fault; the lease's headers."""
+    h = rig.lease()
+    rig.start_streaming(h)
+    rig.jog_for(h, JOG, 0.3)
+    os.kill(rig.service.stream.pid, signal.SIGKILL)  # type: ignore[union-attr]
+    rig.wait_state("fault", timeout=2)
+    return h
+
+
 def test_servo_process_killed_then_a_start_alone(tmp_path: Path) -> None:
     """SIGKILL mid-jog, then a start without a reset: it brings up a new servo process, but the embedded
     controller holds the alarm of the stream it was starved of, so the start is refused naming it. A
@@ -346,11 +356,7 @@ def test_servo_process_killed_then_a_start_alone(tmp_path: Path) -> None:
     to reset" while it had cleared it: a refusal that changed something); a second reset has nothing
     left to do and is refused."""
     with running_rig(tmp_path) as rig:
-        h = rig.lease()
-        rig.start_streaming(h)
-        rig.jog_for(h, JOG, 0.3)
-        os.kill(rig.service.stream.pid, signal.SIGKILL)  # type: ignore[union-attr]
-        rig.wait_state("fault", timeout=2)
+        h = servo_killed_mid_jog(rig)
         r = rig.post("/api/session/start", h, expect=409)
         assert "SYSRDY is off" in r.json()["detail"], r.text
         s = rig.state()
@@ -381,11 +387,7 @@ def test_servo_process_killed_again_while_reset_starts_its_replacement(tmp_path:
     answers 503 naming how the new process ended and what to do; the state names the fault (not
     "starting"); the next reset recovers, over REST alone."""
     with running_rig(tmp_path) as rig:
-        h = rig.lease()
-        rig.start_streaming(h)
-        rig.jog_for(h, JOG, 0.3)
-        os.kill(rig.service.stream.pid, signal.SIGKILL)  # type: ignore[union-attr]
-        rig.wait_state("fault", timeout=2)
+        h = servo_killed_mid_jog(rig)
         before = set(children_of(os.getpid()))
         answer: list[httpx.Response] = []
         reset = threading.Thread(target=lambda: answer.append(

@@ -16,7 +16,7 @@ import can
 import pytest
 from waiting import wait_for, wait_until
 
-from servo_app.inputs import ConfigError, Measurement, create_adapter, load_inputs_config
+from servo_app.inputs import ConfigError, InputAdapter, Measurement, create_adapter, load_inputs_config
 from servo_app.inputs.can_sensor.adapter import CanSensorAdapter
 from servo_app.inputs.can_sensor.decoders import CanMessageLayout, DbcDecoder, FrameProblem, LayoutDecoder
 from servo_app.inputs.can_sensor.slcan import MAX_LINE, SlcanBus
@@ -208,11 +208,16 @@ class SlcanDevice:
         os.close(self.slave)
 
 
+def distance_over_slcan(dev: SlcanDevice) -> InputAdapter:
+    """The DBC distance sensor's adapter on ``dev``'s pty (500 kbit/s)."""
+    return create_adapter({"type": "can", "name": "dist", "interface": "slcan", "channel": dev.path,
+                           "bitrate": 500000, "bus_options": {"sleep_after_open": 0}, "dbc": str(DBC),
+                           "messages": ["Distance"], "poll_timeout_s": 0.02})
+
+
 def test_distance_sensor_over_slcan_pty() -> None:
     dev = SlcanDevice()
-    a = create_adapter({"type": "can", "name": "dist", "interface": "slcan", "channel": dev.path,
-                        "bitrate": 500000, "bus_options": {"sleep_after_open": 0}, "dbc": str(DBC),
-                        "messages": ["Distance"], "poll_timeout_s": 0.02})
+    a = distance_over_slcan(dev)
     try:
         with a:
             dev.serve_until_open()
@@ -268,9 +273,7 @@ def test_garbled_slcan_lines_are_malformed_frames_and_the_port_stays_open() -> N
     with its bytes; the port stays open and the frames around it are read. (A non-ASCII byte used to
     be taken for an unplugged sensor: the port was closed and reopened, the readings stale meanwhile.)"""
     dev = SlcanDevice()
-    a = create_adapter({"type": "can", "name": "dist", "interface": "slcan", "channel": dev.path,
-                        "bitrate": 500000, "bus_options": {"sleep_after_open": 0}, "dbc": str(DBC),
-                        "messages": ["Distance"], "poll_timeout_s": 0.02})
+    a = distance_over_slcan(dev)
     try:
         with a:
             dev.serve_until_open()

@@ -338,6 +338,7 @@ class ServoService:
         not_ready = self._safety.get("not_ready")  # (before the reset: why the controller would not stream)
         if self.sim is not None:
             self._reset_simulator("the fault is not reset")  # first: if it fails, nothing has changed
+        done = None
         try:
             self.request(msg.Reset())
         except CommandRejected:
@@ -345,11 +346,10 @@ class ServoService:
             # died found MOTN-603): its reset at the pendant was this reset's work, so it is no refusal.
             if self.sim is None or not not_ready:
                 raise
-            self.alarm_forwarder.clear_active()
-            return (f"no fault in the service; the embedded controller was reset, as at its pendant "
+            done = (f"no fault in the service; the embedded controller was reset, as at its pendant "
                     f"(it was not ready: {not_ready}): start when it is ready")
         self.alarm_forwarder.clear_active()  # a reset acknowledges warnings too, fault or not
-        return None
+        return done
 
     def _reset_simulator(self, if_not: str) -> None:
         """The embedded controller's reset (its alarm, as at the pendant), within
