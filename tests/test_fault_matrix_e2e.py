@@ -581,14 +581,21 @@ def test_embedded_controller_killed_then_reset_starts_it_again(tmp_path: Path) -
         assert svc.sim is not None
         address, old_pid = svc.sim.address, svc.sim.process.pid
         h = rig.lease()
-        rig.start_streaming(h)
+        s0 = rig.start_streaming(h)
         rig.jog_for(h, JOG, 0.3)
         os.kill(old_pid, signal.SIGKILL)
         s = rig.wait_state("fault", timeout=5)
         assert "status packets lost while streaming" in s["fault"]["message"], s["fault"]
         s = rig.wait(lambda s: "process has ended" in (s["alarm_poll_error"] or ""), timeout=5, what="poll error")
-        recover(rig, h)
+        last = s["q_servo"]  # where the controller last said the arm was (the jog moved it off its start)
+        assert abs(last[0] - s0["q_servo"][0]) > 1.0, (s0["q_servo"], last)
+        rig.post("/api/reset", h)
         assert svc.sim.process.pid != old_pid and svc.sim.address == address and svc.sim.alive
+        # The new controller's arm is where the killed one's stopped, not back at the initial joints
+        # (its status flows from the start; the stream holds it still until a jog).
+        s = rig.start_streaming(h)
+        assert s["q_servo"] == pytest.approx(last, abs=1e-3), (last, s["q_servo"])
+        moves(rig, h)
         assert rig.state()["alarm_poll_error"] is None
         rig.start_streaming(h)
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as other:

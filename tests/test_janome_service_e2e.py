@@ -56,9 +56,12 @@ def test_embedded_robot_killed_then_reset_brings_it_back(tmp_path: os.PathLike[s
         os.kill(killed, signal.SIGKILL)
         s = rig.wait_state("fault", timeout=10)
         assert s["fault"]["message"].startswith("connection lost while"), s["fault"]
+        last = s["q_servo"][:4]  # where the robot last said it was
         rig.post("/api/reset", h)
         s = rig.wait_state("ready", timeout=30)
         assert s["fault"] is None and s["robot_connected"], s
+        # The new robot stands where the killed one stopped, not at its home (a jump no arm makes).
+        assert s["q_servo"][:4] == pytest.approx(last, abs=1e-3), (last, s["q_servo"])
         assert rig.service.sim.process.pid != killed and not alive(killed)
         s0 = rig.start_streaming(h)
         rig.jog_for(h, [40.0, 0.0, 0.0, 0.0], 0.6, hold_ms=500)

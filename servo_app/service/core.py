@@ -370,7 +370,11 @@ class ServoService:
         """A new embedded simulator in place of one whose process died: as a controller after a power
         cycle, no alarm posted, the tool's payload set again; its alarm list starts anew."""
         log.warning("the embedded simulator's process has ended: starting it again")
-        self.sim.restart()
+        # With the arm where the last status had it (its brakes held it there), not at the initial
+        # position: a jump of the feedback a real arm never makes.
+        last = self.state_vector()
+        at = last.get("q_servo") if last.get("status_received") else None
+        self.sim.restart(at=at)
         self._set_simulator_payload(self.tools.active.payload_kg)
         self.alarm_forwarder.skip_past()
 

@@ -20,7 +20,7 @@ import multiprocessing as mp
 import signal
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from multiprocessing.connection import Connection
 from typing import Any
 
@@ -227,11 +227,14 @@ class SimulatorProcess:
     def alive(self) -> bool:
         return self.process.is_alive()
 
-    def restart(self, timeout: float = 30.0) -> None:
+    def restart(self, timeout: float = 30.0, at: Sequence[float] | None = None) -> None:
         """After its process died (killed): a new controller at the same address, where the servo
-        process sends, with no alarm posted, as a controller after a power cycle."""
+        process sends, with no alarm posted, as a controller after a power cycle: with the arm at ``at``
+        (FANUC deg, the last status's joints), where its brakes held it, not at the initial joints."""
         self.stop(timeout=1.0)
         self._kwargs["port"] = self.address[1]
+        if at is not None:
+            self._kwargs["initial_joints"] = [float(v) for v in at]
         self._launch()
         self.start(timeout)
 
@@ -263,14 +266,15 @@ class SimulatorProcess:
             self.pipe.close()
 
 
-def _serve_janome(server: tuple[str, int], model: str, conn: Connection) -> None:
+def _serve_janome(server: tuple[str, int], model: str, conn: Connection,
+                  start: tuple[float, ...] | None = None) -> None:
     from servo_app.sim.janome_sim import JanomeSimulator
 
     # Ctrl-C reaches the whole process group: the robot must keep answering while the servo process
     # ends its stream (END, the robot's BYE). It ends when its parent says quit or goes away.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # repeat: like a point job in a loop, it connects again after each session
-    sim = JanomeSimulator(server, model, repeat=True).start()
+    sim = JanomeSimulator(server, model, start=start, repeat=True).start()
     conn.send({"ok": True})
     try:
         while not conn.poll(0.5) or conn.recv().get("call") != "quit":
@@ -291,11 +295,11 @@ class JanomeSimulatorProcess:
         self._stopped = False
         self._launch()
 
-    def _launch(self) -> None:
+    def _launch(self, start: tuple[float, ...] | None = None) -> None:
         ctx = mp.get_context("spawn")
         self._conn, child = ctx.Pipe()
-        self.process = ctx.Process(target=_serve_janome, args=(self.address, self.model, child), name="janome-sim",
-                                   daemon=True)
+        self.process = ctx.Process(target=_serve_janome, args=(self.address, self.model, child, start),
+                                   name="janome-sim", daemon=True)
 
     def start(self, timeout: float = 30.0) -> JanomeSimulatorProcess:
         self.process.start()
@@ -316,15 +320,16 @@ class JanomeSimulatorProcess:
     def alive(self) -> bool:
         return self.process.is_alive()
 
-    def restart(self, timeout: float = 30.0) -> None:
-        """After its process died (killed): the point job started again, as its operator would; it
-        connects once up (this does not wait for that)."""
+    def restart(self, timeout: float = 30.0, at: Sequence[float] | None = None) -> None:
+        """After its process died (killed): the point job started again, as its operator would, with
+        the arm at ``at`` (X, Y, Z, R: the last status's position, where it stopped; the profile's elbow);
+        it connects once up (this does not wait for that)."""
         with self._lock:
             if self._stopped or self.process.is_alive():
                 return
             self.process.join(0)
             self._conn.close()
-            self._launch()
+            self._launch(None if at is None else tuple(float(v) for v in at[:4]))
             self.process.start()
 
     def events(self) -> list[dict[str, Any]]:
