@@ -255,6 +255,25 @@ def test_replay_refuses_samples_that_do_not_start_at_rest_here() -> None:
         streaming_cycle().check_replay(nan)
 
 
+def test_replay_refuses_a_value_float32_cannot_hold_and_takes_the_plan_as_float32_values() -> None:
+    """A value past float32's range would go on the wire as inf: refused at once, naming the value as
+    sent (it used to pass, and only the cycle's guard stopped the replay at that sample). A float64
+    plan is taken as its float32 values, the same as the float32 plan the service sends."""
+    p = planner()
+    traj = p.plan(p.joint_segments(HOME, np.array([HOME + np.array([10.0, 0, 0, 0, 0, 0])]), None))
+    big = traj.samples.astype(np.float64)
+    big[9, 4] = 1e39
+    with pytest.raises(CommandRejected, match=r"joints\[9\]\[4\]=1e\+39 is not a finite number"):
+        streaming_cycle().check_replay(big)
+    cycle = streaming_cycle()
+    as32 = cycle.check_replay(traj.samples.astype(np.float32))
+    assert as32.dtype == np.float64
+    assert np.array_equal(as32, cycle.check_replay(traj.samples.astype(np.float64)))
+    assert np.array_equal(as32, traj.samples.astype(np.float32).astype(np.float64))
+    with pytest.raises(CommandRejected, match="expected numbers"):
+        cycle.check_replay(np.full((3, 6), "x"))
+
+
 @pytest.mark.parametrize("defect", ["jump", "out of range"])
 def test_a_bad_sample_is_not_sent_the_replay_ends_and_the_arm_stops_within_the_limits(defect: str) -> None:
     p = planner()
