@@ -322,6 +322,26 @@ def test_config_errors_name_file_key_value(tmp_path: Path) -> None:
         load_inputs_config(tmp_path / "missing.toml")
 
 
+def test_settings_that_would_defeat_staleness_or_reverse_a_jog_are_refused(tmp_path: Path) -> None:
+    """TOML spells inf and nan: stale_after_s = inf would keep an unplugged device's last twist live,
+    and a negative scale reverses every direction of a SpaceMouse or a pad. Each is named with its value."""
+    p = tmp_path / "inputs.toml"
+    p.write_text(
+        '[adapters.sm]\ntype = "spacemouse"\nstale_after_s = inf\nscale = -1.0\n'
+        '[adapters.nav]\ntype = "spacenav"\nscale = nan\nmax_linear_mm_s = inf\n'
+        '[adapters.pad]\ntype = "gamepad"\nscale = 0.0\nreconnect_max_s = inf\n'
+        '[adapters.probe]\ntype = "serial_line"\nport = "/dev/x"\nstale_after_s = inf\n'
+        '[adapters.probe.fields.d]\npattern = "D=([0-9]+)"\n'
+    )
+    with pytest.raises(ConfigError) as ei:
+        load_inputs_config(p)
+    keys = {(i.key, repr(i.value)) for i in ei.value.issues}
+    assert keys == {("adapters.sm.stale_after_s", "inf"), ("adapters.sm.scale", "-1.0"), ("adapters.nav.scale", "nan"),
+                    ("adapters.nav.max_linear_mm_s", "inf"), ("adapters.pad.scale", "0.0"),
+                    ("adapters.pad.reconnect_max_s", "inf"), ("adapters.probe.stale_after_s", "inf")}, keys
+    assert create_adapter({"type": "gamepad", "name": "pad", "scale": 0.5}).config.scale == 0.5
+
+
 def test_inputs_never_import_the_robot_side() -> None:
     forbidden = ("servo_app.fanuc", "servo_app.janome", "servo_app.motion", "servo_app.robots",
                  "servo_app.safety", "servo_app.sim", "servo_app.api", "servo_app.cli", "servo_app.service")

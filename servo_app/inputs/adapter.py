@@ -36,7 +36,9 @@ RobotState = Callable[[], Mapping[str, Any]]  # the servo process's published st
 class AdapterConfig(BaseModel):
     """Settings common to all adapters; each adapter type extends this with its own."""
 
-    model_config = ConfigDict(extra="forbid")
+    # No inf or nan in any setting: TOML spells both, and stale_after_s = inf would mean a device
+    # unplugged mid-jog never goes stale (the arm runs on until the servo's own hold cap runs out).
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     name: str = Field(min_length=1)
     type: str

@@ -60,6 +60,9 @@ class GamepadConfig(AdapterConfig):
     rumble_on_fault: bool = True
     rumble_strength: float = Field(1.0, gt=0.0, le=1.0)
     rumble_s: PositiveFloat = 0.5
+    # One overall speed factor: above 0, since a negative one reverses every stick (a leading "-" in
+    # axes flips one) and 0 makes a live source that never moves.
+    scale: float = Field(1.0, gt=0.0)  # type: ignore[assignment]
 
     @field_validator("axes")
     @classmethod
@@ -87,9 +90,9 @@ class GamepadConfig(AdapterConfig):
                 raise ValueError(f"button {button}: {exc}") from None
         return v
 
-    @field_validator("scale")
+    @field_validator("scale", mode="before")
     @classmethod
-    def _scalar_scale(cls, v: float | dict[str, float]) -> float | dict[str, float]:
+    def _scalar_scale(cls, v: object) -> object:
         if isinstance(v, dict):
             raise ValueError("the gamepad takes one overall scale factor")
         return v
@@ -103,7 +106,7 @@ class GamepadConfig(AdapterConfig):
         return PadMapping.from_names(
             self.axes, self.deadman, self.buttons, deadband=self.deadband, expo=self.expo,
             max_linear_mm_s=self.max_linear_mm_s, max_angular_deg_s=self.max_angular_deg_s,
-            scale=float(self.scale),  # type: ignore[arg-type]
+            scale=self.scale,
         )
 
 

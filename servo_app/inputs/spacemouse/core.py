@@ -33,6 +33,9 @@ class SpaceMouseConfig(AdapterConfig):
     axis_signs: list[int] = Field(default_factory=lambda: list(DEFAULT_AXIS_SIGNS), min_length=6, max_length=6)
     frames: list[str] = Field(default_factory=lambda: ["base", "tool"], min_length=1)
     buttons: dict[int, str] = Field(default_factory=dict)
+    # One overall speed factor: above 0, since a negative one reverses every direction of the cap
+    # (axis_signs flips single axes) and 0 makes a live source that never moves.
+    scale: float = Field(1.0, gt=0.0)  # type: ignore[assignment]
 
     @field_validator("buttons")
     @classmethod
@@ -58,9 +61,9 @@ class SpaceMouseConfig(AdapterConfig):
             raise ValueError("each sign must be 1 or -1")
         return v
 
-    @field_validator("scale")
+    @field_validator("scale", mode="before")
     @classmethod
-    def _scalar_scale(cls, v: float | dict[str, float]) -> float | dict[str, float]:
+    def _scalar_scale(cls, v: object) -> object:
         if isinstance(v, dict):
             raise ValueError("the SpaceMouse takes one overall scale factor")
         return v
@@ -79,7 +82,7 @@ class SpaceMouseCore:
             full_scale=cfg.full_scale, deadband=cfg.deadband, curve=cfg.curve, dominant_axis=cfg.dominant_axis,
             translation=cfg.translation, rotation=cfg.rotation, max_linear_mm_s=cfg.max_linear_mm_s,
             max_angular_deg_s=cfg.max_angular_deg_s, axis_map=tuple(cfg.axis_map),
-            axis_signs=tuple(cfg.axis_signs), scale=float(cfg.scale),  # type: ignore[arg-type]
+            axis_signs=tuple(cfg.axis_signs), scale=cfg.scale,
         )
 
     @property
