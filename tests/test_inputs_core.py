@@ -27,6 +27,7 @@ from servo_app.inputs import (
     adapter_types,
     create_adapter,
     load_inputs_config,
+    parse_inputs_config,
     register_adapter,
 )
 from servo_app.inputs.shaping import clamp_norm, cubic_blend, deadband, deadband_normalized
@@ -340,6 +341,23 @@ def test_settings_that_would_defeat_staleness_or_reverse_a_jog_are_refused(tmp_p
                     ("adapters.nav.max_linear_mm_s", "inf"), ("adapters.pad.scale", "0.0"),
                     ("adapters.pad.reconnect_max_s", "inf"), ("adapters.probe.stale_after_s", "inf")}, keys
     assert create_adapter({"type": "gamepad", "name": "pad", "scale": 0.5}).config.scale == 0.5
+
+
+def test_a_jog_device_frame_the_servo_lacks_is_refused_when_the_file_loads() -> None:
+    """It used to load, and once toggle_frame reached it the bridge refused every sample: the arm
+    stopped answering the device with nothing said at start-up."""
+    data = {"adapters": {t: {"type": t, "frames": ["base", "world"]} for t in ("spacemouse", "spacenav", "gamepad")}}
+    with pytest.raises(ConfigError) as ei:
+        parse_inputs_config(data, file="in.toml")
+    assert [(i.key, i.value) for i in ei.value.issues] == [(f"adapters.{t}.frames", ["base", "world"])
+                                                           for t in ("spacemouse", "spacenav", "gamepad")]
+    assert all("'world' is not a frame" in i.reason and "base, tool" in i.reason for i in ei.value.issues)
+    assert parse_inputs_config({"adapters": {"pad": {"type": "gamepad", "frames": ["tool"]}}}).adapters[0].frames == \
+        ["tool"]
+    from servo_app.input_slot import FRAMES
+    from servo_app.inputs.samples import TWIST_FRAMES
+
+    assert TWIST_FRAMES == FRAMES  # the inputs' list is the servo's
 
 
 def test_inputs_never_import_the_robot_side() -> None:

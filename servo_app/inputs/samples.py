@@ -13,6 +13,17 @@ from types import MappingProxyType
 
 from servo_app.inputs.validate import ValueRejected, check_finite
 
+# The frames the servo process takes a twist in (servo_app.input_slot.FRAMES; a test checks they agree).
+TWIST_FRAMES = ("base", "tool")
+
+
+def check_twist_frames(frames: Sequence[str]) -> list[str]:
+    """A jog device's frames (its toggle_frame steps through them); ValueError naming one the servo lacks."""
+    for f in frames:
+        if f not in TWIST_FRAMES:
+            raise ValueError(f"{f!r} is not a frame a twist is commanded in: one of {', '.join(TWIST_FRAMES)}")
+    return list(frames)
+
 
 def _vector(name: str, values: Sequence[float], n: int) -> tuple[float, ...]:
     if len(values) != n:

@@ -32,7 +32,7 @@ from servo_app.inputs.gamepad.mapping import (
     parse_source,
 )
 from servo_app.inputs.gamepad.sdl import NoPad, SdlControllers, SdlPad
-from servo_app.inputs.samples import TwistSample
+from servo_app.inputs.samples import TwistSample, check_twist_frames
 
 # Left stick: X forward/back, Y left/right; right stick: Z up/down and yaw; triggers roll; D-pad pitch.
 DEFAULT_AXES = {"x": "-lefty", "y": "-leftx", "z": "-righty", "rx": "righttrigger-lefttrigger", "ry": "dpup-dpdown",
@@ -72,6 +72,13 @@ class GamepadConfig(AdapterConfig):
                 raise ValueError(f"{component!r} is not a twist component: one of {', '.join(COMPONENTS)}")
             parse_source(source)
         return v
+
+    @field_validator("frames")
+    @classmethod
+    def _frames(cls, v: list[str]) -> list[str]:
+        # Checked here: a frame the servo lacks loaded silently, and after toggle_frame reached it
+        # every sample was refused and the arm stopped answering.
+        return check_twist_frames(v)
 
     @field_validator("deadman")
     @classmethod

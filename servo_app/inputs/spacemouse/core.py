@@ -15,7 +15,7 @@ from pydantic import Field, PositiveFloat, field_validator
 
 from servo_app.inputs.actions import LOCAL_ACTIONS, parse_action
 from servo_app.inputs.adapter import AdapterConfig
-from servo_app.inputs.samples import ButtonEvent, TwistSample
+from servo_app.inputs.samples import ButtonEvent, TwistSample, check_twist_frames
 from servo_app.inputs.spacemouse.shaping import DEFAULT_AXIS_SIGNS, Shaping, shape
 
 
@@ -46,6 +46,13 @@ class SpaceMouseConfig(AdapterConfig):
             except ValueError as exc:
                 raise ValueError(f"button {button}: {exc}") from None
         return v
+
+    @field_validator("frames")
+    @classmethod
+    def _frames(cls, v: list[str]) -> list[str]:
+        # Checked here: a frame the servo lacks loaded silently, and after toggle_frame reached it
+        # every sample was refused and the arm stopped answering.
+        return check_twist_frames(v)
 
     @field_validator("axis_map")
     @classmethod
