@@ -237,6 +237,27 @@ def test_hid_adapter_thread_drains_and_reconnects_after_unplug() -> None:
         assert a.status().problems["open_failed"] == 1 and a.status().connects == 2
 
 
+def test_a_button_held_at_unplug_is_heard_when_pressed_after_the_replug() -> None:
+    """The device reports buttons only on change: the mask from before the unplug must not swallow
+    the first press (a gripper's output, the frame toggle) of the button that was held then."""
+    devices: list[FakeHid] = []
+
+    def open_device(cfg: SpaceMouseHidConfig) -> FakeHid:
+        devices.append(FakeHid())
+        return devices[-1]
+
+    a = SpaceMouseHidAdapter(hid_config(), open_device=open_device)
+    with a:
+        wait_for(a.output, lambda s: s.is_zero())
+        devices[0].feed(BUTTON_1_PRESS)  # held while the cable is pulled
+        assert (ev := a.events.get(timeout=15.0)) is not None and ev.pressed
+        devices[0].unplug()
+        wait_for(a.output, lambda s: len(devices) == 2 and a.connected)
+        devices[1].feed(BUTTON_1_PRESS)  # released meanwhile, now pressed again
+        ev = a.events.get(timeout=15.0)
+        assert ev is not None and (ev.button, ev.pressed, ev.action) == (1, True, "toggle_output:DO[1]")
+
+
 def test_hid_enumeration_filter() -> None:
     cfg = hid_config()
     devices = [

@@ -100,6 +100,12 @@ class SpaceMouseCore:
     def at_rest(self) -> bool:
         return not any(self.raw)
 
+    def reset(self) -> None:
+        """A device (re)opened: nothing is deflected or held. The device reports buttons only when they
+        change, so a mask kept from before an unplug would swallow the next press of a button held then."""
+        self.raw = [0] * 6
+        self.buttons = 0
+
     def set_axes(self, translation: Sequence[int] | None, rotation: Sequence[int] | None) -> None:
         if translation is not None:
             self.raw[0:3] = list(translation)

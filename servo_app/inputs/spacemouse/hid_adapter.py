@@ -84,8 +84,8 @@ class SpaceMouseHidAdapter(InputAdapter):
 
     def _open(self) -> None:
         self._dev = self._open_device(self.config)
-        # Whatever was deflected before an unplug is not deflected now.
-        self.core.set_axes((0, 0, 0), (0, 0, 0))
+        # Whatever was deflected or held before an unplug is not now.
+        self.core.reset()
 
     def explain_open_failure(self, exc: BaseException) -> DeviceFailure:
         c = self.config

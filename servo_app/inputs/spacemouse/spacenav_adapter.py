@@ -46,7 +46,7 @@ class SpaceNavAdapter(InputAdapter):
 
     def _open(self) -> None:
         self.client.connect(timeout_s=max(self.config.poll_timeout_s, 0.5))
-        self.core.set_axes((0, 0, 0), (0, 0, 0))
+        self.core.reset()
 
     def _close(self) -> None:
         self.client.close()
