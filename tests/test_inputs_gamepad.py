@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from waiting import wait_for, wait_until
+from waiting import assert_refreshed_within, wait_for, wait_until
 
 from servo_app.inputs import (
     ButtonEvent,
@@ -316,6 +316,14 @@ def test_unplugged_mid_jog_goes_quiet_reports_and_reconnects_not_running(pad: Vi
             wait_for(a.output, lambda s: s.linear[1] == 100.0)
         finally:
             again.close()
+
+
+def test_a_pad_at_rest_stays_live_whatever_the_poll_timeout(pad: VirtualPad) -> None:
+    """The pad is refreshed at most once per poll: poll_timeout_s at or above stale_after_s let the
+    resting pad go stale between polls (the arm stopped for a lost input nobody had touched)."""
+    with adapter(stale_after_s=0.2, poll_timeout_s=1.0) as a:
+        wait_for(a.output, lambda s: s.is_zero())
+        assert_refreshed_within(a.output, 0.2)
 
 
 def test_a_new_robot_fault_rumbles_the_pad_once(pad: VirtualPad) -> None:

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from waiting import wait_for
+from waiting import assert_refreshed_within, wait_for
 
 from servo_app.inputs import ButtonEvent, TwistSample, create_adapter
 from servo_app.inputs.actions import OutputToggle, parse_action
@@ -256,6 +256,22 @@ def test_a_button_held_at_unplug_is_heard_when_pressed_after_the_replug() -> Non
         devices[1].feed(BUTTON_1_PRESS)  # released meanwhile, now pressed again
         ev = a.events.get(timeout=15.0)
         assert ev is not None and (ev.button, ev.pressed, ev.action) == (1, True, "toggle_output:DO[1]")
+
+
+def test_a_cap_at_rest_stays_live_whatever_the_poll_timeout(tmp_path: Path) -> None:
+    """A cap at rest is refreshed once per poll; a poll_timeout_s at or above stale_after_s let the
+    resting source go stale between polls (the arm stopped for a lost input nobody had touched)."""
+    slow = {"stale_after_s": 0.2, "poll_timeout_s": 1.0}
+    with SpaceMouseHidAdapter(hid_config(**slow), open_device=lambda cfg: FakeHid()) as hid_mouse:
+        wait_for(hid_mouse.output, lambda s: s.is_zero())
+        assert_refreshed_within(hid_mouse.output, 0.2)
+    path = str(tmp_path / "spnav.sock")
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as daemon:
+        daemon.bind(path)
+        daemon.listen(1)
+        with create_adapter({"type": "spacenav", "name": "nav", "socket": path, **slow}) as nav:
+            wait_for(nav.output, lambda s: s.is_zero())
+            assert_refreshed_within(nav.output, 0.2)
 
 
 def test_hid_enumeration_filter() -> None:

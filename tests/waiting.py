@@ -28,3 +28,15 @@ def wait_until(pred: Callable[[], bool], timeout: float = 15.0) -> None:
         if time.monotonic() > deadline:
             raise AssertionError("condition not reached")
         time.sleep(0.01)
+
+
+def assert_refreshed_within(slot: LatestValue[Any], limit: float, n: int = 8) -> None:
+    """The next ``n`` values published into ``slot`` each come less than ``limit`` s after the one before
+    (by their stamps): a source held at rest never goes stale."""
+    last = slot.read()
+    assert last is not None
+    for _ in range(n):
+        cur = slot.wait_newer(last.seq, timeout=5 * limit)
+        assert cur is not None and cur.stamp - last.stamp < limit, \
+            f"refreshed {'never' if cur is None else f'{cur.stamp - last.stamp:.3f} s later'}, stale after {limit} s"
+        last = cur

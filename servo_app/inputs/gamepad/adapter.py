@@ -1,9 +1,9 @@
 """A gamepad (Xbox, PlayStation, generic) through SDL2's GameController API, hold-to-run.
 
 The adapter's thread starts SDL's game controller subsystem (headless), opens the first pad SDL has
-a mapping for (or the first named like `match`), and reads its state every `poll_timeout_s`. The
-mapping (servo_app.inputs.gamepad.mapping) turns the state into a twist and the button edges into
-events; the twist is zero unless the deadman button is held.
+a mapping for (or the first named like `match`), and reads its state every `poll_timeout_s` (at most a
+quarter of `stale_after_s`). The mapping (servo_app.inputs.gamepad.mapping) turns the state into a
+twist and the button edges into events; the twist is zero unless the deadman button is held.
 
 Rest versus stale: while the twist and frame stay the same the sample is refreshed four times per
 `stale_after_s`, so the source stays fresh at rest and while held steady; a pad unplugged mid-jog
@@ -184,7 +184,9 @@ class GamepadAdapter(InputAdapter):
             pad.close()
 
     def _poll(self) -> None:
-        if self._stop.wait(self.config.poll_timeout_s):
+        # The pad is refreshed at most once per poll: a poll longer than the refresh period (a quarter
+        # of stale_after_s) would let a pad at rest go stale between polls and stop the arm.
+        if self._stop.wait(min(self.config.poll_timeout_s, self._refresh_s)):
             return
         assert self._pad is not None
         now = self.clock()

@@ -93,6 +93,14 @@ class SpaceMouseCore:
         )
 
     @property
+    def rest_wait_s(self) -> float:
+        """How long one poll waits for the device. A cap at rest is refreshed once per poll, so the wait
+        is at most a quarter of stale_after_s whatever poll_timeout_s says: a poll as long as the
+        staleness timeout let the resting source go stale between polls, and each time it was in
+        control the arm was stopped for a lost input nobody had touched."""
+        return min(self.cfg.poll_timeout_s, self.cfg.stale_after_s / 4.0)
+
+    @property
     def frame(self) -> str:
         return self.cfg.frames[self.frame_index]
 

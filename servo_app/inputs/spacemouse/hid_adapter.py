@@ -99,7 +99,7 @@ class SpaceMouseHidAdapter(InputAdapter):
 
     def _poll(self) -> None:
         assert self._dev is not None
-        reports = drain(self._dev.read, max(1, int(self.config.poll_timeout_s * 1000)))
+        reports = drain(self._dev.read, max(1, int(self.core.rest_wait_s * 1000)))
         self.process(reports, self.clock())
 
     def process(self, reports: list[bytes], now: float) -> None:

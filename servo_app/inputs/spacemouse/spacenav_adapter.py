@@ -55,7 +55,7 @@ class SpaceNavAdapter(InputAdapter):
         return spacenav_failure(self.name, self.config.socket, exc)
 
     def _poll(self) -> None:
-        self.process(self.client.receive(self.config.poll_timeout_s), self.clock())
+        self.process(self.client.receive(self.core.rest_wait_s), self.clock())
 
     def process(self, events: list[bytes], now: float) -> None:
         moved = False
