@@ -360,6 +360,17 @@ def test_a_jog_device_frame_the_servo_lacks_is_refused_when_the_file_loads() -> 
     assert TWIST_FRAMES == FRAMES  # the inputs' list is the servo's
 
 
+def test_a_feed_named_like_an_adapter_is_refused() -> None:
+    """The two shared one source name: the feed's slot replaced the adapter's in the bridge, and the
+    gamepad, connected and read, never moved the arm."""
+    data = {"adapters": {"pad": {"type": "gamepad"}}, "feeds": {"pad": {"kind": "pose"}, "cam": {"kind": "pose"}}}
+    with pytest.raises(ConfigError) as ei:
+        parse_inputs_config(data, file="in.toml")
+    (issue,) = ei.value.issues
+    assert (issue.file, issue.key, issue.value) == ("in.toml", "feeds.pad", {"kind": "pose"})
+    assert "already names an adapter ([adapters.pad])" in issue.reason and "another name" in issue.reason
+
+
 def test_inputs_never_import_the_robot_side() -> None:
     forbidden = ("servo_app.fanuc", "servo_app.janome", "servo_app.motion", "servo_app.robots",
                  "servo_app.safety", "servo_app.sim", "servo_app.api", "servo_app.cli", "servo_app.service")

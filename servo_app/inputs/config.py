@@ -71,7 +71,13 @@ def parse_inputs_config(data: Mapping[str, Any], *, file: str = "<config>", base
         except ConfigError as exc:
             issues.extend(exc.issues)
 
+    adapter_names = set(_raw_names(data, "adapters"))
     for name, table in _tables(data, "feeds", file, issues):
+        if name in adapter_names:
+            # One name, one source: the feed's slot replaced the adapter's, and the device was ignored.
+            issues.append(ConfigIssue(file, f"feeds.{name}", table, f"already names an adapter ([adapters.{name}]); "
+                                      "give the feed or the adapter another name"))
+            continue
         try:
             cfg.feeds[name] = FeedSourceConfig.model_validate(table)
         except ValidationError as exc:
@@ -80,6 +86,11 @@ def parse_inputs_config(data: Mapping[str, Any], *, file: str = "<config>", base
     if issues:
         raise ConfigError(issues)
     return cfg
+
+
+def _raw_names(data: Mapping[str, Any], section: str) -> list[str]:
+    raw = data.get(section, {})
+    return list(raw) if isinstance(raw, dict) else []
 
 
 def _tables(data: Mapping[str, Any], section: str, file: str,
