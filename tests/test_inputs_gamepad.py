@@ -363,6 +363,30 @@ def test_match_picks_a_pad_by_name_and_names_the_others_when_none_matches(pad: V
         assert b.pad_name == "servo_app virtual pad"
 
 
+def test_two_gamepad_inputs_read_two_pads_and_a_third_says_which_input_holds_them(pad: VirtualPad) -> None:
+    """Both inputs used to open the first pad: the second pad moved nothing and the first drove two sources."""
+    second = VirtualPad("servo_app second pad")
+    try:
+        with adapter() as a, adapter(name="pad2") as b:
+            wait_for(a.output, lambda s: s.is_zero())
+            wait_for(b.output, lambda s: s.is_zero())
+            assert {a.pad_name, b.pad_name} == {"servo_app virtual pad", "servo_app second pad"}
+            mine = pad if b.pad_name == "servo_app virtual pad" else second
+            mine.button("leftshoulder", True)
+            mine.axis("leftx", -1.0)
+            wait_for(b.output, lambda s: s.linear[1] == 100.0)  # the pad b reads drives b only
+            assert a.output.read().value.is_zero() and not a.logic.buttons
+            with adapter(name="pad3") as c:
+                assert c.first_attempt.wait(10) and not c.connected
+                assert c.failure is not None and "already read by another input" in c.failure.reason
+                assert "by input 'pad'" in c.failure.reason and "by input 'pad2'" in c.failure.reason
+                assert "[adapters.pad3]" in c.failure.fix
+                a.stop()  # its pad is free again: the third input takes it
+                wait_until(lambda: c.connected and c.failure is None)
+    finally:
+        second.close()
+
+
 def test_sdl_is_given_back_when_the_adapter_stops() -> None:
     a = adapter()
     a.start()

@@ -1,9 +1,10 @@
 """A gamepad (Xbox, PlayStation, generic) through SDL2's GameController API, hold-to-run.
 
 The adapter's thread starts SDL's game controller subsystem (headless), opens the first pad SDL has
-a mapping for (or the first named like `match`), and reads its state every `poll_timeout_s` (at most a
-quarter of `stale_after_s`). The mapping (servo_app.inputs.gamepad.mapping) turns the state into a
-twist and the button edges into events; the twist is zero unless the deadman button is held.
+a mapping for (or the first named like `match`) that no other gamepad input reads, and reads its state
+every `poll_timeout_s` (at most a quarter of `stale_after_s`). The mapping
+(servo_app.inputs.gamepad.mapping) turns the state into a twist and the button edges into events; the
+twist is zero unless the deadman button is held.
 
 Rest versus stale: while the twist and frame stay the same the sample is refreshed four times per
 `stale_after_s`, so the source stays fresh at rest and while held steady; a pad unplugged mid-jog
@@ -124,6 +125,11 @@ def gamepad_failure(name: str, match: str | None, exc: BaseException) -> DeviceF
     if isinstance(exc, RuntimeError) and "pysdl2" in str(exc):
         return DeviceFailure(device, "pysdl2 or its SDL library is not installed",
                              "pip install 'servo_app[gamepad]'", raw)
+    if isinstance(exc, NoPad) and exc.taken:
+        pads = ", ".join(f"{pad} by input {holder!r}" for pad, holder in exc.taken)
+        return DeviceFailure(device, f"every pad that would do is already read by another input ({pads})",
+                             "plug in another pad, or set match = \"...\" in each gamepad's section to part of its "
+                             f"pad's name ({section} included)", raw)
     if isinstance(exc, NoPad):
         mapped = [n for _, n, m in exc.seen if m]
         unmapped = [n for _, n, m in exc.seen if not m]
@@ -169,7 +175,7 @@ class GamepadAdapter(InputAdapter):
     def _open(self) -> None:
         if self._controllers is None:
             self._controllers = SdlControllers()
-        self._pad = SdlPad(self._controllers, self.config.match)
+        self._pad = SdlPad(self._controllers, self.config.match, self.name)
         self.pad_name = self._pad.name
         self.logic.connect(self._pad.read())  # what is held now is no press: the deadman must be pressed anew
         self._sent = None

@@ -28,6 +28,10 @@ from servo_app.inputs.gamepad.mapping import (
 )
 
 _load_lock = threading.Lock()
+# The pads open through SdlPad in this process (SDL instance ID -> the input reading it): each pad is
+# read by one input only, so a second gamepad input takes the next pad instead of the first one again.
+_claimed: dict[int, str] = {}
+_claim_lock = threading.Lock()
 
 
 def load_sdl() -> ModuleType:
@@ -82,26 +86,42 @@ class SdlControllers:
 
 
 class NoPad(OSError):
-    """No game controller matches: nothing plugged in, or nothing SDL has a mapping for."""
+    """No game controller matches: nothing plugged in, nothing SDL has a mapping for, or every pad that
+    would do is already read by another input (`taken`: (pad name, input name))."""
 
-    def __init__(self, message: str, seen: list[tuple[int, str, bool]]) -> None:
+    def __init__(self, message: str, seen: list[tuple[int, str, bool]],
+                 taken: list[tuple[str, str]] | None = None) -> None:
         super().__init__(message)
         self.seen = seen
+        self.taken = taken or []
 
 
 class SdlPad:
     """One open game controller, read whole on each call."""
 
-    def __init__(self, controllers: SdlControllers, match: str | None = None) -> None:
+    def __init__(self, controllers: SdlControllers, match: str | None = None, owner: str = "") -> None:
         self.sdl = sdl = controllers.sdl
-        seen = controllers.joysticks()
-        index = next((i for i, name, mapped in seen if mapped and (match is None or match.lower() in name.lower())),
-                     None)
-        if index is None:
-            raise NoPad("no game controller" + (f" named like {match!r}" if match else ""), seen)
-        self._pad = sdl.SDL_GameControllerOpen(index)
-        if not self._pad:
-            raise OSError(f"SDL cannot open game controller {index}: {_error(sdl)}")
+        self.instance_id: int | None = None
+        with _claim_lock:
+            seen = controllers.joysticks()
+            taken: list[tuple[str, str]] = []
+            index = None
+            for i, name, mapped in seen:
+                if not mapped or (match is not None and match.lower() not in name.lower()):
+                    continue
+                holder = _claimed.get(sdl.SDL_JoystickGetDeviceInstanceID(i))
+                if holder is None:
+                    index = i
+                    break
+                taken.append((name, holder))
+            if index is None:
+                named = f" named like {match!r}" if match else ""
+                raise NoPad(f"no {'free ' if taken else ''}game controller{named}", seen, taken)
+            self._pad = sdl.SDL_GameControllerOpen(index)
+            if not self._pad:
+                raise OSError(f"SDL cannot open game controller {index}: {_error(sdl)}")
+            self.instance_id = sdl.SDL_JoystickInstanceID(sdl.SDL_GameControllerGetJoystick(self._pad))
+            _claimed[self.instance_id] = owner or "?"
         self.name = (sdl.SDL_GameControllerName(self._pad) or b"?").decode(errors="replace")
         self.has_rumble = bool(sdl.SDL_GameControllerHasRumble(self._pad))
         self._axes = range(len(AXIS_NAMES))
@@ -129,6 +149,9 @@ class SdlPad:
         pad, self._pad = self._pad, None
         if pad:
             self.sdl.SDL_GameControllerClose(pad)
+        if self.instance_id is not None:
+            with _claim_lock:
+                _claimed.pop(self.instance_id, None)
 
 
 _RumbleFn = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_uint16, ctypes.c_uint16)
