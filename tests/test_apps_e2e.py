@@ -369,7 +369,7 @@ def test_spacemouse_teleop_moves_in_the_tool_then_base_frame_and_stops_when_rele
     assert np.allclose(cell.pose()[:3], p1[:3], atol=1e-3)
 
     cell.spnav.press(0)  # toggle_frame: base
-    cell.spnav.hold((0, 200, 0), 0.6)
+    cell.spnav.hold((0, 0, 200), 0.6)  # spacenavd's +Z: the cap pushed away from the operator
     at_rest(cell)
     d = cell.pose()[:3] - p1[:3]
     print(f"teleop base +y: moved {d.round(2)} mm")

@@ -355,7 +355,7 @@ def test_spacenav_client_over_a_real_unix_socket(tmp_path: Path) -> None:
             conn.sendall(ev[:13])
             conn.sendall(ev[13:] + encode_button(1, True) + encode_button(1, False))
             s = wait_for(a.output, lambda s: s.linear[0] > 0)
-            assert s.linear[0] == pytest.approx(100.0) and s.source == "nav"  # spacenavd axes used as they come
+            assert s.linear[0] == pytest.approx(100.0) and s.source == "nav"
             e1, e2 = a.events.get(timeout=15.0), a.events.get(timeout=15.0)
             assert (e1.button, e1.pressed, e1.action) == (1, True, "toggle_output:DO[1]")
             assert (e2.button, e2.pressed) == (1, False)
@@ -366,12 +366,48 @@ def test_spacenav_client_over_a_real_unix_socket(tmp_path: Path) -> None:
             # The daemon restarts: the client reconnects by itself.
             conn.close()
             conn2, _ = srv.accept()
-            conn2.sendall(encode_motion((0, 0, 0), (0, 0, -350)))
+            conn2.sendall(encode_motion((0, 0, 0), (0, -350, 0)))  # spacenavd's Y is up: a turn about it, yaw
             s = wait_for(a.output, lambda s: s.angular[2] != 0)
             assert s.angular[2] == pytest.approx(-30.0) and a.status().connects == 2
             conn2.close()
     finally:
         srv.close()
+
+
+def spacenavd_motion(hid_t: tuple[int, int, int], hid_r: tuple[int, int, int]) -> bytes:
+    """The motion event spacenavd sends for these HID counts with its default configuration
+    (cfgfile.c: def_axmap {0, 2, 1, 3, 5, 4}, def_axinv {0, 1, 1, 0, 1, 1}; event.c puts input axis i
+    at out[map[i]] with the sign invert[map[i]]): X right, Y up, Z away from the user."""
+    axmap, axinv = (0, 2, 1, 3, 5, 4), (0, 1, 1, 0, 1, 1)
+    out = [0] * 6
+    for i, v in enumerate((*hid_t, *hid_r)):
+        out[axmap[i]] = -v if axinv[axmap[i]] else v
+    return encode_motion((out[0], out[1], out[2]), (out[3], out[4], out[5]))
+
+
+@pytest.mark.parametrize(("what", "hid_t", "hid_r"), [
+    ("push right", (300, 0, 0), (0, 0, 0)),
+    ("push away from the user", (0, -300, 0), (0, 0, 0)),
+    ("lift", (0, 0, -300), (0, 0, 0)),
+    ("twist counter-clockwise from above", (0, 0, 0), (0, 0, -300)),
+    ("tilt to the right", (0, 0, 0), (0, 300, 0)),
+    ("tilt away", (0, 0, 0), (-300, 0, 0)),
+    ("a mix", (120, -250, 40), (-30, 200, -310)),
+])
+def test_the_same_push_moves_the_arm_the_same_way_through_spacenavd_and_hid(
+        what: str, hid_t: tuple[int, int, int], hid_r: tuple[int, int, int]) -> None:
+    """spacenavd reorders the axes (Y up, Z away): read as they came, pushing the cap away moved the
+    arm up and lifting it moved the arm away, the opposite of the same SpaceMouse over HID."""
+    hid = create_adapter({"type": "spacemouse", "name": "sm", "deadband": 0.0})
+    nav = create_adapter({"type": "spacenav", "name": "sm", "deadband": 0.0})
+    hid.process(encode_axes(hid_t, hid_r), now=1.0)  # type: ignore[attr-defined]
+    nav.process([spacenavd_motion(hid_t, hid_r)], now=1.0)  # type: ignore[attr-defined]
+    h, n = hid.output.read().value, nav.output.read().value
+    assert n.linear == pytest.approx(h.linear) and n.angular == pytest.approx(h.angular), what
+    if what == "push away from the user":
+        assert h.linear[1] > 0 and h.linear[0] == h.linear[2] == 0  # robot +Y, away from the operator
+    if what == "lift":
+        assert h.linear[2] > 0 and h.linear[0] == h.linear[1] == 0  # robot +Z, up
 
 
 def test_spacenav_hold_then_stale() -> None:

@@ -30,7 +30,11 @@ class SpaceNavConfig(SpaceMouseConfig):
     type: Literal["spacenav"] = "spacenav"
     socket: str = DEFAULT_SOCKET
     hold_s: float = Field(0.0, ge=0.0)
-    # spacenavd already turns the device axes into its own convention.
+    # spacenavd's own convention (its default axis map): X right, Y up, Z away from the user, the same
+    # for rotations. The robot's, as the HID adapter gives it: X right, Y away, Z up. So Y and Z trade
+    # places, and pushing the cap away moves the arm away (read as they came, it moved up, and lifting
+    # the cap moved it away).
+    axis_map: list[int] = Field(default_factory=lambda: [0, 2, 1, 3, 5, 4], min_length=6, max_length=6)
     axis_signs: list[int] = Field(default_factory=lambda: [1, 1, 1, 1, 1, 1], min_length=6, max_length=6)
 
 
