@@ -311,6 +311,29 @@ def test_open_hid_device_through_the_hid_module(monkeypatch: pytest.MonkeyPatch)
         open_hid_device(hid_config())
 
 
+def test_a_configured_hidraw_path_that_is_gone_is_named_as_gone(monkeypatch: pytest.MonkeyPatch,
+                                                                  tmp_path: Path) -> None:
+    """hidapi answers a missing path with "open failed" only, which read as a permission problem (add a
+    udev rule); the usual cause is the SpaceMouse coming back under another hidraw number."""
+    class Device:
+        def open_path(self, path: bytes) -> None:
+            raise OSError("open failed")  # what hidapi raises for any path it cannot open
+
+    fake = types.ModuleType("hid")
+    fake.device = Device  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "hid", fake)
+    gone = tmp_path / "hidraw7"
+    a = SpaceMouseHidAdapter(hid_config(path=str(gone)))
+    with a:
+        assert a.first_attempt.wait(15.0)
+        f = a.failure
+    assert f is not None and f.device == f"SpaceMouse (HID {gone})"
+    assert "does not exist" in f.reason and "remove path from [adapters.sm]" in f.fix and "udev" not in f.fix
+    gone.touch()  # a path that is there and still cannot be opened: the permission advice stands
+    with SpaceMouseHidAdapter(hid_config(path=str(gone))) as b:
+        assert b.first_attempt.wait(15.0) and b.failure is not None and "udev" in b.failure.fix
+
+
 def test_hid_library_is_imported_only_on_open() -> None:
     code = (
         "import sys\n"

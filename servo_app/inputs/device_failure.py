@@ -119,6 +119,11 @@ def hid_failure(name: str, what: str, exc: BaseException) -> DeviceFailure:
     if "no SpaceMouse found" in text:
         return DeviceFailure(device, "no SpaceMouse is plugged in (none among the HID devices)",
                              f"plug it in, or set vendor_id and product_id in {_section(name)}", _raw(exc))
+    if _errno(exc) in (errno.ENOENT, errno.ENODEV):
+        return DeviceFailure(device, "it does not exist: the SpaceMouse is unplugged, or it came back under "
+                             "another hidraw number", f"plug it in, or remove path from {_section(name)} so it is "
+                             "found by its vendor and product (hidraw numbers change when it is plugged in again)",
+                             _raw(exc))
     if _errno(exc) in (errno.EACCES, errno.EPERM) or "open failed" in text:
         return _permission(device, exc, "a udev rule giving your user access to the hidraw device")
     return DeviceFailure(device, f"cannot open it ({_raw(exc)})", f"check the device and {_section(name)}", _raw(exc))

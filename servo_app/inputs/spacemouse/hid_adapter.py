@@ -8,6 +8,8 @@ the source goes stale.
 
 from __future__ import annotations
 
+import errno
+import os
 import time
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any, Literal, Protocol
@@ -59,6 +61,10 @@ def open_hid_device(cfg: SpaceMouseHidConfig) -> HidDevice:
     except ImportError as exc:
         raise RuntimeError("the SpaceMouse HID adapter needs hidapi (pip install 'servo_app[hid]')") from exc
     path: str | bytes | None = cfg.path
+    if isinstance(path, str) and path.startswith("/") and not os.path.exists(path):
+        # hidapi says only "open failed" (read as a permission problem); a hidraw number often
+        # changes when the device is plugged in again.
+        raise FileNotFoundError(errno.ENOENT, "no such HID device", path)
     if path is None:
         found = find_spacemice(hid.enumerate(cfg.vendor_id or 0, cfg.product_id or 0), cfg)
         if not found:
