@@ -296,19 +296,62 @@ def test_open_hid_device_through_the_hid_module(monkeypatch: pytest.MonkeyPatch)
         def set_nonblocking(self, on: int) -> None:
             calls.append(("set_nonblocking", on))
 
+        def read(self, max_length: int, timeout_ms: int = 0) -> list[int]:
+            return []
+
+        def close(self) -> None:
+            calls.append(("close", None))
+
     fake = types.ModuleType("hid")
     fake.enumerate = lambda vid, pid: [  # type: ignore[attr-defined]
         {"vendor_id": 0x256F, "product_id": 0xC635, "product_string": "SpaceMouse Compact", "path": b"/dev/hidraw7"}]
     fake.device = Device  # type: ignore[attr-defined]
     monkeypatch.setitem(sys.modules, "hid", fake)
-    assert isinstance(open_hid_device(hid_config()), Device)
-    assert calls == [("open_path", b"/dev/hidraw7"), ("set_nonblocking", 1)]
+    dev = open_hid_device(hid_config())
+    assert isinstance(dev.device, Device)  # type: ignore[attr-defined]
+    dev.close()
+    assert calls == [("open_path", b"/dev/hidraw7"), ("set_nonblocking", 1), ("close", None)]
     fake.enumerate = lambda vid, pid: []  # type: ignore[attr-defined]
     with pytest.raises(OSError, match="no SpaceMouse"):
         open_hid_device(hid_config())
     monkeypatch.setitem(sys.modules, "hid", None)  # hidapi not installed
     with pytest.raises(RuntimeError, match="needs hidapi"):
         open_hid_device(hid_config())
+
+
+def test_two_spacemouse_inputs_read_two_devices_and_a_third_says_they_are_taken(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Both inputs used to open the first SpaceMouse found: the second device moved nothing."""
+    opened: dict[bytes, FakeHid] = {}
+
+    class Device(FakeHid):
+        def open_path(self, path: bytes) -> None:
+            opened[path] = self
+
+        def set_nonblocking(self, on: int) -> None:
+            pass
+
+    fake = types.ModuleType("hid")
+    fake.enumerate = lambda vid, pid: [  # type: ignore[attr-defined]
+        {"vendor_id": 0x256F, "product_id": 0xC635, "product_string": "SpaceMouse Compact", "path": p}
+        for p in (b"/dev/hidraw3", b"/dev/hidraw4")]
+    fake.device = Device  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "hid", fake)
+    with SpaceMouseHidAdapter(hid_config()) as a, SpaceMouseHidAdapter(hid_config(name="sm2")) as b:
+        wait_for(a.output, lambda s: s.is_zero())
+        wait_for(b.output, lambda s: s.is_zero())
+        assert set(opened) == {b"/dev/hidraw3", b"/dev/hidraw4"}
+        opened[b"/dev/hidraw4"].feed(*encode_axes((350, 0, 0)))  # the second device, pushed right
+        moved, other = (a, b) if a._dev.path == b"/dev/hidraw4" else (b, a)  # type: ignore[attr-defined]
+        s = wait_for(moved.output, lambda s: s.linear[0] > 0)
+        assert s.linear[0] == pytest.approx(100.0)
+        assert other.output.read().value.is_zero()  # the first device is still at rest: its input too
+        with SpaceMouseHidAdapter(hid_config(name="sm3")) as c:
+            assert c.first_attempt.wait(15.0) and not c.connected and c.failure is not None
+            assert "already read by another SpaceMouse input" in c.failure.reason
+            assert "[adapters.sm3]" in c.failure.fix
+            other.stop()  # its device is free again: the third input takes it
+            wait_for(c.output, lambda s: c.connected and s.is_zero())
 
 
 def test_a_configured_hidraw_path_that_is_gone_is_named_as_gone(monkeypatch: pytest.MonkeyPatch,

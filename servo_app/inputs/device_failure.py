@@ -116,6 +116,10 @@ def hid_failure(name: str, what: str, exc: BaseException) -> DeviceFailure:
     if "hidapi" in text:
         return DeviceFailure(device, "the hidapi package is not installed",
                              "pip install 'servo_app[hid]' (or use spacenavd: type = \"spacenav\")", _raw(exc))
+    if "already read by another input" in text:
+        return DeviceFailure(device, "it is already read by another SpaceMouse input of this service",
+                             f"plug in another SpaceMouse, or set path (hid.enumerate() lists them) in "
+                             f"{_section(name)} and in the other input's section to tell them apart", _raw(exc))
     if "no SpaceMouse found" in text:
         return DeviceFailure(device, "no SpaceMouse is plugged in (none among the HID devices)",
                              f"plug it in, or set vendor_id and product_id in {_section(name)}", _raw(exc))

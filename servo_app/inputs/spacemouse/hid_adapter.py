@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import errno
 import os
+import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any, Literal, Protocol
@@ -55,6 +56,32 @@ def find_spacemice(devices: Iterable[Mapping[str, Any]], cfg: SpaceMouseHidConfi
     return out
 
 
+# The HID paths open through open_hid_device in this process: each SpaceMouse is read by one input
+# only, so a second SpaceMouse input takes the next device instead of the first one again.
+_claimed: set[bytes] = set()
+_claim_lock = threading.Lock()
+
+
+class ClaimedDevice:
+    """A device open_hid_device opened: its path is free for another input once this is closed."""
+
+    def __init__(self, dev: Any, path: bytes) -> None:
+        self.device = dev
+        self.path = path
+        self.read = dev.read  # bound once: the reader calls it for every report
+
+    def close(self) -> None:
+        try:
+            self.device.close()
+        finally:
+            with _claim_lock:
+                _claimed.discard(self.path)
+
+
+def _as_bytes(path: str | bytes) -> bytes:
+    return path.encode() if isinstance(path, str) else path
+
+
 def open_hid_device(cfg: SpaceMouseHidConfig) -> HidDevice:
     try:
         import hid  # optional dependency: pip install 'servo_app[hid]'
@@ -65,16 +92,24 @@ def open_hid_device(cfg: SpaceMouseHidConfig) -> HidDevice:
         # hidapi says only "open failed" (read as a permission problem); a hidraw number often
         # changes when the device is plugged in again.
         raise FileNotFoundError(errno.ENOENT, "no such HID device", path)
-    if path is None:
-        found = find_spacemice(hid.enumerate(cfg.vendor_id or 0, cfg.product_id or 0), cfg)
-        if not found:
-            raise OSError("no SpaceMouse found among the HID devices")
-        path = found[0]["path"]
-    dev = hid.device()
-    dev.open_path(path.encode() if isinstance(path, str) else path)
-    # Non-blocking, so read(n, 0) returns at once and read(n, t) waits at most t ms.
-    dev.set_nonblocking(1)
-    return dev
+    with _claim_lock:
+        if path is None:
+            found = find_spacemice(hid.enumerate(cfg.vendor_id or 0, cfg.product_id or 0), cfg)
+            if not found:
+                raise OSError("no SpaceMouse found among the HID devices")
+            free = [d for d in found if _as_bytes(d["path"]) not in _claimed]
+            if not free:
+                raise OSError(f"every SpaceMouse found ({len(found)}) is already read by another input")
+            path = free[0]["path"]
+        key = _as_bytes(path)
+        if key in _claimed:
+            raise OSError(f"{key.decode(errors='replace')} is already read by another input")
+        dev = hid.device()
+        dev.open_path(key)
+        # Non-blocking, so read(n, 0) returns at once and read(n, t) waits at most t ms.
+        dev.set_nonblocking(1)
+        _claimed.add(key)
+    return ClaimedDevice(dev, key)
 
 
 class SpaceMouseHidAdapter(InputAdapter):
