@@ -343,6 +343,18 @@ def test_settings_that_would_defeat_staleness_or_reverse_a_jog_are_refused(tmp_p
     assert create_adapter({"type": "gamepad", "name": "pad", "scale": 0.5}).config.scale == 0.5
 
 
+def test_a_jog_device_stale_timeout_shorter_than_its_reports_is_refused() -> None:
+    """A SpaceMouse or pad reports every 4-8 ms: stale_after_s = 0.005 had its source go stale between
+    reports, stopping the arm mid-jog again and again."""
+    data = {"adapters": {t: {"type": t, "stale_after_s": 0.005} for t in ("spacemouse", "spacenav", "gamepad")}}
+    with pytest.raises(ConfigError) as ei:
+        parse_inputs_config(data, file="in.toml")
+    assert [(i.key, i.value) for i in ei.value.issues] == [(f"adapters.{t}.stale_after_s", 0.005)
+                                                           for t in ("spacemouse", "spacenav", "gamepad")]
+    assert all("stale between two reports" in i.reason for i in ei.value.issues)
+    assert parse_inputs_config({"adapters": {"pad": {"type": "gamepad", "stale_after_s": 0.02}}}).adapters
+
+
 def test_a_jog_device_frame_the_servo_lacks_is_refused_when_the_file_loads() -> None:
     """It used to load, and once toggle_frame reached it the bridge refused every sample: the arm
     stopped answering the device with nothing said at start-up."""

@@ -17,6 +17,18 @@ from servo_app.inputs.validate import ValueRejected, check_finite
 TWIST_FRAMES = ("base", "tool")
 
 
+# A jog device reports every 4-8 ms; a shorter staleness timeout would see it go stale between two reports.
+MIN_JOG_STALE_S = 0.02
+
+
+def check_jog_stale(stale_after_s: float) -> float:
+    """A SpaceMouse's or gamepad's stale_after_s; ValueError saying why a shorter one cannot work."""
+    if stale_after_s < MIN_JOG_STALE_S:
+        raise ValueError(f"below {MIN_JOG_STALE_S} s: the device reports every 4-8 ms, so its source would go "
+                         "stale between two reports and stop the arm")
+    return stale_after_s
+
+
 def check_twist_frames(frames: Sequence[str]) -> list[str]:
     """A jog device's frames (its toggle_frame steps through them); ValueError naming one the servo lacks."""
     for f in frames:

@@ -33,7 +33,7 @@ from servo_app.inputs.gamepad.mapping import (
     parse_source,
 )
 from servo_app.inputs.gamepad.sdl import NoPad, SdlControllers, SdlPad
-from servo_app.inputs.samples import TwistSample, check_twist_frames
+from servo_app.inputs.samples import TwistSample, check_jog_stale, check_twist_frames
 
 # Left stick: X forward/back, Y left/right; right stick: Z up/down and yaw; triggers roll; D-pad pitch.
 DEFAULT_AXES = {"x": "-lefty", "y": "-leftx", "z": "-righty", "rx": "righttrigger-lefttrigger", "ry": "dpup-dpdown",
@@ -80,6 +80,12 @@ class GamepadConfig(AdapterConfig):
         # Checked here: a frame the servo lacks loaded silently, and after toggle_frame reached it
         # every sample was refused and the arm stopped answering.
         return check_twist_frames(v)
+
+    @field_validator("stale_after_s")
+    @classmethod
+    def _stale(cls, v: float) -> float:
+        # Each poll also waits at most a quarter of it: a tiny one spun the adapter's thread too.
+        return check_jog_stale(v)
 
     @field_validator("deadman")
     @classmethod

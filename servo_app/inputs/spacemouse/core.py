@@ -15,7 +15,7 @@ from pydantic import Field, PositiveFloat, field_validator
 
 from servo_app.inputs.actions import LOCAL_ACTIONS, parse_action
 from servo_app.inputs.adapter import AdapterConfig
-from servo_app.inputs.samples import ButtonEvent, TwistSample, check_twist_frames
+from servo_app.inputs.samples import ButtonEvent, TwistSample, check_jog_stale, check_twist_frames
 from servo_app.inputs.spacemouse.shaping import DEFAULT_AXIS_SIGNS, Shaping, shape
 
 
@@ -53,6 +53,12 @@ class SpaceMouseConfig(AdapterConfig):
         # Checked here: a frame the servo lacks loaded silently, and after toggle_frame reached it
         # every sample was refused and the arm stopped answering.
         return check_twist_frames(v)
+
+    @field_validator("stale_after_s")
+    @classmethod
+    def _stale(cls, v: float) -> float:
+        # Each poll also waits at most a quarter of it: a tiny one spun the adapter's thread too.
+        return check_jog_stale(v)
 
     @field_validator("axis_map")
     @classmethod
