@@ -17,6 +17,7 @@ from waiting import assert_refreshed_within, wait_for, wait_until
 from servo_app.inputs import (
     ButtonEvent,
     ConfigError,
+    ConfigIssue,
     TwistSample,
     create_adapter,
     load_inputs_config,
@@ -208,10 +209,22 @@ def test_configuration_errors_name_the_key_and_value() -> None:
     for needle in ("adapters.pad.deadman", "'lb' is not a button", "adapters.pad.axes", "leftz", "adapters.pad.buttons",
                    "explode", "one overall scale"):
         assert needle in text, needle
-    with pytest.raises(ConfigError, match="deadman button 'a' cannot also have an action"):
-        parse_inputs_config({"adapters": {"pad": {"type": "gamepad", "deadman": "a", "buttons": {"a": "stop"}}}})
-    with pytest.raises(ConfigError, match="drives an axis"):
-        parse_inputs_config({"adapters": {"pad": {"type": "gamepad", "buttons": {"dpup": "stop"}}}})
+
+    def clash(table: dict[str, Any]) -> ConfigIssue:
+        with pytest.raises(ConfigError) as ei:
+            parse_inputs_config({"adapters": {"pad": {"type": "gamepad", **table}}}, file="pad.toml")
+        (issue,) = ei.value.issues
+        return issue
+
+    # A button with two uses names the key and the button (it named the whole table, and no button).
+    issue = clash({"deadman": "a", "buttons": {"a": "stop"}})
+    assert (issue.key, issue.value) == ("adapters.pad.buttons.a", "stop") and "'a' is the deadman" in issue.reason
+    issue = clash({"buttons": {"dpup": "stop"}})
+    assert (issue.key, issue.value) == ("adapters.pad.buttons.dpup", "stop")
+    assert "'dpup' drives axis ry ('dpup-dpdown')" in issue.reason and "set axes.ry" in issue.reason
+    issue = clash({"deadman": "dpdown"})
+    assert (issue.key, issue.value) == ("adapters.pad.axes.ry", "dpup-dpdown") and "'dpdown' is the deadman" in \
+        issue.reason
 
 
 def test_the_example_configuration_loads() -> None:

@@ -22,7 +22,9 @@ from pydantic import Field, PositiveFloat, field_validator, model_validator
 
 from servo_app.inputs.adapter import AdapterConfig, Clock, InputAdapter
 from servo_app.inputs.device_failure import DeviceFailure
+from servo_app.inputs.errors import KeyedError
 from servo_app.inputs.gamepad.mapping import (
+    BUTTON_NAMES,
     COMPONENTS,
     FaultWatch,
     PadLogic,
@@ -113,7 +115,22 @@ class GamepadConfig(AdapterConfig):
 
     @model_validator(mode="after")
     def _one_use_per_button(self) -> GamepadConfig:
-        self.mapping()  # the deadman, the axis buttons and the action buttons are all different
+        """The deadman, the axis buttons and the action buttons are all different; a clash names the key
+        and the button (from the whole table, it said neither)."""
+        if self.deadman in self.buttons:
+            raise KeyedError(f"buttons.{self.deadman}", self.buttons[self.deadman],
+                             f"{self.deadman!r} is the deadman button: it cannot also have an action")
+        for component, source in self.axes.items():
+            for term in parse_source(source):
+                name = BUTTON_NAMES[term.index] if term.kind == "button" else None
+                if name is not None and name == self.deadman:
+                    raise KeyedError(f"axes.{component}", source, f"{name!r} is the deadman button: it cannot "
+                                     "also drive an axis")
+                if name is not None and name in self.buttons:
+                    raise KeyedError(f"buttons.{name}", self.buttons[name], f"{name!r} drives axis {component} "
+                                     f"({source!r}): it cannot also have an action; map the action to another "
+                                     f"button or set axes.{component}")
+        self.mapping()
         return self
 
     def mapping(self) -> PadMapping:
