@@ -5,6 +5,7 @@ in the game controller layout (plugged, unplugged, plugged again, rumbled)."""
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -15,9 +16,13 @@ from hypothesis import strategies as st
 from waiting import assert_refreshed_within, wait_for, wait_until
 
 from servo_app.inputs import (
+    Arbiter,
     ButtonEvent,
     ConfigError,
     ConfigIssue,
+    Decision,
+    LatestValue,
+    SourceSpec,
     TwistSample,
     create_adapter,
     load_inputs_config,
@@ -297,6 +302,40 @@ def test_the_adapter_reads_the_virtual_pad_hold_to_run(pad: VirtualPad) -> None:
         wait_for(a.output, lambda s: s.is_zero())
         held_steady = a.output.read()
         wait_for(a.output, lambda s: s.is_zero() and a.output.read().stamp > held_steady.stamp)  # refreshed
+
+
+def test_the_stop_button_keeps_the_arm_from_a_lower_priority_source(pad: VirtualPad) -> None:
+    """The pad yields while idle (configured so), and its stop gave a zero twist like a released deadman:
+    a lower-priority source that was live took the arm the operator had just stopped. Now the pad keeps
+    control with its zero twist until the deadman is pressed anew; a plain release still yields."""
+    a = adapter(priority=20, buttons={"b": "stop"})
+    auto: LatestValue[TwistSample] = LatestValue("auto")
+    arbiter = Arbiter([a.source_spec(), SourceSpec("auto", 0, 5.0, auto)])
+
+    def select() -> Decision:
+        auto.publish(TwistSample((0.0, 50.0, 0.0), (0.0, 0.0, 0.0), "base", time.monotonic(), "auto"))
+        return arbiter.select()
+
+    with a:
+        wait_for(a.output, lambda s: s.is_zero())
+        pad.axis("lefty", -1.0)
+        pad.button("leftshoulder", True)
+        wait_for(a.output, lambda s: s.linear[0] > 0)
+        assert select().active == "pad"
+        pad.button("b", True)  # stop, the deadman still held
+        wait_for(a.output, lambda s: s.is_zero())
+        d = select()
+        assert d.active == "pad" and d.sample.is_zero(), d  # the arm stays stopped
+        pad.button("b", False)
+        pad.button("leftshoulder", False)
+        wait_until(lambda: not a.logic.buttons)
+        d = select()
+        assert d.active == "pad" and d.sample.is_zero(), d  # released too: still the pad's stop
+        pad.button("leftshoulder", True)  # pressed anew: the pad runs again
+        wait_for(a.output, lambda s: s.linear[0] > 0 and not s.stop)
+        pad.button("leftshoulder", False)  # a plain release yields, as configured
+        wait_for(a.output, lambda s: s.is_zero() and not s.stop)
+        assert select().active == "auto"
 
 
 def test_unplugged_mid_jog_goes_quiet_reports_and_reconnects_not_running(pad: VirtualPad) -> None:

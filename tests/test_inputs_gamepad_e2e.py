@@ -5,14 +5,16 @@ Hold-to-run, an output button, a pad unplugged mid-jog. Zero controller alarms."
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
+import httpx
 import numpy as np
 import pytest
-from test_api_harness import Rig, running_rig
+from test_api_harness import AUTH, Rig, running_rig
 
 from servo_app.inputs.gamepad.adapter import GamepadAdapter
 from servo_app.inputs.gamepad.mapping import BUTTON_NAMES
@@ -35,6 +37,11 @@ frames = ["base", "tool"]
 [adapters.gamepad.buttons]
 a = "toggle_output:DO[2]"
 b = "stop"
+
+# An automatic source below the pad (priority 0): it commands while the pad yields.
+[feeds.auto]
+kind = "twist"
+stale_after_s = 0.25
 """
 
 
@@ -210,6 +217,57 @@ def test_a_pad_unplugged_mid_jog_stops_the_arm_and_is_reported(cell: Cell) -> No
     time.sleep(0.3)
     assert np.allclose(cell.pose()[:3], p[:3], atol=1e-3)
     cell.read_by_the_adapter("leftshoulder", False)
+    done(cell, h)
+
+
+def test_the_stop_button_holds_the_arm_while_a_lower_priority_source_commands(cell: Cell) -> None:
+    """The pad yields to lower-priority sources while idle; its stop used to be idle too, so a live
+    automatic source took the arm the operator had just stopped. Now the stop holds until the deadman
+    is pressed anew; a plain release still hands the arm over, as configured."""
+    h = ready(cell)
+    feed = httpx.Client(base_url=cell.rig.base_url, timeout=5.0, headers=AUTH)
+    quit_feed = threading.Event()
+    errors: list[str] = []
+
+    def auto() -> None:  # +Y at 30 mm/s all along, 20 times a second
+        while not quit_feed.wait(0.05):
+            r = feed.post("/api/feed/auto", json={"kind": "twist", "linear": [0.0, 30.0, 0.0], "stamp": time.time()})
+            if r.status_code != 200:
+                errors.append(r.text)
+
+    poster = threading.Thread(target=auto, name="auto-feed", daemon=True)
+    poster.start()
+    try:
+        cell.pad.axis("lefty", -1.0)  # +X
+        cell.read_by_the_adapter("leftshoulder", True)
+        moving(cell)
+        assert cell.rig.state()["inputs"]["active"] == "gamepad"
+        cell.read_by_the_adapter("b", True)  # stop, the deadman still held
+        s = at_rest(cell)
+        assert s["state"] == "streaming" and s["inputs"]["active"] == "gamepad"
+        p = cell.pose()
+        time.sleep(0.4)  # a while with the automatic source live: the arm must stay where it stopped
+        assert np.allclose(cell.pose()[:3], p[:3], atol=1e-3) and cell.rig.state()["inputs"]["active"] == "gamepad"
+        cell.read_by_the_adapter("b", False)
+        cell.read_by_the_adapter("leftshoulder", False)  # released too: the stop still holds
+        cell.pad.axis("lefty", 0.0)
+        time.sleep(0.3)
+        assert np.allclose(cell.pose()[:3], p[:3], atol=1e-3) and cell.rig.state()["inputs"]["active"] == "gamepad"
+        cell.read_by_the_adapter("leftshoulder", True)  # pressed anew (sticks centred): the stop is over
+        cell.read_by_the_adapter("leftshoulder", False)  # a plain release: the pad yields, as configured
+        cell.rig.wait(lambda s: s["inputs"]["active"] == "auto", 3.0, "the pad yields once released")
+        s = cell.rig.wait(lambda s: s["cart_servo"][1] - p[1] > 5.0, 5.0, "the automatic source moves the arm")
+        d = np.array(s["cart_servo"][:3]) - p[:3]
+        assert cosine(d, np.array([0.0, 1.0, 0.0])) > 0.99, d  # its +Y
+    finally:  # whatever happened, the next test finds the pad released and input control off
+        cell.pad.button("b", False)
+        cell.pad.button("leftshoulder", False)
+        cell.rig.post("/api/inputs/enable", h, {"enable": False})  # before the feed ends: no stale stop
+        quit_feed.set()
+        poster.join(5.0)
+        feed.close()
+    assert not errors, errors
+    at_rest(cell)
     done(cell, h)
 
 

@@ -3,8 +3,8 @@
 A source is live when it is enabled, allowed by the current owner (if any), and its newest sample
 is younger than its staleness timeout. The highest-priority live source wins; on equal priority the
 source already in control keeps it, so two equal sources never flap. A source marked
-`yield_when_idle` (a SpaceMouse at rest) only takes or holds control while its sample is non-zero,
-but still counts as live so nothing is reported stale.
+`yield_when_idle` (a SpaceMouse at rest) only takes or holds control while its sample is non-zero
+(or holds a stop the operator asked for), but still counts as live so nothing is reported stale.
 
 When the source that was in control stops being live because its samples aged out, the decision
 says so once (`went_stale`); with nothing else live `active` is None and the caller decelerates.
@@ -121,5 +121,8 @@ class Arbiter:
 
 
 def _idle(sample: Any) -> bool:
+    holds = getattr(sample, "holds_control", None)
+    if callable(holds) and holds():  # a stop button: zero, and no one else takes the arm meanwhile
+        return False
     is_zero = getattr(sample, "is_zero", None)
     return bool(is_zero()) if callable(is_zero) else False

@@ -50,6 +50,9 @@ class TwistSample:
     frame: str
     stamp: float
     source: str
+    # A stop the operator asked for: zero, yet the source keeps control (a yield_when_idle source does
+    # not hand the arm to another while its stop holds).
+    stop: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "linear", _vector("linear", self.linear, 3))
@@ -57,6 +60,10 @@ class TwistSample:
 
     def is_zero(self) -> bool:
         return not any(self.linear) and not any(self.angular)
+
+    def holds_control(self) -> bool:
+        """Whether this sample commands (engages its source) even while it is zero."""
+        return self.stop
 
     def as_tuple(self) -> tuple[float, ...]:
         return self.linear + self.angular

@@ -229,9 +229,9 @@ class GamepadAdapter(InputAdapter):
         (linear, angular), events = self.logic.step(state, now)
         for ev in events:
             self._emit(ev)
-        sent = (linear, angular, self.logic.frame)
+        sent = (linear, angular, self.logic.frame, self.logic.stopped)
         if sent != self._sent or now - self._sent_at >= self._refresh_s:
-            self._publish(TwistSample(linear, angular, self.logic.frame, now, self.name))
+            self._publish(TwistSample(linear, angular, self.logic.frame, now, self.name, stop=self.logic.stopped))
             self._sent, self._sent_at = sent, now
 
     def _rumble_on_fault(self) -> None:

@@ -7,7 +7,8 @@ module turns it into a twist and the button edges into events and local actions.
 Hold-to-run: the twist is zero unless the deadman button is held, and it must have been *pressed*
 while the pad was connected: a pad that appears with the deadman already held (a reconnect, a stuck
 or taped button) does not move the arm until the button is released and pressed again. The ``stop``
-action also zeroes the twist until the deadman is pressed again.
+action also zeroes the twist until the deadman is pressed again, and meanwhile the pad keeps control
+(its zero twist is marked ``stop``): the arm stays stopped even where a lower-priority source is live.
 """
 
 from __future__ import annotations
@@ -171,6 +172,9 @@ class PadLogic:
         self.dominant_axis = dominant_axis
         self.buttons = 0
         self.running = False  # the deadman was pressed (since connect and since the last stop) and is held
+        # The stop button was pressed and the deadman not pressed since: the pad keeps control with a zero
+        # twist, so a lower-priority source does not take the arm the operator just stopped.
+        self.stopped = False
 
     @property
     def frame(self) -> str:
@@ -181,6 +185,7 @@ class PadLogic:
         is pressed."""
         self.buttons = state.buttons
         self.running = False
+        self.stopped = False  # a pad that went away was stale meanwhile: that stop is the servo's now
 
     def step(self, state: PadState, stamp: float) -> tuple[tuple[tuple[float, float, float],
                                                                   tuple[float, float, float]], list[ButtonEvent]]:
@@ -192,6 +197,7 @@ class PadLogic:
             action = self.mapping.actions.get(bit)
             if bit == self.mapping.deadman:
                 self.running = pressed
+                self.stopped &= not pressed
             elif pressed and action is not None:
                 stopped |= action == "stop"
                 self._apply(action)
@@ -199,6 +205,8 @@ class PadLogic:
             # actions are done here.
             events.append(ButtonEvent(bit, pressed, None if action in PAD_ACTIONS else action, stamp, self.source))
         self.buttons = state.buttons
+        if stopped:
+            self.stopped = True
         if stopped or not state.held(self.mapping.deadman):
             self.running = False
         if not self.running:
