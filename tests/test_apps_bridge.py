@@ -353,3 +353,39 @@ def test_servo_app_run_refuses_a_bad_inputs_file_before_starting_anything(tmp_pa
                         "--var-dir", str(tmp_path)], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2, r.stdout + r.stderr
     assert f"{bad}: applications[0].sources.distance = 'jog': publishes twist samples" in r.stdout
+
+
+def test_standoff_forgets_its_integral_while_the_distance_sensor_is_quiet(tmp_path: Path) -> None:
+    """The distance sensor drops out for 2 s (the arm stops, naming it) and comes back 1 mm too far:
+    the first command is the proportional term alone. The integral used to keep its value from
+    before the gap and add the error times the whole gap, so the arm set off at the integral's
+    limit (here 11 mm/s where 1 mm/s was due) and overshot the surface."""
+    path = tmp_path / "inputs.toml"
+    path.write_text('[feeds.gauge]\nkind = "measurement"\nstale_after_s = 0.2\n[[applications]]\nname = "standoff"\n'
+                    'type = "standoff"\nsources = { distance = "gauge" }\ntarget_mm = 50.0\nkp = 1.0\nki = 5.0\n'
+                    'max_speed_mm_s = 20.0\nintegral_limit_mm_s = 10.0\n')
+    clock = Clock()
+    bridge = InputsBridge.from_file(path, clock=clock, stale_latch_s=0.05)
+    reader = InputSlotReader(bridge.slot_name)
+
+    def reading(distance: float) -> InputCommand | None:
+        clock.t += 0.02
+        bridge.feeds.submit("gauge", {"kind": "measurement", "values": {"distance": distance}})
+        bridge.step(clock())
+        return reader.poll()
+
+    try:
+        for _ in range(5):
+            cmd = reading(60.0)
+        assert cmd is not None and cmd.values[2] > 10.0  # 10 mm too far: kp * 10 plus the integral
+        clock.t += 2.0
+        bridge.step(clock())
+        cmd = reader.poll()
+        assert cmd is not None and cmd.stale and bridge.source_names[cmd.source] == "gauge"
+        for _ in range(3):  # back; the first command waits for the stale marker's latch
+            cmd = reading(51.0) or cmd
+        assert cmd is not None and not cmd.stale
+        assert cmd.values[2] == pytest.approx(1.0 + 5.0 * 1.0 * 0.02 * 2)  # kp * 1 mm, and 40 ms of integral
+    finally:
+        reader.close()
+        bridge.close()

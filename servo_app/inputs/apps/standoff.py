@@ -45,6 +45,10 @@ class StandoffController:
         if distance_mm is None or stamp is None or now - stamp > p.max_age_s:
             self.reset()
             return 0.0
+        if self._last is not None and now - self._last > p.max_age_s:
+            # No reading for longer than its timeout (the sensor went stale, the arm stopped): the
+            # integral is from before the gap, and the gap is no time to integrate the error over.
+            self.reset()
         dt = 0.0 if self._last is None else max(0.0, now - self._last)
         self._last = now
         e = deadband(distance_mm - p.target_mm, p.deadband_mm)
