@@ -389,3 +389,23 @@ def test_standoff_forgets_its_integral_while_the_distance_sensor_is_quiet(tmp_pa
     finally:
         reader.close()
         bridge.close()
+
+
+def test_infinite_or_nan_settings_are_refused_when_the_file_is_read(tmp_path: Path) -> None:
+    """TOML writes inf and nan. Accepted, ``stale_after_s = inf`` never went stale: the sensor went
+    quiet and the bridge never sent the stop naming it, while the arm went on at 20 mm/s for the
+    servo's longest hold; a NaN target made every command NaN, refused one by one at run time."""
+    path = tmp_path / "inputs.toml"
+    path.write_text('[feeds.gauge]\nkind = "measurement"\n[feeds.jog]\nkind = "twist"\nstale_after_s = inf\n'
+                    '[[applications]]\nname = "standoff"\ntype = "standoff"\nsources = { distance = "gauge" }\n'
+                    'target_mm = nan\nstale_after_s = inf\n'
+                    '[[applications]]\nname = "guide"\ntype = "admittance"\nsources = { wrench = "gauge" }\n'
+                    'linear_gain = inf\nsensor_rotation = [[1.0, 0.0, 0.0], [0.0, nan, 0.0], [0.0, 0.0, 1.0]]\n')
+    with pytest.raises(ConfigError) as ei:
+        load_service_inputs(path)
+    got = {i.key: i for i in ei.value.issues}
+    for key in ("feeds.jog.stale_after_s", "applications[0].standoff.target_mm",
+                "applications[0].standoff.stale_after_s", "applications[1].admittance.linear_gain",
+                "applications[1].admittance.sensor_rotation.1.1"):
+        assert key in got and "finite" in got[key].reason, (key, sorted(got))
+    assert str(got["feeds.jog.stale_after_s"].value) == "inf"

@@ -48,7 +48,9 @@ SLOWEST_POSE_SPEED = 0.1
 
 
 class _App(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    # TOML has inf and nan: an infinite stale_after_s never went stale (no stop naming the sensor),
+    # and a NaN gain or target made every command NaN, each refused while the file loaded fine.
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     name: str = Field(min_length=1)
     sources: dict[str, str]

@@ -63,7 +63,7 @@ class FeedAck(BaseModel):
 class FeedSourceConfig(BaseModel):
     """One feed source in the service configuration ([feeds.<name>])."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)  # stale_after_s = inf never went stale
 
     kind: Literal["pose", "twist", "measurement"]
     priority: int = 0
