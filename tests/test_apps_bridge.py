@@ -409,3 +409,23 @@ def test_infinite_or_nan_settings_are_refused_when_the_file_is_read(tmp_path: Pa
                 "applications[1].admittance.sensor_rotation.1.1"):
         assert key in got and "finite" in got[key].reason, (key, sorted(got))
     assert str(got["feeds.jog.stale_after_s"].value) == "inf"
+
+
+@pytest.mark.parametrize("rotation", ["[[1.0, 0.0], [0.0, 1.0]]", "[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]",
+                                      "[[10.0, 0.0, 0.0], [0.0, 10.0, 0.0], [0.0, 0.0, 10.0]]",
+                                      "[[1.0, 1.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]"])
+def test_a_sensor_rotation_that_is_no_rotation_is_refused(tmp_path: Path, rotation: str) -> None:
+    """A 2x2 matrix used to load, then raise IndexError on every force sample (hand guiding never
+    moved, "error" in the bridge's problems); a scaled one silently multiplied the gains."""
+    path = tmp_path / "inputs.toml"
+    path.write_text('[feeds.ft]\nkind = "measurement"\n[[applications]]\nname = "guide"\ntype = "admittance"\n'
+                    f'sources = {{ wrench = "ft" }}\nsensor_rotation = {rotation}\n')
+    with pytest.raises(ConfigError) as ei:
+        load_service_inputs(path)
+    (issue,) = ei.value.issues
+    assert issue.key.endswith("sensor_rotation") and issue.file == str(path)
+    assert "3 rows of 3" in issue.reason or "rotation matrix" in issue.reason
+    r = 0.7071  # a rotation of 45 degrees about z, as a person writes it, loads
+    path.write_text('[feeds.ft]\nkind = "measurement"\n[[applications]]\nname = "guide"\ntype = "admittance"\n'
+                    f'sources = {{ wrench = "ft" }}\nsensor_rotation = [[{r}, -{r}, 0], [{r}, {r}, 0], [0, 0, 1]]\n')
+    load_service_inputs(path)

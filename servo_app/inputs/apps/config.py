@@ -45,6 +45,7 @@ ADAPTER_KINDS = {"spacemouse": "twist", "spacenav": "twist", "serial_line": "mea
 # MIN_LINEAR_MM_S and MIN_ANGULAR_DEG_S; the inputs never import the motion floor, and a test checks
 # that the numbers agree): a tracking app set slower is refused when its file is read.
 SLOWEST_POSE_SPEED = 0.1
+ROTATION_TOLERANCE = 1e-3  # a rotation written with 4 decimals (0.7071) passes
 
 
 class _App(BaseModel):
@@ -83,6 +84,22 @@ class AdmittanceConfig(_App):
     axes: list[bool] = Field(default_factory=lambda: [True] * 6, min_length=6, max_length=6)
     bias_samples: PositiveInt = 10
     sensor_rotation: list[list[float]] | None = None  # 3x3, command frame <- sensor frame
+
+    @model_validator(mode="after")
+    def _rotation(self) -> AdmittanceConfig:
+        # Another shape raised IndexError on every sample at run time (hand guiding never moved);
+        # a scaled or skewed matrix silently changed the gains.
+        r = self.sensor_rotation
+        if r is None:
+            return self
+        if len(r) != 3 or any(len(row) != 3 for row in r):
+            raise KeyedError("sensor_rotation", r, "must be 3 rows of 3 numbers (command frame <- sensor frame)")
+        for i in range(3):
+            for j in range(3):
+                if abs(sum(r[i][k] * r[j][k] for k in range(3)) - (i == j)) > ROTATION_TOLERANCE:
+                    raise KeyedError("sensor_rotation", r, "must be a rotation matrix: rows of length 1, at right "
+                                     "angles to each other (a scale belongs in the gains)")
+        return self
 
 
 class StandoffConfig(_App):
