@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -153,7 +154,10 @@ def parse_applications(raw: Any, kinds: Mapping[str, str], file: str) -> tuple[l
         try:
             app = _APP.validate_python(table)
         except ValidationError as exc:
-            issues.extend(issues_from_validation(exc, file, prefix))
+            # pydantic puts the union's tag (the type) in front of the key; the file has no such key.
+            tag = f"{prefix}{table.get('type')}." if isinstance(table, dict) else None
+            issues.extend(replace(i, key=prefix + i.key.removeprefix(tag)) if tag and i.key.startswith(tag) else i
+                          for i in issues_from_validation(exc, file, prefix))
             continue
         if app.name in names:
             issues.append(ConfigIssue(file, f"{prefix}name", app.name, "already names a source or application"))
