@@ -366,6 +366,7 @@ def test_standoff_forgets_its_integral_while_the_distance_sensor_is_quiet(tmp_pa
                     'max_speed_mm_s = 20.0\nintegral_limit_mm_s = 10.0\n')
     clock = Clock()
     bridge = InputsBridge.from_file(path, clock=clock, stale_latch_s=0.05)
+    bridge.enabled = True  # stand-off commands: its integral gathers
     reader = InputSlotReader(bridge.slot_name)
 
     def reading(distance: float) -> InputCommand | None:
@@ -429,3 +430,48 @@ def test_a_sensor_rotation_that_is_no_rotation_is_refused(tmp_path: Path, rotati
     path.write_text('[feeds.ft]\nkind = "measurement"\n[[applications]]\nname = "guide"\ntype = "admittance"\n'
                     f'sources = {{ wrench = "ft" }}\nsensor_rotation = [[{r}, -{r}, 0], [{r}, {r}, 0], [0, 0, 1]]\n')
     load_service_inputs(path)
+
+
+def test_standoff_takes_over_without_an_integral_gathered_while_it_did_not_command(tmp_path: Path) -> None:
+    """The distance sensor streams all along, 1 mm too far, while input control is off and then while
+    the operator's higher-priority jog has control: the arm does not move, so the error stays. When
+    stand-off takes over, its first command is the proportional term; it used to carry the integral
+    gathered meanwhile (at its limit, 11 mm/s where 1 mm/s was due) and overshoot the surface."""
+    path = tmp_path / "inputs.toml"
+    path.write_text('[feeds.gauge]\nkind = "measurement"\nstale_after_s = 0.2\n[feeds.pilot]\nkind = "twist"\n'
+                    'stale_after_s = 0.1\npriority = 50\n[[applications]]\nname = "standoff"\ntype = "standoff"\n'
+                    'sources = { distance = "gauge" }\ntarget_mm = 50.0\nkp = 1.0\nki = 5.0\nmax_speed_mm_s = 20.0\n'
+                    'integral_limit_mm_s = 10.0\n')
+    clock = Clock()
+    bridge = InputsBridge.from_file(path, clock=clock, stale_latch_s=0.05)
+    reader = InputSlotReader(bridge.slot_name)
+
+    def reading(pilot: bool = False) -> InputCommand | None:
+        clock.t += 0.02
+        bridge.feeds.submit("gauge", {"kind": "measurement", "values": {"distance": 51.0}})
+        if pilot:
+            bridge.feeds.submit("pilot", twist(5.0))
+        bridge.step(clock())
+        return reader.poll()
+
+    try:
+        for _ in range(150):  # 3 s with input control off
+            reading()
+        bridge.enabled = True
+        cmd = reading()
+        assert cmd is not None and bridge.source_names[cmd.source] == "standoff"
+        assert cmd.values[2] == pytest.approx(1.0)
+        for _ in range(150):  # 3 s of the operator's jog in control
+            cmd = reading(pilot=True) or cmd
+        assert bridge.source_names[cmd.source] == "pilot"
+        for _ in range(10):  # the jog stops: stand-off takes over when it goes stale
+            cmd = reading() or cmd
+            if bridge.source_names[cmd.source] == "standoff":
+                break
+        assert bridge.source_names[cmd.source] == "standoff" and not cmd.stale
+        # In control since the jog's stale marker, whose latch held its first commands back: a few
+        # passes of integral, not 3 s of it.
+        assert cmd.values[2] == pytest.approx(1.0, abs=0.5)
+    finally:
+        reader.close()
+        bridge.close()

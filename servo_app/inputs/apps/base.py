@@ -82,6 +82,10 @@ class Application(ABC):
     def observe(self, now: float, feedback: Feedback, active: bool) -> None:  # noqa: B027 - an optional hook
         """The servo's published state, for applications that report how well they follow."""
 
+    def idle(self) -> None:  # noqa: B027 - an optional hook
+        """Not commanding the arm this pass (input control off, or another source in control): a law
+        that integrates forgets what it gathered, so taking over starts without a stored push."""
+
     def describe(self) -> dict[str, Any]:
         return {}
 

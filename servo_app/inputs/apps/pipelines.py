@@ -95,6 +95,9 @@ class StandoffApp(Application):
                              "twists (its z is replaced by the stand-off speed)")
         return TwistSample((op.linear[0], op.linear[1], vz), op.angular, "tool", min(d.stamp, op.stamp), self.name)
 
+    def idle(self) -> None:
+        self.law.hold()
+
     def describe(self) -> dict[str, Any]:
         return {"target_mm": self.law.p.target_mm, "distance_mm": self.distance_mm, "error_mm": self.law.error_mm}
 

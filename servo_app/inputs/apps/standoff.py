@@ -39,6 +39,11 @@ class StandoffController:
         self._last = None
         self.error_mm = None
 
+    def hold(self) -> None:
+        """Not in control: the integral starts again from zero when it is (bumpless take-over)."""
+        self.integral = 0.0
+        self._last = None
+
     def step(self, distance_mm: float | None, stamp: float | None, now: float) -> float:
         """Tool-z speed in mm/s for this cycle."""
         p = self.p

@@ -37,6 +37,9 @@ class Pipeline:
         with self.lock:
             updated = [app for app in self.apps if app.update(now)]
             decision = self.arbiter.select(now)
+            for app in self.apps:
+                if not self.enabled or decision.active != app.name:
+                    app.idle()  # e.g. stand-off's integral would wind up against an arm it does not move
             cmd = self.publication.command_for(decision, now)
             if cmd is not None:
                 self._send(cmd)
