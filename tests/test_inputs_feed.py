@@ -151,7 +151,7 @@ def test_a_sequence_that_jumps_or_restarts_is_resynchronised_not_locked_out() ->
     assert st.resyncs == 4 and st.out_of_order == 2 and st.accepted == 5 + 1 + 3 + 1 + 1 + 497 + 1
     # A restart whose stamp is older than the last sample is a late packet all the same.
     ack = reg.submit("vision", {"kind": "pose", "xyzwpr": [0, 0, 300, 180, 0, 0], "seq": 50_000,
-                                "stamp": c.wall - 5.0})
+                                "stamp": c.wall - 0.05})
     assert not ack.accepted
 
 
@@ -383,3 +383,24 @@ def test_feed_over_real_uvicorn_with_asyncio_clients() -> None:
         assert reg.slot("jog").read().value.linear[0] == 2 and reg.slot("gauge").read().value["distance"] == 42.0
     finally:
         live.stop()
+
+
+@pytest.mark.e2e
+def test_a_sample_stale_on_arrival_is_dropped_saying_the_clocks_may_be_off(
+        client: tuple[Served, FeedRegistry]) -> None:
+    """A camera whose clock is 0.4 s behind ours: every frame is older than the source's 0.3 s on
+    arrival, so none could ever command. Each was answered "accepted" while the arm never followed;
+    now the answer, the source's statistics and its last error say why, and the slot is untouched."""
+    served_app, reg = client
+    h = {"Authorization": f"Bearer {TOKEN}"}
+    msg = {"kind": "pose", "xyzwpr": [400, 0, 300, 180, 0, 0], "stamp": time.time() - 0.4}
+    r = served_app.http.post("/api/feed/vision", json=msg, headers=h)
+    assert r.status_code == 200, r.text
+    ack = r.json()
+    assert not ack["accepted"] and ack["seq"] == 0 and ack["latency_ms"] > 300
+    assert "field 'stamp'" in ack["detail"] and "stale_after_s 0.3" in ack["detail"] and "clocks" in ack["detail"]
+    assert reg.slot("vision").read() is None
+    st = reg.stats("vision")
+    assert st.rejected == 1 and st.accepted == 0 and st.last_error == ack["detail"]
+    r = served_app.http.post("/api/feed/vision", json={**msg, "stamp": time.time() - 0.05}, headers=h)  # in sync
+    assert r.status_code == 200 and r.json()["accepted"]

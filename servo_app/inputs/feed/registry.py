@@ -4,8 +4,9 @@ The sender stamps each sample with its wall clock; latency = our wall clock at r
 stamp, and the sample goes into its slot at (monotonic now - latency), so staleness and tracking
 extrapolation see how old the value really is. Stamps from the future beyond `max_future_s`
 (unsynchronised clocks) are rejected, and so are stamps more than a day old (a monotonic clock's
-reading, or a wrong unit); slightly-future stamps count as zero latency. A sample older
-than the last published one (by seq or stamp) is dropped: a late packet must not move the robot back.
+reading, or a wrong unit); slightly-future stamps count as zero latency. A sample already older
+than the source's `stale_after_s` on arrival is dropped, saying so (it could never command), and so
+is one older than the last published one (by seq or stamp): a late packet must not move the robot back.
 
 Sequence numbers resynchronise: a seq at most `seq_window` behind the last accepted one is a late
 (or repeated) sample and dropped, unless its stamp is newer than the last one's (measured later with
@@ -178,6 +179,16 @@ class FeedRegistry:
                                    "day): a stamp is the sender's wall-clock time in Unix seconds, not a monotonic "
                                    "clock's reading; send the wall-clock time, or no stamp")
             stamp = now - max(latency, 0.0)
+            if latency > cfg.stale_after_s:
+                # Stale before it could command: "accepted" while the arm never followed (a sender's
+                # clock a few tenths behind) told the sender nothing. Dropped, and it says why.
+                detail = (f"field 'stamp' value {msg.stamp!r}: {latency:.3f} s old on arrival, more than "
+                          f"stale_after_s {cfg.stale_after_s}: stale before it could command; dropped. Are the "
+                          "sender's and this computer's clocks synchronised? (Or send no stamp.)")
+                src.rejected += 1
+                src.last_error = detail
+                return FeedAck(source=src.name, accepted=False, seq=src.slot.seq, latency_ms=latency * 1e3,
+                               detail=detail)
         prev = src.slot.read()
         # Stamped by the sender and placed after the last sample: measured later (the counter restarted).
         later = msg.stamp is not None and prev is not None and stamp > prev.stamp
