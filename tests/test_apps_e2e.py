@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
 import socket
 import threading
 import time
@@ -665,3 +666,41 @@ def test_no_stream_keeps_moving_without_input(cell: Cell) -> None:
     s = at_rest(cell)
     assert s["faults"] == [] and cell.rig.sim_alarms() == []
     assert math.isfinite(s["latency_p99_us"])
+
+
+# ------------------------------------------------------------------------------ servo process lost
+
+
+def test_input_control_is_off_after_the_servo_process_is_lost_until_enabled_again(tmp_path: Path) -> None:
+    """The servo process dies under input control (SIGKILL) and a reset brings up a new one, which
+    starts with input control off. The bridge used to go on saying "enabled" (GET /api/inputs, and
+    /api/state's inputs beside the servo's own inputs_enabled = false) while the feed moved nothing;
+    now both say off from the fault on, and enabling again over REST moves the arm from the feed."""
+    inputs = tmp_path / "inputs.toml"
+    inputs.write_text('[feeds.jog]\nkind = "twist"\nstale_after_s = 0.25\nmax_linear_mm_s = 100.0\n')
+    feed = {"kind": "twist", "linear": [20.0, 0.0, 0.0], "frame": "base"}
+    with running_rig(tmp_path / "var", inputs_config=inputs) as rig:
+        h = rig.lease()
+        rig.start_streaming(h)
+        rig.post("/api/inputs/enable", h, {"enable": True})
+        assert rig.http.get("/api/inputs").json()["enabled"]
+        os.kill(rig.service.stream.pid, signal.SIGKILL)  # type: ignore[union-attr]
+        s = rig.wait(lambda s: s["state"] == "fault" and not s["inputs"]["enabled"], 5.0, "fault, inputs off")
+        assert not rig.http.get("/api/inputs").json()["enabled"]
+        rig.post("/api/reset", h)
+        rig.wait_state("disconnected", "connected", "ready", timeout=15)
+        rig.post("/api/session/start", h)
+        s = rig.wait_state("streaming")
+        assert s["inputs"]["enabled"] is False and s["inputs_enabled"] is False, (s["inputs"], s["inputs_enabled"])
+        assert not rig.http.get("/api/inputs").json()["enabled"]
+        rig.post("/api/inputs/enable", h, {"enable": True})
+        s = rig.state()
+        assert s["inputs"]["enabled"] and s["inputs_enabled"]
+        deadline = time.monotonic() + 5.0
+        while max(map(abs, rig.state()["vel"])) < 1.0:  # the feed moves the arm again
+            assert time.monotonic() < deadline, "the feed does not move the arm"
+            r = rig.http.post("/api/feed/jog", json={**feed, "stamp": time.time()}, headers=AUTH)
+            assert r.status_code == 200 and r.json()["accepted"], r.text
+            time.sleep(0.02)
+        s = rig.wait(lambda s: s["state"] == "stopped" and s["stop_reason"] is not None, 3.0, "stopped")
+        assert s["stop_reason"] == "input jog stale" and s["at_rest"]

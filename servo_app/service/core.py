@@ -123,6 +123,8 @@ class ServoService:
         One that dies or stays silent before it is ready (killed while warming up, say) becomes the
         stream's fault: the state names it, the next reset tries again, and TimeoutError (503) says so."""
         self.spawning = True
+        if self.inputs is not None:  # a new servo process starts with input control off
+            self.inputs.servo_gone()
         try:
             if self.stream is not None:
                 self.stream.shutdown(timeout=2.0)
@@ -178,6 +180,8 @@ class ServoService:
             "during": self._safety.get("state"),
         }
         self.alarm_forwarder.record_fault("SERVO", self.servo_fault["message"])
+        if self.inputs is not None:  # nothing follows the inputs now: say so
+            self.inputs.servo_gone()
         self._close_recorders()  # no LogClosed will come: what the process wrote is all there is
         with self._safety_cv:
             self._safety_cv.notify_all()

@@ -160,6 +160,13 @@ class InputsBridge:
             out["warning"] = "; ".join(self._failure_text(a.name, f) for a, f in failed)
         return out
 
+    def servo_gone(self) -> None:
+        """The servo process that took input control ended: a new one starts with it off, so the bridge
+        says off too (it said "enabled" while nothing followed the inputs); the lease holder enables
+        again."""
+        self._pipeline.enable(False)
+        self._loop.wake()
+
     def set_owner(self, name: str | None) -> dict[str, Any]:
         """Give one source exclusive control (the others stay connected and reported, but cannot
         command); None gives it back to priority among all. KeyError names an unknown source."""
