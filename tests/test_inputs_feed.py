@@ -163,6 +163,18 @@ def test_a_twist_in_an_unknown_frame_is_refused() -> None:
     assert reg.submit("jog", {"kind": "twist", "linear": [10, 0, 0], "frame": "tool"}).accepted
 
 
+def test_a_pose_in_a_frame_other_than_base_is_refused() -> None:
+    """Poses are commanded in the base frame. A camera's pose in its own frame ("camera") or the
+    tool's was answered "accepted", then dropped by the tracking application or the bridge: the
+    sender saw nothing wrong and the arm never moved."""
+    reg = make_registry()
+    for frame in ("camera", "tool", "world"):
+        with pytest.raises(FeedRejected, match=rf"field 'frame' value '{frame}'"):
+            reg.submit("vision", {"kind": "pose", "xyzwpr": [400, 0, 300, 180, 0, 0], "frame": frame})
+    assert reg.slot("vision").seq == 0 and reg.stats("vision").rejected == 3
+    assert reg.submit("vision", {"kind": "pose", "xyzwpr": [400, 0, 300, 180, 0, 0], "frame": "base"}).accepted
+
+
 def test_feed_sources_plug_into_the_arbiter() -> None:
     c = Clocks()
     reg = make_registry(c)

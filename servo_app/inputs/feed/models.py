@@ -31,7 +31,9 @@ class PoseFeed(_Feed):
     kind: Literal["pose"]
     xyzwpr: tuple[Finite, Finite, Finite, Finite, Finite, Finite] = Field(
         description="X Y Z in mm, W P R in deg (rotations about fixed X, Y, Z)")
-    frame: str = "base"
+    # Poses are commanded in the base frame (servo_app.motion.commands); another name was accepted
+    # here, then dropped by tracking or the bridge, so the sender heard "accepted" and nothing moved.
+    frame: Literal["base"] = Field("base", description="base (world): the frame poses are commanded in")
 
 
 class TwistFeed(_Feed):
