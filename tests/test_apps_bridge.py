@@ -17,6 +17,7 @@ from servo_app.input_slot import NONE, POSE, TWIST, InputCommand, InputSlotReade
 from servo_app.inputs import ConfigError
 from servo_app.inputs.apps.config import load_service_inputs
 from servo_app.inputs.bridge import InputsBridge
+from servo_app.inputs.bridge.core import InputNotLive
 from servo_app.inputs.feed.registry import FeedRejected
 from servo_app.inputs.samples import TwistSample
 from servo_app.messages import ConfigureInputs
@@ -173,12 +174,19 @@ def test_stale_marker_is_kept_before_another_source_takes_over(rig: tuple[Inputs
 
 def test_admittance_zeroing_then_guiding(rig: tuple[InputsBridge, InputSlotReader, Clock]) -> None:
     bridge, reader, clock = rig
+    guide = bridge.application("guide")
+    # Not while the sensor is silent: the bias would be whatever it read when it came back (a hand
+    # on the tool, say), and guiding would then push by itself. The refusal changes nothing.
+    with pytest.raises(InputNotLive, match="'ft' has sent nothing yet"):
+        bridge.zero("guide")
+    assert not guide.describe()["zeroing"]
+    bridge.feeds.submit("ft", wrench(5.0, 0.0, -3.0))
+    bridge.step(clock())
     bridge.zero("guide")
     for _ in range(3):  # the sensor's offset while nobody touches the tool
         clock.t += 0.004
         bridge.feeds.submit("ft", wrench(5.0, 0.0, -3.0))
         bridge.step(clock())
-    guide = bridge.application("guide")
     assert guide.describe()["bias"][:3] == pytest.approx([5.0, 0.0, -3.0]) and not guide.describe()["zeroing"]
     clock.t += 0.004
     bridge.feeds.submit("ft", wrench(5.0, 0.0, -3.0))
@@ -191,6 +199,10 @@ def test_admittance_zeroing_then_guiding(rig: tuple[InputsBridge, InputSlotReade
         bridge.step(clock())
     cmd = reader.poll()
     assert cmd is not None and cmd.frame == "tool" and cmd.values[1] == pytest.approx((12.0 - 2.0) * 2.0, rel=1e-3)
+    clock.t += 0.2  # the sensor is unplugged (stale after 0.05 s)
+    with pytest.raises(InputNotLive, match=r"'ft' has sent nothing for 0.20 s \(stale after 0.05 s\)"):
+        bridge.zero("guide")
+    assert not guide.describe()["zeroing"]
     with pytest.raises(ValueError, match="no sensor bias"):
         bridge.zero("standoff")
     with pytest.raises(KeyError):

@@ -457,6 +457,26 @@ def zero_guide(cell: Cell, h: dict[str, str], offset: list[float]) -> None:
     assert guide["bias"] == pytest.approx(offset, abs=0.011)
 
 
+def test_zeroing_is_refused_while_the_force_sensor_is_silent(cell: Cell) -> None:
+    """Zeroing with the sensor unplugged used to answer 200 and wait: the bias came from whatever the
+    sensor read when it came back (a hand on the tool, say), and guiding pushed by itself on release.
+    Now 409 naming the sensor, nothing pending; with the sensor sending, zeroing goes ahead."""
+    h = ready(cell, enable=False)
+    deadline = time.monotonic() + 5.0
+    while not cell.source("ft")["stale"]:  # no test's sensor thread is running
+        assert time.monotonic() < deadline, "the force sensor is still sending"
+        time.sleep(0.02)
+    r = cell.rig.http.post("/api/inputs/guide/zero", headers=h)
+    assert r.status_code == 409 and "sensor 'ft' has sent nothing" in r.json()["detail"], r.text
+    assert not cell.inputs()["applications"][1]["zeroing"]
+    sensor = Every(0.005, cell.ft_frame)
+    try:
+        zero_guide(cell, h, [0.0] * 6)
+    finally:
+        sensor.stop()
+    done(cell, h)
+
+
 def test_force_torque_hand_guiding_with_bias_zeroing(cell: Cell) -> None:
     offset = [5.0, 0.0, -3.0, 0.0, 0.1, 0.0]  # what the sensor reads with nobody touching the tool
     sensor = Every(0.005, cell.ft_frame)

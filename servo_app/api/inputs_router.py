@@ -23,6 +23,7 @@ from starlette.requests import HTTPConnection
 from servo_app.api.auth import token_matches
 from servo_app.api.models import Ack, InputsView
 from servo_app.inputs.bridge import InputsBridge
+from servo_app.inputs.bridge.core import InputNotLive
 from servo_app.inputs.feed.router import FeedPostFastPath, feed_post_handler, feed_router
 
 
@@ -111,7 +112,7 @@ def include_inputs(app: FastAPI, bridge: InputsBridge, *, token: str, controllin
     @router.post("/api/inputs/{name}/zero", summary="Re-zero a force/torque application's bias")
     def zero(name: str, client: Annotated[str, Depends(controlling)], body: ZeroRequest | None = None) -> Ack:
         """Average the next ``samples`` readings into the application's bias (hold the sensor unloaded).
-        Token and lease."""
+        Refused (409, nothing changes) while its sensor is not sending. Token and lease."""
         try:
             bridge.application(name)
         except KeyError as exc:
@@ -120,6 +121,8 @@ def include_inputs(app: FastAPI, bridge: InputsBridge, *, token: str, controllin
             bridge.zero(name, body.samples if body else None)
         except ValueError as exc:
             raise HTTPException(422, str(exc)) from None
+        except InputNotLive as exc:
+            raise HTTPException(409, str(exc)) from None
         return call(client, "inputs.zero", lambda: {"application": name, "zeroing": True}, {"application": name})
 
     app.include_router(router)

@@ -35,7 +35,13 @@ from servo_app.inputs.problems import ProblemLog
 from servo_app.inputs.samples import ButtonEvent
 from servo_app.messages import ConfigureInputs
 
-Request = Callable[[ConfigureInputs], Any]  # the service's request(): a typed message to the servo process
+Request = Callable[[ConfigureInputs], Any]
+
+
+class InputNotLive(RuntimeError):
+    """Refused for now: an application's sensor is not sending (the request changed nothing)."""
+
+  # the service's request(): a typed message to the servo process
 
 
 class InputsBridge:
@@ -188,6 +194,17 @@ class InputsBridge:
         if zero is None:
             raise ValueError(f"application {name!r} ({app.type_name}) has no sensor bias to zero")
         with self._lock:
+            # The bias comes from the next samples: with the sensor unplugged, they were whatever it read
+            # when it came back (a hand on the tool, say), and guiding then pushed by itself on release.
+            now = self.clock()
+            for ref in app.inputs.values():
+                if ref.required and ref.fresh(now) is None:
+                    cur = ref.slot.read()
+                    quiet = ("has sent nothing yet" if cur is None else
+                             f"has sent nothing for {now - cur.stamp:.2f} s (stale after {ref.stale_after_s} s)")
+                    raise InputNotLive(f"application {name!r} cannot zero: its sensor {ref.source!r} {quiet}; the "
+                                       "bias is taken from its next samples with nobody touching the tool, so "
+                                       "get the sensor sending, then zero again")
             zero(samples)
 
     def act_on(self, ev: ButtonEvent, action: OutputToggle) -> None:
