@@ -99,6 +99,13 @@ def test_registry_rejections_name_field_and_value() -> None:
          r"field 'stamp' value 12345.6: .* s in the past \(more than a day\): .* not a monotonic clock"),
         ("gauge", {"kind": "measurement", "values": {"distance": 0.0}, "stamp": -1.797693134862316e+305},
          r"field 'stamp' value -1.797693134862316e\+305: .* in the past"),
+        # Unix time in milliseconds or microseconds (JavaScript's Date.now(), a camera's clock): years in the
+        # future, which the answer put down to unsynchronised clocks, with a 16-digit number of seconds.
+        ("vision", {"kind": "pose", "xyzwpr": [0, 0, 0, 0, 0, 0], "stamp": c.wall * 1e3},
+         r"field 'stamp' value 1700000000000.0: 1.69\d*e\+12 s in the future: a stamp is the sender's wall-clock "
+         r"time in Unix seconds; this one is in milliseconds: divide it by 1000$"),
+        ("vision", {"kind": "pose", "xyzwpr": [0, 0, 0, 0, 0, 0], "stamp": c.wall * 1e6},
+         r"in the future: .* Unix seconds; this one is in microseconds: divide it by 1e\+06$"),
         ("vision", {"kind": "twist", "linear": [1, 0, 0]}, r"field 'kind' value 'twist': source 'vision' takes pose"),
         ("jog", {"kind": "twist", "linear": [300, 0, 0]}, r"field 'linear' value \[300.0, 0.0, 0.0\]"),
         ("gauge", {"kind": "measurement", "values": {"temp": 21.0}}, r"missing \['distance'\]"),
@@ -109,7 +116,7 @@ def test_registry_rejections_name_field_and_value() -> None:
     for source, payload, pattern in cases:
         with pytest.raises(FeedRejected, match=pattern):
             reg.submit(source, payload)
-    assert reg.stats("vision").rejected == 5 and reg.stats("gauge").last_error is not None
+    assert reg.stats("vision").rejected == 7 and reg.stats("gauge").last_error is not None
     assert reg.slot("vision").read() is None and reg.slot("gauge").read() is None  # nothing refused was kept
     with pytest.raises(UnknownSource):
         reg.submit("nope", {"kind": "pose", "xyzwpr": [0] * 6})

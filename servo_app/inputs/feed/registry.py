@@ -44,6 +44,17 @@ _AXES = "xyzwpr"
 MAX_STAMP_AGE_S = 86_400.0
 
 
+_FINER_UNITS = (("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9))
+
+
+def _unit_hint(stamp: float, wall: float) -> str:
+    """What a stamp far in the future is, when it is Unix time in a finer unit than seconds."""
+    for unit, per_s in _FINER_UNITS:
+        if abs(wall - stamp / per_s) < MAX_STAMP_AGE_S:
+            return f"; this one is in {unit}: divide it by {per_s:g}"
+    return ""
+
+
 class UnknownSource(KeyError):
     pass
 
@@ -171,6 +182,9 @@ class FeedRegistry:
         stamp = now
         if msg.stamp is not None:
             latency = wall - msg.stamp
+            if latency < -MAX_STAMP_AGE_S:  # years ahead is no clock skew: a finer unit than seconds
+                raise FeedRejected(f"field 'stamp' value {msg.stamp!r}: {-latency:.6g} s in the future: a stamp is "
+                                   f"the sender's wall-clock time in Unix seconds{_unit_hint(msg.stamp, wall)}")
             if latency < -cfg.max_future_s:
                 raise FeedRejected(f"field 'stamp' value {msg.stamp!r}: {-latency:.3f} s in the future "
                                    f"(more than max_future_s {cfg.max_future_s}); are the clocks synchronised?")
