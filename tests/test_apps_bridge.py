@@ -487,3 +487,18 @@ def test_standoff_takes_over_without_an_integral_gathered_while_it_did_not_comma
     finally:
         reader.close()
         bridge.close()
+
+
+def test_a_tracking_update_rate_faster_than_the_servo_reads_is_refused(tmp_path: Path) -> None:
+    """update_hz = 100000 loaded, and the bridge's thread woke every 10 us to re-extrapolate for a servo
+    that reads every 4 ms at best: a third of a core busy here, with the GIL the feeds and requests need."""
+    path = tmp_path / "inputs.toml"
+    body = ('[feeds.vision]\nkind = "pose"\n[[applications]]\nname = "t"\ntype = "tracking"\n'
+            'sources = { target = "vision" }\n')
+    path.write_text(body + "update_hz = 100000.0\n")
+    with pytest.raises(ConfigError) as ei:
+        load_service_inputs(path)
+    (issue,) = ei.value.issues
+    assert issue.key == "applications[0].update_hz" and issue.value == 100000.0 and "250" in issue.reason
+    path.write_text(body + "update_hz = 250.0\n")
+    load_service_inputs(path)

@@ -123,7 +123,9 @@ class TrackingConfig(_App):
     max_gap_s: PositiveFloat = 0.25
     linear_speed: float = Field(150.0, ge=SLOWEST_POSE_SPEED)  # caps of the pose command, mm/s and deg/s
     angular_speed: float = Field(30.0, ge=SLOWEST_POSE_SPEED)
-    update_hz: PositiveFloat = 125.0  # re-extrapolate this often between samples
+    # Re-extrapolate this often between samples. No faster than the servo reads (every 4 ms at best):
+    # at 1e5 the bridge's thread woke every 10 us: a third of a core, and the API process's GIL.
+    update_hz: float = Field(125.0, gt=0.0, le=250.0)
 
     @model_validator(mode="after")
     def _horizon(self) -> TrackingConfig:
