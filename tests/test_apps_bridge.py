@@ -502,3 +502,16 @@ def test_a_tracking_update_rate_faster_than_the_servo_reads_is_refused(tmp_path:
     assert issue.key == "applications[0].update_hz" and issue.value == 100000.0 and "250" in issue.reason
     path.write_text(body + "update_hz = 250.0\n")
     load_service_inputs(path)
+
+
+def test_admittance_keys_must_name_six_different_values(tmp_path: Path) -> None:
+    """A name twice (a copy-paste slip: "tx" for Ty) loaded, and a torque about x turned the tool
+    about y as well."""
+    path = tmp_path / "inputs.toml"
+    path.write_text('[feeds.ft]\nkind = "measurement"\n[[applications]]\nname = "guide"\ntype = "admittance"\n'
+                    'sources = { wrench = "ft" }\nkeys = ["fx", "fy", "fz", "tx", "tx", "tz"]\n')
+    with pytest.raises(ConfigError) as ei:
+        load_service_inputs(path)
+    (issue,) = ei.value.issues
+    assert issue.key == "applications[0].keys" and issue.value == ["fx", "fy", "fz", "tx", "tx", "tz"]
+    assert "six different" in issue.reason

@@ -90,6 +90,8 @@ class AdmittanceConfig(_App):
     def _rotation(self) -> AdmittanceConfig:
         # Another shape raised IndexError on every sample at run time (hand guiding never moved);
         # a scaled or skewed matrix silently changed the gains.
+        if len(set(self.keys)) != len(self.keys):  # a name twice drove two axes from one value
+            raise KeyedError("keys", self.keys, "names Fx Fy Fz Tx Ty Tz: six different measurement values")
         r = self.sensor_rotation
         if r is None:
             return self
