@@ -515,3 +515,26 @@ def test_admittance_keys_must_name_six_different_values(tmp_path: Path) -> None:
     (issue,) = ei.value.issues
     assert issue.key == "applications[0].keys" and issue.value == ["fx", "fy", "fz", "tx", "tx", "tz"]
     assert "six different" in issue.reason
+
+
+def test_an_application_timeout_shorter_than_its_sensors_is_refused(tmp_path: Path) -> None:
+    """An application goes stale with its inputs; its own stale_after_s sets how long each command holds
+    the arm. Set to 0.1 s over a sensor of 0.5 s (one sample every 0.2 s, say), it loaded, and the
+    servo's hold ran out between samples: the arm stopped, "hold-to-run expired", waiting for a resume."""
+    path = tmp_path / "inputs.toml"
+    body = ('[feeds.gauge]\nkind = "measurement"\nstale_after_s = 0.5\n[feeds.jog]\nkind = "twist"\n'
+            'stale_after_s = 2.0\n[[applications]]\nname = "standoff"\ntype = "standoff"\n'
+            'sources = { distance = "gauge", operator = "jog" }\ntarget_mm = 50.0\n')
+    path.write_text(body + "stale_after_s = 0.1\n")
+    with pytest.raises(ConfigError) as ei:
+        load_service_inputs(path)
+    (issue,) = ei.value.issues
+    assert issue.key == "applications[0].stale_after_s" and issue.value == 0.1
+    assert "input 'gauge''s stale_after_s 0.5" in issue.reason
+    path.write_text(body + "stale_after_s = 0.5\n")  # the optional operator's longer timeout does not count
+    load_service_inputs(path)
+    bridge = InputsBridge.from_file(path, clock=Clock())
+    try:
+        assert bridge.application("standoff").stale_after_s == 0.5
+    finally:
+        bridge.close()

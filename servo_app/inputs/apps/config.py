@@ -147,7 +147,12 @@ def source_kinds(cfg: InputsConfig) -> dict[str, str]:
     return kinds
 
 
-def parse_applications(raw: Any, kinds: Mapping[str, str], file: str) -> tuple[list[AppConfig], list[ConfigIssue]]:
+def source_timeouts(cfg: InputsConfig) -> dict[str, float]:
+    return {a.name: a.stale_after_s for a in cfg.adapters} | {n: f.stale_after_s for n, f in cfg.feeds.items()}
+
+
+def parse_applications(raw: Any, kinds: Mapping[str, str], file: str, timeouts: Mapping[str, float] | None = None
+                       ) -> tuple[list[AppConfig], list[ConfigIssue]]:
     if not isinstance(raw, list):
         return [], [ConfigIssue(file, "applications", raw, "must be an array of tables ([[applications]])")]
     apps: list[AppConfig] = []
@@ -167,6 +172,7 @@ def parse_applications(raw: Any, kinds: Mapping[str, str], file: str) -> tuple[l
             issues.append(ConfigIssue(file, f"{prefix}name", app.name, "already names a source or application"))
         names.add(app.name)
         issues.extend(_check_sources(app, kinds, file, prefix))
+        issues.extend(_check_timeout(app, timeouts or {}, file, prefix))
         apps.append(app)
     return apps, issues
 
@@ -188,6 +194,24 @@ def _check_sources(app: AppConfig, kinds: Mapping[str, str], file: str, prefix: 
     return out
 
 
+def _check_timeout(app: AppConfig, timeouts: Mapping[str, float], file: str, prefix: str) -> list[ConfigIssue]:
+    """An application goes stale with its inputs (base.Application), whatever its own stale_after_s, which
+    sets how long each command holds the arm: shorter than an input's timeout, the servo's hold ran out
+    between that sensor's samples and the arm stopped, "hold-to-run expired" instead of naming it."""
+    if app.stale_after_s is None:
+        return []
+    roles = APPLICATION_TYPES[app.type].roles
+    slower = {src: timeouts[src] for role, src in app.sources.items()
+              if role in roles and roles[role][1] and timeouts.get(src, 0.0) > app.stale_after_s}
+    if not slower:
+        return []
+    src, t = max(slower.items(), key=lambda kv: kv[1])
+    return [ConfigIssue(file, f"{prefix}stale_after_s", app.stale_after_s,
+                        f"shorter than its input {src!r}'s stale_after_s {t}: the application goes stale with its "
+                        "inputs and each command holds the arm this long, so the hold would run out between that "
+                        f"input's samples; leave it out (it is then {t}) or shorten the input's instead")]
+
+
 def load_service_inputs(path: str | Path) -> tuple[InputsConfig, list[AppConfig]]:
     """Adapters, feeds and applications from one TOML file; raises ConfigError listing every problem."""
     path = Path(path)
@@ -201,7 +225,7 @@ def load_service_inputs(path: str | Path) -> tuple[InputsConfig, list[AppConfig]
         issues.extend(exc.issues)
         cfg = None
     kinds = source_kinds(cfg) if cfg is not None else {}
-    apps, app_issues = parse_applications(raw_apps, kinds, file)
+    apps, app_issues = parse_applications(raw_apps, kinds, file, source_timeouts(cfg) if cfg is not None else None)
     if cfg is not None:  # app source names are only meaningful once the sources parsed
         issues.extend(app_issues)
     else:
