@@ -538,3 +538,17 @@ def test_an_application_timeout_shorter_than_its_sensors_is_refused(tmp_path: Pa
         assert bridge.application("standoff").stale_after_s == 0.5
     finally:
         bridge.close()
+
+
+def test_feed_options_its_kind_ignores_are_refused(tmp_path: Path) -> None:
+    """``limits`` on a twist feed and ``required`` on a pose or twist feed loaded and were never read: a
+    jog feed "limited" to x <= 10 took 200 mm/s along x."""
+    path = tmp_path / "inputs.toml"
+    path.write_text('[feeds.jog]\nkind = "twist"\nlimits = { x = { max = 10.0 } }\n'
+                    '[feeds.vision]\nkind = "pose"\nrequired = ["x"]\n')
+    with pytest.raises(ConfigError) as ei:
+        load_service_inputs(path)
+    got = {i.key: i for i in ei.value.issues}
+    assert set(got) == {"feeds.jog.limits", "feeds.vision.required"}, got
+    assert "max_linear_mm_s" in got["feeds.jog.limits"].reason and got["feeds.jog.limits"].value == ["x"]
+    assert "measurement feeds only" in got["feeds.vision.required"].reason

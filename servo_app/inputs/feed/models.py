@@ -87,4 +87,12 @@ class FeedSourceConfig(BaseModel):
             raise KeyedError("kind", self.kind, "max_linear_mm_s / max_angular_deg_s apply to twist feeds only")
         if self.kind == "pose" and set(self.limits) - set("xyzwpr"):
             raise KeyedError("limits", sorted(self.limits), "pose limits take the axes x y z w p r")
+        # Both were read only for the kinds below and silently ignored otherwise: a twist feed "limited"
+        # to x <= 10 mm/s took any speed.
+        if self.kind == "twist" and self.limits:
+            raise KeyedError("limits", sorted(self.limits), "a twist feed is limited by max_linear_mm_s and "
+                             "max_angular_deg_s (limits apply to pose axes and measurement values)")
+        if self.kind != "measurement" and self.required:
+            raise KeyedError("required", self.required, "names the values every measurement must carry: "
+                             "measurement feeds only")
         return self
