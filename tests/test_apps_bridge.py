@@ -552,3 +552,44 @@ def test_feed_options_its_kind_ignores_are_refused(tmp_path: Path) -> None:
     assert set(got) == {"feeds.jog.limits", "feeds.vision.required"}, got
     assert "max_linear_mm_s" in got["feeds.jog.limits"].reason and got["feeds.jog.limits"].value == ["x"]
     assert "measurement feeds only" in got["feeds.vision.required"].reason
+
+
+def test_an_application_refusing_fresh_input_is_named_when_it_goes_stale_not_its_sensor(tmp_path: Path) -> None:
+    """Stand-off runs on a streaming gauge; the operator starts jogging in the base frame (a twist feed's
+    default), which stand-off refuses. Its output goes stale and the arm stops: the stop used to name
+    the gauge, which was streaming all along, sending the operator to check the wrong sensor. Now it
+    names the application, whose errors say why; a gauge that does go quiet is still named."""
+    path = tmp_path / "inputs.toml"
+    path.write_text('[feeds.gauge]\nkind = "measurement"\nstale_after_s = 0.2\n[feeds.jog]\nkind = "twist"\n'
+                    'stale_after_s = 0.2\n[[applications]]\nname = "standoff"\ntype = "standoff"\n'
+                    'sources = { distance = "gauge", operator = "jog" }\ntarget_mm = 50.0\n')
+    clock = Clock()
+    bridge = InputsBridge.from_file(path, clock=clock, stale_latch_s=0.05)
+    reader = InputSlotReader(bridge.slot_name)
+
+    def run(steps: int, jog: dict[str, object] | None = None, gauge: bool = True) -> InputCommand | None:
+        stale = None
+        for _ in range(steps):
+            clock.t += 0.05
+            if gauge:
+                bridge.feeds.submit("gauge", {"kind": "measurement", "values": {"distance": 52.0}})
+            if jog is not None:
+                bridge.feeds.submit("jog", jog)
+            bridge.step(clock())
+            cmd = reader.poll()
+            stale = cmd if cmd is not None and cmd.stale else stale
+        return stale
+
+    try:
+        assert run(5) is None
+        stale = run(10, jog={"kind": "twist", "linear": [10.0, 0.0, 0.0]})  # frame "base"
+        assert stale is not None and bridge.source_names[stale.source] == "standoff"
+        row = next(r for r in bridge.describe()["sources"] if r["name"] == "standoff")
+        assert row["errors"]["rejected"] > 0 and "frame 'base'" in row["last_error"]
+        assert run(5, jog=twist(10.0)) is None  # tool frame: stand-off commands again
+        stale = run(10, jog=twist(10.0), gauge=False)
+        assert stale is not None and bridge.source_names[stale.source] == "gauge"
+        assert bridge.describe()["stale_events"] == {"standoff": 1, "gauge": 1}
+    finally:
+        reader.close()
+        bridge.close()

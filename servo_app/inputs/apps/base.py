@@ -97,9 +97,16 @@ class Application(ABC):
         return self._next_tick if self.period_s else math.inf
 
     def stale_input(self, now: float) -> str:
-        """The source whose timeout runs out first (the one to blame when the output went stale)."""
+        """The one to blame when the output went stale: the required input whose timeout ran out first,
+        or, when every one has sent since the last output (the law refused them: see its errors), the
+        application itself. Blaming the input then stopped the arm with "input gauge stale" while the
+        gauge streamed and stand-off refused an operator's base-frame twist."""
         req = [i for i in self.inputs.values() if i.required]
-        return min(req, key=lambda i: i.expiry()).source
+        first = min(req, key=lambda i: i.expiry())
+        out = self.output.read()
+        if out is not None and first.expiry() > out.stamp + self.stale_after_s + 1e-6:  # renewed since
+            return self.name
+        return first.source
 
     def update(self, now: float) -> bool:
         """Run the law if an input changed or the period came round; True if a sample was published."""
