@@ -593,3 +593,17 @@ def test_an_application_refusing_fresh_input_is_named_when_it_goes_stale_not_its
     finally:
         reader.close()
         bridge.close()
+
+
+@pytest.mark.parametrize("target", ["-50.0", "0.0"])
+def test_a_standoff_target_distance_at_or_below_zero_is_refused(tmp_path: Path, target: str) -> None:
+    """A sign slip (-50 for 50) loaded: the sensor can never read it, so stand-off drove the tool toward
+    the surface at its full speed until it touched."""
+    path = tmp_path / "inputs.toml"
+    path.write_text('[feeds.gauge]\nkind = "measurement"\n[[applications]]\nname = "standoff"\ntype = "standoff"\n'
+                    f'sources = {{ distance = "gauge" }}\ntarget_mm = {target}\n')
+    with pytest.raises(ConfigError) as ei:
+        load_service_inputs(path)
+    (issue,) = ei.value.issues
+    assert issue.key == "applications[0].target_mm" and issue.value == float(target)
+    assert "greater than 0" in issue.reason

@@ -108,7 +108,9 @@ class AdmittanceConfig(_App):
 class StandoffConfig(_App):
     type: Literal["standoff"]
     field: str = "distance"  # the measurement value that is the distance, mm
-    target_mm: float
+    # A distance: at or below zero the sensor could never read it (a sign slip for -50), and stand-off
+    # drove the tool into the surface at max_speed_mm_s.
+    target_mm: float = Field(gt=0.0)
     kp: float = Field(2.0, ge=0.0)
     ki: float = Field(0.0, ge=0.0)
     max_speed_mm_s: PositiveFloat = 20.0
