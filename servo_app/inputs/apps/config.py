@@ -87,11 +87,11 @@ class AdmittanceConfig(_App):
     sensor_rotation: list[list[float]] | None = None  # 3x3, command frame <- sensor frame
 
     @model_validator(mode="after")
-    def _rotation(self) -> AdmittanceConfig:
-        # Another shape raised IndexError on every sample at run time (hand guiding never moved);
-        # a scaled or skewed matrix silently changed the gains.
+    def _keys_and_rotation(self) -> AdmittanceConfig:
         if len(set(self.keys)) != len(self.keys):  # a name twice drove two axes from one value
             raise KeyedError("keys", self.keys, "names Fx Fy Fz Tx Ty Tz: six different measurement values")
+        # Another shape raised IndexError on every sample at run time (hand guiding never moved);
+        # a scaled or skewed matrix silently changed the gains.
         r = self.sensor_rotation
         if r is None:
             return self

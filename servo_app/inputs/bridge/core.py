@@ -35,13 +35,11 @@ from servo_app.inputs.problems import ProblemLog
 from servo_app.inputs.samples import ButtonEvent
 from servo_app.messages import ConfigureInputs
 
-Request = Callable[[ConfigureInputs], Any]
+Request = Callable[[ConfigureInputs], Any]  # the service's request(): a typed message to the servo process
 
 
 class InputNotLive(RuntimeError):
     """Refused for now: an application's sensor is not sending (the request changed nothing)."""
-
-  # the service's request(): a typed message to the servo process
 
 
 class InputsBridge:
