@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -423,3 +425,52 @@ def test_a_sample_stale_on_arrival_is_dropped_saying_the_clocks_may_be_off(
     assert st.rejected == 1 and st.accepted == 0 and st.last_error == ack["detail"]
     r = served_app.http.post("/api/feed/vision", json={**msg, "stamp": time.time() - 0.05}, headers=h)  # in sync
     assert r.status_code == 200 and r.json()["accepted"]
+
+
+FLOODER = """
+import json, sys, time
+from websockets.sync.client import connect
+msg = json.dumps({"kind": "twist", "linear": [1, 0, 0]})
+with connect(sys.argv[1]) as ws:
+    print("open", flush=True)
+    end = time.monotonic() + float(sys.argv[2])
+    while time.monotonic() < end:
+        ws.send(msg)
+"""
+
+
+@pytest.mark.e2e
+def test_a_sender_flooding_the_feed_websocket_does_not_hold_up_the_other_requests() -> None:
+    """A sensor script sending in a loop without a pause (another process, as a sensor is): its frames
+    queue up, receive() returned each without suspending, and that one socket held the event loop.
+    Every other request waited: 7 to 37 answered in 3 s, the slowest after 1.5 to 5.6 s; a stop would
+    have too. Now the socket lets the loop run between messages: about 2000 answered, in 1 ms each."""
+    reg = make_registry()
+    app = FastAPI()
+    app.include_router(feed_router(reg, auth))
+
+    @app.get("/ping")
+    async def ping() -> str:
+        return "ok"
+
+    with served(app) as s:
+        url = f"ws://127.0.0.1:{s.live.port}/ws/feed/jog?token={TOKEN}"
+        flooder = subprocess.Popen([sys.executable, "-c", FLOODER, url, "3.0"], stdout=subprocess.PIPE, text=True)
+        try:
+            assert flooder.stdout is not None and flooder.stdout.readline().strip() == "open"
+            deadline = time.monotonic() + 10.0
+            while reg.stats("jog").accepted < 1000:  # the flood is on
+                assert time.monotonic() < deadline and flooder.poll() is None, "the flood did not start"
+                time.sleep(0.01)
+            took = []
+            while flooder.poll() is None:
+                t0 = time.monotonic()
+                assert s.http.get("/ping").status_code == 200
+                took.append(time.monotonic() - t0)
+        finally:
+            flooder.kill()
+            flooder.wait(10.0)
+        took.sort()
+        print(f"during the flood: {len(took)} requests, median {took[len(took) // 2] * 1e3:.1f} ms, slowest "
+              f"{took[-1] * 1e3:.0f} ms; {reg.stats('jog').accepted} feed messages taken")
+        assert len(took) >= 300

@@ -15,6 +15,7 @@ socket without a close frame), or binary data that is not UTF-8 (1007).
 
 from __future__ import annotations
 
+import asyncio
 import inspect
 import json
 from collections.abc import Callable, Coroutine
@@ -195,6 +196,10 @@ def feed_router(registry: FeedRegistry, auth_dependency: Callable[..., Any] | No
                     return
                 if ack or not reply["accepted"]:
                     await ws.send_text(json.dumps(reply, allow_nan=False))
+                # Let the event loop run between messages: with frames queued (a sender in a loop without
+                # a pause), receive() returns without suspending, and this socket alone held the loop:
+                # every other request (a stop among them) waited, up to 5.6 s seen.
+                await asyncio.sleep(0)
         except WebSocketDisconnect:
             return
 
