@@ -607,3 +607,40 @@ def test_a_standoff_target_distance_at_or_below_zero_is_refused(tmp_path: Path, 
     (issue,) = ei.value.issues
     assert issue.key == "applications[0].target_mm" and issue.value == float(target)
     assert "greater than 0" in issue.reason
+
+
+def test_standoff_integral_does_not_gather_while_the_arm_is_stopped(tmp_path: Path) -> None:
+    """Stand-off in control, then the operator stops the arm over REST for 3 s while the gauge streams
+    (1 mm too far): the bridge still had stand-off in control, so its integral wound up to its limit
+    against an arm that was not moving, and the resume set off at 11 mm/s where 1 mm/s was due. Now
+    an application that integrates is idle while the servo process does not stream."""
+    path = tmp_path / "inputs.toml"
+    path.write_text('[feeds.gauge]\nkind = "measurement"\nstale_after_s = 0.2\n[[applications]]\nname = "standoff"\n'
+                    'type = "standoff"\nsources = { distance = "gauge" }\ntarget_mm = 50.0\nkp = 1.0\nki = 5.0\n'
+                    'max_speed_mm_s = 20.0\nintegral_limit_mm_s = 10.0\n')
+    clock = Clock()
+    bridge = InputsBridge.from_file(path, clock=clock)
+    reader = InputSlotReader(bridge.slot_name)
+    servo = {"state": "streaming"}
+    bridge._pipeline.feedback = lambda: servo  # the servo process's published state, as the service gives it
+    bridge.enabled = True
+
+    def reading() -> InputCommand | None:
+        clock.t += 0.02
+        bridge.feeds.submit("gauge", {"kind": "measurement", "values": {"distance": 51.0}})
+        bridge.step(clock())
+        return reader.poll()
+
+    try:
+        for _ in range(10):
+            cmd = reading()
+        assert cmd is not None and cmd.values[2] > 1.0  # streaming: the integral gathers as it should
+        servo["state"] = "stopped"
+        for _ in range(150):
+            reading()
+        servo["state"] = "streaming"  # resumed
+        cmd = reading()
+        assert cmd is not None and cmd.values[2] == pytest.approx(1.0)
+    finally:
+        reader.close()
+        bridge.close()

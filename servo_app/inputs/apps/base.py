@@ -83,8 +83,14 @@ class Application(ABC):
         """The servo's published state, for applications that report how well they follow."""
 
     def idle(self) -> None:  # noqa: B027 - an optional hook
-        """Not commanding the arm this pass (input control off, or another source in control): a law
-        that integrates forgets what it gathered, so taking over starts without a stored push."""
+        """Not commanding the arm this pass (input control off, another source in control, or, for one
+        that `integrates`, the arm not streaming): a law that integrates forgets what it gathered, so
+        taking over starts without a stored push."""
+
+    @property
+    def integrates(self) -> bool:
+        """Whether the law gathers state over time (then the bridge also checks that the arm streams)."""
+        return False
 
     def describe(self) -> dict[str, Any]:
         return {}

@@ -98,6 +98,10 @@ class StandoffApp(Application):
     def idle(self) -> None:
         self.law.hold()
 
+    @property
+    def integrates(self) -> bool:
+        return self.law.p.ki > 0.0
+
     def describe(self) -> dict[str, Any]:
         return {"target_mm": self.law.p.target_mm, "distance_mm": self.distance_mm, "error_mm": self.law.error_mm}
 

@@ -38,8 +38,10 @@ class Pipeline:
             updated = [app for app in self.apps if app.update(now)]
             decision = self.arbiter.select(now)
             for app in self.apps:
-                if not self.enabled or decision.active != app.name:
-                    app.idle()  # e.g. stand-off's integral would wind up against an arm it does not move
+                # e.g. stand-off's integral would wind up against an arm it does not move: input control
+                # off, another source in control, or the arm stopped (a stop over REST, say)
+                if not self.enabled or decision.active != app.name or (app.integrates and not self._streaming()):
+                    app.idle()
             cmd = self.publication.command_for(decision, now)
             if cmd is not None:
                 self._send(cmd)
@@ -54,6 +56,15 @@ class Pipeline:
                 reset = getattr(app, "reset_error", None)
                 if on and reset is not None:
                     reset()
+
+    def _streaming(self) -> bool:
+        """Whether the servo process streams (True without a servo process to ask: tests, tools)."""
+        if self.feedback is None:
+            return True
+        try:
+            return self.feedback().get("state") == "streaming"
+        except (OSError, RuntimeError, TimeoutError, ValueError):
+            return True  # unknown: as before this check
 
     def _send(self, cmd: InputCommand) -> None:
         self.writer.publish(cmd)
