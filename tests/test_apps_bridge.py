@@ -644,3 +644,30 @@ def test_standoff_integral_does_not_gather_while_the_arm_is_stopped(tmp_path: Pa
     finally:
         reader.close()
         bridge.close()
+
+
+def test_zeroing_is_cancelled_when_the_force_sensor_goes_quiet_half_way(
+        rig: tuple[InputsBridge, InputSlotReader, Clock]) -> None:
+    """One of three zeroing samples read, then the sensor is unplugged; it comes back with a hand on the
+    tool (12 N). Those readings used to finish the bias, so guiding pushed the other way on release;
+    now the zeroing is cancelled, the bias stays, and the application's errors say to zero again."""
+    bridge, reader, clock = rig
+    guide = bridge.application("guide")
+    bridge.feeds.submit("ft", wrench())
+    bridge.step(clock())
+    bridge.zero("guide")
+    clock.t += 0.004
+    bridge.feeds.submit("ft", wrench())
+    bridge.step(clock())
+    assert guide.describe()["zeroing"]
+    clock.t += 0.5  # unplugged (stale after 0.05 s), then back under load
+    for _ in range(3):
+        clock.t += 0.004
+        bridge.feeds.submit("ft", wrench(0.0, 12.0))
+        bridge.step(clock())
+    view = guide.describe()
+    assert not view["zeroing"] and view["bias"] == [0.0] * 6
+    row = next(r for r in bridge.describe()["sources"] if r["name"] == "guide")
+    assert row["errors"] == {"zeroing_cancelled": 1} and "zero again" in row["last_error"]
+    cmd = reader.poll()
+    assert cmd is not None and cmd.values[1] > 0  # the push is a push: guiding moves along it

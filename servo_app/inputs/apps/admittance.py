@@ -56,6 +56,11 @@ class Admittance:
         self._bias_needed = max(1, samples or self.p.bias_samples)
         self._bias_acc = []
 
+    def cancel_bias(self) -> None:
+        """Drop a zeroing under way; the bias stays what it was."""
+        self._bias_needed = 0
+        self._bias_acc = []
+
     def reset(self) -> None:
         self._lp.reset()
         self._last_stamp = None

@@ -48,11 +48,20 @@ class AdmittanceApp(Application):
         super().__init__(name, inputs, **kw)
         self.law = Admittance(params)
         self.last_wrench: tuple[float, ...] | None = None
+        self._last_stamp: float | None = None
 
     def compute(self, now: float, values: Mapping[str, Any], changed: set[str]) -> TwistSample | None:
         if "wrench" not in changed:
             return None
         m: Measurement = require(values["wrench"], Measurement, "wrench", self.name)
+        gap = None if self._last_stamp is None else m.stamp - self._last_stamp
+        self._last_stamp = m.stamp
+        if self.law.biasing and gap is not None and gap > self.inputs["wrench"].stale_after_s:
+            # The sensor went quiet mid-zeroing: what it reads now (a hand on the tool, say) is no bias,
+            # and averaged in, guiding would push by itself on release. Asked for again instead.
+            self.law.cancel_bias()
+            self.problems.record("zeroing_cancelled", f"sensor {m.source!r} went quiet for {gap:.2f} s while "
+                                 "zeroing; the bias is unchanged: zero again with nobody touching the tool")
         out = self.law.twist(m, source=self.name)
         self.last_wrench = tuple(m.values[k] for k in self.law.p.keys)
         return out
