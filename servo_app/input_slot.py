@@ -112,6 +112,9 @@ class InputSlotReader:
         self.slot.close()
 
 
+MAX_HOLD_S = 2.0  # the longest a live input command holds the arm, whatever timeout it carries
+
+
 class InputControl:
     """What a servo-process supervisor keeps about input control, the same for every backend.
 
@@ -147,7 +150,7 @@ class InputControl:
                     on_stale(name)
                 self._active = False
                 return
-            move(cmd, name, min(max(cmd.timeout_s, self.min_hold_s), 2.0))
+            move(cmd, name, min(max(cmd.timeout_s, self.min_hold_s), MAX_HOLD_S))
             self._active = True
             self.error = ""
         except ValueError as exc:  # refused (CommandRejected is one): reported, the arm stays as it is

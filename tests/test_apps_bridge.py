@@ -257,7 +257,7 @@ def test_a_source_publishing_a_frame_the_servo_does_not_know_is_refused(tmp_path
 def test_the_thread_wakes_on_each_feed_sample(tmp_path: Path) -> None:
     """Event-driven: a feed sample reaches the slot without waiting for the housekeeping tick."""
     path = tmp_path / "inputs.toml"
-    path.write_text('[feeds.jog]\nkind = "twist"\nstale_after_s = 5.0\n')
+    path.write_text('[feeds.jog]\nkind = "twist"\nstale_after_s = 1.5\n')
     bridge = InputsBridge.from_file(path)
     reader = InputSlotReader(bridge.slot_name)
     requests: list[ConfigureInputs] = []
@@ -523,7 +523,7 @@ def test_an_application_timeout_shorter_than_its_sensors_is_refused(tmp_path: Pa
     servo's hold ran out between samples: the arm stopped, "hold-to-run expired", waiting for a resume."""
     path = tmp_path / "inputs.toml"
     body = ('[feeds.gauge]\nkind = "measurement"\nstale_after_s = 0.5\n[feeds.jog]\nkind = "twist"\n'
-            'stale_after_s = 2.0\n[[applications]]\nname = "standoff"\ntype = "standoff"\n'
+            'stale_after_s = 1.5\n[[applications]]\nname = "standoff"\ntype = "standoff"\n'
             'sources = { distance = "gauge", operator = "jog" }\ntarget_mm = 50.0\n')
     path.write_text(body + "stale_after_s = 0.1\n")
     with pytest.raises(ConfigError) as ei:
@@ -671,3 +671,21 @@ def test_zeroing_is_cancelled_when_the_force_sensor_goes_quiet_half_way(
     assert row["errors"] == {"zeroing_cancelled": 1} and "zero again" in row["last_error"]
     cmd = reader.poll()
     assert cmd is not None and cmd.values[1] > 0  # the push is a push: guiding moves along it
+
+
+def test_a_timeout_longer_than_the_servos_longest_hold_is_refused(tmp_path: Path) -> None:
+    """stale_after_s = 200 (meant as milliseconds) loaded: the servo holds an input command at most 2 s,
+    so when the sensor went quiet the arm went on for 2 s at its last command and stopped with
+    'hold-to-run expired', the bridge's 'input jog stale' coming 198 s later."""
+    path = tmp_path / "inputs.toml"
+    path.write_text('[feeds.jog]\nkind = "twist"\nstale_after_s = 200.0\n[feeds.gauge]\nkind = "measurement"\n'
+                    '[[applications]]\nname = "standoff"\ntype = "standoff"\nsources = { distance = "gauge" }\n'
+                    'target_mm = 50.0\nstale_after_s = 5.0\n')
+    with pytest.raises(ConfigError) as ei:
+        load_service_inputs(path)
+    got = {i.key: i for i in ei.value.issues}
+    assert set(got) == {"feeds.jog.stale_after_s", "applications[0].stale_after_s"}, got
+    assert got["feeds.jog.stale_after_s"].value == 200.0 and got["applications[0].stale_after_s"].value == 5.0
+    assert all("at most 1.9 (seconds, not milliseconds)" in i.reason for i in got.values())
+    path.write_text('[feeds.jog]\nkind = "twist"\nstale_after_s = 1.9\n')
+    load_service_inputs(path)

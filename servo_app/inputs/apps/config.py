@@ -37,6 +37,7 @@ from servo_app.inputs.apps.standoff import StandoffParams
 from servo_app.inputs.apps.tracking import PoseExtrapolator
 from servo_app.inputs.config import InputsConfig, parse_inputs_config, read_toml
 from servo_app.inputs.errors import ConfigError, ConfigIssue, KeyedError, issues_from_validation
+from servo_app.inputs.feed.models import check_stale_after
 
 # What each adapter type publishes; feeds say it themselves (`kind`).
 ADAPTER_KINDS = {"spacemouse": "twist", "spacenav": "twist", "serial_line": "measurement",
@@ -59,6 +60,11 @@ class _App(BaseModel):
     priority: int = 0
     stale_after_s: PositiveFloat | None = None  # default: the largest timeout of its required inputs
     yield_when_idle: bool = False
+
+    @model_validator(mode="after")
+    def _timeout(self) -> _App:
+        check_stale_after(self.stale_after_s)
+        return self
 
 
 class TeleopConfig(_App):
