@@ -3,6 +3,7 @@ every refusal), and the store's file kept whole through every change."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 from collections.abc import Iterator
 from pathlib import Path
@@ -13,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_api_harness import AUTH, TOKEN, Rig, running_rig
 
-from servo_app.client import ServoClient
+from servo_app.client import RefusedError, ServoClient
 from servo_app.errors import CommandRejected
 from servo_app.service.points import POINT_NAME, PointStore
 
@@ -49,7 +50,7 @@ def test_a_saved_point_reads_back_and_the_file_stays_whole(tmp_path_factory: pyt
     d = tmp_path_factory.mktemp("store")
     store = PointStore(d / "points.json")
     store.save({"name": "other", "joints": [0.0] * 6})
-    store.save({"name": name, "joints": joints})
+    store.save({"name": name, "joints": joints}, replace=name == "other")
     again = PointStore(d / "points.json")  # a new service reading the same file
     assert again.get(name) == {"name": name, "joints": joints}
     assert [p["name"] for p in again.all()] == sorted({"other", name})
@@ -57,6 +58,18 @@ def test_a_saved_point_reads_back_and_the_file_stays_whole(tmp_path_factory: pyt
     assert json.loads((d / "points.json").read_text())["version"] == 1
     assert again.delete(name) is True and again.get(name) is None and again.delete(name) is False
     assert (again.get("other") is None) == (name == "other")
+
+
+def test_a_name_already_taught_is_replaced_only_when_asked(tmp_path: Path) -> None:
+    store = PointStore(tmp_path / "points.json")
+    store.save({"name": "p", "joints": [1.0], "taught_by": "ann@10.0.0.1:5000", "taught_unix": 0.0})
+    before = (tmp_path / "points.json").read_bytes()
+    with pytest.raises(CommandRejected, match=r"^a point named 'p' is already taught \(by ann@10.0.0.1:5000 at "
+                                              r".*replace=true$"):
+        store.save({"name": "p", "joints": [2.0]})
+    assert (tmp_path / "points.json").read_bytes() == before
+    store.save({"name": "p", "joints": [2.0]}, replace=True)
+    assert store.get("p") == {"name": "p", "joints": [2.0]}
 
 
 def test_a_damaged_file_is_refused_with_what_to_do(tmp_path: Path) -> None:
@@ -96,6 +109,29 @@ def test_teach_list_and_move_to_with_zero_alarms(rig: Rig) -> None:
         assert [p.name for p in arm.points()] == ["home.1"]
     assert rig.sim_alarms() == []
     assert rig.state()["alarms"] == []
+
+
+def test_teaching_a_name_again_is_refused_409_unless_replace(rig: Rig) -> None:
+    """A second teach under the same name replaced the first point silently: an operator lost a taught
+    point to a name typed twice. Now it is refused, naming the point and how to replace it."""
+    with ServoClient(rig.base_url, TOKEN, name="twice", take_over=True) as arm:
+        arm.ensure_streaming()
+        arm.move_joints([10.0, 0.0, 0.0, 0.0, -90.0, 0.0])
+        with contextlib.suppress(RefusedError):
+            arm.delete_point("twice")
+        first = arm.teach("twice")
+        arm.move_joints(HOME)
+        with pytest.raises(RefusedError) as exc:
+            arm.teach("twice")
+        assert exc.value.status == 409
+        assert str(exc.value).startswith("a point named 'twice' is already taught (by twice@127.0.0.1:"), exc.value
+        assert str(exc.value).endswith("teach it again with replace: POST /api/points/twice?replace=true")
+        kept = {p.name: p for p in arm.points()}["twice"]
+        assert kept == first  # nothing changed
+        again = arm.teach("twice", replace=True)
+        np.testing.assert_allclose(again.joints, HOME, atol=1e-3)
+        assert {p.name: p for p in arm.points()}["twice"] == again
+        arm.delete_point("twice")
 
 
 @pytest.mark.parametrize("name", ["../etc", ".hidden", "-x", "a" * 65, "with space", "semi;colon", "ä"])

@@ -4,12 +4,14 @@ to" brings the arm back, a refusal shows the server's words, delete removes it; 
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 import pytest
 import test_web_console as console
-from test_web_console import Service, at_rest_without_alarm, call, shot, sign_in, take_control_and_stream
+from test_web_console import LAPTOP, Service, at_rest_without_alarm, call, shot, sign_in, take_control_and_stream
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -61,3 +63,63 @@ def test_the_points_buttons_need_control(page: Any, fanuc: Service) -> None:
     sign_in(page, fanuc)
     page.wait_for_selector("#signed:not([hidden])")
     assert page.locator("#point-teach").is_disabled()
+
+
+@pytest.fixture
+def asking_page(browser: Any) -> Iterator[tuple[Any, list[str], list[bool]]]:
+    """A page whose dialogs are answered from ``answers`` (True: OK), their texts kept in ``asked``."""
+    context = browser.new_context(viewport=LAPTOP)
+    pg = context.new_page()
+    asked: list[str] = []
+    answers: list[bool] = []
+    errors: list[str] = []
+
+    def answer(d: Any) -> None:
+        asked.append(d.message)
+        d.accept() if (answers.pop(0) if answers else True) else d.dismiss()
+
+    pg.on("dialog", answer)
+    pg.on("pageerror", lambda exc: errors.append(str(exc)))
+    try:
+        yield pg, asked, answers
+    finally:
+        with contextlib.suppress(Exception):
+            if pg.locator("#release").is_visible():
+                pg.click("#release")
+                pg.wait_for_selector("#take:not([hidden])", timeout=3000)
+        context.close()
+    assert errors == [], f"uncaught errors in the page: {errors}"
+
+
+def test_teaching_a_name_again_asks_before_replacing(asking_page: tuple[Any, list[str], list[bool]],
+                                                     fanuc: Service) -> None:
+    """Teaching under a name already listed replaced that point silently; now the console asks, and
+    keeps the point unless the operator says to replace it."""
+    page, asked, answers = asking_page
+    sign_in(page, fanuc)
+    take_control_and_stream(page, fanuc)
+    lease_id = page.evaluate("sessionStorage.getItem('servo.lease')")
+    with contextlib.suppress(Exception):
+        call(fanuc, "DELETE", "/api/points/twice", lease=lease_id)
+    page.fill("#point-name", "twice")
+    page.click("#point-teach")
+    page.wait_for_selector("#point-list li[data-point='twice']")
+    first = fanuc.get("/api/points")
+    assert asked == []
+
+    q_away = [20.0, 5.0, -5.0, 0.0, -80.0, 10.0]
+    call(fanuc, "POST", "/api/target", {"joints": q_away}, lease=lease_id)
+    fanuc.wait(lambda s: s["settled"] and np.allclose(s["q_cmd"], q_away, atol=1e-3), "away, settled")
+    answers.append(False)  # Cancel: the point stays as taught
+    page.click("#point-teach")
+    page.wait_for_function("document.querySelector('#point-message').textContent === 'kept twice: nothing taught'")
+    assert len(asked) == 1 and asked[0].startswith("Replace the point twice (taught by pytest@"), asked
+    assert fanuc.get("/api/points") == first
+
+    answers.append(True)  # OK: replaced by the arm's position now
+    page.click("#point-teach")
+    page.wait_for_function("document.querySelector('#point-message').textContent === 'taught twice'")
+    assert len(asked) == 2
+    (point,) = [p for p in fanuc.get("/api/points") if p["name"] == "twice"]
+    assert np.allclose(point["joints"], q_away, atol=1e-3)
+    call(fanuc, "DELETE", "/api/points/twice", lease=lease_id)

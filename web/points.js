@@ -44,7 +44,17 @@ export class PointsPanel {
   async teach() {
     const name = $("#point-name", this.root).value.trim();
     try {
-      const p = await this.api.post(`/api/points/${encodeURIComponent(name)}`);
+      // A name already taught is replaced only when the operator says so (the server refuses otherwise).
+      const old = (await this.api.get("/api/points")).find((p) => p.name === name);
+      if (old) {
+        const by = old.taught_by ? ` by ${old.taught_by}` : "";
+        const at = old.taught_unix ? ` at ${new Date(old.taught_unix * 1000).toLocaleString()}` : "";
+        if (!window.confirm(`Replace the point ${name} (taught${by}${at}) with the arm's position now?`)) {
+          this.show(`kept ${name}: nothing taught`, true);
+          return;
+        }
+      }
+      const p = await this.api.post(`/api/points/${encodeURIComponent(name)}${old ? "?replace=true" : ""}`);
       this.show(`taught ${p.name}`, true);
       await this.refresh();
     } catch (exc) {

@@ -12,7 +12,7 @@ text says how to teach it), 409 when the state does not allow it (the text ends 
 import time
 from typing import Annotated, Any
 
-from fastapi import APIRouter, HTTPException
+from fastapi import APIRouter, HTTPException, Query
 from fastapi import Path as PathParam
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
@@ -58,8 +58,9 @@ def _unknown(name: str) -> HTTPException:
                               f"arm there and teach it: POST /api/points/{name}")
 
 
-def _capture(service: ServoService, name: str, client: str) -> dict[str, Any]:
-    """The point as the arm stands now; refused unless the controller reports a settled arm."""
+def _capture(service: ServoService, name: str, client: str, replace: bool) -> dict[str, Any]:
+    """The point as the arm stands now; refused unless the controller reports a settled arm, or if a
+    point of that name exists and ``replace`` is not set."""
     s = service.state()
     state = s["state"]
     if state not in _TEACHABLE or not s.get("status_live"):
@@ -73,7 +74,7 @@ def _capture(service: ServoService, name: str, client: str) -> dict[str, Any]:
              "xyzwpr": [float(v) for v in s.get("cart_servo") or []], "tool": service.tools.active.name,
              "model": service.profile.name,
              "backend": service.backend.name, "taught_unix": time.time(), "taught_by": client}
-    service.points.save(point)
+    service.points.save(point, replace=replace)
     return point
 
 
@@ -98,11 +99,16 @@ def points_list(service: Service) -> list[dict[str, Any]]:
 
 @router.post("/api/points/{name}", summary="Teach a point: save the arm's current joints and pose",
              responses=REFUSALS, dependencies=NO_BODY)
-def point_teach(name: PointName, client: Controlling, service: Service, calls: Calls) -> PointView:
-    """Save the commanded joints and the pose the controller reports under ``name`` (replacing a point
-    of that name), with the robot model and the time. Only while a stream runs and the arm has
-    settled (409 otherwise, saying what to wait for). Token and lease."""
-    ack = calls.call(client, "points.teach", lambda: _capture(service, name, client), {"name": name})
+def point_teach(name: PointName, client: Controlling, service: Service, calls: Calls,
+                replace: Annotated[bool, Query(description=(
+                    "replace a point of that name; without it such a point is kept and the teach refused (409)"))]
+                = False) -> PointView:
+    """Save the commanded joints and the pose the controller reports under ``name``, with the robot
+    model and the time. A point of that name is refused (409, naming it) unless ``?replace=true``.
+    Only while a stream runs and the arm has settled (409 otherwise, saying what to wait for). Token
+    and lease."""
+    ack = calls.call(client, "points.teach", lambda: _capture(service, name, client, replace),
+                     {"name": name, "replace": replace})
     return PointView.model_validate(ack.detail)
 
 

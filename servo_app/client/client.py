@@ -557,12 +557,14 @@ class ServoClient:
                 yield State.from_json(json.loads(text))
 
     # ----------------------------------------------------------- teach points
-    def teach(self, name: str, settle_timeout: float = 30.0) -> Point:
-        """Save the current TCP pose and joints as ``name`` (once the arm has settled)."""
+    def teach(self, name: str, settle_timeout: float = 30.0, replace: bool = False) -> Point:
+        """Save the current TCP pose and joints as ``name`` (once the arm has settled). A point of
+        that name is kept and RefusedError (409) raised, unless ``replace=True``."""
         # Without a stream the arm never reports settled: the service's refusal says to start one.
         if self.state().state in _STREAM_STATES:
             self.wait_settled(settle_timeout)
-        return Point.from_json(self._post(f"/api/points/{quote(name, safe='')}"))
+        return Point.from_json(self._call("POST", f"/api/points/{quote(name, safe='')}", lease=True,
+                                          params={"replace": "true"} if replace else None))
 
     def points(self) -> list[Point]:
         return [Point.from_json(p) for p in self._call("GET", "/api/points")]

@@ -14,6 +14,7 @@ import os
 import re
 import tempfile
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +24,13 @@ from servo_app.errors import CommandRejected
 POINT_NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
 POINT_NAME = re.compile(POINT_NAME_PATTERN)
 FILE_VERSION = 1
+
+
+def _taught(point: dict[str, Any]) -> str:
+    """When and by whom, as far as the (possibly hand-edited) entry says."""
+    by, at = point.get("taught_by"), point.get("taught_unix")
+    when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(at)) if isinstance(at, (int, float)) else None
+    return " ".join(part for part in (f"by {by}" if by else None, when and f"at {when}") if part) or "earlier"
 
 
 class PointStore:
@@ -84,11 +92,18 @@ class PointStore:
         with self._lock:
             return self._load().get(name)
 
-    def save(self, point: dict[str, Any]) -> None:
-        """Add or replace the point named ``point["name"]``."""
-        with self._lock:
+    def save(self, point: dict[str, Any], replace: bool = False) -> None:
+        """Add the point named ``point["name"]``; one of that name is replaced only with ``replace``
+        (an operator must not lose a taught point to a name typed twice)."""
+        with self._lock:  # the check and the write under one lock: two teachers cannot both add it
             points = self._load()
-            points[point["name"]] = point
+            name = point["name"]
+            old = points.get(name)
+            if old is not None and not replace:
+                raise CommandRejected(
+                    f"a point named {name!r} is already taught ({_taught(old)}); nothing changed: to replace it "
+                    f"with the arm's position now, teach it again with replace: POST /api/points/{name}?replace=true")
+            points[name] = point
             self._store(points)
 
     def delete(self, name: str) -> bool:
