@@ -14,7 +14,7 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, HTTPException, Query
 from fastapi import Path as PathParam
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
 from servo_app import messages as msg
 from servo_app.api.deps import NO_BODY, Calls, Controlling, Service
@@ -22,7 +22,7 @@ from servo_app.api.models import REFUSALS, Ack, Problem
 from servo_app.errors import CommandRejected
 from servo_app.motion.commands import MIN_SPEED_SCALE
 from servo_app.service import ServoService
-from servo_app.service.points import POINT_NAME_PATTERN
+from servo_app.service.points import POINT_NAME_PATTERN, TaughtPoint
 
 router = APIRouter(tags=["points"])
 
@@ -33,19 +33,8 @@ _UNKNOWN = {404: {"model": Problem, "description": "no point of that name: the t
 _TEACHABLE = ("streaming", "stopped")
 
 
-class PointView(BaseModel):
+class PointView(TaughtPoint):
     """A taught point."""
-
-    model_config = ConfigDict(extra="allow")
-    name: str
-    joints: list[float] = Field(description="commanded joints at teach time: deg (FANUC J1..J6), or mm and "
-                                            "deg (Janome X Y Z R); what moving to the point goes back to")
-    xyzwpr: list[float] = Field(description="the TCP pose the controller reported: X Y Z mm, W P R deg (world)")
-    tool: str | None = Field(None, description="the tool whose TCP that pose is (points taught before tools: none)")
-    model: str = Field(description="the robot profile it was taught on")
-    backend: str = Field(description="the robot backend's registered name")
-    taught_unix: float = Field(description="when it was taught (Unix s)")
-    taught_by: str = Field(description="the lease holder and address that taught it")
 
 
 class MoveToPoint(BaseModel):
@@ -83,15 +72,7 @@ def points_list(service: Service) -> list[dict[str, Any]]:
     """Every taught point, by name, with its joints, TCP pose, robot model and when it was taught
     (open: no token). A points file that cannot be read is 409, naming it and what is wrong."""
     try:
-        points = service.points.all()
-        for point in points:  # a hand-edited point missing a field: named here, not a 500 from the response
-            try:
-                PointView.model_validate(point)
-            except ValidationError as exc:
-                err = exc.errors()[0]
-                where = ".".join(str(p) for p in err["loc"])
-                raise CommandRejected(f"the teach point file {service.points.path}: point {point['name']!r}: "
-                                      f"{where}: {err['msg']}; fix it or move it away, then teach again") from None
+        points = service.points.all()  # each checked by the store: the one check, shared with every route
     except CommandRejected as exc:
         raise HTTPException(409, str(exc)) from None
     return points

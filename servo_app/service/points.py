@@ -9,14 +9,15 @@ copied from another cell) is taken as it is.
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
 import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from servo_app.errors import CommandRejected
 
@@ -24,6 +25,26 @@ from servo_app.errors import CommandRejected
 POINT_NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
 POINT_NAME = re.compile(POINT_NAME_PATTERN)
 FILE_VERSION = 1
+
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class TaughtPoint(BaseModel):
+    """A taught point as the file holds it: the one check of every entry, for every route (the list
+    and its answer's schema, teach, move, delete), so a hand-edited file is refused alike by all."""
+
+    # strict: a hand-edited "12" or true is not a number; extra: fields of a later version are kept.
+    model_config = ConfigDict(extra="allow", strict=True)
+    name: str
+    joints: list[Finite] = Field(description="commanded joints at teach time: deg (FANUC J1..J6), or mm and "
+                                             "deg (Janome X Y Z R); what moving to the point goes back to")
+    xyzwpr: list[Finite] = Field(description="the TCP pose the controller reported: X Y Z mm, W P R deg (world)")
+    tool: str | None = Field(None, description="the tool whose TCP that pose is (points taught before tools: none)")
+    model: str = Field(description="the robot profile it was taught on")
+    backend: str = Field(description="the robot backend's registered name")
+    taught_unix: Finite = Field(description="when it was taught (Unix s)")
+    taught_by: str = Field(description="the lease holder and address that taught it")
 
 
 def _taught(point: dict[str, Any]) -> str:
@@ -51,13 +72,27 @@ class PointStore:
             raise CommandRejected(f"the teach point file {self.path} has no 'points' object; "
                                   "fix it or move it away, then teach again")
         for name, point in points.items():  # a hand-edited entry: refused here, not a 500 where it is used
-            joints = point.get("joints") if isinstance(point, dict) else None
-            if not isinstance(joints, list) or point.get("name") != name or not all(
-                    isinstance(q, (int, float)) and not isinstance(q, bool) and math.isfinite(q) for q in joints):
-                raise CommandRejected(f"the teach point file {self.path}: points.{name}={json.dumps(point)[:200]} is "
-                                      "not a point (an object with its name and joints, a list of finite numbers); "
-                                      "fix it or move it away, then teach again")
+            self._check(name, point)
         return points
+
+    def _check(self, name: str, point: Any) -> None:
+        """CommandRejected naming the entry, the field and what is wrong, unless ``point`` is one."""
+        where, what = f"points.{name}", ""
+        try:
+            TaughtPoint.model_validate(point)
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            where += "".join(f".{p}" for p in err["loc"])
+            value = "" if err["type"] == "missing" else f"={json.dumps(err['input'], default=str)[:200]}"
+            # The entry itself: pydantic's text would name this class, not what a point is.
+            why = err["msg"] if err["loc"] else f"not a point (an object with {', '.join(TaughtPoint.model_fields)})"
+            what = f"{where}{value}: {why}"
+        else:
+            if point["name"] != name:
+                what = f"{where}.name={json.dumps(point['name'])[:200]}: not the name it is filed under"
+        if what:
+            raise CommandRejected(f"the teach point file {self.path}: {what}; fix it or move it away, then "
+                                  "teach again")
 
     def _store(self, points: dict[str, dict[str, Any]]) -> None:
         text = json.dumps({"version": FILE_VERSION, "points": points}, indent=2, sort_keys=True)
