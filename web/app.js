@@ -119,10 +119,17 @@ function stop(fast = false, why = "") {
     sayError("STOP needs a signed-in console: the server takes motion requests only with the token");
     return;
   }
+  // The answer joins the cause rather than replacing it: a service gone away is the cause of both the
+  // stopped jog and the failed STOP, and "Failed to fetch" alone hid it.
+  const cause = why ? `Jog stopped: ${why}` : "";
   api.post("/api/session/stop", { fast }, { timeoutMs: 2000 })
-    .then(() => (why ? sayError(`Jog stopped: ${why} (stop requested)`)
+    .then(() => (why ? sayError(`${cause} (stop requested)`)
       : say(fast ? "fast stop requested" : "stop requested")))
-    .catch((exc) => (exc.status === 409 ? say(`stop: ${exc.message}`) : sayError(`STOP failed: ${exc.message}`)));
+    .catch((exc) => {
+      if (exc.status === 409 && !why) say(`stop: ${exc.message}`); // e.g. nothing moving to stop
+      else if (exc.status === 409) sayError(`${cause} (stop: ${exc.message})`);
+      else sayError(`${cause ? `${cause}; ` : ""}STOP failed: ${exc.message}`);
+    });
 }
 
 const actions = {
