@@ -351,6 +351,33 @@ def test_target_entry_goes_and_shows_refusals(page: Any, fanuc: Service) -> None
     shot(page, "console-target-refused")
 
 
+# The widest value "From current" writes into a target field: -1811.123, a pose within an M-20's reach
+# (fmt(v, 3)); a field must show it whole beside the number input's spin buttons (~15 px).
+FITS = """() => [...document.querySelectorAll('#target-fields input')].map((input) => {
+  const cs = getComputedStyle(input);
+  const ctx = document.createElement('canvas').getContext('2d');
+  ctx.font = `${cs.fontWeight} ${cs.fontSize} ${cs.fontFamily}`;
+  const need = ctx.measureText('-1811.123').width + parseFloat(cs.paddingLeft) + parseFloat(cs.paddingRight)
+    + parseFloat(cs.borderLeftWidth) + parseFloat(cs.borderRightWidth) + 15;
+  return [input.name, Math.round(need), input.offsetWidth];
+})"""
+
+
+@pytest.mark.parametrize("width", [800, 1280, 1366, 1440])
+def test_target_fields_show_a_whole_value_at_laptop_widths(page: Any, fanuc: Service, width: int) -> None:
+    """At 800 px the six target fields were 71 px wide in three fixed columns: "-169.500" was cut."""
+    page.set_viewport_size({"width": width, "height": 900})
+    sign_in(page, fanuc)
+    page.click("#take")  # the form takes input with control only
+    page.wait_for_selector("#release:not([hidden])")
+    page.wait_for_selector("#target-fields input[name='J6']")
+    for kind in ("joints", "xyzwpr"):
+        page.check(f"input[name=target-kind][value={kind}]", force=True)
+        fields = page.evaluate(FITS)
+        assert len(fields) == 6 and all(need <= have for _, need, have in fields), (width, kind, fields)
+    assert page.evaluate("document.documentElement.scrollWidth <= document.documentElement.clientWidth")
+
+
 # ------------------------------------------------------------------------------ 8. inputs
 @pytest.fixture(scope="module")
 def failing_inputs(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
