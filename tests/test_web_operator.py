@@ -346,9 +346,52 @@ def test_target_entry_goes_and_shows_refusals(page: Any, fanuc: Service) -> None
     page.click("#target-go")
     page.wait_for_function("document.querySelector('#target-error').textContent.startsWith('Target refused')")
     text = page.text_content("#target-error") or ""
-    assert ("(422)" in text or "(409)" in text) and "500" in text, text
+    assert text.startswith("Target refused: J1=500.000 deg"), text  # the axis by name: not joints[0], no (422)
     assert fanuc.state()["q_cmd"] == pytest.approx(before, abs=1e-6)
     shot(page, "console-target-refused")
+
+
+# An API client's words in the console: a route, a header, a body path or an HTTP status.
+REST_WORDS = re.compile(r"/api/|X-Lease-Id|body\.|\[\d+\]|\(4\d\d\)")
+
+# The console's own API client (web/api.js) sends a request and returns what it would show.
+REFUSAL = """async ([method, path, body]) => {
+  const { Api } = await import('/web/api.js');
+  const api = new Api();
+  api.axes = ['J1', 'J2', 'J3', 'J4', 'J5', 'J6'];
+  try { await api.call(method, path, body); return null; } catch (e) { return [e.status, e.message, e.detail]; }
+}"""
+
+
+def test_refusals_are_shown_in_the_operators_words(page: Any, fanuc: Service) -> None:
+    """Refusals were shown as the REST API words them for a client program: "body.joints.4: ...",
+    "joints[0]=...", "(422)", and next steps as routes ("start a new session: POST
+    /api/session/start"). The console now names the axis and the button to press."""
+    home(fanuc)
+    sign_in(page, fanuc)
+    take_control_and_stream(page, fanuc)
+    # A body the server's model refuses (422, a list of field errors).
+    status, message, detail = page.evaluate(REFUSAL, ["POST", "/api/target", {"joints": [0, 0, 0, 0, "x", 0]}])
+    assert status == 422 and message.startswith("J5: "), (message, detail)
+    # The next step as a button.
+    page.click("#end")
+    fanuc.wait(lambda s: s["state"] == "ended", "ended")
+    page.click("#resume")
+    page.wait_for_function("document.querySelector('#message').textContent.startsWith('Resume: ')")
+    text = page.text_content("#message") or ""
+    assert text.endswith("start a new session: press Start"), text
+    page.click("#target-fill")
+    page.click("#target-go")
+    page.wait_for_function("document.querySelector('#target-error').textContent.startsWith('Target refused')")
+    target = page.text_content("#target-error") or ""
+    assert target.endswith("press Start"), target
+    # Control taken by another client: the console says so, and how to take it back.
+    call(fanuc, "POST", "/api/lease", {"client": "intruder", "force": True})
+    page.wait_for_function("document.querySelector('#message').textContent.startsWith('control lost')")
+    lost = page.text_content("#message") or ""
+    assert "'intruder' holds it" in lost and lost.endswith("press Take control"), lost
+    for shown in (message, text, target, lost):
+        assert not REST_WORDS.search(shown), shown
 
 
 # The widest value "From current" writes into a target field: -1811.123, a pose within an M-20's reach

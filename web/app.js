@@ -324,6 +324,7 @@ async function loadRobot() {
     try {
       ui.limits = await api.get("/api/limits");
       ui.robot = await api.get("/api/robot");
+      api.axes = ui.robot.joint_names; // a refusal's "joints[0]" is shown as the axis' name
       break;
     } catch {
       await new Promise((r) => setTimeout(r, 1000));

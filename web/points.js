@@ -58,7 +58,7 @@ export class PointsPanel {
       this.show(`taught ${p.name}`, true);
       await this.refresh();
     } catch (exc) {
-      this.show(`Teach refused${exc.status ? ` (${exc.status})` : ""}: ${exc.message}`, false);
+      this.show(`Teach refused: ${exc.message}`, false);
     }
   }
 
@@ -67,7 +67,7 @@ export class PointsPanel {
       await this.api.post(`/api/points/${encodeURIComponent(name)}/move`, {});
       this.show(`going to ${name}`, true);
     } catch (exc) {
-      this.show(`Go to ${name} refused${exc.status ? ` (${exc.status})` : ""}: ${exc.message}`, false);
+      this.show(`Go to ${name} refused: ${exc.message}`, false);
     }
   }
 

@@ -84,7 +84,7 @@ export class TargetForm {
       this.show(`going to ${this.names().map((n, i) => `${n} ${fmt(values[i], 1)}`).join(" ")}`, true);
       if (this.onSent) this.onSent();
     } catch (exc) {
-      this.show(`Target refused${exc.status ? ` (${exc.status})` : ""}: ${exc.message}`, false);
+      this.show(`Target refused: ${exc.message}`, false);
     }
   }
 

@@ -74,7 +74,7 @@ export class ToolPanel {
       this.show(`tool ${t.name} active`, true);
     } catch (exc) {
       this.select.value = this.active;
-      this.show(`Tool change refused${exc.status ? ` (${exc.status})` : ""}: ${exc.message}`, false);
+      this.show(`Tool change refused: ${exc.message}`, false);
     } finally {
       this.busy = false;
     }
