@@ -1,8 +1,9 @@
-"""The operator console (web/) when the service under it goes away, restarts or drops the telemetry
-socket: what it says, and that a later message does not hide the cause shown before.
+"""The operator console (web/) when the service under it goes away or the telemetry socket goes
+quiet: what it says and offers, and that a later message does not hide the cause shown before.
 
 Same rig as tests/test_web_console.py (its browser and page fixtures and helpers are reused), but each
-test here has a ``servo-app run`` of its own, since it stops or restarts it.
+test that stops the service has a ``servo-app run`` of its own. The telemetry is silenced by routing
+the page's WebSocket through Playwright (the socket to the service stays up, its messages are held).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import test_web_console as console
 from test_web_console import Service, hold, sign_in, take_control_and_stream
 
 browser = console.browser
+fanuc = console.fanuc
 page = console.page
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
@@ -50,3 +52,40 @@ def test_a_service_gone_mid_jog_keeps_the_cause_beside_the_failed_stop(page: Any
         assert page.locator("button.jog.held").count() == 0
     finally:
         page.mouse.up()
+
+
+def test_no_motion_starts_while_the_telemetry_is_lost(page: Any, fanuc: Service) -> None:
+    """The console stops a held jog when its telemetry goes quiet (the operator can no longer see the
+    arm), but Resume (button or R), Start, Go to target, a point's Go to and the jog pad stayed
+    enabled: the arm could be set moving unseen. They are now disabled, saying why, until the
+    telemetry is live again; STOP works throughout."""
+    held = {"on": False}
+
+    def route(ws: Any) -> None:
+        server = ws.connect_to_server()
+        server.on_message(lambda m: None if held["on"] else ws.send(m))
+
+    page.route_web_socket("**/ws/telemetry*", route)
+    resumes: list[str] = []
+    page.on("request", lambda r: resumes.append(r.url) if r.url.endswith("/api/session/resume") else None)
+    sign_in(page, fanuc)
+    take_control_and_stream(page, fanuc)
+    page.click("#stop")
+    fanuc.wait(lambda s: s["state"] == "stopped" and s["at_rest"], "stopped")
+    page.wait_for_function("!document.querySelector('#resume').disabled")
+
+    held["on"] = True
+    page.wait_for_function("document.querySelector('#conn').textContent.startsWith('telemetry: lost')")
+    page.wait_for_function("document.querySelector('#resume').disabled")
+    for sel in ("#start", "#target-go"):
+        assert page.locator(sel).is_disabled(), sel
+    assert "disabled" in (page.get_attribute("#jog-pad", "class") or "")
+    assert (page.get_attribute("#resume", "title") or "").startswith("telemetry lost: the console cannot show")
+    page.keyboard.press("r")
+    page.wait_for_function("document.querySelector('#message').textContent.startsWith('Resume: telemetry lost')")
+    assert resumes == [] and fanuc.state()["state"] == "stopped"
+
+    held["on"] = False
+    page.wait_for_function("document.querySelector('#conn').textContent === 'telemetry: live'")
+    page.click("#resume")  # waits until enabled again
+    fanuc.wait(lambda s: s["state"] == "streaming", "streaming after resume")

@@ -81,7 +81,12 @@ const lease = new Lease({
   },
 });
 
-/** Enable what the operator may do now: data-needs="signin" or "lease". */
+// Without telemetry the operator cannot see what the arm does: the console stops a held jog then, and
+// starts no motion either (STOP, End and Reset still work).
+const BLIND = "telemetry lost: the console cannot show what the arm does, so it moves nothing until the "
+  + "telemetry is live again (STOP still works); check the service and the network";
+
+/** Enable what the operator may do now: data-needs="signin" or "lease"; data-moves: also live telemetry. */
 function refreshControls() {
   const signedIn = api.signedIn;
   $("#signin").hidden = signedIn;
@@ -92,7 +97,9 @@ function refreshControls() {
   const other = ui.tel && ui.tel.lease && ui.tel.lease.held && !lease.held ? ui.tel.lease.client : null;
   $("#take").textContent = other ? `Take over from ${other}` : "Take control";
   for (const node of $$("[data-needs]")) {
-    const ok = node.dataset.needs === "lease" ? signedIn && lease.held : signedIn;
+    const moves = "moves" in node.dataset;
+    const ok = (node.dataset.needs === "lease" ? signedIn && lease.held : signedIn) && !(moves && !ui.telemetryUp);
+    if (moves) node.title = ui.telemetryUp ? "" : BLIND;
     if (node.tagName === "BUTTON") node.disabled = !ok;
     else node.classList.toggle("disabled", !ok);
   }
@@ -132,12 +139,18 @@ function stop(fast = false, why = "") {
     });
 }
 
+/** A motion the keyboard asks for: refused, saying why, while the telemetry is lost. */
+function canMove(label) {
+  if (!ui.telemetryUp) sayError(`${label}: ${BLIND}`);
+  return ui.telemetryUp;
+}
+
 const actions = {
-  start: () => action("Start", async () => {
+  start: () => canMove("Start") && action("Start", async () => {
     await api.post("/api/session/start", undefined, { timeoutMs: START_TIMEOUT_MS });
     say("session starting");
   }),
-  resume: () => action("Resume", () => api.post("/api/session/resume")),
+  resume: () => canMove("Resume") && action("Resume", () => api.post("/api/session/resume")),
   end: () => action("End", async () => {
     jog.end();
     await api.post("/api/session/end");
@@ -294,6 +307,7 @@ function onLink(up, why) {
     // The operator can no longer see what the arm does: stop it (the server's hold-to-run would too).
     stop(false, why);
   }
+  refreshControls(); // and start no motion until the telemetry is back
 }
 
 /** Stop a held jog when the operator's attention is elsewhere. */

@@ -33,7 +33,7 @@ export class PointsPanel {
         // The pose is that tool's TCP: a point taught with another tool shows where that tool's tip was.
         p.tool ? el("span", { class: "muted small-text point-tool", title: "the tool whose TCP the pose is" },
           `@${p.tool}`) : false,
-        el("button", { type: "button", class: "small", "data-needs": "lease", "aria-label": `go to ${p.name}`,
+        el("button", { type: "button", class: "small", "data-needs": "lease", "data-moves": "", "aria-label": `go to ${p.name}`,
           onclick: () => this.goTo(p.name) }, "Go to"),
         el("button", { type: "button", class: "small", "data-needs": "lease", "aria-label": `delete ${p.name}`,
           onclick: () => this.remove(p.name) }, "×"))));
