@@ -123,3 +123,29 @@ def test_teaching_a_name_again_asks_before_replacing(asking_page: tuple[Any, lis
     (point,) = [p for p in fanuc.get("/api/points") if p["name"] == "twice"]
     assert np.allclose(point["joints"], q_away, atol=1e-3)
     call(fanuc, "DELETE", "/api/points/twice", lease=lease_id)
+
+
+@pytest.mark.parametrize("width", [800, 1280, 1366, 1440])
+def test_a_long_point_name_stays_inside_the_card(page: Any, fanuc: Service, width: int) -> None:
+    """A name of 64 characters (the most allowed) without a space ran out of the Points card at every
+    laptop width: the list scrolled sideways and the name was cut at the card's edge."""
+    name = f"{'L' * 60}_{width}"[-64:]
+    page.set_viewport_size({"width": width, "height": 900})
+    sign_in(page, fanuc)
+    take_control_and_stream(page, fanuc)
+    lease_id = page.evaluate("sessionStorage.getItem('servo.lease')")
+    page.fill("#point-name", name)
+    page.click("#point-teach")
+    try:
+        page.wait_for_selector(f"#point-list li[data-point='{name}']")
+        fits = page.evaluate("""(name) => {
+          const list = document.querySelector('#point-list');
+          const b = list.querySelector(`li[data-point='${name}'] b`);
+          const card = document.querySelector('#points-card').getBoundingClientRect();
+          const r = b.getBoundingClientRect();
+          return [list.scrollWidth <= list.clientWidth, b.scrollWidth <= b.clientWidth,
+                  r.left >= card.left && r.right <= card.right];
+        }""", name)
+        assert fits == [True, True, True], (width, fits)
+    finally:
+        call(fanuc, "DELETE", f"/api/points/{name}", lease=lease_id)
