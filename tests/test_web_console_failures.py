@@ -89,3 +89,27 @@ def test_no_motion_starts_while_the_telemetry_is_lost(page: Any, fanuc: Service)
     page.wait_for_function("document.querySelector('#conn').textContent === 'telemetry: live'")
     page.click("#resume")  # waits until enabled again
     fanuc.wait(lambda s: s["state"] == "streaming", "streaming after resume")
+
+
+def test_why_the_console_stopped_a_jog_stays_until_the_arm_moves_again(page: Any, fanuc: Service) -> None:
+    """The console stops a held jog when its window loses focus and says so, but the message went
+    away after 8 s, and the server's stop reason is only "stop requested": an operator back a little
+    later saw a stopped arm and no cause. It now stays until the arm streams again. The page's clock
+    is Playwright's, moved on 20 s at once rather than waited for."""
+    page.clock.install()
+    sign_in(page, fanuc)
+    take_control_and_stream(page, fanuc)
+    page.check("input[name=jog-kind][value=joint]", force=True)
+    hold(page, "[data-jog='+J1']", 0.3)
+    try:
+        page.evaluate("window.dispatchEvent(new Event('blur'))")
+        said = "Jog stopped: the window lost focus (stop requested)"
+        page.wait_for_function("said => document.querySelector('#message').textContent === said", arg=said)
+    finally:
+        page.mouse.up()
+    fanuc.wait(lambda s: s["state"] == "stopped" and s["at_rest"], "stopped at rest")
+    page.clock.fast_forward(20_000)
+    assert page.locator("#message").is_visible() and page.text_content("#message") == said
+    page.click("#resume")  # once the telemetry is live (the jump made it look stale)
+    fanuc.wait(lambda s: s["state"] == "streaming", "streaming after resume")
+    page.wait_for_function("document.querySelector('#message').hidden")

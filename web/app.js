@@ -29,15 +29,20 @@ const ui = { tel: null, limits: null, robot: null, lastMode: null, telemetryUp: 
 
 // ------------------------------------------------------------------ messages
 let messageTimer = null;
+/** ``kind`` "stopped": an error saying why the console stopped the arm (or why its STOP failed). It
+ * stays until another message or until the arm streams again: an operator back at the console after
+ * a few seconds must still see why the arm stands (the server's stop reason says only "stop requested"). */
 function say(text, kind = "info") {
   const box = $("#message");
   box.textContent = text;
-  box.className = `banner ${kind === "error" ? "bad" : "info"}`;
+  box.className = `banner ${kind === "info" ? "info" : "bad"}`;
   box.hidden = false;
   clearTimeout(messageTimer);
-  messageTimer = setTimeout(() => { box.hidden = true; }, kind === "error" ? 8000 : 4000);
+  ui.stoppedMessage = kind === "stopped";
+  if (!ui.stoppedMessage) messageTimer = setTimeout(() => { box.hidden = true; }, kind === "error" ? 8000 : 4000);
 }
 const sayError = (text) => say(text, "error");
+const sayStopped = (text) => say(text, "stopped");
 
 // ------------------------------------------------------------------ settings
 /** Whether the robot's backend takes twists (Cartesian jog); others jog their axes directly. */
@@ -121,7 +126,7 @@ async function action(label, fn) {
  * ``why``: the console stopped a jog by itself (focus or telemetry lost); the message keeps saying why. */
 function stop(fast = false, why = "") {
   jog.end();
-  if (why) sayError(`Jog stopped: ${why}`);
+  if (why) sayStopped(`Jog stopped: ${why}`);
   if (!api.signedIn) {
     sayError("STOP needs a signed-in console: the server takes motion requests only with the token");
     return;
@@ -130,12 +135,12 @@ function stop(fast = false, why = "") {
   // stopped jog and the failed STOP, and "Failed to fetch" alone hid it.
   const cause = why ? `Jog stopped: ${why}` : "";
   api.post("/api/session/stop", { fast }, { timeoutMs: 2000 })
-    .then(() => (why ? sayError(`${cause} (stop requested)`)
+    .then(() => (why ? sayStopped(`${cause} (stop requested)`)
       : say(fast ? "fast stop requested" : "stop requested")))
     .catch((exc) => {
       if (exc.status === 409 && !why) say(`stop: ${exc.message}`); // e.g. nothing moving to stop
-      else if (exc.status === 409) sayError(`${cause} (stop: ${exc.message})`);
-      else sayError(`${cause ? `${cause}; ` : ""}STOP failed: ${exc.message}`);
+      else if (exc.status === 409) sayStopped(`${cause} (stop: ${exc.message})`);
+      else sayStopped(`${cause ? `${cause}; ` : ""}STOP failed: ${exc.message}`);
     });
 }
 
@@ -280,6 +285,10 @@ function onState(s) {
   io.render(s);
   joints.render(s, ui.robot, ui.limits, ui.limits ? ui.limits.limit_fraction : 0.9);
   if (s.state !== ui.lastMode) {
+    if (s.state === "streaming" && ui.stoppedMessage) { // moving again: the stop is history
+      $("#message").hidden = true;
+      ui.stoppedMessage = false;
+    }
     if (s.state === "streaming" && api.signedIn && io.available) io.selectReadBack();
     if (["ended", "fault"].includes(s.state) || ui.lastMode === null) logs.refresh();
     if (s.state === "fault" && jog.holding) jog.end();
