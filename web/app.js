@@ -69,7 +69,9 @@ function showSpeed() {
 }
 
 // ------------------------------------------------------------------ panels
-const jog = new JogPad({ api, root: $("#jog-pad"), settings, telemetry: () => ui.tel, onError: sayError });
+const jog = new JogPad({
+  api, root: $("#jog-pad"), settings, telemetry: () => ui.tel, onError: sayError, onLost: (why) => stop(false, why),
+});
 const io = new IoPanel({ api, root: $("#io-buttons"), onError: sayError });
 const logs = new LogsPanel({ api, root: $("#logs-card"), limits: () => ui.limits, onError: sayError });
 const arm = new ArmView($("#arm-side"), $("#arm-top"));
@@ -140,7 +142,7 @@ function stop(fast = false, why = "") {
     .catch((exc) => {
       if (exc.status === 409 && !why) say(`stop: ${exc.message}`); // e.g. nothing moving to stop
       else if (exc.status === 409) sayStopped(`${cause} (stop: ${exc.message})`);
-      else sayStopped(`${cause ? `${cause}; ` : ""}STOP failed: ${exc.message}`);
+      else sayStopped(`${cause ? `${cause}; ` : ""}STOP failed${exc.message === why ? " too" : `: ${exc.message}`}`);
     });
 }
 

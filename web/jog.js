@@ -20,10 +20,11 @@ const ANGULAR = ["W", "P", "R"];
 export class JogPad {
   /**
    * api: Api; root: the pad's container; settings(): {kind: "cart"|"joint", frame, step: bool,
-   * stepMm, stepDeg, speed: 0..1}; telemetry(): the last state; onError(text); onMoved().
+   * stepMm, stepDeg, speed: 0..1}; telemetry(): the last state; onError(text); onLost(why): a held
+   * jog got no answer (the console sends STOP, as when the telemetry is lost).
    */
-  constructor({ api, root, settings, telemetry, onError }) {
-    Object.assign(this, { api, root, settings, telemetry, onError });
+  constructor({ api, root, settings, telemetry, onError, onLost }) {
+    Object.assign(this, { api, root, settings, telemetry, onError, onLost });
     this.active = null; // the press being held: {axis, btn, timer, sent}
     this.pending = false; // a jog request is in flight
     this.chain = Promise.resolve(); // jog requests go out strictly in order (see queue)
@@ -110,10 +111,11 @@ export class JogPad {
     a.sent += 1;
     this.queue(() => this.api.post("/api/jog", this.jogBody(a.axis, JOG.HOLD_MS), { timeoutMs: 1000 }))
       .catch((exc) => {
-        if (this.active === a) {
-          this.end();
-          this.onError(`Jog refused: ${exc.message}`);
-        }
+        if (this.active !== a) return;
+        this.end();
+        // No answer: the jog may have reached the arm, and nothing says it stopped: STOP it.
+        if (exc.status === 0 && this.onLost) this.onLost(exc.message);
+        else this.onError(`Jog refused: ${exc.message}`);
       })
       .finally(() => { this.pending = false; });
   }
