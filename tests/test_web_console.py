@@ -83,8 +83,8 @@ def _free_port() -> int:
 class Service:
     """``servo-app run`` in a subprocess, and a tiny reader of its REST API."""
 
-    def __init__(self, tmp: Path, *extra: str) -> None:
-        self.port = _free_port()
+    def __init__(self, tmp: Path, *extra: str, port: int | None = None) -> None:
+        self.port = port or _free_port()  # a port: a service restarted where the page knows it
         self.url = f"http://127.0.0.1:{self.port}"
         self.log_path = tmp / "service.log"
         self._log = open(self.log_path, "wb")  # noqa: SIM115 - closed in stop()

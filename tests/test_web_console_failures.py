@@ -140,3 +140,25 @@ def test_a_held_jog_that_gets_no_answer_is_stopped_and_says_why(page: Any, fanuc
     assert s["stop_reason"] == "stop requested", s["stop_reason"]
     page.click("#resume")
     fanuc.wait(lambda s: s["state"] == "streaming", "streaming after resume")
+
+
+def test_a_service_restarted_under_the_console_shows_its_own_points(page: Any, own: Service,
+                                                                    tmp_path: Path) -> None:
+    """The service restarts on the same port with another var directory: the Points card went on
+    listing the old service's points (Go to one: "no teach point named ..."). The console reads the
+    list again when its telemetry comes back."""
+    sign_in(page, own)
+    take_control_and_stream(page, own)
+    page.fill("#point-name", "before_restart")
+    page.click("#point-teach")
+    page.wait_for_selector("#point-list li[data-point='before_restart']")
+    own.stop()
+    page.wait_for_function("document.querySelector('#conn').textContent.startsWith('telemetry: lost')")
+    (tmp_path / "again").mkdir()
+    again = Service(tmp_path / "again", port=own.port)
+    try:
+        again.wait_healthy()
+        page.wait_for_function("document.querySelector('#conn').textContent === 'telemetry: live'", timeout=20000)
+        page.wait_for_selector("#point-list li.muted:text('no points taught')")
+    finally:
+        again.stop()

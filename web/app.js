@@ -308,6 +308,13 @@ function onState(s) {
 
 function onLink(up, why) {
   ui.telemetryUp = up;
+  // Back after a loss: the service may have restarted (another var directory, points taught or
+  // deleted meanwhile by another client): the lists shown are read again, not trusted.
+  if (up && ui.linkSeen) {
+    points.refresh();
+    logs.refresh();
+  }
+  ui.linkSeen = ui.linkSeen || up;
   const pill = $("#conn");
   pill.textContent = up ? "telemetry: live" : `telemetry: lost (${why})`;
   pill.title = pill.textContent;
