@@ -122,6 +122,15 @@ def test_teaching_a_name_again_asks_before_replacing(asking_page: tuple[Any, lis
     assert len(asked) == 2
     (point,) = [p for p in fanuc.get("/api/points") if p["name"] == "twice"]
     assert np.allclose(point["joints"], q_away, atol=1e-3)
+
+    # Where no point can be taught (no stream), the console does not ask first: the refusal says why.
+    page.click("#end")
+    fanuc.wait(lambda s: s["state"] == "ended", "ended")
+    page.wait_for_function("document.querySelector('#mode').textContent === 'ended'")
+    page.click("#point-teach")
+    page.wait_for_function("document.querySelector('#point-message').textContent.startsWith('Teach refused')")
+    assert page.text_content("#point-message").endswith("start one: press Start")
+    assert len(asked) == 2, asked
     call(fanuc, "DELETE", "/api/points/twice", lease=lease_id)
 
 

@@ -76,7 +76,9 @@ const io = new IoPanel({ api, root: $("#io-buttons"), onError: sayError });
 const logs = new LogsPanel({ api, root: $("#logs-card"), limits: () => ui.limits, onError: sayError });
 const arm = new ArmView($("#arm-side"), $("#arm-top"));
 const joints = new JointTable($("#joint-rows"));
-const points = new PointsPanel({ api, root: $("#points-card"), onRender: () => refreshControls() });
+const points = new PointsPanel({
+  api, root: $("#points-card"), onRender: () => refreshControls(), telemetry: () => ui.tel,
+});
 const tools = new ToolPanel({ api, root: $("#control-card"), canControl: () => api.signedIn && lease.held });
 const target = new TargetForm({ api, root: $("#target-form"), telemetry: () => ui.tel, robot: () => ui.robot });
 const lease = new Lease({

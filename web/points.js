@@ -5,9 +5,10 @@
 import { $, el, fmt } from "./dom.js";
 
 export class PointsPanel {
-  /** api: Api; root: the card; onRender(): lets the console enable the new buttons (data-needs). */
-  constructor({ api, root, onRender }) {
-    Object.assign(this, { api, root, onRender });
+  /** api: Api; root: the card; onRender(): lets the console enable the new buttons (data-needs);
+   * telemetry(): the last state. */
+  constructor({ api, root, onRender, telemetry }) {
+    Object.assign(this, { api, root, onRender, telemetry });
     this.list = $("#point-list", root);
     this.message = $("#point-message", root);
     $("#point-teach-form", root).addEventListener("submit", (ev) => { ev.preventDefault(); this.teach(); });
@@ -46,7 +47,11 @@ export class PointsPanel {
     try {
       // A name already taught is replaced only when the operator says so (the server refuses otherwise).
       const old = (await this.api.get("/api/points")).find((p) => p.name === name);
-      if (old) {
+      // Asked only where teaching can succeed: elsewhere the server's refusal says what to do first
+      // (it checks the state before the name), rather than a question answered for nothing.
+      const s = (this.telemetry && this.telemetry()) || {};
+      const teachable = ["streaming", "stopped"].includes(s.state) && s.status_live && s.settled;
+      if (old && teachable) {
         const by = old.taught_by ? ` by ${old.taught_by}` : "";
         const at = old.taught_unix ? ` at ${new Date(old.taught_unix * 1000).toLocaleString()}` : "";
         if (!window.confirm(`Replace the point ${name} (taught${by}${at}) with the arm's position now?`)) {
@@ -54,7 +59,7 @@ export class PointsPanel {
           return;
         }
       }
-      const p = await this.api.post(`/api/points/${encodeURIComponent(name)}${old ? "?replace=true" : ""}`);
+      const p = await this.api.post(`/api/points/${encodeURIComponent(name)}${old && teachable ? "?replace=true" : ""}`);
       this.show(`taught ${p.name}`, true);
       await this.refresh();
     } catch (exc) {
