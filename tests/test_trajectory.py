@@ -303,3 +303,10 @@ def test_the_vectorised_flange_speed_is_the_checker_s() -> None:
     one_by_one = [np.linalg.norm(kin.flange_xyz_mm_fanuc_deg(b) - kin.flange_xyz_mm_fanuc_deg(a)) / DT
                   for a, b in itertools.pairwise(q)]
     assert np.allclose(flange_speeds(kin, q, DT), one_by_one, rtol=1e-12, atol=1e-9)
+
+
+def test_a_wild_joint_target_is_refused_in_a_short_message() -> None:
+    """1e300 deg (a value sent in the wrong units) is named in a few characters, not 300 digits twice."""
+    with pytest.raises(CommandRejected, match=r"joints\[5\]=1e\+300 deg \(J6 = 1e\+300 deg") as refused:
+        streaming_cycle().check_joint_target(HOME + np.array([0, 0, 0, 0, 0, 1e300]))
+    assert len(str(refused.value)) < 200, str(refused.value)

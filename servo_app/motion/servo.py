@@ -81,6 +81,12 @@ class ServoSettings:
     finish_deg: float = 1.0
     finish_after_s: float = 0.1  # the target must have stayed the same this long
 
+
+def _deg(v: float) -> str:
+    """An angle for a message: to the thousandth, but a wild value (1e300, sent as metres or radians
+    times a million) in a few characters rather than 300 digits."""
+    return f"{v:.3f}" if abs(v) < 1e6 else f"{v:.4g}"
+
 class ServoCycle:
     def __init__(self, profile: RobotProfile, dt: float, settings: ServoSettings | None = None) -> None:
         self.profile = profile
@@ -716,7 +722,7 @@ class ServoCycle:
         if out.size:
             i = out[0]
             raise CommandRejected(
-                f"joints[{i}]={q[i]:.3f} deg (J{i + 1} = {q_model[i]:.3f} deg in model convention) is outside "
+                f"joints[{i}]={_deg(q[i])} deg (J{i + 1} = {_deg(q_model[i])} deg in model convention) is outside "
                 f"the joint range [{lo[i]:.1f}, {hi[i]:.1f}]"
             )
         return q
