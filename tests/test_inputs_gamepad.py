@@ -29,6 +29,7 @@ from servo_app.inputs import (
     parse_inputs_config,
 )
 from servo_app.inputs.actions import LOCAL_ACTIONS
+from servo_app.inputs.bridge import InputsBridge
 from servo_app.inputs.gamepad.adapter import DEFAULT_AXES, GamepadAdapter, GamepadConfig, gamepad_failure
 from servo_app.inputs.gamepad.mapping import (
     AXIS_NAMES,
@@ -336,6 +337,70 @@ def test_the_stop_button_keeps_the_arm_from_a_lower_priority_source(pad: Virtual
         pad.button("leftshoulder", False)  # a plain release yields, as configured
         wait_for(a.output, lambda s: s.is_zero() and not s.stop)
         assert select().active == "auto"
+
+
+TELEOP_PAD = """
+[adapters.pad]
+type = "gamepad"
+realtime_priority = 0
+deadband = 0.0
+expo = 0.0
+
+[adapters.pad.buttons]
+b = "stop"
+
+[feeds.auto]
+kind = "twist"
+stale_after_s = 1.5
+
+[[applications]]
+name = "teleop"
+type = "teleop"
+sources = { twist = "pad" }
+priority = 20
+"""
+
+
+def test_the_stop_button_holds_through_a_teleop_application(pad: VirtualPad, tmp_path: Path) -> None:
+    """The same stop with the pad driving a teleop application (yield_when_idle, its default): the
+    application rebuilt the twist without the stop mark, so the live lower-priority feed took the arm
+    the operator had just stopped. Bridge, pad adapter and application run as in the service."""
+    path = tmp_path / "inputs.toml"
+    path.write_text(TELEOP_PAD)
+    bridge = InputsBridge.from_file(path)
+    teleop = bridge.application("teleop")
+    reader = bridge.adapters[0]
+    assert isinstance(reader, GamepadAdapter)
+
+    def active() -> str | None:
+        bridge.feeds.submit("auto", {"kind": "twist", "linear": [0.0, 50.0, 0.0], "frame": "base"})
+        bridge.step(time.monotonic())
+        return bridge.arbiter.active
+
+    bridge.start(request=lambda _msg: None)
+    try:
+        bridge.enable(True)
+        wait_for(teleop.output, lambda s: s.is_zero())
+        pad.axis("lefty", -1.0)
+        pad.button("leftshoulder", True)
+        wait_for(teleop.output, lambda s: s.linear[0] > 0)
+        assert active() == "teleop"
+        pad.button("b", True)  # stop, the deadman still held
+        wait_for(teleop.output, lambda s: s.is_zero())
+        assert active() == "teleop"  # the arm stays stopped: the feed does not take it
+        last = bridge.last_command
+        assert last is not None and not any(last.values), last
+        pad.button("b", False)
+        pad.button("leftshoulder", False)
+        pad.axis("lefty", 0.0)
+        wait_until(lambda: not reader.logic.buttons)  # the adapter has read the release
+        assert active() == "teleop"  # released too: still the pad's stop
+        pad.button("leftshoulder", True)  # pressed anew, then a plain release: yields, as configured
+        wait_for(teleop.output, lambda s: s.is_zero() and not s.stop)
+        pad.button("leftshoulder", False)
+        wait_until(lambda: active() == "auto")
+    finally:
+        bridge.close()
 
 
 def test_unplugged_mid_jog_goes_quiet_reports_and_reconnects_not_running(pad: VirtualPad) -> None:

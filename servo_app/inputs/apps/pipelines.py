@@ -35,7 +35,9 @@ class TeleopApp(Application):
         t: TwistSample = require(values["twist"], TwistSample, "twist", self.name)
         lin = clamp_norm([c * self.scale for c in t.linear], self.max_linear)
         ang = clamp_norm([c * self.scale for c in t.angular], self.max_angular)
-        return TwistSample(lin, ang, self.frame or t.frame, t.stamp, self.name)  # type: ignore[arg-type]
+        # The stop mark carried through: without it a pad's stop is idle here, and a live lower-priority
+        # source takes the arm the operator has just stopped.
+        return TwistSample(lin, ang, self.frame or t.frame, t.stamp, self.name, stop=t.stop)  # type: ignore[arg-type]
 
 
 class AdmittanceApp(Application):
