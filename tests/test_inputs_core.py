@@ -355,6 +355,23 @@ def test_a_jog_device_stale_timeout_shorter_than_its_reports_is_refused() -> Non
     assert parse_inputs_config({"adapters": {"pad": {"type": "gamepad", "stale_after_s": 0.02}}}).adapters
 
 
+def test_an_adapter_timeout_longer_than_the_servos_longest_hold_is_refused() -> None:
+    """stale_after_s = 200 (meant as milliseconds) loaded for a device: the servo holds an input command
+    at most 2 s, so a device gone quiet mid-jog left the arm moving for 2 s on its last command, then
+    'hold-to-run expired' without naming it. Feeds and applications were capped already."""
+    probe = {"type": "serial_line", "port": "/dev/x", "fields": {"d": {"pattern": "D=([0-9]+)"}}}
+    data = {"adapters": {"sm": {"type": "spacemouse", "stale_after_s": 200.0},
+                         "pad": {"type": "gamepad", "stale_after_s": 5.0},
+                         "probe": {**probe, "stale_after_s": 2.0}}}
+    with pytest.raises(ConfigError) as ei:
+        parse_inputs_config(data, file="in.toml")
+    assert [(i.key, i.value) for i in ei.value.issues] == [("adapters.sm.stale_after_s", 200.0),
+                                                           ("adapters.pad.stale_after_s", 5.0),
+                                                           ("adapters.probe.stale_after_s", 2.0)]
+    assert all("at most 1.9 (seconds, not milliseconds)" in i.reason for i in ei.value.issues)
+    assert parse_inputs_config({"adapters": {"probe": {**probe, "stale_after_s": 1.9}}}).adapters
+
+
 def test_a_jog_device_frame_the_servo_lacks_is_refused_when_the_file_loads() -> None:
     """It used to load, and once toggle_frame reached it the bridge refused every sample: the arm
     stopped answering the device with nothing said at start-up."""

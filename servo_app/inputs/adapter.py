@@ -20,9 +20,10 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, model_validator
 
 from servo_app.inputs.device_failure import DeviceFailure, generic_failure
+from servo_app.inputs.errors import check_stale_after
 from servo_app.inputs.problems import Problem, ProblemLog
 from servo_app.inputs.samples import ButtonEvent
 from servo_app.inputs.slots import EventQueue, LatestValue
@@ -55,6 +56,13 @@ class AdapterConfig(BaseModel):
     # SCHED_FIFO priority of the adapter's thread (0: normal scheduling). Above ordinary work, so a
     # frame is read as it arrives; below the servo process (20) and the embedded simulator (10).
     realtime_priority: int = Field(5, ge=0, le=99)
+
+    @model_validator(mode="after")
+    def _timeout_cap(self) -> AdapterConfig:
+        # As for feeds and applications: past the servo's longest hold, a device gone quiet mid-jog
+        # left the arm moving on its last command until 'hold-to-run expired', the source not named.
+        check_stale_after(self.stale_after_s)
+        return self
 
 
 @dataclass(frozen=True)

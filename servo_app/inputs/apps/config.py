@@ -36,8 +36,7 @@ from servo_app.inputs.apps.pipelines import APPLICATION_TYPES, AdmittanceApp, St
 from servo_app.inputs.apps.standoff import StandoffParams
 from servo_app.inputs.apps.tracking import PoseExtrapolator
 from servo_app.inputs.config import InputsConfig, parse_inputs_config, read_toml
-from servo_app.inputs.errors import ConfigError, ConfigIssue, KeyedError, issues_from_validation
-from servo_app.inputs.feed.models import check_stale_after
+from servo_app.inputs.errors import ConfigError, ConfigIssue, KeyedError, check_stale_after, issues_from_validation
 
 # What each adapter type publishes; feeds say it themselves (`kind`).
 ADAPTER_KINDS = {"spacemouse": "twist", "spacenav": "twist", "serial_line": "measurement",

@@ -11,23 +11,8 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from servo_app.input_slot import MAX_HOLD_S
-from servo_app.inputs.errors import KeyedError
+from servo_app.inputs.errors import KeyedError, check_stale_after
 from servo_app.inputs.fields import FieldConfig
-
-# A source's timeout must end before the servo's longest hold does (with the bridge's grace to spare),
-# or the servo stops by itself first: "hold-to-run expired" after 2 s of motion on a dead sensor's last
-# command, not "input <source> stale" after the timeout. 200 meant as milliseconds did just that.
-MAX_STALE_AFTER_S = MAX_HOLD_S - 0.1
-
-
-def check_stale_after(value: float | None) -> None:
-    """KeyedError for a timeout the servo's own hold would cut short."""
-    if value is not None and value > MAX_STALE_AFTER_S:
-        raise KeyedError("stale_after_s", value, f"at most {MAX_STALE_AFTER_S:g} (seconds, not milliseconds): the "
-                         f"servo holds an input command at most {MAX_HOLD_S:g} s, so with a longer timeout a source "
-                         "that went quiet stopped the arm late, 'hold-to-run expired', not named")
-
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Vec3 = tuple[Finite, Finite, Finite]
