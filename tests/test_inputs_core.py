@@ -372,6 +372,25 @@ def test_an_adapter_timeout_longer_than_the_servos_longest_hold_is_refused() -> 
     assert parse_inputs_config({"adapters": {"probe": {**probe, "stale_after_s": 1.9}}}).adapters
 
 
+def test_non_finite_field_scaling_and_limits_are_refused(tmp_path: Path) -> None:
+    """A field's scale, offset, min and max (a sensor's fields, a feed's limits) took nan and inf, which
+    TOML spells: limits = { z = { scale = nan } } loaded, then every sample was refused at run time."""
+    p = tmp_path / "inputs.toml"
+    p.write_text(
+        '[feeds.vision]\nkind = "pose"\nlimits = { z = { scale = nan }, x = { offset = inf } }\n'
+        '[feeds.gauge]\nkind = "measurement"\nlimits = { d = { min = nan, max = -inf } }\n'
+        '[adapters.probe]\ntype = "serial_line"\nport = "/dev/x"\n'
+        '[adapters.probe.fields.d]\npattern = "D=([0-9]+)"\nscale = inf\n'
+    )
+    with pytest.raises(ConfigError) as ei:
+        load_inputs_config(p)
+    keys = {(i.key, repr(i.value)) for i in ei.value.issues}
+    assert keys == {("feeds.vision.limits.z.scale", "nan"), ("feeds.vision.limits.x.offset", "inf"),
+                    ("feeds.gauge.limits.d.min", "nan"), ("feeds.gauge.limits.d.max", "-inf"),
+                    ("adapters.probe.fields.d.scale", "inf")}, keys
+    assert all("finite" in i.reason for i in ei.value.issues)
+
+
 def test_a_jog_device_frame_the_servo_lacks_is_refused_when_the_file_loads() -> None:
     """It used to load, and once toggle_frame reached it the bridge refused every sample: the arm
     stopped answering the device with nothing said at start-up."""

@@ -9,7 +9,8 @@ from servo_app.inputs.validate import check_range
 
 
 class FieldConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    # No nan or inf (TOML spells both): a nan scale or limit loaded, then refused every sample at run time.
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     scale: float = 1.0
     offset: float = 0.0
