@@ -15,6 +15,7 @@ import math
 import os
 import signal
 import socket
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -28,6 +29,7 @@ import pytest
 import websockets.sync.client
 from test_api_harness import AUTH, TOKEN, Rig, running_rig
 from test_inputs_serial import PtyDevice
+from waiting import wait_until
 
 from servo_app.inputs.apps.tracking import wpr_matrix
 from servo_app.inputs.serial_sensor.binary import FrameLayout
@@ -724,3 +726,67 @@ def test_input_control_is_off_after_the_servo_process_is_lost_until_enabled_agai
             time.sleep(0.02)
         s = rig.wait(lambda s: s["state"] == "stopped" and s["stop_reason"] is not None, 3.0, "stopped")
         assert s["stop_reason"] == "input jog stale" and s["at_rest"]
+
+
+def test_an_enable_let_through_just_before_a_take_over_does_not_outlast_it(tmp_path: Path) -> None:
+    """Client A's 'enable inputs' passed its lease check, then client B took control over (its stop turns
+    input control off) before A's enable ran: the enable came after and left the inputs commanding under
+    B's lease, B never having enabled them. Now the check and the enable are one step against a
+    take-over: the take-over waits for the enable it let through, and its stop comes after. The
+    interleaving is driven on a real service: A's request to the servo process is held at a gate until B's
+    take-over has either finished (the old order) or is waiting for A's (the new)."""
+    inputs = tmp_path / "inputs.toml"
+    inputs.write_text('[feeds.jog]\nkind = "twist"\nstale_after_s = 0.25\nmax_linear_mm_s = 100.0\n')
+    with running_rig(tmp_path / "var", inputs_config=inputs) as rig:
+        bridge = rig.service.inputs
+        assert bridge is not None
+        h_a = rig.lease("a")
+        rig.start_streaming(h_a)
+        real = bridge._request
+        at_gate, go = threading.Event(), threading.Event()
+
+        def gated(message: Any) -> Any:
+            if getattr(message, "enable", False):  # A's enable, between its lease check and its effect
+                at_gate.set()
+                assert go.wait(15.0), "the gate was never opened"
+            return real(message)
+
+        bridge._request = gated
+        answers: dict[str, httpx.Response] = {}
+
+        def post(who: str, path: str, headers: dict[str, str], body: Any) -> None:
+            with httpx.Client(base_url=rig.base_url, timeout=20.0) as c:
+                answers[who] = c.post(path, json=body, headers=headers)
+
+        a = threading.Thread(target=post, args=("a", "/api/inputs/enable", h_a, {"enable": True}))
+        b = threading.Thread(target=post, args=("b", "/api/lease", AUTH, {"client": "b", "force": True}))
+        try:
+            a.start()
+            assert at_gate.wait(10.0), "A's enable never reached the servo request"
+            b.start()
+
+            def take_over_waits() -> bool:  # B's request thread is held in LeaseManager.handing_over
+                return any(any(f.f_code.co_name == "handing_over" for f in _stack(frame))
+                           for frame in sys._current_frames().values())
+
+            wait_until(lambda: not b.is_alive() or take_over_waits(), 10.0)  # B's take-over ran, or waits
+            go.set()
+            a.join(20.0)
+            b.join(20.0)
+        finally:
+            go.set()
+            bridge._request = real
+        assert answers["b"].status_code == 200, answers["b"].text
+        assert answers["a"].status_code in (200, 409), answers["a"].text
+        # Whatever A was told, control is B's and input control is off until B enables it.
+        assert rig.http.get("/api/lease").json()["client"] == "b"
+        assert not rig.http.get("/api/inputs").json()["enabled"]
+        s = rig.state()
+        assert not s["inputs"]["enabled"] and not s["inputs_enabled"], (s["inputs"], s["inputs_enabled"])
+
+
+def _stack(frame: Any) -> Iterator[Any]:
+    while frame is not None:
+        yield frame
+        frame = frame.f_back
+

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import logging
@@ -9,6 +10,7 @@ import os
 import secrets
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -70,6 +72,24 @@ class LeaseManager:
         self._lease: Lease | None = None
         self._expired: Lease | None = None  # expired, its motion not stopped yet
         self._lock = threading.Lock()
+        # Held by an action under the lease (acting) and by a hand-over with its stop (handing_over): an
+        # action whose check passed just before a take-over ran after the take-over's stop otherwise, and
+        # an 'enable inputs' left them commanding under the new holder's lease.
+        self._control = threading.RLock()
+
+    @contextlib.contextmanager
+    def acting(self, lease_id: str | None) -> Iterator[Lease]:
+        """Check ``lease_id`` (PermissionError as :meth:`check`) and keep the lease from changing hands
+        until the block ends: check and act are one step against a take-over, release or expiry stop."""
+        with self._control:
+            yield self.check(lease_id)
+
+    @contextlib.contextmanager
+    def handing_over(self) -> Iterator[None]:
+        """Around a take-over, release or expiry and the stop that follows it: waits for an action under
+        the old lease that has passed its check to finish, so the stop comes after it."""
+        with self._control:
+            yield
 
     def _expire(self) -> None:  # under the lock
         if self._lease and self._clock() > self._lease.expires_at:
