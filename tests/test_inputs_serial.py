@@ -93,6 +93,79 @@ def test_problem_log_keeps_a_bounded_sample_of_the_bytes() -> None:
     assert big.data_hex.startswith(bytes(range(MAX_DATA)).hex(" ")) and len(big.data_hex) < 4 * MAX_DATA
 
 
+def test_problem_counts_held_back_by_the_rate_limit_reach_the_log(caplog: pytest.LogCaptureFixture) -> None:
+    """The log takes one line per kind a second; the number held back was only told on the next line of
+    the same kind, so a burst that never recurred left the log saying one problem where there were
+    five. Now the count comes with the next line of any kind once the second has passed, from a poll
+    (report_due), or at close (flush); each kind's count at most once a second."""
+    import logging
+
+    from servo_app.inputs.problems import ProblemLog
+
+    t = [0.0]
+    log = ProblemLog(logging.getLogger("test.problems"), lambda: t[0])
+
+    def lines() -> list[str]:
+        out = [r.getMessage() for r in caplog.records if r.name == "test.problems"]
+        caplog.clear()
+        return out
+
+    with caplog.at_level(logging.INFO, logger="test.problems"):
+        for i in range(5):
+            log.record("checksum", f"frame {i}")
+        assert lines() == ["checksum: frame 0"]
+        t[0] = 0.5
+        log.record("garbage", "3 bytes")  # within the second: the checksum count waits
+        log.report_due()
+        assert lines() == ["garbage: 3 bytes"]
+        t[0] = 1.6
+        log.record("garbage", "4 bytes")  # another kind's next line brings the count
+        assert lines() == ["garbage: 4 bytes", "checksum: 4 more since last report, the last: frame 4"]
+        for i in range(3):
+            log.record("checksum", f"late {i}")  # within a second of its count: held back again
+        log.report_due()
+        assert lines() == []
+        t[0] = 2.7
+        log.report_due()  # a poll brings it once the second has passed
+        assert lines() == ["checksum: 3 more since last report, the last: late 2"]
+        log.report_due()
+        log.record("checksum", "again")
+        log.record("checksum", "and again")
+        log.flush()  # at close, whatever the interval
+        assert lines() == ["checksum: 2 more since last report, the last: and again"]
+        log.flush()
+        assert lines() == []
+
+
+def test_an_adapter_reports_the_count_of_a_burst_that_did_not_recur(tmp_path: Path,
+                                                                     caplog: pytest.LogCaptureFixture) -> None:
+    """A serial sensor sending a burst of bad lines, then good ones: the log said one 'malformed' line and
+    never how many followed it. Now the adapter's thread reports the count once the second has passed."""
+    import logging
+
+    dev = PtyDevice(tmp_path / "ttyBURST")
+    a = create_adapter({"type": "serial_line", "name": "burst", "port": str(dev.link), "poll_timeout_s": 0.02,
+                        "fields": {"distance": {"pattern": r"D=\s*([-0-9.]+)"}}})
+    try:
+        with caplog.at_level(logging.INFO, logger="servo_app.inputs.serial_line.burst"), a:
+            wait_until(lambda: a.connected)
+            dev.write(b"hello\r\n" * 6)
+            wait_until(lambda: sum(a.status().problems.values()) == 6)
+            kinds = set(a.status().problems)
+            assert len(kinds) == 1, kinds
+            kind = kinds.pop()
+            dev.write(b"D=5\r\n")
+            wait_for(a.output, lambda m: True)
+
+            def said() -> list[str]:
+                return [r.getMessage() for r in caplog.records if r.name == "servo_app.inputs.serial_line.burst"
+                        and r.getMessage().startswith(f"{kind}:")]
+            wait_until(lambda: any("5 more since last report" in m for m in said()), 5.0)
+            assert len(said()) == 2, said()  # the first line, then the count once: no spam
+    finally:
+        dev.close()
+
+
 def test_binary_parser_garbage_partial_and_bad_checksum() -> None:
     p = BinaryFrameParser(LAYOUT)
     good = LAYOUT.encode([100, -200, 300, 1])

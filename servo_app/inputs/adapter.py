@@ -180,6 +180,12 @@ class InputAdapter(ABC):
         self.stop()
 
     def _run(self) -> None:
+        try:
+            self._run_until_stopped()
+        finally:
+            self.problems.flush()  # counts still held back by the log's rate limit
+
+    def _run_until_stopped(self) -> None:
         self.scheduling = make_realtime(self.config.realtime_priority)
         backoff = self.config.reconnect_min_s
         while not self._stop.is_set():
@@ -212,6 +218,7 @@ class InputAdapter(ABC):
 
     def _poll_until_failure(self) -> None:
         while not self._stop.is_set():
+            self.problems.report_due()  # a held-back count whose kind did not recur
             try:
                 self._poll()
             except self.io_errors as exc:

@@ -84,6 +84,16 @@ class BridgeLoop:
         self._thread = self._acting = None
         for a in self.adapters:
             a.stop()
+        for log in self._problem_logs():  # counts still held back by the log's rate limit
+            log.flush()
+
+    def _problem_logs(self) -> list[ProblemLog]:
+        return [self.problems, *(app.problems for app in self.pipeline.apps)]
+
+    def _report_due(self) -> None:
+        """Held-back counts whose kind did not recur reach the log (each at most once per interval)."""
+        for log in self._problem_logs():
+            log.report_due()
 
     def on_sample(self) -> None:
         """A new sample: step right here in the publishing thread, one GIL hand-over sooner than waking
@@ -110,6 +120,7 @@ class BridgeLoop:
             try:
                 now = self.clock()
                 self._step(now)
+                self._report_due()
                 timeout = max(0.0, self._next_deadline(now) - self.clock())
             except Exception as exc:  # a bug must not end the loop: the servo's hold stops the arm meanwhile
                 self.problems.record("error", f"{type(exc).__name__}: {exc}", level=logging.ERROR, exc_info=True)
