@@ -790,3 +790,33 @@ def _stack(frame: Any) -> Iterator[Any]:
         yield frame
         frame = frame.f_back
 
+
+
+def test_a_twist_faster_than_the_servo_takes_is_refused_at_the_door(tmp_path: Path) -> None:
+    """A twist feed without max_linear_mm_s answered 'accepted' to 50000 mm/s; the servo refused it and
+    went on at the previous command until its hold ran out ('hold-to-run expired', not naming the feed),
+    the sender none the wiser. Now the feed refuses it (422: field, value, the servo's limit, what to
+    do), the slot keeps the previous sample, and the servo never sees it: the stop is the feed's own."""
+    inputs = tmp_path / "inputs.toml"
+    inputs.write_text('[feeds.jog]\nkind = "twist"\nstale_after_s = 0.25\n')
+    feed = {"kind": "twist", "linear": [20.0, 0.0, 0.0], "frame": "base"}
+    with running_rig(tmp_path / "var", inputs_config=inputs) as rig:
+        h = rig.lease()
+        rig.start_streaming(h)
+        rig.post("/api/inputs/enable", h, {"enable": True})
+        deadline = time.monotonic() + 5.0
+        while max(map(abs, rig.state()["vel"])) < 1.0:  # the feed moves the arm
+            assert time.monotonic() < deadline, "the feed does not move the arm"
+            r = rig.http.post("/api/feed/jog", json={**feed, "stamp": time.time()}, headers=AUTH)
+            assert r.status_code == 200 and r.json()["accepted"], r.text
+            time.sleep(0.02)
+        before = rig.http.get("/api/inputs").json()["last_command"]
+        r = rig.http.post("/api/feed/jog", json={**feed, "linear": [50000.0, 0.0, 0.0], "stamp": time.time()},
+                          headers=AUTH)
+        assert r.status_code == 422, r.text
+        detail = str(r.json()["detail"])
+        assert "'linear'" in detail and "50000" in detail and "4000 mm/s" in detail and "send each within" in detail
+        last = rig.http.get("/api/inputs").json()["last_command"]
+        assert last["values"][0] == before["values"][0] == 20.0, (before, last)  # the slot is untouched
+        s = rig.wait(lambda s: s["state"] == "stopped" and s["stop_reason"] is not None, 3.0, "stopped")
+        assert s["stop_reason"] == "input jog stale" and s["input_error"] == "", (s["stop_reason"], s["input_error"])

@@ -436,3 +436,11 @@ def test_the_tracking_apps_slowest_speed_is_the_servos() -> None:
     from servo_app.motion.commands import MIN_ANGULAR_DEG_S, MIN_LINEAR_MM_S
 
     assert SLOWEST_POSE_SPEED == MIN_LINEAR_MM_S == MIN_ANGULAR_DEG_S
+
+
+def test_the_twist_feeds_door_limits_are_the_servos() -> None:
+    """A twist feed refuses what the servo would (its per-component bounds), mirrored, not imported."""
+    from servo_app.inputs.feed.registry import SERVO_MAX_ANGULAR_DEG_S, SERVO_MAX_LINEAR_MM_S
+    from servo_app.motion.commands import MAX_ANGULAR_DEG_S, MAX_LINEAR_MM_S
+
+    assert (SERVO_MAX_LINEAR_MM_S, SERVO_MAX_ANGULAR_DEG_S) == (MAX_LINEAR_MM_S, MAX_ANGULAR_DEG_S)

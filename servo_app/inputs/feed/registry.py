@@ -42,6 +42,12 @@ _AXES = "xyzwpr"
 # went stale at once while its answer said "accepted" (and -1.8e305 s overflowed the latency in ms
 # to inf: the socket dropped without a close frame, found by tests/test_feed_ws_fuzz.py).
 MAX_STAMP_AGE_S = 86_400.0
+# The servo refuses a twist with a component beyond these (servo_app.motion.commands' MAX_LINEAR_MM_S and
+# MAX_ANGULAR_DEG_S; the inputs never import motion, and a test checks that the numbers agree). A twist
+# feed without its own max_* took such a sample as "accepted", and the servo then kept the previous
+# command until its hold ran out: refused here instead, where the sender hears why.
+SERVO_MAX_LINEAR_MM_S = 4000.0
+SERVO_MAX_ANGULAR_DEG_S = 1000.0
 
 
 _FINER_UNITS = (("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9))
@@ -252,11 +258,20 @@ class FeedRegistry:
             xyzwpr = [cfg.limits.get(a, DEFAULT_FIELD).convert(a, v) for a, v in zip(_AXES, msg.xyzwpr, strict=True)]
             return PoseSample(tuple(xyzwpr), stamp, src.name, msg.frame)  # type: ignore[arg-type]
         if isinstance(msg, TwistFeed):
-            for field, vec, limit in (("linear", msg.linear, cfg.max_linear_mm_s),
-                                      ("angular", msg.angular, cfg.max_angular_deg_s)):
+            for field, vec, limit, servo_max, unit, key in (
+                    ("linear", msg.linear, cfg.max_linear_mm_s, SERVO_MAX_LINEAR_MM_S, "mm/s", "max_linear_mm_s"),
+                    ("angular", msg.angular, cfg.max_angular_deg_s, SERVO_MAX_ANGULAR_DEG_S, "deg/s",
+                     "max_angular_deg_s")):
                 speed = math.sqrt(sum(c * c for c in vec))
                 if limit is not None and speed > limit:
                     raise ValueRejected(field, list(vec), f"speed {speed:.6g} above the limit {limit}")
+                over = [i for i, c in enumerate(vec) if abs(c) > servo_max]
+                if over:
+                    i = over[0]
+                    raise ValueRejected(field, list(vec), f"{field}[{i}] = {vec[i]:g} {unit} is beyond the servo's "
+                                        f"limit of {servo_max:g} {unit} per component: send each within "
+                                        f"+-{servo_max:g} {unit} (and set {key} on feed {src.name!r} to "
+                                        "refuse lower speeds here); nothing was changed")
             return TwistSample(msg.linear, msg.angular, msg.frame, stamp, src.name)
         missing = [k for k in cfg.required if k not in msg.values]
         if missing:
