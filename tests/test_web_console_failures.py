@@ -162,3 +162,43 @@ def test_a_service_restarted_under_the_console_shows_its_own_points(page: Any, o
         page.wait_for_selector("#point-list li.muted:text('no points taught')")
     finally:
         again.stop()
+
+
+def test_control_lost_with_a_restarted_service_says_so(page: Any, own: Service, tmp_path: Path) -> None:
+    """The console holds the lease when its service stops and another starts on the same port. While
+    the telemetry was lost the control pill said "control: pytest" (its "you" dropped); once it came
+    back the pill said "control: you" for a moment beside the Take control button, and the message
+    said the lease "may have expired". Now the pill says "you" as long as the buttons do, and the
+    message says the service restarted (the state's service_id changed). A MutationObserver records
+    any moment where pill and buttons disagree."""
+    sign_in(page, own)
+    page.wait_for_selector("#signed:not([hidden])")
+    page.click("#take")
+    page.wait_for_selector("#release:not([hidden])")
+    page.wait_for_function("document.querySelector('#lease-holder').textContent === 'control: you (pytest)'")
+    page.evaluate("""() => {
+        window.clashes = [];
+        const check = () => {
+            const pill = document.querySelector('#lease-holder').textContent;
+            if (pill.startsWith('control: you') === document.querySelector('#release').hidden) {
+                window.clashes.push(`${pill} / take ${document.querySelector('#take').hidden ? 'hidden' : 'shown'}`);
+            }
+        };
+        new MutationObserver(check).observe(document.body, {subtree: true, childList: true, attributes: true,
+                                                            characterData: true});
+    }""")
+    own.stop()
+    page.wait_for_function("document.querySelector('#conn').textContent.startsWith('telemetry: lost')")
+    assert page.text_content("#lease-holder") == "control: you (pytest)"
+    (tmp_path / "again").mkdir()
+    again = Service(tmp_path / "again", port=own.port)
+    try:
+        again.wait_healthy()
+        page.wait_for_function("document.querySelector('#conn').textContent === 'telemetry: live'", timeout=20000)
+        page.wait_for_selector("#take:not([hidden])")
+        said = "control lost: the service restarted, and the control lease ended with it: take control again"
+        page.wait_for_function("said => document.querySelector('#message').textContent === said", arg=said)
+        page.wait_for_function("document.querySelector('#lease-holder').textContent === 'control: free'")
+        assert page.evaluate("window.clashes") == []
+    finally:
+        again.stop()

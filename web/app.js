@@ -14,7 +14,8 @@ import { ToolPanel } from "./tools.js";
 import { TargetForm } from "./target.js";
 import { Telemetry } from "./telemetry.js";
 import {
-  JointTable, renderAlarms, renderHeldBack, renderInputs, renderPose, renderReplay, renderStatus, renderTiming,
+  JointTable, renderAlarms, renderHeldBack, renderHolder, renderInputs, renderPose, renderReplay, renderStatus,
+  renderTiming,
 } from "./views.js";
 
 const ROBOT_POLL_MS = 100; // arm view refresh (FK on the server)
@@ -85,6 +86,8 @@ const lease = new Lease({
   api,
   onChange: (held, why) => {
     if (!held) jog.end(); // jogs would be refused anyway; STOP still works without the lease
+    // Refused while the telemetry was lost: it may be a restarted service, known once it reports.
+    if (!held && why.startsWith("control lost") && !ui.telemetryUp) ui.lostWhileBlind = true;
     if (why) (held ? say : sayError)(why);
     refreshControls();
   },
@@ -113,6 +116,25 @@ function refreshControls() {
     else node.classList.toggle("disabled", !ok);
   }
   document.body.classList.toggle("in-control", lease.held);
+  renderHolder(ui.tel, you()); // with the buttons: a pill saying "you" beside Take control contradicted them
+}
+
+/** Our operator's name while this console holds the lease, for the control pill. */
+const you = () => (lease.held ? api.operator : "");
+
+const RESTARTED = "control lost: the service restarted, and the control lease ended with it: "
+  + "take control again";
+
+/** Telemetry came back from another run of the service: the lease we held ended with the old run.
+ * Said so, rather than the renewal's "it may have expired", which sent the operator looking for a
+ * timeout. */
+function serviceRestarted() {
+  if (lease.held) {
+    api.setLease("");
+    lease.set(false, RESTARTED);
+  } else if (ui.lostWhileBlind) {
+    sayError(RESTARTED);
+  }
 }
 
 // ------------------------------------------------------------------ actions
@@ -276,9 +298,12 @@ async function signIn() {
 
 // ------------------------------------------------------------------ live state
 function onState(s) {
+  // First, so that nothing shows the old run's lease as ours beside the new run's state.
+  if (s.service_id && ui.serviceId && s.service_id !== ui.serviceId) serviceRestarted();
+  ui.serviceId = s.service_id || ui.serviceId;
+  ui.lostWhileBlind = false;
   ui.tel = s;
-  renderStatus(s, ui.telemetryUp);
-  if (lease.held) $("#lease-holder").textContent = `control: you (${api.operator})`;
+  renderStatus(s, ui.telemetryUp, you());
   renderPose(s, ui.robot);
   tools.render(s);
   renderHeldBack(s);
@@ -320,7 +345,7 @@ function onLink(up, why) {
   const pill = $("#conn");
   pill.textContent = up ? "telemetry: live" : `telemetry: lost (${why})`;
   pill.title = pill.textContent;
-  if (ui.tel) renderStatus(ui.tel, up); // the last state heard is not news any more
+  if (ui.tel) renderStatus(ui.tel, up, you()); // the last state heard is not news any more
   pill.className = `pill ${up ? "ok" : "bad"}`;
   document.body.classList.toggle("offline", !up);
   if (!up && jog.holding) {

@@ -51,9 +51,11 @@ export class Lease {
   }
 
   async renew() {
+    const id = this.api.leaseId;
     try {
       await this.api.post("/api/lease/renew");
     } catch (exc) {
+      if (this.api.leaseId !== id) return; // an answer about a lease already given up or replaced
       if (exc.status === 409 || exc.status === 401) { // gone for good; network errors: try again
         this.api.setLease("");
         this.set(false, `control lost: ${exc.message}`);

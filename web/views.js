@@ -28,7 +28,9 @@ export function headerMode(s, telemetryUp = true) {
   return { text: state || "—", cls: MODE_CLASS[state] || "idle", title: "" };
 }
 
-export function renderStatus(s, telemetryUp = true) {
+/** ``you``: our operator's name where this console holds the lease (its buttons say so too): the pill
+ * and the Take/Release buttons must agree, with or without live telemetry. */
+export function renderStatus(s, telemetryUp = true, you = "") {
   const mode = $("#mode");
   const m = headerMode(s, telemetryUp);
   setText(mode, m.text);
@@ -46,7 +48,13 @@ export function renderStatus(s, telemetryUp = true) {
         : ["connected", "ended"].includes(s.state) && s.not_ready ? `not ready: ${s.not_ready}` : "";
   setText($("#stop-reason"), why);
   $("#stop-reason").title = why;
-  setText($("#lease-holder"), s.lease && s.lease.held ? `control: ${s.lease.client}` : "control: free");
+  renderHolder(s, you);
+}
+
+/** Who has control: "you (name)" where this console holds the lease, else the server's holder. */
+export function renderHolder(s, you = "") {
+  const other = s && s.lease && s.lease.held ? s.lease.client : null;
+  setText($("#lease-holder"), you ? `control: you (${you})` : other ? `control: ${other}` : "control: free");
 }
 
 /** Why a Cartesian motion goes slower than asked or stops short (singularity, joint limit, ...). */

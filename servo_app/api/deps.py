@@ -6,7 +6,8 @@ thread, so a flood of jogs is refused without tying up the threads the real requ
 """
 
 # No `from __future__ import annotations`: FastAPI reads these annotations at runtime.
-from dataclasses import dataclass
+import secrets
+from dataclasses import dataclass, field
 from typing import Annotated
 
 from fastapi import Depends, Header, HTTPException, Request
@@ -30,6 +31,9 @@ class ApiContext:
     audit: AuditLog
     metrics: Metrics
     calls: ServiceCalls
+    # This run of the service: a client whose telemetry came back tells a restarted service (its leases
+    # gone with the old one) from a network loss by it changing.
+    run_id: str = field(default_factory=lambda: secrets.token_hex(8))
 
 
 def api_of(conn: HTTPConnection) -> ApiContext:

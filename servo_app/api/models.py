@@ -406,7 +406,7 @@ class StateView(BaseModel):
     """``GET /api/state`` and each ``/ws/telemetry`` message: the servo process's published state, its
     safety view, the service's additions and the API's lease.
 
-    Only ``state``, ``link``, ``lease`` and ``stops_by_reason`` are always there: while the service has
+    Only ``state``, ``link``, ``lease``, ``stops_by_reason`` and ``service_id`` are always there: while the service has
     no servo process the rest is absent. Keys not described here pass through unchanged.
     """
 
@@ -506,6 +506,8 @@ class StateView(BaseModel):
     # The API's own.
     lease: LeaseHolder = Field(description="who holds the control lease")
     stops_by_reason: dict[str, int] = Field(description="all stops by reason: servo process and API")
+    service_id: str | None = Field(None, description="this run of the service: another after a restart (the "
+                                                     "control lease ended with the old one)")
 
 
 class InputsView(BaseModel):

@@ -19,6 +19,7 @@ def state_snapshot(api: ApiContext) -> dict[str, Any]:
     lease = api.leases.current()
     s["lease"] = {"held": lease is not None, "client": lease.client if lease else None}
     s["stops_by_reason"] = api.service.stops()
+    s["service_id"] = api.run_id
     return s
 
 
