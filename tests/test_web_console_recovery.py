@@ -161,3 +161,19 @@ def test_a_reset_that_succeeds_replaces_the_refusal_of_the_one_before(page: Any,
     page.wait_for_function("document.querySelector('#message').textContent === 'reset done'", timeout=5000)
     page.click("#start")
     fanuc.wait(lambda s: s["state"] == "streaming", "streaming again", timeout=30)
+
+
+def test_a_resume_that_succeeds_replaces_the_refusal_of_the_one_before(page: Any, fanuc: Service) -> None:
+    """Resume pressed while streaming is refused ("already streaming"); the arm then stopped by
+    another client and Resume pressed again streams, but the console said nothing and left the
+    refusal on screen (8 s) beside a streaming state. It now says "resumed"."""
+    sign_in(page, fanuc)
+    take_control_and_stream(page, fanuc)
+    page.click("#resume")
+    page.wait_for_function("document.querySelector('#message').textContent.includes('already streaming')")
+    call(fanuc, "POST", "/api/session/stop", {})  # another client: the console says nothing of it
+    fanuc.wait(lambda s: s["state"] == "stopped", "stopped by the other client")
+    page.wait_for_function("document.querySelector('#mode').textContent === 'stopped'")
+    page.click("#resume")
+    fanuc.wait(lambda s: s["state"] == "streaming", "streaming after resume")
+    page.wait_for_function("document.querySelector('#message').textContent === 'resumed'", timeout=5000)

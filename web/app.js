@@ -181,7 +181,10 @@ const actions = {
     await api.post("/api/session/start", undefined, { timeoutMs: START_TIMEOUT_MS });
     say("session starting");
   }),
-  resume: () => canMove("Resume") && action("Resume", () => api.post("/api/session/resume")),
+  resume: () => canMove("Resume") && action("Resume", async () => {
+    await api.post("/api/session/resume");
+    say("resumed"); // replaces an earlier refusal, which stayed 8 s beside a streaming arm
+  }),
   end: () => action("End", async () => {
     jog.end();
     await api.post("/api/session/end");
