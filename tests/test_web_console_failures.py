@@ -202,3 +202,28 @@ def test_control_lost_with_a_restarted_service_says_so(page: Any, own: Service, 
         assert page.evaluate("window.clashes") == []
     finally:
         again.stop()
+
+
+def test_a_service_restarted_with_another_robot_rebuilds_the_jog_pad(page: Any, own: Service,
+                                                                     tmp_path: Path) -> None:
+    """The service restarts on the same port with --robot janome: the jog pad and the joint table
+    were built once, for the FANUC arm, and stayed so until the page was reloaded (its jogs named
+    axes the Janome has not). They are built again when the telemetry comes back from a service
+    with another robot."""
+    page.goto(own.url + "/")
+    page.wait_for_selector("#joint-rows tr[data-joint='J6']")
+    own.stop()
+    page.wait_for_function("document.querySelector('#conn').textContent.startsWith('telemetry: lost')")
+    (tmp_path / "again").mkdir()
+    again = Service(tmp_path / "again", "--robot", "janome", port=own.port)
+    try:
+        again.wait_healthy()
+        names = again.get("/api/robot")["joint_names"]
+        page.wait_for_function("document.querySelector('#conn').textContent === 'telemetry: live'", timeout=20000)
+        page.wait_for_function("names => [...document.querySelectorAll('#joint-rows tr')].map(r => r.dataset.joint)"
+                               ".join() === names.join()", arg=names)
+        jogs = page.eval_on_selector_all("#jog-pad [data-jog]", "bs => bs.map(b => b.dataset.jog)")
+        assert jogs == [f"{sign}{n}" for n in names for sign in "-+"], jogs
+        assert page.locator("#kind-group").is_hidden()  # the Janome jogs its axes: no Cartesian choice
+    finally:
+        again.stop()

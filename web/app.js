@@ -338,11 +338,12 @@ function onState(s) {
 
 function onLink(up, why) {
   ui.telemetryUp = up;
-  // Back after a loss: the service may have restarted (another var directory, points taught or
-  // deleted meanwhile by another client): the lists shown are read again, not trusted.
+  // Back after a loss: the service may have restarted (another var directory or robot, points taught
+  // or deleted meanwhile by another client): what is shown is read again, not trusted.
   if (up && ui.linkSeen) {
     points.refresh();
     logs.refresh();
+    rereadRobot();
   }
   ui.linkSeen = ui.linkSeen || up;
   const pill = $("#conn");
@@ -384,14 +385,42 @@ async function pollRobot() {
 async function loadRobot() {
   for (;;) {
     try {
-      ui.limits = await api.get("/api/limits");
-      ui.robot = await api.get("/api/robot");
-      api.axes = ui.robot.joint_names; // a refusal's "joints[0]" is shown as the axis' name
+      await readRobot();
       break;
     } catch {
       await new Promise((r) => setTimeout(r, 1000));
     }
   }
+  buildRobot();
+  pollRobot();
+}
+
+async function readRobot() {
+  const limits = await api.get("/api/limits");
+  ui.robot = await api.get("/api/robot");
+  ui.limits = limits;
+  api.axes = ui.robot.joint_names; // a refusal's "joints[0]" is shown as the axis' name
+}
+
+/** What the jog pad, joint table and target form are built from, bar the live values. */
+const robotKey = (r) => JSON.stringify([r.backend, r.model, r.joint_names, r.axes.map((a) => a.unit),
+  r.axis_label, r.pose_caption, r.cartesian_jog]);
+
+/** Telemetry back after a loss, perhaps from a service restarted with another --robot or model:
+ * the panels built for the old arm are built again where it differs (the jog pad jogged axes by
+ * names the new one may not have). */
+async function rereadRobot() {
+  if (!ui.builtFor) return; // the first read is still under way: it builds them
+  try {
+    await readRobot();
+  } catch {
+    return; // the telemetry pill shows a dead server; the next return reads again
+  }
+  if (robotKey(ui.robot) !== ui.builtFor) buildRobot();
+}
+
+function buildRobot() {
+  ui.builtFor = robotKey(ui.robot);
   const names = ui.robot.joint_names;
   joints.build(names);
   // The limit tables in force where the controller has them, else the profile's axis speeds.
@@ -409,7 +438,6 @@ async function loadRobot() {
   arm.draw(ui.robot);
   target.build(true);
   refreshControls();
-  pollRobot();
 }
 
 function main() {
