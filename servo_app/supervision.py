@@ -336,8 +336,17 @@ class SupervisorBase:
         self._start_deadline = now + self.start_timeout_s
         self.start_error = ""
 
-    def _on_stop(self, req: msg.Stop, now: float) -> None:
+    def _on_stop(self, req: msg.Stop, now: float) -> str | None:
+        """None: a stop of a streaming arm, requested. Where no stream moves the arm the stop is harmless
+        and not refused (a STOP must never fail for being unneeded), but it says so: "fast stop requested"
+        after the session had ended told the operator something had been moving."""
+        mode = self.state.mode
         self._request(StopRequested(reason=req.reason, fast=bool(req.fast)), now)
+        if mode in (Mode.STREAMING, Mode.STOPPING, Mode.STOPPED):
+            return None
+        if mode is Mode.ENDING:  # entered at rest: the last data is sent, the controller drains
+            return "nothing was moving: the stream is ending at rest"
+        return f"nothing was moving: no stream runs ({mode.value})"
 
     def _on_resume(self, req: msg.Resume, now: float) -> None:
         self._request(ResumeRequested(), now)

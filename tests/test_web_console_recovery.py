@@ -177,3 +177,22 @@ def test_a_resume_that_succeeds_replaces_the_refusal_of_the_one_before(page: Any
     page.click("#resume")
     fanuc.wait(lambda s: s["state"] == "streaming", "streaming after resume")
     page.wait_for_function("document.querySelector('#message').textContent === 'resumed'", timeout=5000)
+
+
+def test_a_stop_when_nothing_moves_says_so(page: Any, fanuc: Service) -> None:
+    """FAST STOP after the session has ended answered 200 and the console said "fast stop
+    requested", as if something had been moving. It is still no error (a STOP must never fail for
+    being unneeded), but the answer and the console now say nothing was moving."""
+    sign_in(page, fanuc)
+    take_control_and_stream(page, fanuc)
+    assert call(fanuc, "POST", "/api/session/stop", {}) == {"ok": True, "detail": None}  # a streaming arm
+    fanuc.wait(lambda s: s["state"] == "stopped", "stopped")
+    page.click("#end")
+    fanuc.wait(lambda s: s["state"] == "ended", "ended")
+    page.wait_for_function("document.querySelector('#mode').textContent === 'ended'")
+    page.click("#fast-stop")
+    said = "fast stop: nothing was moving: no stream runs (ended)"
+    page.wait_for_function("said => document.querySelector('#message').textContent === said", arg=said)
+    assert call(fanuc, "POST", "/api/session/stop", {"fast": True}) == {
+        "ok": True, "detail": "nothing was moving: no stream runs (ended)"}
+    assert fanuc.state()["state"] == "ended"

@@ -160,9 +160,14 @@ function stop(fast = false, why = "") {
   // The answer joins the cause rather than replacing it: a service gone away is the cause of both the
   // stopped jog and the failed STOP, and "Failed to fetch" alone hid it.
   const cause = why ? `Jog stopped: ${why}` : "";
+  const what = fast ? "fast stop" : "stop";
   api.post("/api/session/stop", { fast }, { timeoutMs: 2000 })
-    .then(() => (why ? sayStopped(`${cause} (stop requested)`)
-      : say(fast ? "fast stop requested" : "stop requested")))
+    .then((done) => {
+      // A detail: nothing was moving (e.g. the session had ended); said as such, not "requested".
+      const said = done && done.detail ? `${what}: ${done.detail}` : `${what} requested`;
+      if (why) sayStopped(`${cause} (${said})`);
+      else say(said);
+    })
     .catch((exc) => {
       if (exc.status === 409 && !why) say(`stop: ${exc.message}`); // e.g. nothing moving to stop
       else if (exc.status === 409) sayStopped(`${cause} (stop: ${exc.message})`);

@@ -284,7 +284,7 @@ class ServoService:
         refused with the cause and the way out."""
         if not self.servo_alive:
             if isinstance(req, msg.Stop):
-                return None
+                return "nothing was moving: the servo process is not running"
             if isinstance(req, msg.Start) and self.stream is not None:
                 self._replace_servo_process()
             else:
