@@ -169,7 +169,7 @@ function stop(fast = false, why = "") {
       else say(said);
     })
     .catch((exc) => {
-      if (exc.status === 409 && !why) say(`stop: ${exc.message}`); // e.g. nothing moving to stop
+      if (exc.status === 409 && !why) say(`stop: ${exc.message}`); // refused by the service (a stop with nothing moving answers 200, saying so)
       else if (exc.status === 409) sayStopped(`${cause} (stop: ${exc.message})`);
       else sayStopped(`${cause ? `${cause}; ` : ""}STOP failed${exc.message === why ? " too" : `: ${exc.message}`}`);
     });
