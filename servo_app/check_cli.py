@@ -15,6 +15,11 @@ assumes joints. Cartesian rows are converted as the simulator converts them
 rows the solution nearest the previous one, which must keep the first row's configuration (turn
 numbers included: MOTN-156 otherwise); no solution at all is MOTN-018.
 
+The acceleration and jerk tables are evaluated at a payload (Appendix B): a session log's, as the
+live service streamed at (the header's ``payload_kg`` and the payload records of tool changes);
+``--payload`` instead; for a CSV, or a log written before the payload was recorded, the maximum
+payload (the controller's assumption), with a note. The report names the payload it judged at.
+
 The first row is taken as the controller's command position (no MOTN-617 check on it). Output:
 the first violation (code, axis, row, value, limit), then peak usage per axis in % of each limit.
 Exit code: 0 no violation (warnings allowed), 1 violation, 2 bad input.
@@ -39,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from servo_app.fanuc.alarms import format_violation
-from servo_app.motion.checker import ControllerLimitChecker, Usage, Violation, check_trajectory
+from servo_app.motion.checker import ControllerLimitChecker, Usage, Violation
 
 FORMATS = ("auto", "joints", "xyzwpr")
 CSV_SUFFIXES = {".csv", ".txt", ".tsv", ".dat", ""}
@@ -123,7 +128,8 @@ def _load_session_log(p: Path, fmt: str) -> Trajectory:
         raise TrajectoryError(f"{p}: the log holds {logged} commands, not {fmt}")
     ends = np.flatnonzero(cmds["flags"] & 1).tolist()
     return Trajectory(cmds["values"][:, :6].astype(float), logged, list(range(1, len(cmds) + 1)), p,
-                      {"header": log.header, "interval_ms": log.header.get("interval_ms")},
+                      {"header": log.header, "interval_ms": log.header.get("interval_ms"),
+                       "payload_changes": log.payload_changes()},
                       seqs=cmds["seq"].astype(np.int64), stream_ends=ends)
 
 
@@ -204,17 +210,24 @@ class CheckReport:
 
 
 def check_joints(joints: np.ndarray, checker: ControllerLimitChecker, seqs: np.ndarray | None = None,
-                 stream_ends: list[int] | None = None) -> CheckReport:
+                 stream_ends: list[int] | None = None,
+                 payload_changes: list[tuple[int, float | None]] | None = None) -> CheckReport:
     """Check the rows; each stream (ending at a row in ``stream_ends``) starts the checker afresh.
-    Violations carry ``seqs[row]`` (default: the 1-based row)."""
+    ``payload_changes``: (row, kg or None) from that row on the tables are the payload's, as the live
+    service's were after a tool change. Violations carry ``seqs[row]`` (default: the 1-based row)."""
     seq_list = [int(s) for s in seqs] if seqs is not None else list(range(1, len(joints) + 1))
     bounds = sorted({e + 1 for e in (stream_ends or []) if e + 1 < len(joints)} | {len(joints)})
+    payload_at = dict(payload_changes or [])  # (a tool change comes at rest: no window spans it)
     found: list[Violation] = []
     usage = None
     start = 0
     for end in bounds:
         checker.reset()
-        found.extend(check_trajectory(checker, joints[start:end], seq_list[start:end]))
+        for i in range(start, end):
+            if i in payload_at:
+                checker.set_payload(payload_at[i])
+            found.extend(checker.step(joints[i], seq_list[i]))
+        found.extend(checker.finish(seq_list[end - 1] if end > start else None))
         usage = _merge_usage(usage, checker.usage)
         start = end
     assert usage is not None
@@ -240,7 +253,8 @@ def add_check_parser(sub: Any) -> argparse.ArgumentParser:
                    help="robot profile name or TOML path (default: the model in a session log's header; "
                         "required for a CSV)")
     p.add_argument("--interval-ms", type=float, default=None, help="interval (default: the profile's)")
-    p.add_argument("--payload", type=float, default=None, help="payload kg (default: maximum payload)")
+    p.add_argument("--payload", type=float, default=None,
+                   help="payload kg (default: a session log's, as streamed; else the maximum payload)")
     p.add_argument("--format", choices=FORMATS, default="auto", dest="fmt")
     p.add_argument("--warn-lim", type=float, default=80.0, help="$WARN_LIM %% (default 80)")
     p.set_defaults(handler=run_check)
@@ -284,6 +298,7 @@ def run_check(args: argparse.Namespace) -> int:
         traj = load_trajectory(args.file, args.fmt)
         if args.interval_ms is not None and args.interval_ms <= 0:
             raise TrajectoryError(f"--interval-ms {args.interval_ms} must be > 0")
+        payload, changes, tables_note = _payload_of(args.payload, header, traj, profile.max_payload_kg)
     except NothingSent as exc:
         print(f"{exc}\nOK: no violation")
         return 0
@@ -304,18 +319,54 @@ def run_check(args: argparse.Namespace) -> int:
     interval_ms = args.interval_ms or traj.meta.get("interval_ms") or profile.interval_ms
     interval_s = float(interval_ms) / 1000.0
     checker = ControllerLimitChecker.for_profile(profile, flange, interval_s=interval_s,
-                                                 payload_kg=args.payload, warn_lim_pct=args.warn_lim)
+                                                 payload_kg=payload, warn_lim_pct=args.warn_lim)
     ik_failure = None
     joints = traj.values
     if traj.fmt == "xyzwpr":
         joints, ik_failure = cartesian_to_joints(traj, profile)
     n = len(joints)
     report = check_joints(joints, checker, None if traj.seqs is None else traj.seqs[:n],
-                          [e for e in traj.stream_ends if e < n])
+                          [e for e in traj.stream_ends if e < n], changes)
     if ik_failure is not None:
         report.violations.append(ik_failure)
-    print(render_report(report, traj, float(interval_ms)))
+    print(render_report(report, traj, float(interval_ms), tables_note))
     return 1 if report.violations else 0
+
+
+def _kg(payload: float | None, max_kg: float) -> str:
+    return f"the maximum payload, {max_kg:g} kg" if payload is None else f"payload {payload:g} kg"
+
+
+def _payload_of(given: float | None, header: dict[str, Any] | None, traj: Trajectory, max_kg: float
+                ) -> tuple[float | None, list[tuple[int, float | None]], str]:
+    """The payload to judge at first (None: the maximum), the log's later changes (row, kg) and a line
+    saying which tables and why. ``--payload`` wins; else the payload the live service streamed at,
+    as the log records it (header ``payload_kg``, then its payload records). A log written before
+    the payload was recorded, and a CSV, are judged at the maximum (the controller's assumption
+    without a PAYLOAD), with a note saying how to give the tool's payload."""
+    if given is not None:
+        if header is not None and "payload_kg" in header and header["payload_kg"] != given:
+            print(f"note: the log was streamed at {_kg(header['payload_kg'], max_kg)}; checking at "
+                  f"--payload {given:g} kg", file=sys.stderr)
+        return given, [], f"limit tables at {_kg(given, max_kg)} (--payload)"
+    if header is None:
+        return None, [], f"limit tables at {_kg(None, max_kg)} (a CSV names none: --payload KG for a lighter tool)"
+    if "payload_kg" not in header:
+        print("note: this session log does not record the payload (written before servo_app logged it): "
+              f"judged at {_kg(None, max_kg)}; with a lighter tool fitted the controller's limits were higher: "
+              "give the tool's payload with --payload KG", file=sys.stderr)
+        return None, [], f"limit tables at {_kg(None, max_kg)} (the log does not record its payload)"
+    payload = header["payload_kg"]
+    if payload is not None and not isinstance(payload, (int, float)):
+        raise TrajectoryError(f"{traj.source}: header payload_kg={payload!r} is not a number: "
+                              "give the payload with --payload KG")
+    changes = traj.meta.get("payload_changes") or []
+    tool = f", tool {header['tool']!r}" if header.get("tool") else ""
+    note = f"limit tables at {_kg(payload, max_kg)} as streamed{tool}"
+    if changes:
+        note += "; changed by tool changes to " + ", ".join(
+            f"{_kg(kg, max_kg)} from command {row + 1}" for row, kg in changes)
+    return payload, changes, note
 
 
 _UNITS = {"velocity": "deg/s", "acceleration": "deg/s^2", "jerk": "deg/s^3", "position": "deg",
@@ -349,9 +400,11 @@ def describe(v: Violation, traj: Trajectory) -> str:
     return text
 
 
-def render_report(report: CheckReport, traj: Trajectory, interval_ms: float) -> str:
+def render_report(report: CheckReport, traj: Trajectory, interval_ms: float, tables: str = "") -> str:
     out = [f"{traj.source}: {report.rows} rows ({traj.fmt}) at {interval_ms:g} ms = "
            f"{report.rows * interval_ms / 1000.0:.3f} s"]
+    if tables:
+        out.append(tables)
     if report.violations:
         first = report.violations[0]  # in detection order (IK failures come last: they end the rows)
         out.append(f"FIRST VIOLATION: {describe(first, traj)}")

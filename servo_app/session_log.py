@@ -12,13 +12,16 @@ per backend:
 Format (version 1), little-endian:
 
 - ``b"SERVOLOG"`` magic, u32 header length, header as UTF-8 JSON (model, interval, j23 factor,
-  start time, protocol, format version);
+  start time, protocol, format version; FANUC: ``payload_kg`` the limit tables were evaluated at when
+  the log opened, null for the maximum, and ``tool`` the active tool's name; logs written before
+  these keys say nothing of the payload);
 - then fixed 56-byte records, one per datagram or frame:
 
   ====== ===== ==============================================================================
   offset type  field
   ====== ===== ==============================================================================
-  0      u8    kind: 0 status received, 1 command sent
+  0      u8    kind: 0 status received, 1 command sent, 2 payload changed (a tool change at rest:
+                values[0] the payload in kg, NaN for the maximum; seq the last status's)
   1      f64   t: seconds since the session opened (monotonic clock)
   9      u32   seq: status or command sequence number
   13     u8    flags: FANUC status bits / Janome robot state (status);
@@ -39,6 +42,7 @@ import contextlib
 import ctypes
 import errno
 import json
+import math
 import os
 import struct
 import time
@@ -53,6 +57,7 @@ MAGIC = b"SERVOLOG"
 FORMAT_VERSION = 1
 KIND_STATUS = 0
 KIND_COMMAND = 1
+KIND_PAYLOAD = 2  # readers that know only kinds 0 and 1 skip it
 _RECORD = struct.Struct("<BdIBHf9f")
 RECORD_SIZE = _RECORD.size
 RECORD_DTYPE = np.dtype(
@@ -79,6 +84,12 @@ def command_record(t: float, seq: int, last_data: int, data_format: int, io: int
     n = min(len(values), 9)
     return _RECORD.pack(KIND_COMMAND, t, seq, last_data | (data_format << 1), io, latency_us, *values[:n],
                         *_ZEROS[n:])
+
+
+def payload_record(t: float, seq: int, payload_kg: float | None) -> bytes:
+    """The limit tables' payload changed (kg; None: the maximum); ``seq``: the last status's."""
+    return _RECORD.pack(KIND_PAYLOAD, t, seq, 0, 0, 0.0, math.nan if payload_kg is None else payload_kg,
+                        *_ZEROS[1:])
 
 
 class SessionLogWriter:
@@ -222,6 +233,17 @@ class SessionLog:
     @property
     def statuses(self) -> np.ndarray:
         return self.records[self.records["kind"] == KIND_STATUS]
+
+    def payload_changes(self) -> list[tuple[int, float | None]]:
+        """(commands before it, payload kg or None for the maximum) for each payload record."""
+        kinds = self.records["kind"]
+        at = np.flatnonzero(kinds == KIND_PAYLOAD)
+        before = np.cumsum(kinds == KIND_COMMAND)
+        out: list[tuple[int, float | None]] = []
+        for i in at:
+            kg = float(self.records["values"][i, 0])
+            out.append((int(before[i]), None if math.isnan(kg) else kg))
+        return out
 
 
 class SessionLogError(ValueError):

@@ -61,6 +61,7 @@ from servo_app.session_log import (
     RECORD_DTYPE,
     RECORD_SIZE,
     command_record,
+    payload_record,
     status_record,
 )
 from servo_app.state import (
@@ -547,6 +548,9 @@ class _ServoProcess(ServoProcessHost):
         self.last_status_t = 0.0
         self._logged_seq: int | None = None
         self._log_streamed = False
+        self._tool_name: str | None = None  # the active tool (SetTool's name), for the log's header
+        self._tool_asked: str | None = None
+        self._logged_payload: float | None = cfg.payload_kg  # the payload the open log has last said
         self.settle = SettleDetector(cfg.settle_tol_deg, cfg.settle_window_s)
         self._log_pair = np.zeros(2 * RECORD_SIZE, dtype=np.uint8)  # a status and its command, packed in place
         self._bits = np.zeros(1)  # _exchange_into_state's scratch
@@ -663,9 +667,17 @@ class _ServoProcess(ServoProcessHost):
     def _before_request(self, req: msg.Request) -> None:
         if isinstance(req, msg.Start):
             self._open_stream_log()
+        elif isinstance(req, msg.SetTool):
+            self._tool_asked = req.name  # the active tool once the request is taken (_after_request)
 
     def _after_request(self) -> None:
         self._send(self.sup._take())
+        if self._tool_asked is not None:
+            self._tool_name, self._tool_asked = self._tool_asked, None
+        payload = self.cycle.settings.payload_kg
+        if self.log is not None and payload != self._logged_payload:  # a tool change: into the log
+            self._logged_payload = payload
+            self.log.write_records([payload_record(time.monotonic() - self.t0, self._logged_seq or 0, payload)])
 
     def _late_input(self) -> None:
         """``ServoCycle.late_command``: the slot read again after each of the IK's solves.
@@ -819,10 +831,14 @@ class _ServoProcess(ServoProcessHost):
         stamp = time.strftime("%Y%m%d-%H%M%S")
         path = Path(self.cfg.log_dir) / f"session-{stamp}-{os.getpid()}-{int(t0 * 1000) % 100000}.srvlog"
         try:
+            # The payload and tool: `servo-app check` judges at the tables the stream used (a light tool's
+            # limits are above the maximum payload's); a tool change later is a payload record.
+            payload = self.cycle.settings.payload_kg
             self._open_log(path, {"model": self.profile.name, "interval_ms": self.dt * 1000,
                                   "j23_factor": self.profile.j23_factor, "protocol": "fanuc-j519-v1",
                                   "robot": f"{self.cfg.host}:{self.cfg.port}", "commands": "joint_format",
-                                  "fixed_interval": True},
+                                  "fixed_interval": True, "payload_kg": payload,
+                                  "max_payload_kg": self.profile.max_payload_kg, "tool": self._tool_name},
                            reserve_bytes=round(LOG_RESERVE_S / self.dt) * 2 * RECORD_SIZE)
         except OSError as exc:
             raise CommandRejected(
@@ -830,6 +846,7 @@ class _ServoProcess(ServoProcessHost):
                 f"{LOG_RESERVE_S:g} s of records' disk space kept for it ({exc}); free disk space there, "
                 "then start again") from exc
         self._log_streamed = False
+        self._logged_payload = payload
         self.t0 = t0
         self.latency = _Latency()
         self._exchange = None  # (a new latency window)
