@@ -22,8 +22,9 @@ topic                      type                                     from
 ========================== ======================================== ===================================
 
 Limit usage and alarms come from :class:`ControllerLimitChecker`, the check the controller runs
-(finite differences at the fixed interval, Appendix B limits at the flange speed), as
-``servo-app check`` reports them; each stream in the log (ended by ``last_data``) is checked afresh.
+(finite differences at the fixed interval, Appendix B limits at the flange speed and at the payload
+the log records), as ``servo-app check`` reports them; each stream in the log (ended by
+``last_data``) is checked afresh.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ from servo_app.robots.conventions import fanuc_deg_to_model_rad, xyzwpr_to_matri
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import ProfileError, load_profile
 from servo_app.ros import messages as ros
-from servo_app.session_log import KIND_COMMAND, KIND_STATUS, SessionLogError, read_session_log
+from servo_app.session_log import KIND_COMMAND, KIND_PAYLOAD, KIND_STATUS, SessionLogError, read_session_log
 
 TOPICS: dict[str, str] = {
     "/joint_states": ros.JOINT_STATE,
@@ -108,6 +109,9 @@ class LogConverter:
             return self._fanuc_status(rec, t, values)
         if rec["kind"] == KIND_COMMAND:
             return self._fanuc_command(rec, t, values)
+        if rec["kind"] == KIND_PAYLOAD:  # a tool change: the tables' payload from here on
+            kg = float(values[0])
+            self.checker.set_payload(None if math.isnan(kg) else kg)
         return []
 
     # ---- Janome: X Y Z R, no joints (the point job reports none) ---------------------------------
@@ -136,7 +140,12 @@ class LogConverter:
         self.n = profile.dof
         self.j23 = profile.j23_factor
         dt = float(self.header.get("interval_ms") or profile.interval_ms) / 1000.0
-        self.checker = ControllerLimitChecker.for_profile(profile, self.kin.flange_xyz_mm_fanuc_deg, interval_s=dt)
+        # At the payload the stream's tables were evaluated at (a light tool's limits are higher; a log
+        # written before the payload was recorded: the maximum, as `servo-app check` judges it).
+        payload = self.header.get("payload_kg")
+        self.checker = ControllerLimitChecker.for_profile(
+            profile, self.kin.flange_xyz_mm_fanuc_deg, interval_s=dt,
+            payload_kg=float(payload) if isinstance(payload, (int, float)) else None)
         # X Y Z W P R commands: the controller checks the joints its IK makes of them, converted as
         # `servo-app check` and the simulator do (the first stream from the all-zero posture).
         self.cartesian = CartesianConverter.for_profile(profile)
