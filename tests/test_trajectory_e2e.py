@@ -23,6 +23,7 @@ from servo_app.motion.limit_tables import AxisTable, LimitTables, default_tables
 from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import load_profile
+from servo_app.service.trajectory import read_log_window
 from servo_app.session_log import read_session_log
 
 pytestmark = pytest.mark.e2e
@@ -169,6 +170,39 @@ def test_a_recorded_jog_replays_from_its_session_log(rig: Rig) -> None:
     assert np.allclose(s["q_cmd"][:6], jogged, atol=1e-3)
     assert rig.sim_alarms() == []
     check_log_passes(rig, h)
+
+
+def test_a_log_of_moves_resting_at_corners_replays_at_full_speed_through_each_rest(rig: Rig) -> None:
+    """Joint targets one after the other, each reached at rest, the next leaving at an angle: the
+    log's window replays at speed_scale 1 (it was refused, TOPP-RA finding no timing, or the corners
+    were cut: the spline ran through knots thinned past the rest points), through every point where
+    the recording rested, with zero alarms."""
+    h = at_home(rig)
+    name, from_s = log_now(rig)
+    jog_end, t1, t2 = ([37.36, -2.26, 14.65, 49.91, -80.0, 74.54], [40.0, -10.0, 20.0, 30.0, -40.0, 60.0],
+                       [-30.0, 20.0, -20.0, -30.0, -100.0, -60.0])
+    goals = (jog_end, t1, jog_end, t1, t2, t1, t2)
+    for goal in goals:
+        rig.post("/api/target", h, {"joints": goal, "speed_scale": 1.0})
+        rig.wait(lambda s, q=goal: s["at_rest"] and np.allclose(s["q_cmd"][:6], q, atol=1e-3), 20.0, f"at {goal}")
+    _, to_s = log_now(rig)
+    rig.post("/api/target", h, {"joints": HOME})
+    rig.wait(lambda s: s["at_rest"] and np.allclose(s["q_cmd"][:6], HOME, atol=1e-3), 20.0, "back at HOME")
+    _, replay_from = log_now(rig)
+    r = rig.http.post("/api/trajectory", headers=h, json={"log": name, "from_s": from_s, "to_s": to_s,
+                                                          "speed_scale": 1.0})
+    assert r.status_code == 200, r.text
+
+    def done(s: dict[str, Any]) -> bool:
+        rig.http.post("/api/lease/renew", headers=h)  # (a replay longer than the lease's TTL)
+        return (s.get("trajectory") or {}).get("state") == "done" and s["at_rest"]
+
+    s = rig.wait(done, 60.0, "the replay done")
+    assert np.allclose(s["q_cmd"][:6], t2, atol=1e-3)
+    replayed = read_log_window(Path(rig.service.last_event(LogOpened).path), name, replay_from, None)
+    for goal in goals:  # every rest of the recording is on the replayed path, not cut short
+        assert np.abs(replayed - goal).max(axis=1).min() < 1e-3, goal
+    assert rig.sim_alarms() == []
 
 
 def test_stop_pauses_on_the_path_and_resume_finishes_it(rig: Rig) -> None:

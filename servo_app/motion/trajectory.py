@@ -319,16 +319,21 @@ class TrajectoryPlanner:
         limits: an operator beside the arm expects the motion they taught, not its fastest version."""
         self._check_inside(rows, what)
         segs = self._approach(start, rows[0])
-        keep = _thin_indices(rows, DENSE_KNOT_DEG)
         # The recorded time of each knot counts only rows that moved: the arm resting before, between
         # or after motions is no pace to keep (0.25 deg over a 5 s rest would be a creep).
         moved = np.concatenate([[0.0], np.any(np.diff(rows, axis=0) != 0.0, axis=1)])
-        knots, times = rows[keep], np.cumsum(moved)[keep] * self.limits.dt
-        for a, b in _reversal_pieces(knots):
-            piece, t = knots[a: b + 1], times[a: b + 1]
-            if len(piece) == 2:
-                piece, t = _densify_line(piece[0], piece[1]), np.array([t[0], (t[0] + t[1]) / 2.0, t[1]])
-            segs.append(_Segment(piece, label=f"{what} rows", knot_times=t if recorded_pace else None))
+        clock = np.cumsum(moved) * self.limits.dt
+        # Pieces end where the recording rested or turned back, found on the rows themselves: thinned
+        # first, the knots skipped the point of rest, and the spline cut the corner there (0.08 deg
+        # short of a target the recording reached), or TOPP-RA found no timing through the near-cusp.
+        for lo, hi in _rest_pieces(rows):
+            keep = [lo + k for k in _thin_indices(rows[lo: hi + 1], DENSE_KNOT_DEG)]
+            knots, times = rows[keep], clock[keep]
+            for a, b in _reversal_pieces(knots):
+                piece, t = knots[a: b + 1], times[a: b + 1]
+                if len(piece) == 2:
+                    piece, t = _densify_line(piece[0], piece[1]), np.array([t[0], (t[0] + t[1]) / 2.0, t[1]])
+                segs.append(_Segment(piece, label=f"{what} rows", knot_times=t if recorded_pace else None))
         return self._anchored(segs)
 
     def cartesian_segments(self, start: np.ndarray, poses: np.ndarray, times: Sequence[float] | None
@@ -561,6 +566,32 @@ def _thin_indices(rows: np.ndarray, min_chord: float) -> list[int]:
         else:
             keep.append(len(rows) - 1)
     return keep
+
+
+def _rest_pieces(rows: np.ndarray) -> list[tuple[int, int]]:
+    """(first, last) row indices of the motions of a dense path (one row per interval), cut at each
+    row where it stood still (the same row twice) or turned back (the step after it points against
+    the step before). A motion shorter than DENSE_KNOT_DEG joins the one before: a creep of a few
+    thousandths of a degree is no motion of its own to stop for."""
+    d = np.diff(rows, axis=0)
+    still = ~np.any(d != 0.0, axis=1)  # step i: rows[i] -> rows[i + 1]
+    back = np.einsum("ij,ij->i", d[:-1], d[1:]) < 0.0  # at row i + 1
+    cuts = sorted({i + 1 for i in np.flatnonzero(back)} | {i for i in np.flatnonzero(still)}
+                  | {i + 1 for i in np.flatnonzero(still)})
+    pieces: list[tuple[int, int]] = []
+    start = 0
+    for c in [*cuts, len(rows) - 1]:
+        if c <= start:
+            continue
+        if np.array_equal(rows[start], rows[c]):  # stood still from start to c
+            start = c
+            continue
+        if pieces and pieces[-1][1] == start and np.linalg.norm(rows[c] - rows[start]) < DENSE_KNOT_DEG:
+            pieces[-1] = (pieces[-1][0], c)  # (a creep: part of the motion before)
+        else:
+            pieces.append((start, c))
+        start = c
+    return pieces or [(0, len(rows) - 1)]
 
 
 def _reversal_pieces(pts: np.ndarray) -> list[tuple[int, int]]:
