@@ -42,7 +42,7 @@ from mcap.writer import Writer
 from servo_app.fanuc.alarms import format_violation
 from servo_app.fanuc.packets import StatusBit
 from servo_app.motion.cartesian import CartesianConverter
-from servo_app.motion.checker import ControllerLimitChecker
+from servo_app.motion.checker import ControllerLimitChecker, Violation
 from servo_app.robots.conventions import fanuc_deg_to_model_rad, xyzwpr_to_matrix
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import ProfileError, load_profile
@@ -76,6 +76,7 @@ class Message:
 class ExportSummary:
     messages: dict[str, int] = field(default_factory=dict)
     alarms: list[str] = field(default_factory=list)
+    no_solution: list[int] = field(default_factory=list)  # Sq. of Cartesian commands with no joints
 
 
 def _janome_pose(values: np.ndarray) -> np.ndarray:
@@ -97,6 +98,7 @@ class LogConverter:
         self.header = header
         self.opened_ns = round(float(header.get("opened_unix", 0.0)) * 1e9)
         self.janome = str(header.get("protocol", "")).startswith("janome")
+        self.no_solution: list[int] = []  # Sq. of the Cartesian commands without a joint solution
         if not self.janome:
             self._fanuc_setup(model)
 
@@ -181,9 +183,8 @@ class LogConverter:
             self.streams += 1
         if cartesian:
             res = self.cartesian.convert(values[:6], self.q_prev)
-            if res.joints_deg is None:
-                raise ExportError(f"command Sq.{seq} (X Y Z W P R {values[:6].round(3).tolist()}) has no joint "
-                                  f"solution in the held configuration: {res.code}")
+            if res.joints_deg is None:  # the controller's alarm for this command; the rest is exported
+                return self._no_solution(rec, t, values, res.code or "MOTN-018")
             q_deg = np.asarray(res.joints_deg, float)
         else:
             q_deg = values[: self.n]
@@ -211,6 +212,28 @@ class LogConverter:
                   "seq": str(v.seq), "value": f"{v.value:.6g}", "limit": f"{v.limit:.6g}"})
                 for v in found])))
         return out
+
+
+    def _no_solution(self, rec: np.void, t: int, values: np.ndarray, code: str) -> list[Message]:
+        """A Cartesian command the controller's IK cannot convert (MOTN-156 / MOTN-018, as
+        ``servo-app check`` reports it): its commanded pose and the alarm on /diagnostics, no joints.
+        The limit checker and the held configuration go on from the last command that converted (the
+        controller never moves to this one), and a record of last data still ends the stream."""
+        seq, flags = int(rec["seq"]), int(rec["flags"])
+        self.no_solution.append(seq)
+        v = Violation(code, "cartesian", None, seq, math.nan, math.nan, detected_seq=seq)
+        pose = [round(float(x), 3) for x in values[:6]]
+        found = [v]
+        if flags & 1:
+            found += self.checker.finish(seq)
+            self.new_stream, self.streaming = True, False
+        return [Message("/tcp_pose/commanded", t, ros.pose_stamped(t, xyzwpr_to_matrix(values[:6]))),
+                Message("/diagnostics", t, ros.diagnostics(t, DIAGNOSTIC_NAME, self.hardware, [
+                    (ros.ERROR, format_violation(x) + (f": X Y Z W P R {pose} has no joint solution in the "
+                                                       "held configuration" if x is v else ""),
+                     {"code": x.code, "kind": x.kind, "axis": "" if x.axis is None else f"J{x.axis}",
+                      "seq": str(x.seq), "value": f"{x.value:.6g}", "limit": f"{x.limit:.6g}"})
+                    for x in found]))]
 
 
 class McapSink:
@@ -258,6 +281,7 @@ def export_mcap(src: Path, out: Path, model: str | None = None) -> ExportSummary
             for rec in log.records:
                 sink.write(converter.feed(rec))
             sink.finish()
+            sink.summary.no_solution = list(converter.no_solution)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -275,4 +299,9 @@ def run_export(args: argparse.Namespace) -> int:
     print(f"{args.mcap}: {sum(summary.messages.values())} messages ({counts})")
     if summary.alarms:
         print(f"alarms: {len(summary.alarms)} (on /diagnostics), first: {summary.alarms[0]}")
+    if summary.no_solution:
+        seqs = ", ".join(f"Sq.{q}" for q in summary.no_solution[:10])
+        more = f" and {len(summary.no_solution) - 10} more" if len(summary.no_solution) > 10 else ""
+        print(f"{len(summary.no_solution)} Cartesian command(s) have no joint solution: {seqs}{more}; exported "
+              "with their commanded pose and the alarm, without joints (`servo-app check` reports the first)")
     return 0

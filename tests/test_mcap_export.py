@@ -326,3 +326,40 @@ def test_a_cartesian_stream_exports_its_poses_and_the_joints_the_controller_make
         np.testing.assert_allclose([p.x, p.y, p.z], xyzwpr[:3] / 1000.0, rtol=0, atol=1e-12)
     for q, (_, msg) in zip(joints, by_topic["/joint_commands"], strict=True):
         np.testing.assert_allclose(msg.position, fanuc_deg_to_model_rad(q, profile.j23_factor), atol=1e-5)
+
+
+def test_a_cartesian_command_without_joints_is_exported_with_its_alarm_and_the_rest_too(tmp_path: Path) -> None:
+    """One X Y Z W P R command out of reach (5 m) in the middle of a Cartesian stream: the export no
+    longer refuses the whole log; every command's pose is in the file, every other its joints, and
+    /diagnostics and the output name the one without (its Sq. and the controller's code, as
+    `servo-app check` reports it)."""
+    from servo_app.robots.conventions import matrix_to_xyzwpr
+
+    profile = load_profile(MODEL)
+    kin = ArmKinematics(profile)
+    s = np.linspace(0.0, 1.0, 30)
+    ramp = 0.5 * (10 * s**3 - 15 * s**4 + 6 * s**5)
+    joints = np.array([[10.0 + r, 20.0, -10.0 - r, 5.0, -60.0, 15.0 + r] for r in ramp])
+    poses = np.array([matrix_to_xyzwpr(kin.fk_fanuc_deg(q)) for q in joints])
+    poses[12, :3] = (5000.0, 0.0, 0.0)  # Sq.62: no joint solution
+    src, out = tmp_path / "cart.srvlog", tmp_path / "cart.mcap"
+    w = SessionLogWriter(src, {"model": MODEL, "interval_ms": 8.0, "protocol": "fanuc-j519"})
+    for i, xyzwpr in enumerate(poses):
+        w.status(i * 0.008, 50 + i, 0x05, 0, tuple(joints[max(0, i - 1)]))
+        w.command(i * 0.008 + 1e-4, 50 + i, int(i == len(poses) - 1), 0, 0, 100.0, tuple(xyzwpr))
+    w.close()
+    done = export(src, out)
+    assert done.returncode == 0, done.stderr
+    assert "1 Cartesian command(s) have no joint solution: Sq.62" in done.stdout, done.stdout
+    by_topic, _, _ = read_mcap(out)
+    assert len(by_topic["/tcp_pose/commanded"]) == 30 and len(by_topic["/joint_commands"]) == 29
+    errors = [s for _, m in by_topic["/diagnostics"] for s in m.status if s.level == ros.ERROR]
+    first = {kv.key: kv.value for kv in errors[0].values}
+    assert first["seq"] == "62" and first["kind"] == "cartesian", first
+    assert "5000.0, 0.0, 0.0" in errors[0].message
+    check = subprocess.run([sys.executable, "-m", "servo_app.cli", "check", str(src)], capture_output=True,
+                           text=True, timeout=120)
+    assert check.returncode == 1 and f"{first['code']} " in check.stdout and "Sq.62" in check.stdout, check.stdout
+    # The commands after it convert again, from the last one that did (the held configuration).
+    for q, (_, msg) in zip(np.delete(joints, 12, axis=0), by_topic["/joint_commands"], strict=True):
+        np.testing.assert_allclose(msg.position, fanuc_deg_to_model_rad(q, profile.j23_factor), atol=1e-5)
