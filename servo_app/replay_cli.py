@@ -4,7 +4,8 @@ its progress.
 FILE is a CSV in ``servo-app check``'s form (J1..J6 rows, or flange poses under an ``x,y,z,w,p,r``
 header), a JSON body for POST /api/trajectory (``{"joints": [...], "times": [...]}``, ``{"poses": ...}``
 or ``{"log": NAME, "from_s": ..., "to_s": ...}``), or a session log (.srvlog): one the service lists is
-replayed by name, any other is sent as the CSV of its commanded joints.
+replayed by name, any other is sent as the CSV of its commands (joints, or a Cartesian log's flange
+poses under the header ``x,y,z,w,p,r``); a Janome log is refused.
 
 Exit code: 0 the replay ended at rest at its end; 1 it was stopped, ended short or the arm faulted;
 2 refused (the message names the field and value) or the service is not reachable. Ctrl-C stops the
@@ -51,9 +52,15 @@ def _request(path: Path, client: ServoClient) -> dict[str, Any]:
         if path.name in listed:
             return {"log": path.name}
         from servo_app.check_cli import load_trajectory
+        from servo_app.session_log import read_session_log
 
-        rows = load_trajectory(path).values
-        return {"csv": "\n".join(",".join(f"{v:.6f}" for v in row) for row in rows) + "\n"}
+        if str(read_session_log(path).header.get("protocol", "")).startswith("janome"):
+            raise ValueError(f"{path}: a Janome session log (X Y Z R targets): replay takes FANUC logs, of "
+                             "joints or X Y Z W P R")
+        traj = load_trajectory(path)
+        # A Cartesian log's rows are flange poses: under check's header, not read as joints.
+        head = "x,y,z,w,p,r\n" if traj.fmt == "xyzwpr" else ""
+        return {"csv": head + "\n".join(",".join(f"{v:.6f}" for v in row) for row in traj.values) + "\n"}
     text = path.read_text()
     if path.suffix.lower() == ".json":
         body = json.loads(text)

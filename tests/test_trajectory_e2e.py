@@ -24,7 +24,7 @@ from servo_app.robots.conventions import matrix_to_xyzwpr
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import load_profile
 from servo_app.service.trajectory import read_log_window
-from servo_app.session_log import read_session_log
+from servo_app.session_log import SessionLogWriter, read_session_log
 
 pytestmark = pytest.mark.e2e
 
@@ -297,6 +297,34 @@ def test_the_client_replays_and_servo_app_replay_runs_a_csv_file(rig: Rig, tmp_p
     assert "done" in r.stdout
     s = rig.state()
     assert np.allclose(s["q_cmd"][:6], last, atol=1e-3) and rig.sim_alarms() == []
+
+
+def test_servo_app_replay_of_a_log_the_service_does_not_list_keeps_its_kind(rig: Rig, tmp_path: Path) -> None:
+    """A session log from elsewhere (not in the service's log directory) is sent as a CSV: a Cartesian
+    log's rows are flange poses and replay as such, ending at the pose's joints (they were sent as
+    joint values, refused as out of range or worse); a Janome log is refused, exit 2, saying why."""
+    at_home(rig)
+    kin = ArmKinematics(load_profile("lrmate200id"))
+    s = np.linspace(0.0, 1.0, 120)[:, None]
+    joints = np.array(HOME) + (10 * s**3 - 15 * s**4 + 6 * s**5) * np.array([12.0, 6.0, -4.0, 8.0, 10.0, -15.0])
+    cart = tmp_path / "elsewhere-cartesian.srvlog"
+    w = SessionLogWriter(cart, {"model": "lrmate200id", "interval_ms": 8.0, "protocol": "fanuc-j519-v1"})
+    for i, q in enumerate(joints):  # data format 0: the flange pose of each commanded position
+        pose = tuple(matrix_to_xyzwpr(kin.fk_fanuc_deg(q)))
+        w.command(i * 0.008, i + 1, int(i == len(joints) - 1), 0, 0, 100.0, pose)
+    w.close()
+    argv = ["--url", rig.base_url, "--token", TOKEN, "--take-over"]
+    replay = [sys.executable, "-m", "servo_app.cli", "replay"]
+    r = subprocess.run([*replay, str(cart), *argv], capture_output=True, text=True, timeout=90)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert np.allclose(rig.state()["q_cmd"][:6], joints[-1], atol=1e-3)
+    janome = tmp_path / "elsewhere-janome.srvlog"
+    w = SessionLogWriter(janome, {"model": "jr3000", "protocol": "janome-pointjob-v1"})
+    w.command(0.0, 1, 0, 1, 0, 0.0, (200.0, 0.0, 50.0, 0.0))
+    w.close()
+    r = subprocess.run([*replay, str(janome), *argv], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "a Janome session log" in r.stderr and str(janome) in r.stderr, r.stderr
+    assert rig.sim_alarms() == []
 
 
 @pytest.mark.parametrize(("how", "sig"), STOP_WAYS, ids=[how for how, _ in STOP_WAYS])
