@@ -291,6 +291,8 @@ def run_check(args: argparse.Namespace) -> int:
     from servo_app.robots.profile import ProfileError, load_profile
 
     try:
+        if not Path(args.file).is_file():  # (before the model: a missing log is no CSV without one)
+            raise TrajectoryError(f"{args.file}: no such file")
         header = _log_header(args.file)
         if header is not None and str(header.get("protocol", "")).startswith("janome"):
             return run_janome_check(Path(args.file), model_for(header, args.model, Path(args.file)))

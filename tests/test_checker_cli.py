@@ -115,6 +115,14 @@ def test_missing_file_unknown_type_and_unknown_model_exit_2(tmp_path: Path, caps
     assert code == 2 and "unknown" in err
 
 
+def test_a_missing_log_without_model_says_no_such_file(tmp_path: Path, capsys) -> None:
+    """Without --model (a session log names its own), a path that is not there is "no such file", not
+    a CSV without a model."""
+    missing = tmp_path / "session-gone.srvlog"
+    code, _, err = run_cli(capsys, str(missing))
+    assert code == 2 and err.strip() == f"servo-app check: {missing}: no such file", err
+
+
 def test_nan_row_is_reported_like_the_controller(tmp_path: Path, capsys) -> None:
     rows = SMOOTH[:10].copy()
     rows[5, 4] = np.nan
