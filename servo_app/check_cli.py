@@ -347,6 +347,9 @@ def _payload_of(given: float | None, header: dict[str, Any] | None, traj: Trajec
     the payload was recorded, and a CSV, are judged at the maximum (the controller's assumption
     without a PAYLOAD), with a note saying how to give the tool's payload."""
     if given is not None:
+        if not (math.isfinite(given) and 0.0 <= given <= max_kg):  # (the tables would be clamped, or NaN)
+            raise TrajectoryError(f"--payload {given:g} must be between 0 and the robot's maximum payload, "
+                                  f"{max_kg:g} kg: give the tool's weight in kg")
         if header is not None and "payload_kg" in header and header["payload_kg"] != given:
             print(f"note: the log was streamed at {_kg(header['payload_kg'], max_kg)}; checking at "
                   f"--payload {given:g} kg", file=sys.stderr)
@@ -359,9 +362,9 @@ def _payload_of(given: float | None, header: dict[str, Any] | None, traj: Trajec
               "give the tool's payload with --payload KG", file=sys.stderr)
         return None, [], f"limit tables at {_kg(None, max_kg)} (the log does not record its payload)"
     payload = header["payload_kg"]
-    if payload is not None and not isinstance(payload, (int, float)):
-        raise TrajectoryError(f"{traj.source}: header payload_kg={payload!r} is not a number: "
-                              "give the payload with --payload KG")
+    if payload is not None and (not isinstance(payload, (int, float)) or not 0.0 <= payload <= max_kg):
+        raise TrajectoryError(f"{traj.source}: header payload_kg={payload!r} is not a payload of this robot "
+                              f"(0 to {max_kg:g} kg): give the payload with --payload KG")
     changes = traj.meta.get("payload_changes") or []
     tool = f", tool {header['tool']!r}" if header.get("tool") else ""
     note = f"limit tables at {_kg(payload, max_kg)} as streamed{tool}"

@@ -143,6 +143,16 @@ def test_warning_only_exits_0_and_payload_changes_the_limits(tmp_path: Path, cap
     assert code == 0 and acc_pct0 == pytest.approx(85.0 * 1.3 / 1.6, abs=0.5)
 
 
+@pytest.mark.parametrize("payload", ["-3", "70", "nan", "inf"])
+def test_a_payload_outside_the_robots_range_exits_2_naming_it(tmp_path: Path, capsys, payload: str) -> None:
+    """--payload outside 0..the maximum was taken (the tables clamped it, NaN made every acceleration a
+    MOTN-610): refused, naming the value, the range and what to give."""
+    p = write_csv(tmp_path / "ok.csv", SMOOTH)
+    code, out, err = run_cli(capsys, str(p), "--model", "lrmate200id", "--payload", payload)
+    assert code == 2 and out == "", out
+    assert f"--payload {float(payload):g} must be between 0 and the robot's maximum payload, 7 kg" in err, err
+
+
 def test_load_trajectory_is_the_dispatch_hook(tmp_path: Path) -> None:
     t = load_trajectory(write_csv(tmp_path / "a.csv", SMOOTH[:3]))
     assert t.fmt == "joints" and t.values.shape == (3, 6) and t.lines == [2, 3, 4]
