@@ -282,10 +282,14 @@ def export_mcap(src: Path, out: Path, model: str | None = None) -> ExportSummary
                 sink.write(converter.feed(rec))
             sink.finish()
             sink.summary.no_solution = list(converter.no_solution)
+        tmp.replace(out)
+    except OSError as exc:  # the output's fault (no such directory, no permission, the disk full)
+        tmp.unlink(missing_ok=True)
+        raise ExportError(f"cannot write {out}: {exc.strerror or exc}; give an --mcap path in a writable "
+                          "directory with room for it (nothing was written)") from exc
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    tmp.replace(out)
     return sink.summary
 
 

@@ -229,6 +229,18 @@ def test_unusable_input_exits_2_naming_the_file_and_what_to_do(tmp_path: Path) -
             assert str(bad) in done.stderr and "header is not" in done.stderr, done.stderr
 
 
+def test_an_output_that_cannot_be_written_exits_2_naming_it(tmp_path: Path) -> None:
+    """--mcap in a directory that is not there (or not writable): exit 2 naming the output and what to
+    do, no traceback, nothing left behind (it was a traceback, exit 1)."""
+    src = tmp_path / "ok.srvlog"
+    write_log(src, np.zeros((5, 6)))
+    out = tmp_path / "no-such-dir" / "x.mcap"
+    done = export(src, out)
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert f"cannot write {out}" in done.stderr and "writable directory" in done.stderr, done.stderr
+    assert not out.parent.exists()
+
+
 @settings(max_examples=200, deadline=None)
 @given(st.floats(-180, 180), st.floats(-89.9, 89.9), st.floats(-180, 180))
 def test_quaternion_of_a_rotation_matches_mujoco(w: float, p: float, r: float) -> None:
