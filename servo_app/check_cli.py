@@ -277,7 +277,8 @@ def model_for(traj_header: dict[str, Any] | None, given: str | None, source: Pat
 def _log_header(path: str) -> dict[str, Any] | None:
     """A session log's header (None for any other file)."""
     p = Path(path)
-    if not p.is_file() or not _is_session_log(p):
+    # (a .srvlog that is no log, e.g. empty, is read as one: its error says what it is, not "a CSV")
+    if not p.is_file() or not (_is_session_log(p) or p.suffix.lower() == ".srvlog"):
         return None
     from servo_app.session_log import SessionLogError, read_session_log
 

@@ -297,7 +297,9 @@ def run_export(args: argparse.Namespace) -> int:
     try:
         summary = export_mcap(Path(args.file), Path(args.mcap), args.model)
     except ExportError as exc:
-        print(f"servo-app export: {args.file}: {exc}", file=sys.stderr)
+        why = str(exc)  # (the session log's own errors name the file already)
+        print(f"servo-app export: {why if why.startswith(str(args.file)) else f'{args.file}: {why}'}",
+              file=sys.stderr)
         return 2
     counts = ", ".join(f"{topic} {n}" for topic, n in summary.messages.items())
     print(f"{args.mcap}: {sum(summary.messages.values())} messages ({counts})")

@@ -278,6 +278,9 @@ def parse_header(data: bytes, path: object = "session log") -> tuple[dict[str, A
 def read_session_log(path: Path) -> SessionLog:
     """Read a log; a trailing partial record (a crash mid-write) is dropped."""
     data = Path(path).read_bytes()
+    if not data:  # what a process killed between opening the log and writing its header leaves
+        raise SessionLogError(f"{path}: empty (0 bytes): no header was written (the process ended as it "
+                              "opened the log), so nothing was logged")
     if data[: len(MAGIC)] != MAGIC:  # a whole file: a short one is no log either
         raise SessionLogError(f"{path}: not a servo_app session log (magic={data[:8]!r})")
     parsed = parse_header(data, path)

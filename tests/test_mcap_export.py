@@ -229,6 +229,20 @@ def test_unusable_input_exits_2_naming_the_file_and_what_to_do(tmp_path: Path) -
             assert str(bad) in done.stderr and "header is not" in done.stderr, done.stderr
 
 
+def test_an_empty_log_is_named_as_such_by_export_and_check(tmp_path: Path) -> None:
+    """A 0-byte .srvlog (a process killed as it opened its log): both commands exit 2 saying it is empty
+    and why, naming the file once (check said "a CSV names no robot model", export "not a servo_app
+    session log (magic=b'')" after the path twice)."""
+    empty = tmp_path / "session-killed.srvlog"
+    empty.write_bytes(b"")
+    for cmd in (["export", str(empty), "--mcap", str(tmp_path / "e.mcap")], ["check", str(empty)]):
+        done = subprocess.run([sys.executable, "-m", "servo_app.cli", *cmd], capture_output=True, text=True,
+                              timeout=120)
+        assert done.returncode == 2, done.stderr
+        assert f"{empty}: empty (0 bytes): no header was written" in done.stderr, done.stderr
+        assert done.stderr.count(str(empty)) == 1, done.stderr
+
+
 def test_an_output_that_cannot_be_written_exits_2_naming_it(tmp_path: Path) -> None:
     """--mcap in a directory that is not there (or not writable): exit 2 naming the output and what to
     do, no traceback, nothing left behind (it was a traceback, exit 1)."""
