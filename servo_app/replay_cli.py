@@ -7,7 +7,8 @@ or ``{"log": NAME, "from_s": ..., "to_s": ...}``), or a session log (.srvlog): o
 replayed by name, any other is sent as the CSV of its commands (joints, or a Cartesian log's flange
 poses under the header ``x,y,z,w,p,r``); a Janome log is refused.
 
-Exit code: 0 the replay ended at rest at its end; 1 it was stopped, ended short or the arm faulted;
+Exit code: 0 the replay ended at rest at its end; 1 it was stopped (from elsewhere too: the replay
+then waits, paused, for a resume), ended short or the arm faulted;
 2 refused (the message names the field and value) or the service is not reachable. Ctrl-C stops the
 arm (a soft stop: it pauses along the path) and exits with 130.
 """
@@ -116,6 +117,12 @@ def _follow(arm: ServoClient, timeout: float) -> int:
                 if t.state == "ended":
                     print("servo-app replay: the replay was ended before its end (a fast stop or another "
                           "command)", file=sys.stderr)
+                    return 1
+                if t.state == "paused" and s.state == "stopped" and s.at_rest:
+                    # Stopped from elsewhere (a stop request, the lease taken): not done, and nothing here
+                    # resumes it (it waited out --timeout, 10 min by default).
+                    print(f"servo-app replay: the arm was stopped ({s.stop_reason or 'a stop'}) with the replay "
+                          f"paused at {share:.1f} %: POST /api/session/resume continues it", file=sys.stderr)
                     return 1
             if time.monotonic() > deadline:
                 print(f"servo-app replay: not done within {timeout:g} s", file=sys.stderr)

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_api_harness import STOP_WAYS, TOKEN, Rig, running_janome_rig, running_rig, servo_app_argv
+from test_api_harness import AUTH, STOP_WAYS, TOKEN, Rig, running_janome_rig, running_rig, servo_app_argv
 
 from servo_app.client import ServoClient
 from servo_app.messages import LogOpened
@@ -354,6 +354,32 @@ def test_servo_app_replay_interrupted_pauses_the_arm_on_its_path(rig: Rig, tmp_p
     s = rig.wait(lambda s: s["state"] == "stopped" and s["at_rest"], 10.0, "paused")
     assert s["trajectory"]["state"] == "paused", s["trajectory"]
     assert not np.allclose(s["q_cmd"][:6], rows[-1], atol=1e-3)  # stopped on the way, not at the end
+    assert rig.sim_alarms() == []
+
+
+def test_servo_app_replay_exits_1_when_the_arm_is_stopped_from_elsewhere(rig: Rig, tmp_path: Path) -> None:
+    """Another client stops the arm during ``servo-app replay``: the replay pauses on its path and the
+    command exits 1 at once, saying why and how to continue (it waited for --timeout)."""
+    at_home(rig)
+    t = np.linspace(0.0, 1.0, 1000)[:, None]  # 8 s at the recorded pace
+    rows = np.array(HOME) + np.hstack([15.0 * t, np.zeros((1000, 4)), -15.0 * t])
+    csv = tmp_path / "long.csv"
+    csv.write_text("j1,j2,j3,j4,j5,j6\n" + "\n".join(",".join(f"{v:.5f}" for v in r) for r in rows))
+    proc = subprocess.Popen([sys.executable, "-m", "servo_app.cli", "replay", str(csv), "--url", rig.base_url,
+                             "--token", TOKEN, "--take-over", "--timeout", "120"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "playing" and not s["at_rest"], 30.0,
+                 "the replay playing")
+        assert rig.http.post("/api/session/stop", headers=AUTH).status_code == 200
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+    assert proc.returncode == 1, out + err
+    assert "the arm was stopped" in err and "paused at" in err and "POST /api/session/resume" in err, err
+    assert rig.state()["trajectory"]["state"] == "paused"
     assert rig.sim_alarms() == []
 
 
