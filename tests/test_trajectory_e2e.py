@@ -205,6 +205,28 @@ def test_a_log_of_moves_resting_at_corners_replays_at_full_speed_through_each_re
     assert rig.sim_alarms() == []
 
 
+def test_a_log_keeps_its_recorded_pace_on_a_stream_of_another_interval(tmp_path: Path) -> None:
+    """A log recorded at 8 ms (its header says so) replayed on a 4 ms stream: at the recorded pace it
+    takes as long as it was recorded (it was timed at 4 ms a row: twice as fast as recorded)."""
+    with running_rig(tmp_path, interval_ms=4) as fast:
+        h = fast.streaming("pace")
+        q0 = np.array(fast.wait(lambda s: s["at_rest"], 15.0, "at rest")["q_cmd"][:6])
+        s = np.linspace(0.0, 1.0, 126)[:, None]  # 1 s at 8 ms, then at rest
+        rows = q0 + (10 * s**3 - 15 * s**4 + 6 * s**5) * np.array([10.0, 0.0, 0.0, 0.0, 0.0, 10.0])
+        name = "session-recorded-at-8ms.srvlog"
+        w = SessionLogWriter(fast.service.cfg.log_dir / name,
+                             {"model": "lrmate200id", "interval_ms": 8.0, "protocol": "fanuc-j519-v1"})
+        for i, q in enumerate(rows):
+            w.command(i * 0.008, i + 1, int(i == len(rows) - 1), 1, 0, 100.0, tuple(q))
+        w.close()
+        r = fast.http.post("/api/trajectory", headers=h, json={"log": name})
+        assert r.status_code == 200, r.text
+        assert 0.95 < r.json()["detail"]["duration_s"] < 1.6, r.json()
+        fast.wait(lambda s: (s.get("trajectory") or {}).get("state") == "done" and s["at_rest"], 20.0, "done")
+        assert np.allclose(fast.state()["q_cmd"][:6], rows[-1], atol=1e-3)
+        assert fast.sim_alarms() == []
+
+
 def test_stop_pauses_on_the_path_and_resume_finishes_it(rig: Rig) -> None:
     h = at_home(rig)
     goal = [40.0, 20.0, 0.0, 20.0, -60.0, 60.0]

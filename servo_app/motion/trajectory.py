@@ -309,20 +309,21 @@ class TrajectoryPlanner:
             segs.append(_Segment(_densify_line(pts[0], pts[1]), duration, label=label))
         return self._anchored(segs)
 
-    def dense_segments(self, start: np.ndarray, rows: np.ndarray, what: str, *, recorded_pace: bool = True
-                       ) -> list[_Segment]:
+    def dense_segments(self, start: np.ndarray, rows: np.ndarray, what: str, *, recorded_pace: bool = True,
+                       row_dt: float | None = None) -> list[_Segment]:
         """A dense path (CSV rows, a log's commands: one row per interval): split where it turns back,
         knots every DENSE_KNOT_DEG; the approach from ``start`` to its first row first.
 
         ``recorded_pace``: never faster along the path than the rows were recorded (times the speed
         scale). A hand-guided stretch at 15 deg/s was replayed at 59 deg/s when timed only by the
-        limits: an operator beside the arm expects the motion they taught, not its fastest version."""
+        limits: an operator beside the arm expects the motion they taught, not its fastest version.
+        ``row_dt``: the time between rows as recorded (a log's own interval; default the stream's)."""
         self._check_inside(rows, what)
         segs = self._approach(start, rows[0])
         # The recorded time of each knot counts only rows that moved: the arm resting before, between
         # or after motions is no pace to keep (0.25 deg over a 5 s rest would be a creep).
         moved = np.concatenate([[0.0], np.any(np.diff(rows, axis=0) != 0.0, axis=1)])
-        clock = np.cumsum(moved) * self.limits.dt
+        clock = np.cumsum(moved) * (row_dt or self.limits.dt)
         # Pieces end where the recording rested or turned back, found on the rows themselves: thinned
         # first, the knots skipped the point of rest, and the spline cut the corner there (0.08 deg
         # short of a target the recording reached), or TOPP-RA found no timing through the near-cusp.

@@ -131,6 +131,21 @@ def read_log_window(path: Path, name: str, from_s: float | None, to_s: float | N
     return cmds["values"][pick, :6].astype(float)
 
 
+def _log_interval_s(path: Path) -> float | None:
+    """The interval a session log was recorded at (its header's ``interval_ms``), None if it does not
+    say: a log of a 4 ms stream replayed on an 8 ms one keeps its own pace (it was timed at the
+    stream's interval: twice as slow, or twice as fast the other way round)."""
+    from servo_app.session_log import SessionLogError, parse_header
+
+    try:
+        with open(path, "rb") as f:
+            parsed = parse_header(f.read(64 * 1024), path)
+    except (OSError, SessionLogError):
+        return None
+    ms = parsed[0].get("interval_ms") if parsed is not None else None
+    return float(ms) / 1000.0 if isinstance(ms, (int, float)) and math.isfinite(ms) and ms > 0 else None
+
+
 def _check_poses(backend: Any, poses: np.ndarray, what: str, tool_xyzwpr: tuple[float, ...] | None) -> None:
     """The backend's check of each pose (units, reach), naming the first bad one: a pose in metres
     would otherwise be refused as having no joint solution."""
@@ -158,6 +173,7 @@ def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory,
     dof = profile.dof
     # The request's own values first (422), before the state (409).
     joints = poses = rows = None
+    row_dt: float | None = None  # a log's own interval (a CSV: one row per stream interval)
     fmt = "joints"
     if req.joints is not None:
         joints = _rows("joints", req.joints, dof)
@@ -177,6 +193,7 @@ def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory,
             except FileNotFoundError:
                 raise InvalidRequest(f"log={req.log!r}: no such session log (GET /api/sessions lists them)") from None
             rows = read_log_window(path, str(req.log), req.from_s, req.to_s, req.from_unix, req.to_unix)
+            row_dt = _log_interval_s(path)
     tool = service.tools.active
     if poses is not None:  # the active tool's TCP
         _check_poses(service.backend, poses, "poses", None if tool.is_flange else tool.xyzwpr)
@@ -214,7 +231,8 @@ def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory,
         else:
             assert rows is not None
             what = "csv" if req.csv_text is not None else "log"
-            segments = planner.dense_segments(q_now, rows, what, recorded_pace=req.pace == "recorded")
+            segments = planner.dense_segments(q_now, rows, what, recorded_pace=req.pace == "recorded",
+                                              row_dt=row_dt)
             label = f"{len(rows)} rows of " + ("a CSV" if what == "csv" else f"log {req.log}")
         timed: TimedTrajectory = planner.plan(segments)
     except TrajectoryRefused as exc:
