@@ -62,10 +62,22 @@ def _request(path: Path, client: ServoClient) -> dict[str, Any]:
         # A Cartesian log's rows are flange poses: under check's header, not read as joints.
         head = "x,y,z,w,p,r\n" if traj.fmt == "xyzwpr" else ""
         return {"csv": head + "\n".join(",".join(f"{v:.6f}" for v in row) for row in traj.values) + "\n"}
-    text = path.read_text()
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a text file nor a session log: give a CSV, a JSON body or a "
+                         ".srvlog") from None
     if path.suffix.lower() == ".json":
-        body = json.loads(text)
-        return {k: body[k] for k in ("joints", "poses", "times", "log", "from_s", "to_s") if k in body}
+        try:
+            body = json.loads(text)
+        except ValueError as exc:
+            raise ValueError(f"{path}: not JSON ({exc}): give a POST /api/trajectory body, e.g. "
+                             '{"joints": [[J1, ..., J6], ...]}') from None
+        keys = ("joints", "poses", "times", "log", "from_s", "to_s")
+        if not isinstance(body, dict) or not any(k in body for k in keys):
+            raise ValueError(f"{path}: a JSON body needs one of joints, poses or log (an object such as "
+                             '{"joints": [[J1, ..., J6], ...]}), not ' + json.dumps(body)[:60])
+        return {k: body[k] for k in keys if k in body}
     return {"csv": text}
 
 

@@ -349,6 +349,26 @@ def test_servo_app_replay_of_a_log_the_service_does_not_list_keeps_its_kind(rig:
     assert rig.sim_alarms() == []
 
 
+@pytest.mark.parametrize(("name", "content", "words"), [
+    ("bad.json", b"{joints: [1, 2]", "not JSON"),
+    ("list.json", b"[[0, 0, 0, 0, 0, 0]]", "a JSON body needs one of joints, poses or log"),
+    ("blob.csv", b"\xff\xfe\x00binary", "not a text file nor a session log"),
+])
+def test_servo_app_replay_of_an_unusable_file_exits_2_naming_it(rig: Rig, tmp_path: Path, name: str,
+                                                                content: bytes, words: str) -> None:
+    """A file replay cannot use: exit 2, the file and what to give (it was a bare JSON error without
+    the file, the service's "got none" for a JSON list, a codec error), and the arm does not move."""
+    at_home(rig)
+    before = rig.state()["q_cmd"]
+    bad = tmp_path / name
+    bad.write_bytes(content)
+    r = subprocess.run([sys.executable, "-m", "servo_app.cli", "replay", str(bad), "--url", rig.base_url,
+                        "--token", TOKEN, "--take-over"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert f"servo-app replay: {bad}: " in r.stderr and words in r.stderr, r.stderr
+    assert rig.state()["q_cmd"] == before
+
+
 @pytest.mark.parametrize(("how", "sig"), STOP_WAYS, ids=[how for how, _ in STOP_WAYS])
 def test_servo_app_replay_interrupted_pauses_the_arm_on_its_path(rig: Rig, tmp_path: Path, how: str,
                                                                  sig: int) -> None:
