@@ -111,12 +111,16 @@ def _is_session_log(p: Path) -> bool:
 
 
 def _load_session_log(p: Path, fmt: str) -> Trajectory:
-    from servo_app.session_log import SessionLogError, read_session_log
+    from servo_app.session_log import SessionLogError, header_interval_ms, read_session_log
 
     try:
         log = read_session_log(p)
     except (SessionLogError, OSError) as exc:
         raise TrajectoryError(str(exc)) from exc
+    try:
+        interval_ms, interval_problem = header_interval_ms(log.header, p), None
+    except SessionLogError as exc:  # (--interval-ms still checks it: run_check decides)
+        interval_ms, interval_problem = None, str(exc)
     cmds = log.commands
     if len(cmds) == 0:
         raise NothingSent(_nothing_sent(p, len(log.statuses), "commands"))
@@ -128,7 +132,7 @@ def _load_session_log(p: Path, fmt: str) -> Trajectory:
         raise TrajectoryError(f"{p}: the log holds {logged} commands, not {fmt}")
     ends = np.flatnonzero(cmds["flags"] & 1).tolist()
     return Trajectory(cmds["values"][:, :6].astype(float), logged, list(range(1, len(cmds) + 1)), p,
-                      {"header": log.header, "interval_ms": log.header.get("interval_ms"),
+                      {"header": log.header, "interval_ms": interval_ms, "interval_problem": interval_problem,
                        "payload_changes": log.payload_changes()},
                       seqs=cmds["seq"].astype(np.int64), stream_ends=ends)
 
@@ -299,8 +303,10 @@ def run_check(args: argparse.Namespace) -> int:
             return run_janome_check(Path(args.file), model_for(header, args.model, Path(args.file)))
         profile = load_profile(model_for(header, args.model, Path(args.file)))
         traj = load_trajectory(args.file, args.fmt)
-        if args.interval_ms is not None and args.interval_ms <= 0:
+        if args.interval_ms is not None and not (math.isfinite(args.interval_ms) and args.interval_ms > 0):
             raise TrajectoryError(f"--interval-ms {args.interval_ms} must be > 0")
+        if args.interval_ms is None and traj.meta.get("interval_problem"):
+            raise TrajectoryError(f"{traj.meta['interval_problem']}: give the interval with --interval-ms")
         payload, changes, tables_note = _payload_of(args.payload, header, traj, profile.max_payload_kg)
     except NothingSent as exc:
         print(f"{exc}\nOK: no violation")

@@ -47,7 +47,14 @@ from servo_app.robots.conventions import fanuc_deg_to_model_rad, xyzwpr_to_matri
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import ProfileError, load_profile
 from servo_app.ros import messages as ros
-from servo_app.session_log import KIND_COMMAND, KIND_PAYLOAD, KIND_STATUS, SessionLogError, read_session_log
+from servo_app.session_log import (
+    KIND_COMMAND,
+    KIND_PAYLOAD,
+    KIND_STATUS,
+    SessionLogError,
+    header_interval_ms,
+    read_session_log,
+)
 
 TOPICS: dict[str, str] = {
     "/joint_states": ros.JOINT_STATE,
@@ -141,7 +148,10 @@ class LogConverter:
         self.kin = ArmKinematics(profile)
         self.n = profile.dof
         self.j23 = profile.j23_factor
-        dt = float(self.header.get("interval_ms") or profile.interval_ms) / 1000.0
+        try:
+            dt = (header_interval_ms(self.header) or profile.interval_ms) / 1000.0
+        except SessionLogError as exc:
+            raise ExportError(str(exc).removeprefix("session log: ")) from None
         # At the payload the stream's tables were evaluated at (a light tool's limits are higher; a log
         # written before the payload was recorded: the maximum, as `servo-app check` judges it).
         payload = self.header.get("payload_kg")

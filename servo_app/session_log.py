@@ -275,6 +275,18 @@ def parse_header(data: bytes, path: object = "session log") -> tuple[dict[str, A
     return header, start + n
 
 
+def header_interval_ms(header: dict[str, Any], path: object = "session log") -> float | None:
+    """The header's ``interval_ms`` (None if it has none); SessionLogError if it is no positive number
+    (a damaged header: the readers' checkers raised on it, uncaught)."""
+    ms = header.get("interval_ms")
+    if ms is None:
+        return None
+    if isinstance(ms, bool) or not isinstance(ms, (int, float)) or not math.isfinite(ms) or ms <= 0:
+        raise SessionLogError(f"{path}: header interval_ms={ms!r} is not a positive number of milliseconds "
+                              "(a damaged header)")
+    return float(ms)
+
+
 def read_session_log(path: Path) -> SessionLog:
     """Read a log; a trailing partial record (a crash mid-write) is dropped."""
     data = Path(path).read_bytes()

@@ -123,6 +123,29 @@ def test_a_missing_log_without_model_says_no_such_file(tmp_path: Path, capsys) -
     assert code == 2 and err.strip() == f"servo-app check: {missing}: no such file", err
 
 
+@pytest.mark.parametrize("interval", [-8, 0, "fast"])
+def test_a_damaged_header_interval_exits_2_and_interval_ms_overrides_it(tmp_path: Path, capsys,
+                                                                         interval: object) -> None:
+    """A header whose interval_ms is no positive number: check and export exit 2 naming the field (a
+    traceback, or for 0 the profile's interval taken silently), and check runs with --interval-ms."""
+    from servo_app.session_log import SessionLogWriter
+
+    path = tmp_path / "damaged.srvlog"
+    w = SessionLogWriter(path, {"model": "lrmate200id", "interval_ms": interval, "protocol": "fanuc-j519-v1"})
+    for i in range(5):
+        w.command(i * 0.008, i + 1, int(i == 4), 1, 0, 0.0, [0.0] * 6)
+    w.close()
+    code, out, err = run_cli(capsys, str(path))
+    assert code == 2 and out == "", out
+    assert f"header interval_ms={interval!r} is not a positive number" in err and "--interval-ms" in err, err
+    code, out, _ = run_cli(capsys, str(path), "--interval-ms", "8")
+    assert code == 0 and "at 8 ms" in out
+    done = subprocess.run([sys.executable, "-m", "servo_app.cli", "export", str(path), "--mcap",
+                           str(tmp_path / "d.mcap")], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert f"{path}: header interval_ms={interval!r}" in done.stderr, done.stderr
+
+
 def test_nan_row_is_reported_like_the_controller(tmp_path: Path, capsys) -> None:
     rows = SMOOTH[:10].copy()
     rows[5, 4] = np.nan
