@@ -15,10 +15,12 @@ assumes joints. Cartesian rows are converted as the simulator converts them
 rows the solution nearest the previous one, which must keep the first row's configuration (turn
 numbers included: MOTN-156 otherwise); no solution at all is MOTN-018.
 
-The acceleration and jerk tables are evaluated at a payload (Appendix B): a session log's, as the
-live service streamed at (the header's ``payload_kg`` and the payload records of tool changes);
-``--payload`` instead; for a CSV, or a log written before the payload was recorded, the maximum
-payload (the controller's assumption), with a note. The report names the payload it judged at.
+A session log is judged against the limit tables its stream moved within: the controller's own,
+when it published them (the log records them as a note), else the profile's. The acceleration and
+jerk tables are evaluated at a payload (Appendix B): a session log's, as the live service streamed
+at (the header's ``payload_kg`` and the payload records of tool changes); ``--payload`` instead;
+for a CSV, or a log written before the payload was recorded, the maximum payload (the controller's
+assumption), with a note. The report names the payload it judged at.
 
 The first row is taken as the controller's command position (no MOTN-617 check on it). Output:
 the first violation (code, axis, row, value, limit), then peak usage per axis in % of each limit.
@@ -133,8 +135,23 @@ def _load_session_log(p: Path, fmt: str) -> Trajectory:
     ends = np.flatnonzero(cmds["flags"] & 1).tolist()
     return Trajectory(cmds["values"][:, :6].astype(float), logged, list(range(1, len(cmds) + 1)), p,
                       {"header": log.header, "interval_ms": interval_ms, "interval_problem": interval_problem,
-                       "payload_changes": log.payload_changes()},
+                       "payload_changes": log.payload_changes(), "tables": _logged_tables(log)},
                       seqs=cmds["seq"].astype(np.int64), stream_ends=ends)
+
+
+def _logged_tables(log: Any) -> Any:
+    """The controller's limit tables the log's note records (the first), or None (the profile's)."""
+    from servo_app.motion.limit_tables import tables_from_rows
+
+    for _, note in log.notes():
+        t = note.get("limit_tables")
+        if isinstance(t, dict):
+            try:
+                return tables_from_rows(float(t["vmax"]), float(t["check_time_s"]), float(t["max_payload_kg"]),
+                                        [[(a[0], a[1]) for a in per_type] for per_type in t["rows"]])
+            except (KeyError, TypeError, ValueError, IndexError):
+                return None  # (a damaged note: the profile's, as before the tables were logged)
+    return None
 
 
 _SPLIT = re.compile(r"[,;\t ]+")
@@ -327,7 +344,10 @@ def run_check(args: argparse.Namespace) -> int:
               file=sys.stderr)
     interval_ms = args.interval_ms or traj.meta.get("interval_ms") or profile.interval_ms
     interval_s = float(interval_ms) / 1000.0
-    checker = ControllerLimitChecker.for_profile(profile, flange, interval_s=interval_s,
+    tables = traj.meta.get("tables")
+    if tables is not None:
+        tables_note += "; the controller's tables, as streamed"
+    checker = ControllerLimitChecker.for_profile(profile, flange, interval_s=interval_s, tables=tables,
                                                  payload_kg=payload, warn_lim_pct=args.warn_lim)
     ik_failure = None
     joints = traj.values

@@ -30,6 +30,7 @@ the log records), as ``servo-app check`` reports them; each stream in the log (e
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 from dataclasses import dataclass, field
@@ -43,12 +44,14 @@ from servo_app.fanuc.alarms import format_violation
 from servo_app.fanuc.packets import StatusBit
 from servo_app.motion.cartesian import CartesianConverter
 from servo_app.motion.checker import ControllerLimitChecker, Violation
+from servo_app.motion.limit_tables import tables_from_rows
 from servo_app.robots.conventions import fanuc_deg_to_model_rad, xyzwpr_to_matrix
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import ProfileError, load_profile
 from servo_app.ros import messages as ros
 from servo_app.session_log import (
     KIND_COMMAND,
+    KIND_NOTE,
     KIND_PAYLOAD,
     KIND_STATUS,
     SessionLogError,
@@ -106,6 +109,7 @@ class LogConverter:
         self.opened_ns = round(float(header.get("opened_unix", 0.0)) * 1e9)
         self.janome = str(header.get("protocol", "")).startswith("janome")
         self.no_solution: list[int] = []  # Sq. of the Cartesian commands without a joint solution
+        self._note_text = b""  # a note's pieces so far (KIND_NOTE records)
         if not self.janome:
             self._fanuc_setup(model)
 
@@ -121,7 +125,27 @@ class LogConverter:
         if rec["kind"] == KIND_PAYLOAD:  # a tool change: the tables' payload from here on
             kg = float(values[0])
             self.checker.set_payload(None if math.isnan(kg) else kg)
+        elif rec["kind"] == KIND_NOTE:
+            self._note(rec)
         return []
+
+    def _note(self, rec: np.void) -> None:
+        """A note's piece; a whole ``limit_tables`` note (the controller's, read at the stream's start,
+        before its first command) becomes the checker's tables."""
+        self._note_text += rec.tobytes()[13:].rstrip(b"\0")
+        if not self._note_text.endswith(b"\n"):
+            return
+        text, self._note_text = self._note_text, b""
+        try:
+            t = json.loads(text)["limit_tables"]
+            tables = tables_from_rows(float(t["vmax"]), float(t["check_time_s"]), float(t["max_payload_kg"]),
+                                      [[(a[0], a[1]) for a in per_type] for per_type in t["rows"]])
+        except (KeyError, TypeError, ValueError, IndexError):
+            return  # another note, or a damaged one: the tables stay
+        old = self.checker
+        self.checker = ControllerLimitChecker.for_profile(self.profile, self.kin.flange_xyz_mm_fanuc_deg,
+                                                          tables=tables, interval_s=old.dt,
+                                                          payload_kg=old.payload_kg)
 
     # ---- Janome: X Y Z R, no joints (the point job reports none) ---------------------------------
 
@@ -145,6 +169,7 @@ class LogConverter:
             profile = load_profile(name)
         except ProfileError as exc:
             raise ExportError(str(exc)) from exc
+        self.profile = profile
         self.kin = ArmKinematics(profile)
         self.n = profile.dof
         self.j23 = profile.j23_factor

@@ -21,7 +21,10 @@ Format (version 1), little-endian:
   offset type  field
   ====== ===== ==============================================================================
   0      u8    kind: 0 status received, 1 command sent, 2 payload changed (a tool change at rest:
-                values[0] the payload in kg, NaN for the maximum; seq the last status's)
+                values[0] the payload in kg, NaN for the maximum; seq the last status's), 3 a note
+                (bytes 13..55 a piece of a JSON object's UTF-8 text, NUL-padded; the pieces of
+                consecutive note records joined, a note ends with a newline: ``limit_tables``, the
+                controller's tables as read at the stream's start)
   1      f64   t: seconds since the session opened (monotonic clock)
   9      u32   seq: status or command sequence number
   13     u8    flags: FANUC status bits / Janome robot state (status);
@@ -58,6 +61,9 @@ FORMAT_VERSION = 1
 KIND_STATUS = 0
 KIND_COMMAND = 1
 KIND_PAYLOAD = 2  # readers that know only kinds 0 and 1 skip it
+KIND_NOTE = 3
+_NOTE_HEAD = struct.Struct("<BdI")  # kind, t, seq: t stays a time for readers that skip the kind
+_NOTE_TEXT = 56 - _NOTE_HEAD.size  # 43 bytes of text a record
 _RECORD = struct.Struct("<BdIBHf9f")
 RECORD_SIZE = _RECORD.size
 RECORD_DTYPE = np.dtype(
@@ -90,6 +96,21 @@ def payload_record(t: float, seq: int, payload_kg: float | None) -> bytes:
     """The limit tables' payload changed (kg; None: the maximum); ``seq``: the last status's."""
     return _RECORD.pack(KIND_PAYLOAD, t, seq, 0, 0, 0.0, math.nan if payload_kg is None else payload_kg,
                         *_ZEROS[1:])
+
+
+def note_records(t: float, note: dict[str, Any]) -> list[bytes]:
+    """A JSON note (one line) as records of kind 3."""
+    text = (json.dumps(note, separators=(",", ":")) + "\n").encode()
+    return [_NOTE_HEAD.pack(KIND_NOTE, t, 0) + text[i: i + _NOTE_TEXT].ljust(_NOTE_TEXT, b"\0")
+            for i in range(0, len(text), _NOTE_TEXT)]
+
+
+def tables_note(tables: Any) -> dict[str, Any]:
+    """The note of a LimitTables (servo_app.motion.limit_tables): what ``tables_of_note`` reads back."""
+    return {"limit_tables": {"vmax": tables.vmax, "check_time_s": tables.check_time_s,
+                             "max_payload_kg": tables.max_payload_kg,
+                             "rows": [[[list(a.no_payload), list(a.max_payload)] for a in per_type]
+                                      for per_type in tables.tables]}}
 
 
 class SessionLogWriter:
@@ -233,6 +254,28 @@ class SessionLog:
     @property
     def statuses(self) -> np.ndarray:
         return self.records[self.records["kind"] == KIND_STATUS]
+
+    def notes(self) -> list[tuple[int, dict[str, Any]]]:
+        """(commands before it, the note) for each whole note (a note cut short by a killed process,
+        or damaged, is left out)."""
+        kinds = self.records["kind"]
+        at = np.flatnonzero(kinds == KIND_NOTE)
+        if not at.size:
+            return []
+        before = np.cumsum(kinds == KIND_COMMAND)
+        raw = self.records[at].tobytes()
+        out: list[tuple[int, dict[str, Any]]] = []
+        text, first = b"", None
+        for k, i in enumerate(at):
+            text += raw[k * RECORD_SIZE + _NOTE_HEAD.size: (k + 1) * RECORD_SIZE].rstrip(b"\0")
+            first = int(before[i]) if first is None else first
+            if text.endswith(b"\n"):
+                with contextlib.suppress(ValueError):  # (JSONDecodeError, UnicodeDecodeError)
+                    note = json.loads(text)
+                    if isinstance(note, dict):
+                        out.append((first, note))
+                text, first = b"", None
+        return out
 
     def payload_changes(self) -> list[tuple[int, float | None]]:
         """(commands before it, payload kg or None for the maximum) for each payload record."""

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +18,8 @@ from test_api_harness import Rig, running_rig
 
 from servo_app.check_cli import add_check_parser
 from servo_app.mcap_export import export_mcap
+from servo_app.motion.limit_tables import AxisTable, LimitTables, default_tables
+from servo_app.robots.profile import load_profile
 from servo_app.session_log import SessionLogWriter, read_session_log
 
 pytestmark = pytest.mark.e2e
@@ -140,3 +143,30 @@ def test_a_log_without_the_payload_is_judged_at_the_maximum_with_a_note(
     assert code == 0
     assert "the maximum payload, 7 kg (the log does not record its payload)" in out
     assert "does not record the payload" in err and "--payload KG" in err
+
+
+def _scaled(tables: LimitTables, factor: float) -> LimitTables:
+    """Every acceleration and jerk stage times ``factor``: a controller whose own tables differ from the
+    profile's."""
+    def axis(t: AxisTable) -> AxisTable:
+        return AxisTable(tuple(v * factor for v in t.no_payload), tuple(v * factor for v in t.max_payload))
+
+    vel, acc, jerk = tables.tables
+    return replace(tables, tables=(vel, tuple(axis(t) for t in acc), tuple(axis(t) for t in jerk)))
+
+
+def test_a_log_is_checked_against_the_controllers_own_tables(tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """A controller that publishes tables 1.4 times the profile's: the stream moves at them, the log
+    records them, and check and export judge against them (against the profile's: false MOTN-610/611)."""
+    loose = _scaled(default_tables(load_profile("lrmate200id")), 1.4)
+    with running_rig(tmp_path, sim_options={"tables": loose}) as rig:
+        h = rig.streaming("tables")
+        assert rig.state()["tables_from_controller"]
+        brisk_moves(rig, h)
+        assert [c for c in rig.sim_alarms() if c not in WARNINGS] == []
+        path = ended_log(rig, h)
+    code, out, err = run_check(capsys, str(path))
+    assert code == 0, out + err
+    assert "the controller's tables, as streamed" in out
+    assert export_mcap(path, tmp_path / "loose.mcap").alarms == []

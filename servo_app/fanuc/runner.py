@@ -61,8 +61,10 @@ from servo_app.session_log import (
     RECORD_DTYPE,
     RECORD_SIZE,
     command_record,
+    note_records,
     payload_record,
     status_record,
+    tables_note,
 )
 from servo_app.state import (
     FIELDS,
@@ -848,6 +850,7 @@ class _ServoProcess(ServoProcessHost):
         self._log_streamed = False
         self._logged_payload = payload
         self.t0 = t0
+        self._log_tables()  # (tables read at an earlier start of this session)
         self.latency = _Latency()
         self._exchange = None  # (a new latency window)
         self.hist.clear()
@@ -858,11 +861,19 @@ class _ServoProcess(ServoProcessHost):
         if tables is not None and tables is not self._tables_reported:  # read at this start
             self._tables_reported = tables
             self._event(msg.LimitTablesReceived(tables=tables))
+            self._log_tables()
         # A start from ended or disconnected reconnects (link -> connected) before the mode moves on:
         # only a stream that has run since the log opened may close it.
         if phase in (Phase.CLOSED, Phase.FAULT, Phase.CONNECTED) and self.sup.state.mode in (
                 Mode.ENDED, Mode.FAULT, Mode.DISCONNECTED) and self._log_streamed:
             self._close_log()
+
+    def _log_tables(self) -> None:
+        """The controller's limit tables into the open log (a note): `servo-app check` and the MCAP
+        export judge against the tables the stream moved within, not the profile's."""
+        tables = self.sup.session.tables
+        if self.log is not None and tables is not None:
+            self.log.write_records(note_records(time.monotonic() - self.t0, tables_note(tables)))
 
     def _watch_link(self) -> None:
         if self.sup.state.mode in _STREAMED_MODES:
