@@ -16,7 +16,9 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from test_api_harness import Rig, running_rig
 
+from servo_app import messages as msg
 from servo_app.check_cli import add_check_parser
+from servo_app.errors import CommandRejected
 from servo_app.mcap_export import export_mcap
 from servo_app.motion.limit_tables import AxisTable, LimitTables, default_tables
 from servo_app.robots.profile import load_profile
@@ -170,3 +172,21 @@ def test_a_log_is_checked_against_the_controllers_own_tables(tmp_path: Path,
     assert code == 0, out + err
     assert "the controller's tables, as streamed" in out
     assert export_mcap(path, tmp_path / "loose.mcap").alarms == []
+
+
+def test_a_refused_tool_change_leaves_the_logged_tool_as_it_was(rig: Rig) -> None:
+    """A tool change the servo process refuses (the arm moves: PUT /api/tool refuses it before, so it is
+    sent to the process directly, as a change racing a motion reaches it), then a request that is
+    taken: the next log's header still names the tool that is active."""
+    h = rig.streaming("payload")
+    rig.post("/api/target", h, {"joints": [40.0, -20.0, 20.0, 30.0, -30.0, 60.0], "speed_scale": 0.2})
+    rig.wait(lambda s: not s["at_rest"], 5.0, "moving")
+    with pytest.raises(CommandRejected, match="tool change refused"):
+        rig.service.request(msg.SetTool("heavy", (0.0, 0.0, 100.0, 0.0, 0.0, 0.0), 7.0))
+    rig.post("/api/session/stop", h)  # a request that is taken
+    rig.wait(lambda s: s["state"] == "stopped" and s["at_rest"], 15.0, "stopped")
+    ended_log(rig, h)
+    h = rig.streaming("payload")
+    path = ended_log(rig, h)
+    header = read_session_log(path).header
+    assert (header["tool"], header["payload_kg"]) == ("light", 1.0), header

@@ -667,10 +667,11 @@ class _ServoProcess(ServoProcessHost):
         self._send(self.sup.signal(sig, now))
 
     def _before_request(self, req: msg.Request) -> None:
+        # The tool asked for becomes the active one once the request is taken (_after_request); a
+        # refused one (no _after_request) is forgotten at the next request.
+        self._tool_asked = req.name if isinstance(req, msg.SetTool) else None
         if isinstance(req, msg.Start):
             self._open_stream_log()
-        elif isinstance(req, msg.SetTool):
-            self._tool_asked = req.name  # the active tool once the request is taken (_after_request)
 
     def _after_request(self) -> None:
         self._send(self.sup._take())
