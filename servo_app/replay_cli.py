@@ -3,9 +3,9 @@ its progress.
 
 FILE is a CSV in ``servo-app check``'s form (J1..J6 rows, or flange poses under an ``x,y,z,w,p,r``
 header), a JSON body for POST /api/trajectory (``{"joints": [...], "times": [...]}``, ``{"poses": ...}``
-or ``{"log": NAME, "from_s": ..., "to_s": ...}``), or a session log (.srvlog): one the service lists is
-replayed by name, any other is sent as the CSV of its commands (joints, or a Cartesian log's flange
-poses under the header ``x,y,z,w,p,r``); a Janome log is refused.
+or ``{"log": NAME, "from_s": ..., "to_s": ...}``), or a session log (.srvlog): one the service
+lists (same name and size) is replayed by name, any other is sent as the CSV of its commands (joints,
+or a Cartesian log's flange poses under the header ``x,y,z,w,p,r``); a Janome log is refused.
 
 Exit code: 0 the replay ended at rest at its end; 1 it was stopped (from elsewhere too: the replay
 then waits, paused, for a resume), ended short or the arm faulted;
@@ -49,8 +49,10 @@ def _request(path: Path, client: ServoClient) -> dict[str, Any]:
     from servo_app.session_log import is_session_log
 
     if is_session_log(path):
-        listed = {entry.get("name") for entry in client._call("GET", "/api/sessions")}
-        if path.name in listed:
+        # By name only when it is the service's own (the same size): another file of the same name (a
+        # log cut down or copied from elsewhere) replayed the service's instead of the one given.
+        listed = {entry.get("name"): entry.get("bytes") for entry in client._call("GET", "/api/sessions")}
+        if listed.get(path.name, -1) == path.stat().st_size:
             return {"log": path.name}
         from servo_app.check_cli import load_trajectory
         from servo_app.session_log import read_session_log

@@ -349,6 +349,27 @@ def test_servo_app_replay_of_a_log_the_service_does_not_list_keeps_its_kind(rig:
     assert rig.sim_alarms() == []
 
 
+def test_servo_app_replay_of_a_file_named_like_a_service_log_replays_the_file(rig: Rig, tmp_path: Path) -> None:
+    """A log file given to ``servo-app replay`` that has the name of one of the service's logs but is
+    another file (cut down, or from another machine): its own commands are replayed, not the
+    service's log of that name."""
+    at_home(rig)
+    name, _ = log_now(rig)  # the service's log being written now
+    s = np.linspace(0.0, 1.0, 100)[:, None]
+    goal = np.array(HOME) + np.array([-12.0, 5.0, 0.0, 0.0, 6.0, 20.0])
+    rows = np.array(HOME) + (10 * s**3 - 15 * s**4 + 6 * s**5) * (goal - np.array(HOME))
+    mine = tmp_path / name
+    w = SessionLogWriter(mine, {"model": "lrmate200id", "interval_ms": 8.0, "protocol": "fanuc-j519-v1"})
+    for i, q in enumerate(rows):
+        w.command(i * 0.008, i + 1, int(i == len(rows) - 1), 1, 0, 100.0, tuple(q))
+    w.close()
+    r = subprocess.run([sys.executable, "-m", "servo_app.cli", "replay", str(mine), "--url", rig.base_url,
+                        "--token", TOKEN, "--take-over"], capture_output=True, text=True, timeout=90)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert np.allclose(rig.state()["q_cmd"][:6], goal, atol=1e-3)
+    assert rig.sim_alarms() == []
+
+
 @pytest.mark.parametrize(("name", "content", "words"), [
     ("bad.json", b"{joints: [1, 2]", "not JSON"),
     ("list.json", b"[[0, 0, 0, 0, 0, 0]]", "a JSON body needs one of joints, poses or log"),
