@@ -1,0 +1,82 @@
+"""The flange speed cap holds for joint motion from its first cycle (``ServoSettings.flange_speed_cap``).
+
+A cap (250 mm/s, the reduced speed of a cell's teach mode, say) is a promise about every command sent:
+measured here as the controller would see it, the flange centre's travel between consecutive commands
+over the interval. Before the joint-move share (``ServoCycle._cap_share``), only the cycle's guard
+(four cycles' prediction) stood between a joint target or jog and the cap, and the shaper accelerated
+past it: 451 mm/s under a 250 mm/s cap for a joint target from rest, 423 for a J1 jog.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from servo_app.errors import CommandRejected
+from servo_app.fanuc.packets import Status
+from servo_app.motion.servo import ServoCycle, ServoSettings
+from servo_app.robots.kernels import flange_speeds_mm_s, pack_dims
+from servo_app.robots.kinematics import ArmKinematics
+from servo_app.robots.profile import load_profile
+
+PROFILE = load_profile("lrmate200id")
+HOME = np.array([0.0, 0.0, 0.0, 0.0, -90.0, 0.0])
+DT = 0.008
+_K = ArmKinematics(PROFILE)
+DIMS = pack_dims(_K.a1, _K.a2, _K.a3, _K.d4, _K.d6)
+
+
+def peak_flange_speed(sent: list[np.ndarray]) -> float:
+    q = np.ascontiguousarray(np.vstack(sent), dtype=float)
+    out = np.empty(len(q) - 1)
+    flange_speeds_mm_s(q, PROFILE.j23_factor, DIMS, DT, out)
+    return float(out.max())
+
+
+def streaming(cap: float) -> tuple[ServoCycle, list[np.ndarray]]:
+    cycle = ServoCycle(PROFILE, DT, ServoSettings(flange_speed_cap=cap))
+    cycle.begin(HOME, None)
+    return cycle, [cycle.next_command(Status(seq=1))]
+
+
+def test_the_joint_target_that_ran_at_451_mm_s_under_250() -> None:
+    cycle, sent = streaming(250.0)
+    cycle.set_joint_target(np.array([40.0, -20.0, 20.0, 30.0, -30.0, 60.0]))
+    while len(sent) < 3 or not cycle.at_rest():
+        sent.append(cycle.next_command(Status(seq=1)))
+        assert len(sent) < 5000
+    assert np.allclose(sent[-1], [40.0, -20.0, 20.0, 30.0, -30.0, 60.0], atol=1e-3)
+    assert peak_flange_speed(sent) <= 250.0
+
+
+offsets = st.lists(st.floats(-60.0, 60.0), min_size=6, max_size=6)
+
+
+@settings(max_examples=25)
+@given(offsets, st.floats(100.0, 1500.0), st.floats(0.2, 1.0))
+def test_a_joint_target_keeps_the_flange_under_the_cap(offset: list[float], cap: float, scale: float) -> None:
+    cycle, sent = streaming(cap)
+    try:
+        cycle.set_joint_target(HOME + np.array(offset), scale)
+    except CommandRejected:  # out of range or another configuration: nothing moves
+        return
+    while len(sent) < 3 or not cycle.at_rest():
+        sent.append(cycle.next_command(Status(seq=1)))
+        assert len(sent) < 20000
+    assert peak_flange_speed(sent) <= cap
+
+
+@settings(max_examples=25)
+@given(st.lists(st.floats(-200.0, 200.0), min_size=6, max_size=6), st.floats(100.0, 1500.0))
+def test_a_held_joint_jog_keeps_the_flange_under_the_cap(v: list[float], cap: float) -> None:
+    cycle, sent = streaming(cap)
+    speeds = np.clip(np.array(v), -cycle.limits[0] * 0.9, cycle.limits[0] * 0.9)
+    for _ in range(190):  # held 1.5 s, renewed each cycle as a held button is, then let go
+        cycle.jog_joints(speeds)
+        sent.append(cycle.next_command(Status(seq=1)))
+    cycle.stop()
+    while not cycle.at_rest():
+        sent.append(cycle.next_command(Status(seq=1)))
+        assert len(sent) < 5000
+    assert peak_flange_speed(sent) <= cap
