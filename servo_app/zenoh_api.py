@@ -39,7 +39,7 @@ from pydantic import TypeAdapter, ValidationError
 from servo_app.api import lease as lease_routes
 from servo_app.api import session as session_routes
 from servo_app.api.auth import token_matches
-from servo_app.api.deps import lease_holder
+from servo_app.api.deps import acting_as
 from servo_app.api.models import JogBody, LeaseRequest, StopRequest, TargetBody
 from servo_app.api.motion import admit_jog, jog_request, target_request
 from servo_app.api.state import state_snapshot
@@ -299,8 +299,9 @@ class ZenohInterface:
     def _client(self, source: str) -> str:
         return f"zenoh:{source}"
 
-    def _controlling(self, client: str, lease_id: str | None, kind: str) -> str:
-        return lease_holder(self.api, client, lease_id, f"ZENOH {kind}")
+    def _controlling(self, client: str, lease_id: str | None, kind: str) -> contextlib.AbstractContextManager[str]:
+        """The lease checked, and the command acting under it until the block ends (as the REST routes')."""
+        return acting_as(self.api, client, lease_id, f"ZENOH {kind}")
 
     def _run_cdr(self, kind: str, payload: bytes, source: str, arrived_ns: int | None = None) -> Any:
         typename = next(t for t, k in self.ROS_COMMANDS.values() if k == kind)
@@ -311,12 +312,12 @@ class ZenohInterface:
         client = self._client(source)
         if kind == "stop":  # a stop never waits for control (no lease, no token: see docs/zenoh.md)
             return session_routes.session_stop(client, self.api.calls, StopRequest())
-        controller = self._controlling(client, self._topics_lease_id, kind)
-        if kind == "resume":
-            return session_routes.session_resume(controller, self.api.calls)
-        if kind in ("twist", "joint_jog"):
-            return self._jog(controller, self._jog_body(kind, message), arrived_ns)
-        return self._target(controller, self._target_body(kind, message))
+        with self._controlling(client, self._topics_lease_id, kind) as controller:
+            if kind == "resume":
+                return session_routes.session_resume(controller, self.api.calls)
+            if kind in ("twist", "joint_jog"):
+                return self._jog(controller, self._jog_body(kind, message), arrived_ns)
+            return self._target(controller, self._target_body(kind, message))
 
     def _run_json(self, kind: str, payload: bytes, arrived_ns: int | None = None) -> Any:
         try:
@@ -333,12 +334,12 @@ class ZenohInterface:
             raise Refused(401, "missing or wrong bearer token")
         if kind == "stop":
             return session_routes.session_stop(client, self.api.calls, _validated(StopRequest, body))
-        controller = self._controlling(client, lease_id if isinstance(lease_id, str) else None, kind)
-        if kind == "resume":
-            return session_routes.session_resume(controller, self.api.calls)
-        if kind == "jog":
-            return self._jog(controller, body, arrived_ns)
-        return self._target(controller, body)
+        with self._controlling(client, lease_id if isinstance(lease_id, str) else None, kind) as controller:
+            if kind == "resume":
+                return session_routes.session_resume(controller, self.api.calls)
+            if kind == "jog":
+                return self._jog(controller, body, arrived_ns)
+            return self._target(controller, body)
 
     def _jog(self, controller: str, body: dict[str, Any], arrived_ns: int | None = None) -> Any:
         validated = _validated(_JOG, body)

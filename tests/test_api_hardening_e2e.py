@@ -15,16 +15,19 @@ import json
 import statistics
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import httpx
 import pytest
 import websockets.sync.client
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_api_harness import AUTH, Rig, running_rig
+from waiting import wait_until
 from websockets.exceptions import ConnectionClosed
 
 from servo_app import messages as msg
@@ -104,6 +107,43 @@ def test_lease_manager_hands_a_displaced_or_expired_lease_to_exactly_one_stopper
     d, displaced = leases.take("dave")
     assert displaced is not None and displaced.client == "carol" and leases.pop_expired() is None
     assert leases.release(d.lease_id) is d and leases.release("anything") is None
+
+
+def test_a_hand_over_waits_for_the_old_leases_actions_only_and_refuses_them_from_its_change() -> None:
+    """A take-over changes the lease at once (a check after it refuses the old id, naming the new
+    holder) and its block (the stop) starts once the old lease's actions admitted before it have
+    ended; an expiry's hand-over does not wait for the live lease's actions."""
+    leases = LeaseManager(ttl_s=60.0)
+    a, _ = leases.take("alice")
+    resume = leases.admit(a.lease_id)  # alice's resume: checked, not carried out yet
+    stopping = threading.Event()
+    granted: list[Any] = []
+
+    def take_over() -> None:
+        with leases.handing_over(lambda: leases.take("bob", force=True)) as (b, displaced):
+            assert displaced is a
+            granted.append(b)
+            stopping.set()  # where the take-over's stop runs
+
+    bob = threading.Thread(target=take_over)
+    bob.start()
+    wait_until(lambda: (held := leases.current()) is not None and held.client == "bob", 5.0)
+    with pytest.raises(PermissionError, match=r"held by 'bob'"):
+        leases.admit(a.lease_id)  # alice's next request, during the hand-over
+    assert not stopping.is_set()  # waits for alice's resume
+    leases.done(resume)
+    bob.join(5.0)
+    assert stopping.is_set() and not bob.is_alive()
+
+    def expire() -> None:
+        with leases.handing_over(leases.pop_expired) as lost:
+            assert lost is None
+
+    with leases.acting(granted[0].lease_id):  # bob acts; an expiry's hand-over (nothing expired) goes on
+        expiry = threading.Thread(target=expire)
+        expiry.start()
+        expiry.join(5.0)
+        assert not expiry.is_alive()
 
 
 def test_audit_log_rotates_by_size(tmp_path: Path) -> None:
@@ -288,6 +328,92 @@ def test_a_take_over_stops_the_old_motion_before_the_new_holders_first_jog(rig: 
     rig.post("/api/session/resume", b)  # bob goes on (the interrupted target continues)
     s = rig.wait(lambda s: s["at_rest"] and abs(s["q_cmd"][0] - goal[0]) < 1e-3, 30.0, "the target reached")
     assert s["state"] == "streaming" and lease_lost_stops(s) == lost + 1  # no second, late stop
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("late", ["resume", "target"])
+def test_the_old_holders_motion_let_through_just_before_a_take_over_does_not_outlast_it(tmp_path: Path,
+                                                                                         late: str) -> None:
+    """Alice's resume (her stop having cut a target short) or target (her jog's hold having run out, which
+    a target resumes by itself) passed its lease check, then bob took control over before it reached the
+    servo process: the take-over's stop found the arm stopped and had nothing to stop, and alice's request
+    then moved the arm under bob's lease, bob never having asked. Now a take-over waits for the old
+    holder's requests let through before it, so its stop comes after them; one of alice's checked during
+    the hand-over is refused, naming bob. The interleaving is driven on a real service: alice's request to
+    the servo process is held at a gate until bob's take-over has finished (the old order) or waits for
+    it (the new)."""
+    with running_rig(tmp_path) as rig:
+        a = rig.streaming("alice")
+        goal = list(rig.state()["q_cmd"])
+        goal[0] += -30.0 if goal[0] > 0 else 30.0
+        target = {"joints": goal, "speed_scale": 0.1}
+        if late == "resume":
+            rig.post("/api/target", a, target)
+            rig.wait(lambda s: abs(s["vel"][0]) > 1.0, 5.0, "alice's target moving")
+            rig.post("/api/session/stop", a)
+            why, path, body, gated = "stop requested", "/api/session/resume", None, msg.Resume
+        else:
+            rig.post("/api/jog", a, {"joints": [5.0, 0, 0, 0, 0, 0], "hold_ms": 100})
+            why, path, body, gated = "hold-to-run expired", "/api/target", target, msg.JointTarget
+        s = rig.wait(lambda s: s["state"] == "stopped" and s["at_rest"], 5.0, "alice's arm stopped")
+        assert s["stop_reason"] == why, s
+        lost = lease_lost_stops(s)
+        real = rig.service.request
+        at_gate, go = threading.Event(), threading.Event()
+
+        def gate(message: msg.Request, *args: Any, **kw: Any) -> Any:
+            if isinstance(message, gated):  # alice's request, between its lease check and the servo process
+                at_gate.set()
+                assert go.wait(15.0), "the gate was never opened"
+            return real(message, *args, **kw)
+
+        answers: dict[str, httpx.Response] = {}
+
+        def post(who: str, url: str, headers: dict[str, str], json: Any) -> None:
+            with httpx.Client(base_url=rig.base_url, timeout=20.0) as c:
+                answers[who] = c.post(url, json=json, headers=headers)
+
+        rig.service.request = gate  # type: ignore[method-assign]
+        alice = threading.Thread(target=post, args=("alice", path, a, body))
+        bob = threading.Thread(target=post, args=("bob", "/api/lease", AUTH, {"client": "bob", "force": True}))
+        try:
+            alice.start()
+            assert at_gate.wait(10.0), "alice's request never reached the servo process"
+            bob.start()
+            # Bob's take-over ran, or waits for alice's request (its thread in LeaseManager.handing_over).
+            wait_until(lambda: not bob.is_alive() or _waits_in("handing_over"), 10.0)
+            again = rig.http.post(path, json=body, headers=a)  # alice again: checked after the take-over
+            assert again.status_code == 409 and "held by 'bob'" in again.text, again.text
+            go.set()
+            alice.join(20.0)
+            bob.join(20.0)
+        finally:
+            go.set()
+            rig.service.request = real  # type: ignore[method-assign]
+        assert answers["bob"].status_code == 200, answers["bob"].text
+        assert answers["alice"].status_code in (200, 409), answers["alice"].text
+        assert rig.http.get("/api/lease").json()["client"] == "bob"
+        # Whatever alice was told, the take-over's stop came last: the arm is stopped for the lost lease
+        # (before: streaming, moving to alice's goal under bob's lease).
+        s = rig.state()
+        assert s["state"] in ("stopping", "stopped") and s["stop_reason"] == "control lease lost (alice)", \
+            (s["state"], s["stop_reason"])
+        assert lease_lost_stops(s) == lost + 1
+        s = rig.wait(lambda s: s["state"] == "stopped" and s["at_rest"], 5.0, "stopped at rest")
+        assert abs(s["q_cmd"][0] - goal[0]) > 1.0  # alice's goal not reached
+        assert rig.sim_alarms() == [], rig.sim_alarms()
+
+
+def _waits_in(function: str) -> bool:
+    """Some thread's stack holds ``function``'s frame."""
+    for frame in sys._current_frames().values():
+        f: Any = frame
+        while f is not None:
+            if f.f_code.co_name == function:
+                return True
+            f = f.f_back
+    return False
 
 
 BURST = """

@@ -147,7 +147,7 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
         from servo_app.api.inputs_router import include_inputs
 
         include_inputs(app, service.inputs, token=token, controlling=controlling, call=api.calls.call,
-                       metrics=api.metrics, audit=audit, leases=api.leases)
+                       metrics=api.metrics, audit=audit)
 
     if WEB_DIR.is_dir():
         app.mount("/web", StaticFiles(directory=WEB_DIR, html=True), name="web")

@@ -10,12 +10,13 @@ import os
 import secrets
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 _log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 
 def resolve_token(configured: str | None, token_file: Path) -> tuple[str, bool]:
@@ -72,24 +73,58 @@ class LeaseManager:
         self._lease: Lease | None = None
         self._expired: Lease | None = None  # expired, its motion not stopped yet
         self._lock = threading.Lock()
-        # Held by an action under the lease (acting) and by a hand-over with its stop (handing_over): an
-        # action whose check passed just before a take-over ran after the take-over's stop otherwise, and
-        # an 'enable inputs' left them commanding under the new holder's lease.
-        self._control = threading.RLock()
+        # Actions in flight per lease id (from their check to their end) and one hand-over at a time: a
+        # take-over, release or expiry stop waits for the old lease's actions, so an action whose check
+        # passed just before it (a resume, a target) cannot land after its stop, under the new holder.
+        # A Condition and counts, not a lock held while acting: an action's start and end may run on
+        # different threads (a FastAPI dependency's), and a jog must never wait for another jog.
+        self._acts = threading.Condition(threading.Lock())
+        self._in_flight: dict[str, int] = {}
+        self._handover = threading.Lock()
+
+    def admit(self, lease_id: str | None) -> Lease:
+        """Check ``lease_id`` (PermissionError as :meth:`check`) and count an action under it in flight
+        until :meth:`done`: a hand-over waits for it. Never blocks beyond a short lock (the event loop
+        calls it): during a hand-over the old lease id is refused already."""
+        with self._acts:
+            lease = self.check(lease_id)
+            self._in_flight[lease.lease_id] = self._in_flight.get(lease.lease_id, 0) + 1
+        return lease
+
+    def done(self, lease: Lease) -> None:
+        """The action :meth:`admit` let through under ``lease`` has ended (done or refused)."""
+        with self._acts:
+            left = self._in_flight[lease.lease_id] - 1
+            if left:
+                self._in_flight[lease.lease_id] = left
+            else:
+                del self._in_flight[lease.lease_id]
+                self._acts.notify_all()
 
     @contextlib.contextmanager
     def acting(self, lease_id: str | None) -> Iterator[Lease]:
-        """Check ``lease_id`` (PermissionError as :meth:`check`) and keep the lease from changing hands
-        until the block ends: check and act are one step against a take-over, release or expiry stop."""
-        with self._control:
-            yield self.check(lease_id)
+        """:meth:`admit` and :meth:`done` around the block: a hand-over's stop comes after it."""
+        lease = self.admit(lease_id)
+        try:
+            yield lease
+        finally:
+            self.done(lease)
 
     @contextlib.contextmanager
-    def handing_over(self) -> Iterator[None]:
-        """Around a take-over, release or expiry and the stop that follows it: waits for an action under
-        the old lease that has passed its check to finish, so the stop comes after it."""
-        with self._control:
-            yield
+    def handing_over(self, change: Callable[[], T]) -> Iterator[T]:
+        """A take-over, release or expiry (``change``: :meth:`take`, :meth:`release`, :meth:`pop_expired`)
+        and, in the block, the stop that follows it; one at a time. ``change`` is atomic with the
+        actions' check (from then on the old lease id is refused: 409 naming the new holder), then the
+        block waits for the old lease's actions let through before it, so its stop comes after them;
+        the new lease's actions are not waited for (its id is handed out after the block). A
+        PermissionError from ``change`` (nothing changed) propagates and waits for nothing."""
+        with self._handover:
+            with self._acts:
+                result = change()
+                current = self.current()
+                keep = current.lease_id if current else None
+                self._acts.wait_for(lambda: all(lid == keep for lid in self._in_flight))
+            yield result
 
     def _expire(self) -> None:  # under the lock
         if self._lease and self._clock() > self._lease.expires_at:
@@ -99,6 +134,12 @@ class LeaseManager:
         with self._lock:
             self._expire()
             return self._lease
+
+    def expired_unstopped(self) -> bool:
+        """Whether a lease ran out whose motion nobody has stopped yet (:meth:`pop_expired` takes it)."""
+        with self._lock:
+            self._expire()
+            return self._expired is not None
 
     def pop_expired(self) -> Lease | None:
         """A lease that ran out since the last call, if nobody has taken control since."""

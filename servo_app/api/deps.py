@@ -6,7 +6,9 @@ thread, so a flood of jogs is refused without tying up the threads the real requ
 """
 
 # No `from __future__ import annotations`: FastAPI reads these annotations at runtime.
+import contextlib
 import secrets
+from collections.abc import AsyncIterator, Iterator
 from dataclasses import dataclass, field
 from typing import Annotated
 
@@ -85,8 +87,25 @@ async def authed(conn: HTTPConnection, authorization: Annotated[str | None, Head
 
 
 async def controlling(conn: HTTPConnection, client: Annotated[str, Depends(authed)],
-                      x_lease_id: Annotated[str | None, Header()] = None) -> str:
-    """The token and the control lease; returns ``lease-holder@host:port``."""
+                      x_lease_id: Annotated[str | None, Header()] = None) -> AsyncIterator[str]:
+    """The token and the control lease; gives ``lease-holder@host:port``. The request counts as
+    acting under the lease until it has answered: a take-over, release or expiry stop waits for it
+    (:meth:`LeaseManager.handing_over`), so the old holder's resume or target whose check passed
+    just before cannot be carried out after that stop, moving the arm under the new holder's lease.
+    Only a short lock on the event loop: a request checked after the hand-over began is refused (409)."""
+    api = api_of(conn)
+    action = f"{conn.scope.get('method', 'WS')} {conn.url.path}"
+    if conn.scope["type"] == "websocket":  # check only: a socket held open would hold off every take-over
+        yield lease_holder(api, client, x_lease_id, action)
+        return
+    with acting_as(api, client, x_lease_id, action) as holder:
+        yield holder
+
+
+async def lease_checked(conn: HTTPConnection, client: Annotated[str, Depends(authed)],
+                        x_lease_id: Annotated[str | None, Header()] = None) -> str:
+    """The token and the control lease, checked only (a take-over does not wait for the request): for
+    a start, which moves nothing and may take the start timeout (seconds) to answer."""
     return lease_holder(api_of(conn), client, x_lease_id, f"{conn.scope.get('method', 'WS')} {conn.url.path}")
 
 
@@ -103,15 +122,33 @@ async def no_body(request: Request) -> None:
 
 
 def lease_holder(api: ApiContext, client: str, lease_id: str | None, action: str) -> str:
-    """``lease-holder@client`` if ``lease_id`` is the current lease's, else 409 (counted and audited).
-    Shared with the Zenoh interface (servo_app/zenoh_api.py): one rule for both."""
+    """``lease-holder@client`` if ``lease_id`` is the current lease's, else 409 (counted and audited)."""
     try:
         lease = api.leases.check(lease_id)
     except PermissionError as exc:
-        api.metrics.count("no_lease")
-        api.audit.record(client, action, False, str(exc))
-        raise HTTPException(409, str(exc)) from None
+        raise _no_lease(api, client, action, exc) from None
     return f"{lease.client}@{client}"
+
+
+@contextlib.contextmanager
+def acting_as(api: ApiContext, client: str, lease_id: str | None, action: str) -> Iterator[str]:
+    """:func:`lease_holder`, and the block counted as acting under the lease (:meth:`LeaseManager.acting`):
+    a hand-over's stop comes after it. Shared with the Zenoh interface (servo_app/zenoh_api.py): one
+    rule for both."""
+    try:
+        lease = api.leases.admit(lease_id)
+    except PermissionError as exc:
+        raise _no_lease(api, client, action, exc) from None
+    try:
+        yield f"{lease.client}@{client}"
+    finally:
+        api.leases.done(lease)
+
+
+def _no_lease(api: ApiContext, client: str, action: str, exc: PermissionError) -> HTTPException:
+    api.metrics.count("no_lease")
+    api.audit.record(client, action, False, str(exc))
+    return HTTPException(409, str(exc))
 
 
 Context = Annotated[ApiContext, Depends(context)]
@@ -123,4 +160,5 @@ JogLimiter = Annotated[RateLimiter, Depends(jog_limiter)]
 Calls = Annotated[ServiceCalls, Depends(calls)]
 Authed = Annotated[str, Depends(authed)]
 Controlling = Annotated[str, Depends(controlling)]
+LeaseChecked = Annotated[str, Depends(lease_checked)]
 NO_BODY = [Depends(no_body)]  # a route's ``dependencies`` when it takes no body

@@ -16,13 +16,12 @@ import secrets
 from collections.abc import Awaitable, Callable
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, FastAPI, Header, HTTPException, WebSocketException, status
+from fastapi import APIRouter, Depends, FastAPI, HTTPException, WebSocketException, status
 from pydantic import BaseModel, Field
 from starlette.requests import HTTPConnection
 
-from servo_app.api.auth import LeaseManager, token_matches
+from servo_app.api.auth import token_matches
 from servo_app.api.models import Ack, InputsView
-from servo_app.errors import CommandRejected
 from servo_app.inputs.bridge import InputsBridge
 from servo_app.inputs.bridge.core import InputNotLive
 from servo_app.inputs.feed.router import FeedPostFastPath, feed_post_handler, feed_router
@@ -69,21 +68,10 @@ def connection_auth(token: str, on_refused: Callable[[HTTPConnection], None]
 
 
 def include_inputs(app: FastAPI, bridge: InputsBridge, *, token: str, controlling: Callable[..., Any],
-                   call: Callable[..., Any], metrics: Any, audit: Any, leases: LeaseManager) -> None:
+                   call: Callable[..., Any], metrics: Any, audit: Any) -> None:
     """Mount the feeds and the inputs routes; `controlling` and `call` are the app's lease dependency
-    (servo_app.api.deps) and its audited service-call helper (ServiceCalls.call, which answers an Ack);
-    `leases` keeps the lease from changing hands while an action it let through runs."""
-
-    def under_lease(lease_id: str | None, act: Callable[[], Any]) -> Callable[[], Any]:
-        """``act`` with the lease checked again, atomically: a take-over between the dependency's check
-        and ``act`` (its stop disabling the inputs first) would otherwise be undone by ``act``."""
-        def run() -> Any:
-            try:
-                with leases.acting(lease_id):
-                    return act()
-            except PermissionError as exc:  # taken over meanwhile: 409, nothing done
-                raise CommandRejected(str(exc)) from None
-        return run
+    (servo_app.api.deps: a take-over waits for the routes it let through) and its audited service-call
+    helper (ServiceCalls.call, which answers an Ack)."""
 
     def refused(conn: HTTPConnection) -> None:
         metrics.count("unauthorized")
@@ -103,8 +91,7 @@ def include_inputs(app: FastAPI, bridge: InputsBridge, *, token: str, controllin
         return bridge.describe()
 
     @router.post("/api/inputs/enable", summary="Let the input sources move the arm (or stop them)")
-    def enable(body: EnableInputs, client: Annotated[str, Depends(controlling)],
-               x_lease_id: Annotated[str | None, Header()] = None) -> Ack:
+    def enable(body: EnableInputs, client: Annotated[str, Depends(controlling)]) -> Ack:
         """``{"enable": true}``: the servo process takes its commands from the input sources (by priority,
         or the owner's); the answer lists configured sources that cannot be opened. Token and lease."""
 
@@ -113,17 +100,15 @@ def include_inputs(app: FastAPI, bridge: InputsBridge, *, token: str, controllin
                 return bridge.enable(body.enable)
             except RuntimeError as exc:
                 raise TimeoutError(str(exc)) from None
-        return call(client, "inputs.enable", under_lease(x_lease_id, run), {"enable": body.enable})
+        return call(client, "inputs.enable", run, {"enable": body.enable})
 
     @router.post("/api/inputs/owner", summary="Give one input source exclusive control")
-    def owner(body: InputsOwner, client: Annotated[str, Depends(controlling)],
-              x_lease_id: Annotated[str | None, Header()] = None) -> Ack:
+    def owner(body: InputsOwner, client: Annotated[str, Depends(controlling)]) -> Ack:
         """``{"source": name}``: only that source commands; ``null``: every source, by priority. Token and
         lease."""
         if body.source is not None and body.source not in bridge.specs:
             raise HTTPException(404, f"no input source {body.source!r}; sources: {sorted(bridge.specs)}")
-        return call(client, "inputs.owner", under_lease(x_lease_id, lambda: bridge.set_owner(body.source)),
-                    {"source": body.source})
+        return call(client, "inputs.owner", lambda: bridge.set_owner(body.source), {"source": body.source})
 
     @router.post("/api/inputs/{name}/zero", summary="Re-zero a force/torque application's bias")
     def zero(name: str, client: Annotated[str, Depends(controlling)], body: ZeroRequest | None = None) -> Ack:

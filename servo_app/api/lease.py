@@ -39,15 +39,16 @@ def lease_acquire(body: LeaseRequest, client: Authed, api: Context) -> LeaseGran
     """Take control: motion, I/O writes, start, resume, end and reset need the returned ``lease_id``
     as ``X-Lease-Id``. Refused (409) while another lease is live unless ``force`` is true; a
     take-over stops the old holder's motion (softly; resumable) before this request answers."""
-    with api.leases.handing_over():  # after any action the old holder's check let through
-        try:
-            lease, displaced = api.leases.take(body.client, force=body.force, ttl_s=body.ttl_s)
-        except PermissionError as exc:
-            api.audit.record(client, "lease.acquire", False, str(exc))
-            raise HTTPException(409, str(exc)) from None
-        api.audit.record(client, "lease.acquire", True, {"client": body.client, "force": body.force})
-        if displaced is not None:
-            stop_for_lost_lease(api, displaced.client)
+    try:
+        # The stop comes after any action the old holder's check let through (handing_over waits).
+        with api.leases.handing_over(lambda: api.leases.take(body.client, force=body.force, ttl_s=body.ttl_s)) \
+                as (lease, displaced):
+            api.audit.record(client, "lease.acquire", True, {"client": body.client, "force": body.force})
+            if displaced is not None:
+                stop_for_lost_lease(api, displaced.client)
+    except PermissionError as exc:  # from take: held by another, nothing changed
+        api.audit.record(client, "lease.acquire", False, str(exc))
+        raise HTTPException(409, str(exc)) from None
     return LeaseGranted(lease_id=lease.lease_id, client=lease.client, ttl_s=lease.ttl_s)
 
 
@@ -68,15 +69,14 @@ def lease_release(client: Authed, api: Context, audit: Audit,
                   x_lease_id: Annotated[str | None, Header()] = None) -> Ack:
     """Give up control (the lease named by ``X-Lease-Id``): a streaming arm stops softly first. Refused
     (409) when another client holds the lease; nothing to release (nobody holds it) is no error."""
-    with api.leases.handing_over():
-        try:
-            released = api.leases.release(x_lease_id)
-        except PermissionError as exc:
-            audit.record(client, "lease.release", False, str(exc))
-            raise HTTPException(409, str(exc)) from None
-        audit.record(client, "lease.release", True, {"client": released.client} if released else None)
-        if released is not None:
-            stop_for_lost_lease(api, released.client)
+    try:
+        with api.leases.handing_over(lambda: api.leases.release(x_lease_id)) as released:
+            audit.record(client, "lease.release", True, {"client": released.client} if released else None)
+            if released is not None:
+                stop_for_lost_lease(api, released.client)
+    except PermissionError as exc:  # from release: another's lease, nothing released
+        audit.record(client, "lease.release", False, str(exc))
+        raise HTTPException(409, str(exc)) from None
     return Ack()
 
 
@@ -97,11 +97,13 @@ async def watch_lease(api: ApiContext) -> None:
     their own requests (see :func:`lease_acquire`): only an expiry nobody followed up comes here."""
     while True:
         await asyncio.sleep(0.05)
-        lost = api.leases.pop_expired()
+        if api.leases.expired_unstopped():
+            await asyncio.to_thread(_stop_expired, api)
+
+
+def _stop_expired(api: ApiContext) -> None:
+    # Popped in the hand-over: after the expired lease's actions let through before it, and, if a
+    # take-over came first (and stopped it itself), nothing.
+    with api.leases.handing_over(api.leases.pop_expired) as lost:
         if lost is not None:
-            await asyncio.to_thread(_stop_expired, api, lost.client)
-
-
-def _stop_expired(api: ApiContext, holder: str) -> None:
-    with api.leases.handing_over():  # after an action whose check passed before the expiry
-        stop_for_lost_lease(api, holder)
+            stop_for_lost_lease(api, lost.client)

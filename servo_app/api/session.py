@@ -1,21 +1,24 @@
 """``/api/session/*`` and ``/api/reset``: start, stop, resume and end a stream, leave a fault.
 
 Starting, resuming, ending and resetting need the control lease; any authenticated client may stop
-the arm, with or without it (a stop must never wait for control).
+the arm, with or without it (a stop must never wait for control). A take-over waits for the old
+holder's resume, end or reset let through before it (see servo_app.api.deps.controlling), not for a
+start: a start moves nothing (the stream holds the arm where it is) and may take the start timeout,
+seconds, which a take-over (the way to take control from a holder gone astray) must not wait behind.
 """
 
 # No `from __future__ import annotations`: FastAPI reads the dependency annotations at runtime.
 from fastapi import APIRouter
 
 from servo_app import messages as msg
-from servo_app.api.deps import NO_BODY, Authed, Calls, Controlling, Service
+from servo_app.api.deps import NO_BODY, Authed, Calls, Controlling, LeaseChecked, Service
 from servo_app.api.models import REFUSALS, Ack, StopRequest
 
 router = APIRouter(tags=["session"], responses=REFUSALS)
 
 
 @router.post("/api/session/start", summary="Start a stream", dependencies=NO_BODY)
-def session_start(client: Controlling, calls: Calls) -> Ack:
+def session_start(client: LeaseChecked, calls: Calls) -> Ack:
     """Open the link if needed and start streaming, holding the current position (token and lease)."""
     return calls.forward(client, "session.start", msg.Start())
 

@@ -12,14 +12,14 @@ upload.
 
 # No `from __future__ import annotations`: FastAPI reads the dependency annotations at runtime.
 import json
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Depends, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.exceptions import RequestValidationError
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from servo_app.api.deps import Calls, Controlling, Service
+from servo_app.api.deps import Authed, Calls, Controlling, Service
 from servo_app.api.models import REFUSALS, TOO_DEEP, Ack
 from servo_app.motion.commands import MIN_SPEED_SCALE
 from servo_app.service.trajectory import TrajectoryInput, plan_trajectory
@@ -96,17 +96,23 @@ def _parse_json(raw: bytes) -> TrajectoryBody:
                                        "input": None}]) from None
 
 
+async def uploaded(request: Request, _: Authed) -> bytes:
+    """The body, read (after the token check) before the lease's: a take-over waits for this request
+    once its lease check has passed, and must not wait for a slow upload."""
+    return await request.body()
+
+
 @router.post("/api/trajectory", summary="Replay waypoints, a CSV or a session log within the limits",
              responses=REFUSALS, openapi_extra={"requestBody": {"required": True, "content": {
                  "application/json": {"schema": TrajectoryBody.model_json_schema()},
                  "text/csv": {"schema": {"type": "string", "description": _CSV_FORM}}}}})
-async def trajectory(request: Request, client: Controlling, calls: Calls, service: Service,
+async def trajectory(request: Request, raw: Annotated[bytes, Depends(uploaded)], client: Controlling,
+                     calls: Calls, service: Service,
                      speed_scale: float = 1.0, pace: Literal["recorded", "limits"] = "recorded") -> Ack:
     """Plan the path from where the arm rests (an approach move first if it does not start there),
     timed by TOPP-RA with a jerk bound and checked as the controller checks a stream, then replay it
     one position per cycle. A stop pauses along the path, resume continues it; a fast stop, a fault or
     another motion command ends it. Progress: ``trajectory`` in GET /api/state. Token and lease."""
-    raw = await request.body()
     if request.headers.get("content-type", "").split(";")[0].strip().lower() == "text/csv":
         req = TrajectoryInput(csv_text=raw.decode("utf-8", errors="replace"), speed_scale=speed_scale, pace=pace)
     else:
