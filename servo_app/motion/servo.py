@@ -380,11 +380,15 @@ class ServoCycle:
         renewal = self._jog is not None and np.array_equal(v, self._jog)  # the same button, still held
         redirect = not renewal and not self._pending and self._redirects(shaper, v)
         self._jog, self._target = v, None
-        # Each renewal too (cheap: 24 flange points), as the arm moves on along the line.
+        # Each renewal too (cheap: 2 x 24 flange points), as the arm moves on along the line. Along the
+        # clipped line and the jog's own: the target runs ahead by the horizon times the guard's share,
+        # clipped only once that reaches a limit. (The clipped line alone took 0.42 for J3 -200, J6 200
+        # deg/s, its J3 cut short, while the arm went along J3 = -J6 at 5.9 mm/deg: 324 mm/s under 323.)
         q0 = shaper.state[0]
         speed = float(np.max(np.abs(v)))
-        self._jog_cap = 1.0 if speed < 1e-9 else self._cap_share(q0, self._clip_to_range(q0 + v * self._horizon),
-                                                                 speed)
+        self._jog_cap = 1.0 if speed < 1e-9 else min(
+            self._cap_share(q0, self._clip_to_range(q0 + v * self._horizon), speed),
+            self._cap_share(q0, q0 + v * self._horizon, speed))
         self._finishing = None
         self._cart, self._cart_active = None, False
         self.stopped = False
