@@ -310,3 +310,26 @@ def test_a_wild_joint_target_is_refused_in_a_short_message() -> None:
     with pytest.raises(CommandRejected, match=r"joints\[5\]=1e\+300 deg \(J6 = 1e\+300 deg") as refused:
         streaming_cycle().check_joint_target(HOME + np.array([0, 0, 0, 0, 0, 1e300]))
     assert len(str(refused.value)) < 200, str(refused.value)
+
+
+def test_a_tool_change_while_a_trajectory_is_paused_ends_it_saying_why() -> None:
+    """Paused by a soft stop, at rest: a tool change is taken (the arm is still), and the plan, made for
+    the old TCP and payload, is ended with the reason, so a resume does not trace the old TCP's path
+    (before, resume went on with it)."""
+    p = planner()
+    traj = p.plan(p.joint_segments(HOME, np.array([HOME + np.array([30.0, 0, 0, 0, 0, 0])]), None))
+    cycle = streaming_cycle()
+    cycle.replay(cycle.check_replay(traj.samples), traj.ramp_steps)
+    for _ in range(len(traj.samples) // 3):
+        cycle.next_command(Status(seq=1))
+    cycle.stop()
+    while not cycle.at_rest():
+        cycle.next_command(Status(seq=1))
+    player = cycle.replay_player
+    assert player is not None and player.active  # paused
+    cycle.set_tool((0.0, 0.0, 150.0, 0.0, 0.0, 0.0), 1.0)
+    assert not player.active and "tool change" in cycle.replay_error
+    cycle.resume()
+    rest = cycle.next_command(Status(seq=1)).copy()
+    for _ in range(50):
+        np.testing.assert_array_equal(cycle.next_command(Status(seq=1)), rest)

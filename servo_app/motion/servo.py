@@ -202,7 +202,8 @@ class ServoCycle:
         held (a jog against a limit, a twist, a pose target): CommandRejected otherwise, and nothing
         changes; the shaper's limits are then rebuilt for the payload (at rest its state fits any
         limits). Without a stream the next one's ``begin`` builds them. A target interrupted by a soft
-        stop is dropped (a pose target was a pose of the old TCP): resume has nothing to continue."""
+        stop is dropped (a pose target was a pose of the old TCP), and so is a paused trajectory (planned
+        for the old TCP and payload): resume has nothing to continue."""
         moving = (not self.at_rest() or self._cart_active or self._jog is not None or self._pending)
         if streaming and moving:
             raise CommandRejected("tool change refused: the arm is moving; wait until it is at rest "
@@ -213,6 +214,8 @@ class ServoCycle:
         self.settings.payload_kg = payload_kg
         self._target, self._cart, self._finishing = None, None, None
         self._jog, self._cart_active, self._pending = None, False, False
+        self._leave_replay("ended by a tool change while it was paused: it was planned for the old tool and "
+                           "payload; plan it again for the new one")
         if self._tables is None:
             return  # no stream yet: its begin builds the limits
         vel, acc, jerk = self._limits_of(self._tables)  # published at once, streaming or not
