@@ -92,6 +92,9 @@ def run_replay(args: argparse.Namespace) -> int:
         with ServoClient(args.url, args.token, name="servo-app replay", take_over=args.take_over) as arm:
             kwargs = _request(path, arm)
             arm.ensure_streaming()
+            # A resume (after the take-over's stop) answers once streaming, and the arm may still count
+            # as moving for a cycle: a trajectory sent at once was refused ("the arm is moving").
+            arm.wait_settled()
             summary = arm.replay(**kwargs, speed_scale=args.speed_scale, pace=args.pace, wait=False)
             print(f"replaying {summary.get('label', path.name)}: {summary.get('samples')} samples, "
                   f"{summary.get('duration_s')} s", flush=True)
