@@ -9,8 +9,10 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
+import httpx
 import numpy as np
 import pytest
 import websockets.sync.client
@@ -219,6 +221,35 @@ def test_io_write_then_read_back_through_the_command_packets(rig: Rig) -> None:
     # F flags: another assigned type, read back at an offset into the written 16 points.
     rig.post("/api/io", h, {"type": "F", "index": 1, "value": 0b1000})
     assert rig.http.get("/api/io", params={"type": "F", "index": 4}, headers=AUTH).json()["detail"] & 1 == 1
+
+
+def test_io_writes_answered_before_an_end_all_go_out_in_that_stream(rig: Rig) -> None:
+    """Writes sent at once queue for a command each; an end right after them still sends them all in
+    this stream (before: the end's last data left most queued, and the next stream's first commands,
+    however much later, set those outputs)."""
+    h = rig.streaming()
+    n = 24
+    clients = [httpx.Client(base_url=rig.base_url, timeout=10.0) for _ in range(n)]
+    try:
+        with ThreadPoolExecutor(n) as pool:
+            codes = list(pool.map(lambda k: clients[k].post(
+                "/api/io", json={"type": "DO", "index": 1 + 16 * k, "mask": 1, "value": 1}, headers=h).status_code,
+                range(n)))
+    finally:
+        for c in clients:
+            c.close()
+    assert codes == [200] * n
+    rig.end_and_wait(h)
+    log = rig.latest_log()
+    assert int(np.count_nonzero(log.commands["io"] == 1)) == n  # every write, in the stream that took it
+    rig.start_streaming(h)
+    rig.end_and_wait(h)
+    assert int(np.count_nonzero(rig.latest_log().commands["io"])) == 0  # none left for the next stream
+    h = rig.streaming()
+    for k in (0, n - 1):  # and the outputs hold what was written
+        assert rig.http.get("/api/io", params={"type": "DO", "index": 1 + 16 * k, "mask": 1},
+                            headers=AUTH).json()["value"] == 1
+    rig.post("/api/io", h, {"type": "DO", "index": 1, "mask": 1, "value": 0})  # as other tests expect
 
 
 @pytest.mark.parametrize(("body", "words"), [

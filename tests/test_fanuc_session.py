@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from servo_app.fanuc import packets as P
-from servo_app.fanuc.session import Phase, SessionConfig, StreamSession
+from servo_app.fanuc.session import IoRequest, Phase, SessionConfig, StreamSession
 from servo_app.motion.limit_tables import LimitTables
 
 
@@ -123,6 +123,41 @@ def test_end_decelerates_then_last_data_then_stops_output_after_bit0_clears() ->
     assert s.on_datagram(status(seq), 0.2) == []
     assert s.on_datagram(status(seq + 1, bits=P.StatusBit.SYSRDY), 0.21) == [P.StatusStop().encode()]
     assert s.phase == Phase.CLOSED
+
+
+def test_io_writes_queued_at_an_end_go_out_before_last_data() -> None:
+    """Writes answered as sent in this stream go out in it: last data waits for them (one per command)."""
+    s, m, _ = open_streaming(first_seq=5)
+    for k in range(4):
+        s.write_io(IoRequest(P.IoType.DO, 1 + 16 * k, 1, 1))
+    m.rest_after = 0  # at rest at once: only the writes hold the end back
+    s.request_end()
+    sent: list[P.Command] = []
+    seq = 6
+    while s.phase != Phase.ENDING and seq < 20:
+        sent += commands(s.on_datagram(status(seq), 0.1))
+        seq += 1
+    assert [c.write_io_index for c in sent if c.write_io_type] == [1, 17, 33, 49]
+    assert sent[-1].last_data == 1 and sent[-1].write_io_type == 0
+    assert all(c.last_data == 0 for c in sent[:-1])
+
+
+def test_io_writes_a_faulted_stream_never_sent_are_not_sent_in_the_next() -> None:
+    """A write waiting when the stream faulted is dropped: the next stream, maybe hours later, must not
+    set an output (a gripper) at its start."""
+    s, _, _ = open_streaming()
+    for k in range(3):
+        s.write_io(IoRequest(P.IoType.DO, 1 + 16 * k, 1, 1))
+    s.on_idle(0.5)
+    assert s.phase == Phase.FAULT
+    s.open(1.0)
+    s.arm()
+    sent = commands(s.on_datagram(status(1), 1.01))
+    s.begin_motion()
+    for k in range(2, 8):
+        sent += commands(s.on_datagram(status(k), 1.01 + 0.008 * k))
+    assert s.phase == Phase.STREAMING and len(sent) == 7
+    assert [c.write_io_type for c in sent] == [0] * 7
 
 
 def test_bit0_dropping_mid_stream_is_a_fault() -> None:

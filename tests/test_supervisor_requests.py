@@ -13,10 +13,12 @@ from test_safety_state_machine import STATES
 from test_servo_cycle_property import Cell
 
 from servo_app.errors import CommandRejected, InvalidRequest
+from servo_app.fanuc.supervisor import MAX_IO_WRITES_PENDING
 from servo_app.input_slot import POSE, TWIST, InputCommand
 from servo_app.messages import (
     ConfigureInputs,
     End,
+    IoWrite,
     Jog,
     JointTarget,
     PoseTarget,
@@ -170,3 +172,30 @@ def test_an_input_whose_flange_swing_is_over_the_cap_after_a_hold_to_run_stop_ch
     assert "flange-speed cap" in cell.sup.inputs.error
     assert cell.sup.state == before and cell.sup.hold == hold  # not resumed, no hold-to-run timer
     assert not cell.sup.cycle.ik_active
+
+
+def test_io_writes_are_refused_once_the_queue_is_full_or_the_stream_ends_and_change_nothing() -> None:
+    """One write goes out per command: a flood is refused at MAX_IO_WRITES_PENDING (an end waits for the
+    queue, so it stays short), and a write after an end is refused (no command of the stream would
+    carry it); the refusals queue nothing."""
+    cell = Cell()
+    cell.start()
+    for k in range(MAX_IO_WRITES_PENDING):
+        cell.sup.request(IoWrite(type="DO", index=1 + k, mask=1, value=1), cell.t)
+    with pytest.raises(CommandRejected) as full:
+        cell.sup.request(IoWrite(type="DO", index=1, mask=1, value=0), cell.t)
+    assert NEXT.search(str(full.value)) and "waiting" in str(full.value)
+    assert cell.sup.session.io_writes_pending == MAX_IO_WRITES_PENDING
+    cell.request(End())
+    while not cell.sup.session.end_requested:  # (the safety state asks the link to end once at rest)
+        cell.cycle()
+    assert cell.sup.session.io_writes_pending > 0  # the end waits for them
+    with pytest.raises(CommandRejected) as ending:
+        cell.sup.request(IoWrite(type="DO", index=1, mask=1, value=0), cell.t)
+    assert NEXT.search(str(ending.value)) and "ending" in str(ending.value)
+    for _ in range(MAX_IO_WRITES_PENDING + 200):
+        cell.cycle()
+        if cell.sup.state.mode is Mode.ENDED:
+            break
+    assert cell.sup.state.mode is Mode.ENDED, cell.sup.describe()
+    assert cell.ctrl.io.read(2, 1, 0xFFFF) == 0xFFFF and cell.ctrl.alarm_active is False  # all 64 written

@@ -253,6 +253,9 @@ class StreamSession:
             raise RuntimeError(f"cannot start streaming in phase {self.phase}")
         self._armed = True
         self._end_requested = False
+        # Writes a stream that faulted never sent are dropped: carried into this stream, they would set
+        # outputs (a gripper) at its start, long after they were asked for.
+        self._io_writes.clear()
         if self.phase != Phase.FETCHING_TABLES:
             self.phase = Phase.WAITING_READY
 
@@ -388,6 +391,16 @@ class StreamSession:
 
     def write_io(self, req: IoRequest) -> None:
         self._io_writes.append(req)
+
+    @property
+    def end_requested(self) -> bool:
+        """An end is under way: last data follows once the arm is at rest and the queued writes are out."""
+        return self._end_requested
+
+    @property
+    def io_writes_pending(self) -> int:
+        """I/O writes queued for the next commands (one per command packet)."""
+        return len(self._io_writes)
 
     # ------------------------------------------------------------------ inputs
     def decode(self, data: bytes) -> Status | LimitTableResponse | None:
@@ -598,7 +611,8 @@ class StreamSession:
         last = 0
         if self._begin_with is not None:  # the stream's first commands: the hold position itself
             q = self._begin_with[0]
-        elif self._end_requested and self.motion.at_rest():
+        elif self._end_requested and self.motion.at_rest() and not self._io_writes:
+            # (Writes still queued go out first, one per command: each was answered as sent in this stream.)
             last = 1
             q = self._q_last if self._q_last is not None else self.motion.next_command(st)
         else:

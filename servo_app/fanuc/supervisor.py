@@ -68,6 +68,9 @@ _LINK_UP_MODES = (Mode.CONNECTED, Mode.READY, Mode.ENDED)
 
 # A pose whose X, Y and Z all lie within this many mm of the base was almost surely sent in metres.
 METRES_SUSPECT_MM = 5.0
+# I/O writes waiting for a command packet each (one per packet): 64 are half a second at 8 ms, what an
+# end then waits at most, instead of a queue a flood of writes makes as long as it likes.
+MAX_IO_WRITES_PENDING = 64
 
 
 def reach_mm(profile: RobotProfile, tool_xyzwpr: tuple[float, ...] | None = None) -> float:
@@ -252,10 +255,17 @@ class StreamSupervisor(SupervisorBase):
         self.session.io_read = IoRequest(_io_type(req.type), int(req.index), int(req.mask))
 
     def _on_io_write(self, req: msg.IoWrite, now: float) -> None:
-        if self.session.phase != Phase.STREAMING:
+        session = self.session
+        if session.phase != Phase.STREAMING:
             raise CommandRejected("I/O is written through command packets: only while streaming; "
                                   f"{next_step(self.state)}")
-        self.session.write_io(IoRequest(_io_type(req.type), int(req.index), int(req.mask), int(req.value)))
+        if session.end_requested:  # a write after it would be sent in no command of this stream
+            raise CommandRejected("I/O write refused: the stream is ending (its last commands are going out); "
+                                  "start a new session, then write: POST /api/session/start")
+        if session.io_writes_pending >= MAX_IO_WRITES_PENDING:
+            raise CommandRejected(f"I/O write refused: {session.io_writes_pending} writes are already waiting "
+                                  "(one goes out per command packet); write again once they are out: POST /api/io")
+        session.write_io(IoRequest(_io_type(req.type), int(req.index), int(req.mask), int(req.value)))
 
     def on_late_input(self, cmd: InputCommand, now: float) -> bool:
         """A command that reached the slot while this cycle's IK was solving (``ServoCycle.late_command``).
