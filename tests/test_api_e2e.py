@@ -252,6 +252,46 @@ def test_io_writes_answered_before_an_end_all_go_out_in_that_stream(rig: Rig) ->
     rig.post("/api/io", h, {"type": "DO", "index": 1, "mask": 1, "value": 0})  # as other tests expect
 
 
+def test_reads_at_once_of_different_points_each_get_their_own_value(rig: Rig) -> None:
+    """A command packet carries one read: reads asked at once (a console and a script) take turns
+    (before: the later one replaced the earlier on the wire, which waited a second and got 503)."""
+    h = rig.streaming()
+    rig.post("/api/io", h, {"type": "DO", "index": 33, "value": 0x1111})
+    rig.post("/api/io", h, {"type": "F", "index": 33, "value": 0x2222})
+    clients = [httpx.Client(base_url=rig.base_url, timeout=10.0) for _ in range(4)]
+    want = {"DO": 0x1111, "F": 0x2222}
+
+    def read(k: int) -> tuple[int, Any]:
+        io_type = "DO" if k % 2 == 0 else "F"
+        r = clients[k].get("/api/io", params={"type": io_type, "index": 33}, headers=AUTH)
+        return r.status_code, r.json().get("value") == want[io_type] or r.json()
+
+    try:
+        with ThreadPoolExecutor(4) as pool:
+            for _ in range(3):
+                assert list(pool.map(read, range(4))) == [(200, True)] * 4
+    finally:
+        for c in clients:
+            c.close()
+
+
+def test_a_read_after_writes_sent_at_once_sees_the_last_of_them(rig: Rig) -> None:
+    """Writes queue for a command each; a read asked behind them reads after they went out."""
+    h = rig.streaming()
+    n = 20
+    clients = [httpx.Client(base_url=rig.base_url, timeout=10.0) for _ in range(n)]
+    try:
+        with ThreadPoolExecutor(n) as pool:
+            codes = list(pool.map(lambda k: clients[k].post(
+                "/api/io", json={"type": "M", "index": 1 + 16 * k, "value": 0x00FF}, headers=h).status_code, range(n)))
+    finally:
+        for c in clients:
+            c.close()
+    assert codes == [200] * n
+    r = rig.http.get("/api/io", params={"type": "M", "index": 1 + 16 * (n - 1)}, headers=AUTH)
+    assert r.status_code == 200 and r.json()["value"] == 0x00FF, r.text
+
+
 @pytest.mark.parametrize(("body", "words"), [
     ({"type": "SO", "index": 1, "value": 1}, ["SO", "not allowed", "PRIO-023"]),
     ({"type": "WO", "index": 1, "value": 1}, ["WO", "not allowed"]),

@@ -251,8 +251,10 @@ class StreamSupervisor(SupervisorBase):
         self.cycle.replay(q, ramp)
         return {"samples": len(q), "duration_s": (len(q) - 1) * self.cycle.dt, "ramp_steps": ramp}
 
-    def _on_io_read(self, req: msg.IoRead, now: float) -> None:
+    def _on_io_read(self, req: msg.IoRead, now: float) -> int:
+        """Returns the writes queued ahead of the read: its value is read after they went out."""
         self.session.io_read = IoRequest(_io_type(req.type), int(req.index), int(req.mask))
+        return self.session.io_writes_pending
 
     def _on_io_write(self, req: msg.IoWrite, now: float) -> None:
         session = self.session

@@ -7,6 +7,7 @@ sent. A read is answered by a later status packet: ``lead`` commands are queued 
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -24,6 +25,7 @@ class StreamIo:
         self._request = request
         self._state = state
         self._lead = lead
+        self._read_lock = threading.Lock()
 
     def write(self, io_type: str, index: int, mask: int, value: int) -> str:
         """Write with the next command packet; returns the type's canonical name (``do`` -> ``DO``)."""
@@ -37,22 +39,31 @@ class StreamIo:
         if self._state()["link"] != "streaming":
             raise CommandRejected("I/O is read through command packets: only while streaming; "
                                   "start a session first: POST /api/session/start")
-        self._request(msg.IoRead(type=name, index=index, mask=mask))
-        seq0 = self._state()["status_seq"]  # published just before the reply: the request's cycle
-        # The read rides on the next command sent; with `lead` commands queued ahead, the controller
-        # processes it lead + 1 statuses later. Any earlier write is processed before it.
-        type_code = self.backend.io_type_code(name)
-        want = (type_code, index, mask)
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            s = self._state()
-            if s["link"] != "streaming":
-                raise CommandRejected(f"the stream stopped ({s['state']}) before the read came back; read "
-                                      "again once a session streams: POST /api/session/start")
-            echo = (s["io_read_type"], s["io_read_index"], s["io_read_mask"])
-            if echo == want and s["status_seq"] - seq0 >= self.backend.io_read_delay(self._lead):
-                return int(s["io_read_value"])
-            time.sleep(0.002)  # status packets come every 4-8 ms: poll the shared-memory state
+        # One read at a time: a command packet carries one read (the last asked for), so a second read
+        # asked meanwhile replaced the first on the wire and the first never came back (503).
+        if not self._read_lock.acquire(timeout=timeout):
+            raise TimeoutError(f"the read of {name}[{index}] waited {timeout} s behind other reads; read again")
+        try:
+            pending = self._request(msg.IoRead(type=name, index=index, mask=mask))
+            seq0 = self._state()["status_seq"]  # published just before the reply: the request's cycle
+            # The read rides on the next command sent; with `lead` commands queued ahead, the controller
+            # processes it lead + 1 statuses later. Writes queued before it go out one per command, so
+            # its value is taken after those too (the servo process answers how many were waiting).
+            delay = self.backend.io_read_delay(self._lead) + (pending if isinstance(pending, int) else 0)
+            type_code = self.backend.io_type_code(name)
+            want = (type_code, index, mask)
+            while time.monotonic() < deadline:
+                s = self._state()
+                if s["link"] != "streaming":
+                    raise CommandRejected(f"the stream stopped ({s['state']}) before the read came back; read "
+                                          "again once a session streams: POST /api/session/start")
+                echo = (s["io_read_type"], s["io_read_index"], s["io_read_mask"])
+                if echo == want and s["status_seq"] - seq0 >= delay:
+                    return int(s["io_read_value"])
+                time.sleep(0.002)  # status packets come every 4-8 ms: poll the shared-memory state
+        finally:
+            self._read_lock.release()
         raise TimeoutError(f"no status packet echoed the read of {name}[{index}] within {timeout} s")
 
     def toggle(self, io_type: str, point: int) -> int:
