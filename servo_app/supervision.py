@@ -80,6 +80,14 @@ _ACTIONS = {"StartRequested": "start", "ResumeRequested": "resume", "EndRequeste
             "ResetRequested": "reset", "ConnectRequested": "connect", "DisconnectRequested": "disconnect"}
 
 
+def stop_kind(reason: str) -> str:
+    """A stop reason without its particulars, for the stops counted by reason (a Prometheus label):
+    "control lease lost (alice)" -> "control lease lost", "limit approaching: J3 ..." -> "limit approaching".
+    Holder names come from clients and details carry numbers: counted whole, every new one was a new
+    label, growing without bound. The state's ``stop_reason`` keeps them."""
+    return reason.split(" (", 1)[0].split(": ", 1)[0].strip() or "stop"
+
+
 def next_step(state: SafetyState, request: str = "motion") -> str:
     """What the operator does next when ``request`` (motion, start, resume, end, reset) is refused in
     ``state``: the end of every 409 text."""
@@ -276,7 +284,7 @@ class SupervisorBase:
         elif isinstance(action, BeginDeceleration):
             if self.motion.shaper is not None:
                 self.motion.stop(fast=action.fast)
-            reason = self.state.stop_reason or "stop"
+            reason = stop_kind(self.state.stop_reason or "stop")
             self.log.stops[reason] = self.log.stops.get(reason, 0) + 1
             self.hold = self.hold.release()
         elif isinstance(action, ResumeMotion):

@@ -367,6 +367,23 @@ def test_metrics_in_prometheus_format(rig: Rig) -> None:
     assert "servo_status_lost" in fams and "servo_api_refused" in fams
 
 
+def test_stops_by_reason_do_not_grow_a_label_per_lease_holder(rig: Rig) -> None:
+    """Holder names are the clients' own: each take-over of a streaming arm must not add a metric
+    label (before: servo_stops{reason="control lease lost (holder-3)"}, one per name, for ever)."""
+    def lost() -> float:
+        fams = {f.name: f for f in text_string_to_metric_families(rig.http.get("/metrics").text)}
+        return sum(s.value for s in fams["servo_stops"].samples if s.labels["reason"] == "control lease lost")
+
+    rig.streaming("holder-0")
+    before = lost()
+    for k in range(1, 5):
+        rig.streaming(f"holder-{k}")  # takes over the streaming arm: holder-{k-1}'s stop
+    text = rig.http.get("/metrics").text
+    assert "holder-" not in text, [line for line in text.splitlines() if "holder-" in line]
+    assert lost() >= before + 4
+    assert not any("holder-" in why for why in rig.state()["stops_by_reason"])
+
+
 def test_openapi_lists_the_endpoints(rig: Rig) -> None:
     paths = rig.http.get("/openapi.json").json()["paths"]
     for p in ("/api/session/start", "/api/session/stop", "/api/session/resume", "/api/session/end", "/api/reset",

@@ -80,7 +80,8 @@ class _StateCollector:
         yield CounterMetricFamily("servo_alarm_poll_failures", "reads of the embedded controller's alarm list "
                                   "that failed (no answer in time, a bad answer)",
                                   value=float(state.get("alarm_poll_failures", 0)))
-        c = CounterMetricFamily("servo_stops", "stops by reason", labels=["reason"])
+        c = CounterMetricFamily("servo_stops", "stops by reason, without its particulars (the holder of a lost "
+                                "lease, a limit's numbers): GET /api/state's stop_reason has them", labels=["reason"])
         for reason, n in sorted(stops.items()):
             c.add_metric([reason], float(n))
         yield c

@@ -505,7 +505,8 @@ class StateView(BaseModel):
 
     # The API's own.
     lease: LeaseHolder = Field(description="who holds the control lease")
-    stops_by_reason: dict[str, int] = Field(description="all stops by reason: servo process and API")
+    stops_by_reason: dict[str, int] = Field(description="all stops by reason (without its particulars: "
+                                                    "`stop_reason` has them): servo process and API")
     service_id: str | None = Field(None, description="this run of the service: another after a restart (the "
                                                      "control lease ended with the old one)")
 
