@@ -348,6 +348,8 @@ def test_metrics_in_prometheus_format(rig: Rig) -> None:
     h = rig.streaming()
     rig.jog_for(h, [0, 0, 0, 0, 0, 20.0], 0.3)
     rig.wait(lambda s: s["state"] == "stopped", 3.0)
+    # A stream holds the stopped arm with a command per status: enough of them, run alone or after others.
+    rig.wait(lambda s: s["commands_sent"] > 120, 5.0, "over 120 commands sent")
     r = rig.http.get("/metrics")
     assert r.headers["content-type"].startswith("text/plain")
     fams = {f.name: f for f in text_string_to_metric_families(r.text)}
