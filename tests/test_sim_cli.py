@@ -35,6 +35,25 @@ def test_bad_settings_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
     assert "pkt_stack=11" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(("argv", "words"), [
+    (["--port", "70000"], ["--port", "70000", "0..65535"]),  # was a traceback (OverflowError), exit 1
+    (["--port", "udp"], ["--port", "'udp'", "0..65535"]),
+    (["--joints", "10,20,30"], ["--joints", "3 values", "all 6"]),  # was taken: J4..J6 at 0
+    (["--joints", "0,0,0,0,0,0,0,0,0,0,0"], ["--joints", "11 values"]),  # was taken: five dropped
+    (["--joints", "0,x,0,0,-90,0"], ["--joints", "'0,x,0,0,-90,0'", "6 numbers"]),
+    (["--joints", "0,0,inf,0,-90,0"], ["--joints", "J3=inf", "finite"]),
+    (["--payload", "1000"], ["--payload=1000", "at most 7 kg"]),  # was taken: limits judged at 1000 kg
+    (["--payload", "-3"], ["--payload=-3", "above 0"]),
+])
+def test_bad_options_exit_2_naming_the_option_and_value(argv: list[str], words: list[str]) -> None:
+    r = subprocess.run(servo_app_argv("ctrl-c", "sim", "fanuc", *argv), cwd=ROOT, capture_output=True, text=True,
+                       timeout=30)
+    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
+    assert "Traceback" not in r.stderr and "listening" not in r.stdout, r.stderr
+    for w in words:
+        assert w in r.stderr, (w, r.stderr)
+
+
 def stopped(proc: subprocess.Popen[str], sig: int) -> str:
     """Send ``sig``; the process must end by itself with 0. Its whole output."""
     proc.send_signal(sig)

@@ -3,12 +3,42 @@
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 import sys
 from typing import Any
 
 from servo_app.fanuc.packets import ROBOT_PORT
 from servo_app.stop_signals import signal_event, stop_requested
+
+
+def _port(text: str) -> int:
+    """``--port``: a UDP port (argparse names the option with the message)."""
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number: a UDP port 0..65535 (0: any free port)") from None
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{port} is outside 0..65535 (0: any free port)")
+    return port
+
+
+def _joints(text: str) -> list[float]:
+    """``--joints``: J1..J6 in FANUC deg, comma-separated; all six, finite (three or eleven given were
+    taken as they came: the missing ones 0, the extra ones dropped)."""
+    parts = text.split(",")
+    try:
+        values = [float(v) for v in parts]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected 6 numbers J1..J6 (FANUC deg), comma-separated, "
+                                         "e.g. 0,0,0,0,-90,0") from None
+    if len(values) != 6:
+        raise argparse.ArgumentTypeError(f"{text!r} has {len(values)} values: give all 6, J1..J6 (FANUC deg), "
+                                         "e.g. 0,0,0,0,-90,0")
+    bad = next((i for i, v in enumerate(values) if not math.isfinite(v)), None)
+    if bad is not None:
+        raise argparse.ArgumentTypeError(f"J{bad + 1}={parts[bad].strip()} is not a finite number")
+    return values
 
 
 def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
@@ -18,14 +48,14 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
 
     f = kinds.add_parser("fanuc", help="FANUC Stream Motion (J519) controller simulator")
     f.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
-    f.add_argument("--port", type=int, default=ROBOT_PORT, help=f"UDP port (default {ROBOT_PORT}; 0: any)")
+    f.add_argument("--port", type=_port, default=ROBOT_PORT, help=f"UDP port (default {ROBOT_PORT}; 0: any)")
     f.add_argument("--model", default="lrmate200id", help="robot profile name or TOML path")
     f.add_argument("--interval-ms", type=int, choices=(4, 8), default=None,
                    help="communication interval (default: the profile's)")
     f.add_argument("--pkt-stack", type=int, default=10, help="$PKT_STACK, 2..10 (default 10)")
     f.add_argument("--start-move", type=int, default=1, help="$START_MOVE (default 1)")
     f.add_argument("--payload", type=float, default=None, help="payload kg (default: maximum payload)")
-    f.add_argument("--joints", default=None, help="initial joints J1..J6, FANUC deg, comma-separated")
+    f.add_argument("--joints", type=_joints, default=None, help="initial joints J1..J6, FANUC deg, comma-separated")
     f.add_argument("--no-cartesian", action="store_true",
                    help="model a robot without Cartesian format (MOTN-619 for data format 0)")
     f.add_argument("--strict-first-seq", action="store_true",
@@ -43,18 +73,22 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
 
 
 def _run_fanuc(args: argparse.Namespace) -> int:
-    from servo_app.robots.profile import ProfileError
+    from servo_app.robots.profile import ProfileError, load_profile
     from servo_app.sim.fanuc_model import ControllerConfig
     from servo_app.sim.fanuc_server import FanucSimulator, FaultConfig
 
     try:
-        joints = None if args.joints is None else [float(v) for v in args.joints.split(",")]
+        profile = load_profile(args.model)
+        if args.payload is not None and not 0.0 < args.payload <= profile.max_payload_kg:
+            # (the controller's limit tables are made for 0..the maximum: none hold beyond)
+            raise ValueError(f"--payload={args.payload:g} kg is outside the {profile.display_name}'s payloads: "
+                             f"above 0 and at most {profile.max_payload_kg:g} kg")
         config = ControllerConfig(pkt_stack=args.pkt_stack, start_move=args.start_move,
                                   payload_kg=args.payload, cartesian_supported=not args.no_cartesian,
                                   strict_first_seq=args.strict_first_seq)
         faults = FaultConfig(drop_prob=args.drop, jitter_s=args.jitter_ms / 1000.0, seed=args.seed)
-        sim = FanucSimulator(args.host, args.port, args.model, args.interval_ms, config=config,
-                             faults=faults, initial_joints=joints)
+        sim = FanucSimulator(args.host, args.port, profile, args.interval_ms, config=config,
+                             faults=faults, initial_joints=args.joints)
     except (ValueError, ProfileError) as exc:
         print(f"servo-app sim fanuc: {exc}", file=sys.stderr)
         return 2
