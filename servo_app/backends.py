@@ -221,9 +221,12 @@ def parse_robot(spec: str | None) -> tuple[str, Target]:
     if not host:
         raise ValueError(f"--robot={spec!r}: the host is missing; expected {name}:HOST[:PORT]")
     try:
-        return name, Target(host, int(port) if port else backend_class(name).default_port, embedded=False)
+        number = int(port) if port else backend_class(name).default_port
     except ValueError:
         raise ValueError(f"--robot={spec!r}: port {port!r} is not a number") from None
+    if not 0 <= number <= 65535:  # (the servo process's connect failed on 99999, after start-up)
+        raise ValueError(f"--robot={spec!r}: port {number} is outside 0..65535")
+    return name, Target(host, number, embedded=False)
 
 
 def open_backend(spec: str | None, model: str | None, io_allow: dict[str, int] | None = None) -> RobotBackend:

@@ -10,10 +10,38 @@ from pathlib import Path
 from typing import Any
 
 from servo_app.api.auth import resolve_token
+from servo_app.fanuc.session import MAX_PKT_STACK
 from servo_app.inputs.errors import ConfigError
 from servo_app.realtime import make_realtime
+from servo_app.robots.profile import ProfileError
 from servo_app.robots.tool import ToolError
 from servo_app.service import ServiceConfig, ServoService
+
+MAX_LEAD = MAX_PKT_STACK - 2  # the session's own bound (SessionConfig)
+
+
+def _port(text: str) -> int:
+    """``--http-port``: a TCP port (70000 had uvicorn's bind fail unreported, the service running on,
+    serving nothing)."""
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number: a TCP port 0..65535") from None
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{port} is outside 0..65535")
+    return port
+
+
+def _lead(text: str) -> int:
+    """``--lead``: checked here, not by the servo process once started (a traceback naming POST /api/reset)."""
+    try:
+        lead = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of commands") from None
+    if not 0 <= lead <= MAX_LEAD:
+        raise argparse.ArgumentTypeError(f"{lead} is outside 0..{MAX_LEAD} (the controller buffers $PKT_STACK - 1 "
+                                         f"commands, $PKT_STACK at most {MAX_PKT_STACK})")
+    return lead
 
 
 def add_run_parser(sub: Any) -> None:
@@ -22,10 +50,10 @@ def add_run_parser(sub: Any) -> None:
                    help="fanuc:HOST[:PORT] of an external controller; default: the embedded simulator")
     p.add_argument("--model", default=None, help="robot profile (see `servo-app profiles`); default: the backend's")
     p.add_argument("--host", default="127.0.0.1", help="HTTP interface to listen on")
-    p.add_argument("--http-port", type=int, default=8000)
+    p.add_argument("--http-port", type=_port, default=8000)
     p.add_argument("--interval-ms", type=int, choices=(4, 8), default=None,
                    help="communication interval; default: the profile's")
-    p.add_argument("--lead", type=int, default=ServiceConfig.lead,
+    p.add_argument("--lead", type=_lead, default=ServiceConfig.lead,
                    help="extra commands kept in the controller's buffer (61.4); the default 2 rides out two "
                         "lost status packets in a row, 0 alarms (MOTN-603) at the first one")
     p.add_argument("--token", default=None, help="API token (else $SERVO_APP_TOKEN, else var/token)")
@@ -64,7 +92,13 @@ def run(args: argparse.Namespace) -> int:
 
     from servo_app.api.app import create_app
 
-    token, new = resolve_token(args.token, args.var_dir / "token")
+    try:  # first: the audit log, the token and the session logs go there (a file there was a traceback)
+        args.var_dir.mkdir(parents=True, exist_ok=True)
+        token, new = resolve_token(args.token, args.var_dir / "token")
+    except OSError as exc:  # (a file where the directory should be, no permission, a full disk)
+        print(f"servo-app run: --var-dir={str(args.var_dir)!r} cannot be used: {exc}; name a directory this user "
+              "can write", file=sys.stderr)
+        return 2
     if new:
         print(f"API token (saved in {args.var_dir / 'token'}, shown once): {token}", flush=True)
     # From here until uvicorn installs its own handlers, SIGINT and SIGTERM are recorded, not raised: a
@@ -87,6 +121,13 @@ def run(args: argparse.Namespace) -> int:
                                              lead=args.lead, var_dir=args.var_dir, payload_kg=args.payload_kg,
                                              inputs_config=args.inputs, mcap_live=args.mcap, tools_file=args.tools,
                                              tool=args.tool))
+    except (ValueError, ProfileError) as exc:  # --robot, --model: nothing is started yet
+        if isinstance(exc, ToolError):
+            print(f"servo_app: invalid tools configuration: {exc}", flush=True)
+        else:
+            print(f"servo-app run: {exc}", file=sys.stderr)
+        return 2
+    try:
         service.open()
     except ConfigError as exc:  # nothing is started yet: the inputs file is read first
         print(f"servo_app: invalid inputs configuration:\n{exc}", flush=True)
@@ -100,8 +141,12 @@ def run(args: argparse.Namespace) -> int:
     print(f"servo_app: {service.profile.display_name} via {target} at "
           f"{service.robot_address[0]}:{service.robot_address[1]}; console http://{args.host}:{args.http_port}",
           flush=True)
-    app = create_app(service, token, cors_origins=args.cors_origin or None)
-    zenoh_iface = start_zenoh(app.state.api, args) if args.zenoh is not None else None
+    try:
+        app = create_app(service, token, cors_origins=args.cors_origin or None)
+        zenoh_iface = start_zenoh(app.state.api, args) if args.zenoh is not None else None
+    except BaseException:  # the stream, the servo process and the simulator end with us, not after
+        service.close()
+        raise
     config = uvicorn.Config(app, host=args.host, port=args.http_port, log_level="warning")
     server = uvicorn.Server(config)
     servers.append(server)

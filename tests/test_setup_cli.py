@@ -339,3 +339,30 @@ def test_ctrl_c_during_start_up_stops_the_service(tmp_path: Path) -> None:
         raise AssertionError("SIGINT during start-up was lost: the service kept running") from None
     assert svc.proc.returncode == 0, err
     assert "servo_app: stopped" in out, out
+
+
+@pytest.mark.parametrize(("argv", "words"), [
+    # Ran on serving nothing (uvicorn's bind failed unreported) until killed.
+    (["--http-port", "70000"], ["--http-port", "70000", "0..65535"]),
+    # Tracebacks, exit 1, after a servo process had been started (and advice to POST /api/reset).
+    (["--lead", "9"], ["--lead", "9", "0..8"]),
+    (["--robot", "fanuc:127.0.0.1:99999"], ["--robot='fanuc:127.0.0.1:99999'", "99999", "0..65535"]),
+    # Tracebacks, exit 1.
+    (["--robot", "kuka"], ["--robot='kuka'", "unknown robot backend", "fanuc"]),
+    (["--model", "nosuch"], ["'nosuch'", "unknown", "lrmate200id"]),
+    (["--var-dir", "{file}"], ["--var-dir=", "not-a-directory", "cannot be used"]),  # a traceback after start-up
+])
+def test_bad_run_options_exit_2_naming_the_option_and_value(tmp_path: Path, argv: list[str],
+                                                             words: list[str]) -> None:
+    a_file = tmp_path / "not-a-directory"
+    a_file.write_text("")
+    argv = [a.format(file=a_file) for a in argv]
+    cmd = [sys.executable, "-m", "servo_app.cli", "run", "--var-dir", str(tmp_path / "var"), "--token", TOKEN, *argv]
+    try:
+        r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=60)
+    except subprocess.TimeoutExpired as exc:
+        raise AssertionError(f"still running after 60 s: {exc.stdout!r} {exc.stderr!r}") from None
+    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
+    assert "Traceback" not in r.stderr and "console http://" not in r.stdout, r.stderr
+    for w in words:
+        assert w in r.stderr, (w, r.stderr)
