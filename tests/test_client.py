@@ -291,6 +291,20 @@ def test_io_write_and_read(arm: ServoClient) -> None:
     assert err.value.field == "type"
 
 
+def test_the_last_points_of_a_type_are_read_and_written_one_by_one(arm: ServoClient) -> None:
+    """DO 498..512: an access covers 16 points, so these are reached from index 497 (before: 422,
+    "index=510: ... must be in 1..497", for points GET /api/limits lists as allowed)."""
+    arm.io_write("DO", 510, True)
+    assert arm.io_read("DO", 510) is True
+    assert arm.io_read("DO", 509) is False and arm.io_read("DO", 512) is False
+    assert arm.io_read16("DO", 497) == 1 << (510 - 497)
+    arm.io_write("DO", 510, False)
+    assert arm.io_read("DO", 510) is False
+    with pytest.raises(RefusedError, match="index=513") as err:  # past the last point: refused as before
+        arm.io_read("DO", 513)
+    assert err.value.field == "index"
+
+
 def test_telemetry_iterates_states(arm: ServoClient) -> None:
     seen: list[State] = []
     for s in arm.telemetry(hz=50):

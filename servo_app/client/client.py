@@ -180,6 +180,7 @@ class ServoClient:
         self._lease_lost: LeaseError | None = None
         self._lease_stop = threading.Event()
         self._lease_thread: threading.Thread | None = None
+        self._io_allow: dict[str, list[int]] | None = None  # GET /api/limits' io_allow, read once
 
     # ------------------------------------------------------------------ lease
     def __enter__(self) -> ServoClient:
@@ -526,10 +527,24 @@ class ServoClient:
         return Tool.from_json(self._post("/api/tools", body))
 
     # -------------------------------------------------------------------- I/O
+    def _io_access(self, io_type: str, point: int) -> tuple[int, int]:
+        """(index, bit) of the 16-point access that reaches ``point``: from the point itself where the
+        allowed range permits, else from the last index that reaches it. An access covers 16 points, so
+        the service takes indexes up to the last point - 15; one point past that (DO 498..512 of 512)
+        was refused. A type or point the service does not allow goes as it is: refused, naming why."""
+        if self._io_allow is None:
+            self._io_allow = self._call("GET", "/api/limits").get("io_allow") or {}
+        span = self._io_allow.get(str(io_type).upper())
+        if span is None or not span[0] <= point <= span[1]:
+            return point, 1
+        index = max(span[0], min(point, span[1] - 15))
+        return index, 1 << (point - index)
+
     def io_read(self, io_type: str, index: int) -> bool:
         """One I/O point (DI, DO, F, M, ...; only while streaming)."""
-        answer = self._call("GET", "/api/io", params={"type": io_type, "index": index, "mask": 1})
-        return bool(int(answer["value"]) & 1)
+        start, bit = self._io_access(io_type, index)
+        answer = self._call("GET", "/api/io", params={"type": io_type, "index": start, "mask": bit})
+        return bool(int(answer["value"]) & bit)
 
     def io_read16(self, io_type: str, index: int) -> int:
         """16 points from ``index`` (bit 0: the point at ``index``)."""
@@ -537,7 +552,8 @@ class ServoClient:
 
     def io_write(self, io_type: str, index: int, value: bool | int) -> None:
         """Set one I/O point (DO, F, M, ...), sent with the next command packet."""
-        self._post("/api/io", {"type": io_type, "index": index, "mask": 1, "value": 1 if value else 0})
+        start, bit = self._io_access(io_type, index)
+        self._post("/api/io", {"type": io_type, "index": start, "mask": bit, "value": bit if value else 0})
 
     # -------------------------------------------------------------- telemetry
     def telemetry(self, hz: float = 50.0, timeout: float = 5.0) -> Iterator[State]:
