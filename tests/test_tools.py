@@ -67,7 +67,8 @@ def test_tool_option_overrides_the_files_active():
     ('[tools.g]\nxyzwpr = [0,0,150,0,0,0]\n', ["tools.g.payload_kg is missing"]),
     ('[tools.g]\nxyzwpr = [0,0,150,0,0,0]\npayload_kg = 1\nmass = 2\n', ["tools.g: unknown key 'mass'"]),
     ('[tools.flange]\nxyzwpr = [0,0,150,0,0,0]\npayload_kg = 1\n', ["tools.flange", "built in"]),
-    ('[tools.FLANGE]\nxyzwpr = [0,0,150,0,0,0]\npayload_kg = 1\n', ["tools.FLANGE", "'flange' only in case"]),
+    ('[tools.FLANGE]\nxyzwpr = [0,0,150,0,0,0]\npayload_kg = 1\n', ["tools.FLANGE", "'flange' only in case",
+                                                                  "name the tool otherwise"]),
     ('[tools.Gripper]\nxyzwpr = [0,0,150,0,0,0]\npayload_kg = 1\n[tools.gripper]\nxyzwpr = [0,0,90,0,0,0]\n'
      'payload_kg = 1\n', ["tools.gripper", "differs from tool 'Gripper' only in case"]),
     ('active = "nope"\n', ["active='nope'", "not a defined tool"]),

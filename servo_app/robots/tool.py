@@ -108,6 +108,9 @@ def check_distinct(name: str, names: Iterable[str], where: str = "tool") -> None
     """ToolError if ``name`` differs from one of ``names`` only in case: an operator reading "Gripper"
     and "gripper" in a list cannot tell which one the arm is using."""
     twin = next((n for n in names if n != name and n.casefold() == name.casefold()), None)
+    if twin == FLANGE:  # (built in: "use 'flange' to redefine it" led to a refusal)
+        raise ToolError(f"{where} {name!r} differs from tool {FLANGE!r} only in case: {FLANGE!r} is built in (zero "
+                        "offset, --payload-kg) and cannot be redefined: name the tool otherwise")
     if twin is not None:
         raise ToolError(f"{where} {name!r} differs from tool {twin!r} only in case: use {twin!r} to redefine it, "
                         "or a name of its own")
