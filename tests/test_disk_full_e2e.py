@@ -53,11 +53,20 @@ def wait(c: httpx.Client, pred: Callable[[dict[str, Any]], bool], what: str, tim
 
 @pytest.fixture
 def service(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], httpx.Client, Path]]:
+    yield from run_service(tmp_path)
+
+
+@pytest.fixture
+def service_with_mcap(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], httpx.Client, Path]]:
+    yield from run_service(tmp_path, "--mcap")
+
+
+def run_service(tmp_path: Path, *extra: str) -> Iterator[tuple[subprocess.Popen[str], httpx.Client, Path]]:
     var = tmp_path / "var"
     var.mkdir()
     port = free_port()
     p = launch(var, 4096, [sys.executable, "-m", "servo_app.cli", "run", "--http-port", str(port), "--token", TOKEN,
-                           "--var-dir", str(var), "--interval-ms", "8"],
+                           "--var-dir", str(var), "--interval-ms", "8", *extra],
                env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     c = httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10)
     try:
@@ -175,3 +184,35 @@ def test_a_full_disk_refuses_a_points_change_409_and_keeps_the_file(
     assert c.delete("/api/points/kept", headers=h).status_code == 200
     assert c.get("/api/points").json() == []
     assert p.poll() is None
+
+
+def test_a_live_mcap_cut_short_by_a_full_disk_is_told_to_the_operator(
+        service_with_mcap: tuple[subprocess.Popen[str], httpx.Client, Path]) -> None:
+    """servo-app run --mcap: the disk fills mid-jog; the live MCAP beside the session log cannot be
+    finished. Before, only a log line said so; now the state's alarms and mcap_error name the file, the
+    cause and the export that converts the complete .srvlog, and /metrics counts it."""
+    p, c, var = service_with_mcap
+    h = {**AUTH, "X-Lease-Id": c.post("/api/lease", json={"client": "disk-test"}, headers=AUTH).json()["lease_id"]}
+    assert c.post("/api/session/start", headers=h).status_code == 200
+    wait(c, lambda s: s["state"] == "streaming", "streaming")
+    done = threading.Event()
+    jogger = threading.Thread(target=jog_until, args=(httpx.Client(base_url=str(c.base_url), timeout=10), h, done))
+    jogger.start()
+    try:
+        wait(c, lambda s: s["state"] == "streaming" and max(map(abs, s["vel"])) > 2.0, "jogging")
+        fill(p.pid, var / "filler")
+        s = wait(c, lambda s: s["state"] == "ended" and s.get("mcap_error") is not None, "ended, MCAP stopped")
+    finally:
+        done.set()
+        jogger.join()
+    name = max(x["name"] for x in c.get("/api/sessions").json())
+    err = s["mcap_error"]
+    assert err["file"].endswith(name.removesuffix(".srvlog") + ".mcap"), err
+    assert err["error"] == "No space left on device", err
+    assert f"servo-app export {err['file'].removesuffix('.mcap')}.srvlog --mcap {err['file']}" in err["remedy"], err
+    warned = [a for a in s["alarms"] if a["code"] == "MCAP-LIVE"]
+    assert len(warned) == 1 and warned[0]["warning"], s["alarms"]
+    assert name.removesuffix(".srvlog") + ".mcap" in warned[0]["message"], warned
+    assert "No space left on device" in warned[0]["message"] and "servo-app export" in warned[0]["remedy"], warned
+    assert any(a["code"] == "MCAP-LIVE" for a in s["alarm_history"]), s["alarm_history"]
+    assert 'servo_alarms_total{code="MCAP-LIVE"} 1.0' in c.get("/metrics").text

@@ -323,6 +323,15 @@ class WarningView(BaseModel):
     t: float | None = Field(None, description="servo-process clock, s (Janome)")
 
 
+class McapErrorView(BaseModel):
+    """A live MCAP (``servo-app run --mcap``) that stopped short: its file ends where the writer stopped."""
+
+    model_config = _OPEN
+    file: str = Field(description="the .mcap file cut short")
+    error: str = Field(description="why the writer stopped (e.g. No space left on device)")
+    remedy: str = Field(description="what to do: the .srvlog is complete and servo-app export converts it")
+
+
 class AlarmView(BaseModel):
     """A controller alarm or warning (the embedded simulator's alarm list, or a robot error reported over
     the link), or a fault the service detected itself (its cause as ``code``)."""
@@ -501,6 +510,9 @@ class StateView(BaseModel):
     alarm_poll_error: str | None = Field(None, description="the embedded controller's alarm list cannot be "
                                                            "read now, and why (new alarms are listed once "
                                                            "it answers); null: it answers")
+    mcap_error: McapErrorView | None = Field(None, description="the last live MCAP (servo-app run --mcap) that "
+                                                               "stopped short since the service started (also "
+                                                               "listed as an MCAP-LIVE warning); null: none")
     inputs: InputsSummary | None = Field(None, description="the input sources (servo-app run --inputs)")
 
     # The API's own.

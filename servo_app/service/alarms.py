@@ -118,6 +118,16 @@ class AlarmForwarder:
             self._fault({"code": code, "message": message, "time_unix": time.time()})
             self.fault_counts[fault_cause({"message": message})] += 1
 
+    def service_warning(self, code: str, message: str, cause: str, remedy: str) -> None:
+        """A warning of the service's own (no controller posted it): listed as active and in the
+        history, counted by code for /metrics, like the controller's warnings."""
+        with self._lock:
+            item = {"code": code, "message": message, "cause": cause, "remedy": remedy, "warning": True,
+                    "time_unix": time.time(), "controller_time_ms": None}
+            self._active.append(item)
+            self._history.append(item)
+            self.alarm_counts[code] += 1
+
     def clear_active(self) -> None:
         """A reset: the active alarms are gone (the history keeps them)."""
         with self._lock:

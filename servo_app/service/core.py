@@ -52,6 +52,8 @@ class ServoService:
         self.robot_address: tuple[str, int] | None = None
         self.events: deque[msg.Event] = deque(maxlen=2000)
         self.recorders: list[Any] = []  # LiveMcapRecorder per session log, with cfg.mcap_live
+        # The last live MCAP that stopped short (file, why, what to do): GET /api/state's mcap_error.
+        self.mcap_error: dict[str, str] | None = None
         self._recorder_class: Any = None
         if cfg.mcap_live:  # imported here, not on the event thread at the first stream (mcap, rosbags: 0.3 s)
             from servo_app.service.mcap_live import LiveMcapRecorder
@@ -239,13 +241,22 @@ class ServoService:
         self.events.append(ev)
         if self._recorder_class is not None and isinstance(ev, msg.LogOpened):
             self._close_recorders()
-            self.recorders.append(self._recorder_class(Path(ev.path)).start())
+            self.recorders.append(self._recorder_class(Path(ev.path), on_error=self._mcap_failed).start())
         elif isinstance(ev, msg.LogClosed):
             self._close_recorders()
         if isinstance(ev, msg.SafetyChanged):
             with self._safety_cv:
                 self._safety = ev.view
                 self._safety_cv.notify_all()
+
+    def _mcap_failed(self, rec: Any) -> None:
+        """A live MCAP writer stopped short (on its own thread): the operator must hear of it, or the
+        cut-short .mcap is taken for the session (only the log's warning said so before)."""
+        self.mcap_error = {"file": str(rec.path), "error": rec.error, "remedy": rec.remedy}
+        self.alarm_forwarder.service_warning(
+            "MCAP-LIVE", f"live MCAP {rec.path.name} stopped: {rec.error}",
+            cause=f"{rec.path} could not be written ({rec.error}); it ends where the writer stopped.",
+            remedy=rec.remedy[0].upper() + rec.remedy[1:] + ".")
 
     def _close_recorders(self) -> None:
         for rec in self.recorders:

@@ -5,12 +5,17 @@ never waits on a serializer. This follower runs in the API process, in a thread 
 the records the servo process has written so far every ``poll_s`` and appends their messages (the
 same conversion as ``servo-app export``) to ``NAME.mcap``. Small chunks: a process killed mid-session
 leaves an MCAP readable up to its last chunk, and the ``.srvlog`` complete.
+
+A writer that stops (its disk full, a write error) says so through ``on_error`` (the service lists it
+as a warning and in GET /api/state): the ``.srvlog`` stays complete and ``servo-app export`` converts
+it, but only if the operator learns that the ``.mcap`` is cut short.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -23,12 +28,14 @@ log = logging.getLogger(__name__)
 
 
 class LiveMcapRecorder:
-    def __init__(self, srvlog: Path, poll_s: float = 0.2, chunk_size: int = 64 * 1024) -> None:
+    def __init__(self, srvlog: Path, poll_s: float = 0.2, chunk_size: int = 64 * 1024,
+                 on_error: Callable[[LiveMcapRecorder], None] | None = None) -> None:
         self.srvlog = Path(srvlog)
         self.path = self.srvlog.with_suffix(".mcap")
         self.poll_s = poll_s
         self.chunk_size = chunk_size
-        self.error: str | None = None
+        self.error: str | None = None  # why the writer stopped (the OS's or the converter's words)
+        self.on_error = on_error  # called once, on the writer's thread, when it stops short
         self.records = 0
         self._closed = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"mcap {self.srvlog.name}", daemon=True)
@@ -65,9 +72,16 @@ class LiveMcapRecorder:
                         self._closed.wait(self.poll_s)
                     sink.finish()
         except (OSError, ExportError, SessionLogError) as exc:
-            self.error = f"{self.path}: {exc}"
-            log.warning("live MCAP stopped: %s (the session log is complete; `servo-app export` converts it)",
-                        self.error)
+            self.error = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            log.warning("live MCAP stopped: %s: %s (%s)", self.path, self.error, self.remedy)
+            if self.on_error is not None:
+                self.on_error(self)
+
+    @property
+    def remedy(self) -> str:
+        """What to do once the writer has stopped: the session log is whole, convert it afterwards."""
+        return (f"the session log {self.srvlog} is complete: `servo-app export {self.srvlog} --mcap {self.path}` "
+                "converts it (free disk space first if the disk is full)")
 
     def _header(self, src: BinaryIO) -> tuple[dict[str, Any] | None, int]:
         """Wait for the header (written before the first record), then parse it."""

@@ -73,7 +73,8 @@ class StateViews:
         process = "starting" if svc.spawning or fault is None else fault["message"].removeprefix("servo process ")
         return {"state": "fault" if fault else "disconnected", "link": "fault" if fault else "idle",
                 "servo_process": process, "fault": fault, "status_live": False, "status_bits": None,
-                "alarms": svc.alarm_forwarder.alarms(), "alarm_history": svc.alarm_forwarder.history()}
+                "alarms": svc.alarm_forwarder.alarms(), "alarm_history": svc.alarm_forwarder.history(),
+                "mcap_error": svc.mcap_error}
 
     def state_vector(self) -> dict[str, Any]:
         """The servo process's published state alone (cheap: a shared-memory copy); a dead process's
@@ -115,6 +116,7 @@ class StateViews:
         s["faults"] = svc.alarm_forwarder.faults[-10:]
         # The embedded controller's alarm list cannot be read now (frozen or starved): new alarms wait.
         s["alarm_poll_error"] = svc.alarm_forwarder.poll_error or None
+        s["mcap_error"] = svc.mcap_error
         replay = s.get("trajectory")
         if replay is not None and replay["state"] == "ended":  # why it ended before its end
             left = svc.last_event(msg.ReplayLeft)
