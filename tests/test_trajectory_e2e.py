@@ -502,3 +502,29 @@ def test_a_replay_keeps_the_controllers_own_tables_when_they_are_tighter(rig: Ri
                         "the replay done")
         assert np.allclose(s["q_cmd"][:6], waypoints[-1], atol=1e-3)
         assert strict.sim_alarms() == []
+
+
+def test_a_log_window_where_the_arm_rested_is_refused_naming_it_and_where_the_log_moves(rig: Rig) -> None:
+    """A window of a log in which the arm was at rest, where it rests now: nothing to replay. The
+    refusal said only "the path does not move"; it names the window and where in the log the arm
+    moves, and changes nothing."""
+    h = at_home(rig)
+    s = np.linspace(0.0, 1.0, 126)[:, None]  # 1 s at rest at HOME, 1 s to HOME + 10 deg on J1, 1 s at rest
+    move = HOME + (10 * s**3 - 15 * s**4 + 6 * s**5) * np.array([10.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    rows = np.vstack([np.tile(HOME, (125, 1)), move, np.tile(move[-1], (125, 1))])
+    name = "session-resting-then-moving.srvlog"
+    w = SessionLogWriter(rig.service.cfg.log_dir / name,
+                         {"model": "lrmate200id", "interval_ms": 8.0, "protocol": "fanuc-j519-v1"})
+    for i, q in enumerate(rows):
+        w.command(i * 0.008, i + 1, int(i == len(rows) - 1), 1, 0, 100.0, tuple(q))
+    w.close()
+    before = rig.state()
+    r = rig.http.post("/api/trajectory", headers=h, json={"log": name, "from_s": 0.0, "to_s": 0.9})
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"]
+    assert f"log={name!r} from_s=0..to_s=0.9: nothing to replay" in detail, detail
+    assert "at rest at [0.0, 10.0, -10.0, 0.0, -80.0, 0.0]" in detail, detail
+    assert "the log moves between 1.000 and 2.000 s (of 0..3.000 s)" in detail and "from_s, to_s" in detail, detail
+    after = rig.state()
+    assert after["state"] == "streaming" and after["q_cmd"] == before["q_cmd"]
+    assert after["trajectory"] == before["trajectory"]

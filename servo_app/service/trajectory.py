@@ -131,6 +131,46 @@ def read_log_window(path: Path, name: str, from_s: float | None, to_s: float | N
     return cmds["values"][pick, :6].astype(float)
 
 
+def _log_moves(path: Path) -> tuple[float, float, float] | None:
+    """When a FANUC joint log's commands move: (first, last) change, s after its first command, and its
+    span; None if they never change (or the log cannot be read: its refusal came earlier)."""
+    from servo_app.session_log import SessionLogError, read_session_log
+
+    try:
+        cmds = read_session_log(path).commands
+    except (SessionLogError, OSError):
+        return None
+    if len(cmds) < 2:
+        return None
+    t = cmds["t"] - cmds["t"][0]
+    changed = np.flatnonzero(np.any(np.diff(cmds["values"][:, :6], axis=0) != 0.0, axis=1))
+    if changed.size == 0:
+        return None
+    return float(t[changed[0]]), float(t[changed[-1] + 1]), float(t[-1])
+
+
+def _nothing_to_do(req: TrajectoryInput, rows: np.ndarray | None, path: Path | None, q_now: np.ndarray) -> str:
+    """Why a request that does not move the arm is refused, naming what was given and what to do
+    ("nothing to do: the path does not move" named neither the window nor a way on)."""
+    at = [round(float(v), 3) for v in q_now]
+    if req.log is not None and path is not None and rows is not None:
+        if req.from_unix is not None or req.to_unix is not None:
+            window = f"from_unix={req.from_unix}..to_unix={req.to_unix}"
+        else:
+            window = f"from_s={req.from_s or 0.0:g}..to_s={'end' if req.to_s is None else f'{req.to_s:g}'}"
+        why = (f"log={req.log!r} {window}: nothing to replay: the arm was at rest at {at} through the window's "
+               f"{len(rows)} commands, and rests there now")
+        moves = _log_moves(path)
+        if moves is None:
+            return why + "; the log never moves: pick another log (GET /api/sessions lists them)"
+        first, last, span = moves
+        return (why + f"; the log moves between {first:.3f} and {last:.3f} s (of 0..{span:.3f} s): give a "
+                f"window that overlaps them (from_s, to_s)")
+    what = "csv rows" if req.csv_text is not None else "poses" if req.poses is not None else "joints"
+    return (f"{what}: nothing to do: every one is where the arm rests now ({at}); give a path that goes "
+            "somewhere else")
+
+
 def _log_interval_s(path: Path) -> float | None:
     """The interval a session log was recorded at (its header's ``interval_ms``), None if it does not
     say: a log of a 4 ms stream replayed on an 8 ms one keeps its own pace (it was timed at the
@@ -173,6 +213,7 @@ def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory,
     dof = profile.dof
     # The request's own values first (422), before the state (409).
     joints = poses = rows = None
+    path: Path | None = None
     row_dt: float | None = None  # a log's own interval (a CSV: one row per stream interval)
     fmt = "joints"
     if req.joints is not None:
@@ -234,6 +275,8 @@ def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory,
             segments = planner.dense_segments(q_now, rows, what, recorded_pace=req.pace == "recorded",
                                               row_dt=row_dt)
             label = f"{len(rows)} rows of " + ("a CSV" if what == "csv" else f"log {req.log}")
+        if not segments:
+            raise TrajectoryRefused(_nothing_to_do(req, rows, path, q_now))
         timed: TimedTrajectory = planner.plan(segments)
     except TrajectoryRefused as exc:
         raise InvalidRequest(str(exc)) from None
