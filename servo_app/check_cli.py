@@ -5,6 +5,8 @@ check a log against another model). A Janome session log (header ``protocol`` ``
 checked as the Janome robot would take its target frames: each move target within the strokes and,
 for a SCARA, reachable in the arm configuration (a line move all along its path); each step no
 longer than the link's ``max_step_mm`` / ``max_step_deg`` (what a stop may still travel).
+``--payload``, ``--interval-ms``, ``--format`` and ``--warn-lim`` (the FANUC limit tables') are
+refused for it (exit 2).
 
 Input: a CSV (comma, semicolon, tab or space separated; ``#`` comments; an optional header row)
 with one row per communication interval: J1..J6 in FANUC convention degrees (extra columns, e.g.
@@ -277,7 +279,7 @@ def add_check_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--payload", type=float, default=None,
                    help="payload kg (default: a session log's, as streamed; else the maximum payload)")
     p.add_argument("--format", choices=FORMATS, default="auto", dest="fmt")
-    p.add_argument("--warn-lim", type=float, default=80.0, help="$WARN_LIM %% (default 80)")
+    p.add_argument("--warn-lim", type=float, default=None, help="$WARN_LIM %% (default 80)")
     p.set_defaults(handler=run_check)
     return p
 
@@ -317,6 +319,7 @@ def run_check(args: argparse.Namespace) -> int:
             raise TrajectoryError(f"{args.file}: no such file")
         header = _log_header(args.file)
         if header is not None and str(header.get("protocol", "")).startswith("janome"):
+            _refuse_fanuc_options(args)
             return run_janome_check(Path(args.file), model_for(header, args.model, Path(args.file)))
         profile = load_profile(model_for(header, args.model, Path(args.file)))
         traj = load_trajectory(args.file, args.fmt)
@@ -348,7 +351,8 @@ def run_check(args: argparse.Namespace) -> int:
     if tables is not None:
         tables_note += "; the controller's tables, as streamed"
     checker = ControllerLimitChecker.for_profile(profile, flange, interval_s=interval_s, tables=tables,
-                                                 payload_kg=payload, warn_lim_pct=args.warn_lim)
+                                                 payload_kg=payload,
+                                                 warn_lim_pct=80.0 if args.warn_lim is None else args.warn_lim)
     ik_failure = None
     joints = traj.values
     if traj.fmt == "xyzwpr":
@@ -360,6 +364,20 @@ def run_check(args: argparse.Namespace) -> int:
         report.violations.append(ik_failure)
     print(render_report(report, traj, float(interval_ms), tables_note))
     return 1 if report.violations else 0
+
+
+def _refuse_fanuc_options(args: argparse.Namespace) -> None:
+    """A Janome log is checked by its move targets against the strokes, the arm configuration and the
+    step limits: the FANUC limit tables' options do nothing to it. Refused, naming them, rather than
+    taken in silence (a check "at --payload 12" that never looked at any payload)."""
+    given = [name for name, value in (("--payload", args.payload), ("--interval-ms", args.interval_ms),
+                                      ("--format", None if args.fmt == "auto" else args.fmt),
+                                      ("--warn-lim", args.warn_lim)) if value is not None]
+    if given:
+        verb = "does" if len(given) == 1 else "do"
+        raise TrajectoryError(f"{args.file}: a Janome log: {', '.join(given)} {verb} not apply (its move targets are "
+                              "checked against the robot's strokes, arm configuration and step limits, not "
+                              f"FANUC's limit tables): run the check without {' and '.join(given)}")
 
 
 def _kg(payload: float | None, max_kg: float) -> str:

@@ -299,3 +299,19 @@ def test_a_log_with_no_command_passes_and_says_why(tmp_path: Path) -> None:
     assert r.returncode == 0, (r.stdout, r.stderr)
     assert "no target frames were sent in this session (1 status packet logged" in r.stdout
 
+
+
+@pytest.mark.parametrize("options", [["--payload", "3"], ["--interval-ms", "4"], ["--format", "joints"],
+                                     ["--warn-lim", "90"], ["--payload", "3", "--interval-ms", "4"]])
+def test_a_janome_log_refuses_the_fanuc_tables_options(tmp_path: Path, options: list[str]) -> None:
+    """--payload, --interval-ms, --format and --warn-lim shape FANUC's limit-table check; a Janome
+    log's check uses none of them. They were taken in silence (exit 0, as if checked at that
+    payload); now refused, exit 2, naming each and what to do."""
+    log = write_janome_log(tmp_path / "janome-ok.srvlog", [(150.0 + 4 * i, 160.0, 50.0, 0.0) for i in range(1, 5)])
+    r = servo_app_cli("check", str(log), *options)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    named = [o for o in options if o.startswith("--")]
+    assert f"{log}: a Janome log: {', '.join(named)} " in r.stderr, r.stderr
+    assert f"run the check without {' and '.join(named)}" in r.stderr, r.stderr
+    assert r.stdout == ""
+    assert servo_app_cli("check", str(log), "--model", "jr3000").returncode == 0  # (--model still applies)
