@@ -18,7 +18,8 @@ rows the solution nearest the previous one, which must keep the first row's conf
 numbers included: MOTN-156 otherwise); no solution at all is MOTN-018.
 
 A session log is judged against the limit tables its stream moved within: the controller's own,
-when it published them (the log records them as a note), else the profile's. The acceleration and
+when it published them (the log records them as a note), else the profile's; a log of several
+streams follows its notes in order (a controller may publish other tables at a later start). The acceleration and
 jerk tables are evaluated at a payload (Appendix B): a session log's, as the live service streamed
 at (the header's ``payload_kg`` and the payload records of tool changes); ``--payload`` instead;
 for a CSV, or a log written before the payload was recorded, the maximum payload (the controller's
@@ -36,6 +37,7 @@ command with last data) checked on its own; anything else is read as CSV.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import io
 import math
@@ -141,19 +143,22 @@ def _load_session_log(p: Path, fmt: str) -> Trajectory:
                       seqs=cmds["seq"].astype(np.int64), stream_ends=ends)
 
 
-def _logged_tables(log: Any) -> Any:
-    """The controller's limit tables the log's note records (the first), or None (the profile's)."""
+def _logged_tables(log: Any) -> list[tuple[int, Any]]:
+    """(commands before it, tables) for each of the controller's limit tables the log's notes record,
+    in order: each holds from there on, as the stream at that point moved within it (one log spans
+    several streams; a controller may publish other tables at a later start). Empty: the profile's."""
     from servo_app.motion.limit_tables import tables_from_rows
 
-    for _, note in log.notes():
+    out: list[tuple[int, Any]] = []
+    for row, note in log.notes():
         t = note.get("limit_tables")
         if isinstance(t, dict):
-            try:
-                return tables_from_rows(float(t["vmax"]), float(t["check_time_s"]), float(t["max_payload_kg"]),
-                                        [[(a[0], a[1]) for a in per_type] for per_type in t["rows"]])
-            except (KeyError, TypeError, ValueError, IndexError):
-                return None  # (a damaged note: the profile's, as before the tables were logged)
-    return None
+            # A damaged note is skipped: the tables before it hold (none before it: the profile's).
+            with contextlib.suppress(KeyError, TypeError, ValueError, IndexError):
+                out.append((row, tables_from_rows(float(t["vmax"]), float(t["check_time_s"]),
+                                                  float(t["max_payload_kg"]),
+                                                  [[(a[0], a[1]) for a in per_type] for per_type in t["rows"]])))
+    return out
 
 
 _SPLIT = re.compile(r"[,;\t ]+")
@@ -234,19 +239,24 @@ class CheckReport:
 
 def check_joints(joints: np.ndarray, checker: ControllerLimitChecker, seqs: np.ndarray | None = None,
                  stream_ends: list[int] | None = None,
-                 payload_changes: list[tuple[int, float | None]] | None = None) -> CheckReport:
+                 payload_changes: list[tuple[int, float | None]] | None = None,
+                 table_changes: list[tuple[int, Any]] | None = None) -> CheckReport:
     """Check the rows; each stream (ending at a row in ``stream_ends``) starts the checker afresh.
     ``payload_changes``: (row, kg or None) from that row on the tables are the payload's, as the live
-    service's were after a tool change. Violations carry ``seqs[row]`` (default: the 1-based row)."""
+    service's were after a tool change; ``table_changes``: (row, LimitTables) from that row on, the
+    controller's tables of the stream there. Violations carry ``seqs[row]`` (default: the 1-based row)."""
     seq_list = [int(s) for s in seqs] if seqs is not None else list(range(1, len(joints) + 1))
     bounds = sorted({e + 1 for e in (stream_ends or []) if e + 1 < len(joints)} | {len(joints)})
     payload_at = dict(payload_changes or [])  # (a tool change comes at rest: no window spans it)
+    tables_at = dict(table_changes or [])  # (read at a stream's start, before its first command)
     found: list[Violation] = []
     usage = None
     start = 0
     for end in bounds:
         checker.reset()
         for i in range(start, end):
+            if i in tables_at:
+                checker.set_tables(tables_at[i])
             if i in payload_at:
                 checker.set_payload(payload_at[i])
             found.extend(checker.step(joints[i], seq_list[i]))
@@ -347,9 +357,16 @@ def run_check(args: argparse.Namespace) -> int:
               file=sys.stderr)
     interval_ms = args.interval_ms or traj.meta.get("interval_ms") or profile.interval_ms
     interval_s = float(interval_ms) / 1000.0
-    tables = traj.meta.get("tables")
-    if tables is not None:
-        tables_note += "; the controller's tables, as streamed"
+    logged = list(traj.meta.get("tables") or [])
+    # The profile's tables until the first note (a stream before it had none from the controller).
+    tables = logged.pop(0)[1] if logged and logged[0][0] == 0 else None
+    if tables is not None or logged:
+        starts = [row + 1 for row, _ in traj.meta["tables"]]
+        before = "" if tables is not None else f"the profile's tables to command {starts[0] - 1}, then "
+        tables_note += f"; {before}the controller's tables, as streamed"
+        if len(starts) > 1 or before:
+            tables_note += f" (published at command{'s' * (len(starts) > 1)} " + \
+                ", ".join(map(str, starts[:-1])) + " and " * (len(starts) > 1) + f"{starts[-1]})"
     checker = ControllerLimitChecker.for_profile(profile, flange, interval_s=interval_s, tables=tables,
                                                  payload_kg=payload,
                                                  warn_lim_pct=80.0 if args.warn_lim is None else args.warn_lim)
@@ -359,7 +376,7 @@ def run_check(args: argparse.Namespace) -> int:
         joints, ik_failure = cartesian_to_joints(traj, profile)
     n = len(joints)
     report = check_joints(joints, checker, None if traj.seqs is None else traj.seqs[:n],
-                          [e for e in traj.stream_ends if e < n], changes)
+                          [e for e in traj.stream_ends if e < n], changes, logged)
     if ik_failure is not None:
         report.violations.append(ik_failure)
     print(render_report(report, traj, float(interval_ms), tables_note))

@@ -315,3 +315,67 @@ def test_a_janome_log_refuses_the_fanuc_tables_options(tmp_path: Path, options: 
     assert f"run the check without {' and '.join(named)}" in r.stderr, r.stderr
     assert r.stdout == ""
     assert servo_app_cli("check", str(log), "--model", "jr3000").returncode == 0  # (--model still applies)
+
+
+def _scaled_tables(factor: float) -> object:
+    """The profile's tables with every acceleration and jerk stage times ``factor``: a controller whose
+    own tables differ from the profile's."""
+    from dataclasses import replace
+
+    from servo_app.motion.limit_tables import AxisTable, default_tables
+
+    def axis(t: AxisTable) -> AxisTable:
+        return AxisTable(tuple(v * factor for v in t.no_payload), tuple(v * factor for v in t.max_payload))
+
+    tables = default_tables(PROFILE)
+    vel, acc, jerk = tables.tables
+    return replace(tables, tables=(vel, tuple(axis(t) for t in acc), tuple(axis(t) for t in jerk)))
+
+
+def write_two_stream_log(path: Path, first: tuple[object, np.ndarray], second: tuple[object, np.ndarray]) -> Path:
+    """A FANUC log of two streams, each opened by the controller's tables note (as the servo process
+    writes it when it reads them at a start), its sequence numbers from 1 (the controller restarts them)."""
+    from servo_app.session_log import SessionLogWriter, note_records, tables_note
+
+    w = SessionLogWriter(path, {"model": PROFILE.name, "interval_ms": 8.0, "protocol": "fanuc-j519-v1",
+                                "payload_kg": None})
+    t = 0.0
+    for tables, rows in (first, second):
+        if tables is not None:  # (None: a stream without the controller's tables)
+            w.write_records(note_records(t, tables_note(tables)))
+        for i, q in enumerate(rows):
+            w.command(t, i + 1, int(i == len(rows) - 1), 1, 0, 0.0, tuple(q))
+            t += 0.008
+        t += 1.0
+    w.close()
+    return path
+
+
+def test_each_stream_of_a_log_is_judged_at_the_tables_its_start_recorded(tmp_path: Path) -> None:
+    """One log, two streams, the controller publishing other tables at the second start: each stream is
+    judged at its own. Only the first note's tables were used for the whole log: a brisk second stream
+    under the profile's tables passed (exit 0), and one under looser tables after a first under the
+    profile's was a false MOTN-611."""
+    loose, strict = _scaled_tables(1.4), _scaled_tables(1.0)
+    goal = [30.0, -20.0, 20.0, 40.0, -30.0, 60.0]
+    brisk = np.array(smooth_move(np.zeros(6), goal, 0.9, 0.95, 0.95, limits=loose.for_cap(loose.vmax)))
+    gentle = np.array(smooth_move(np.zeros(6), goal, 0.3, 0.3, 0.3))
+    n = len(brisk)
+    # Loose, then the profile's: the second stream's brisk move is over the controller's limits.
+    r = servo_app_cli("check", str(write_two_stream_log(tmp_path / "loose-then-strict.srvlog",
+                                                        (loose, brisk), (strict, brisk[::-1]))))
+    assert r.returncode == 1, (r.stdout, r.stderr)
+    first = r.stdout.split("FIRST VIOLATION: ", 1)[1]
+    assert first.startswith("MOTN-611"), first
+    assert f"the controller's tables, as streamed (published at commands 1 and {n + 1})" in r.stdout, r.stdout
+    # The profile's, then loose: the brisk second stream is within the tables it streamed at.
+    r = servo_app_cli("check", str(write_two_stream_log(tmp_path / "strict-then-loose.srvlog",
+                                                        (strict, gentle), (loose, brisk[::-1]))))
+    assert r.returncode == 0, (r.stdout, r.stderr)
+    assert "OK: no violation" in r.stdout
+    # A first stream without the controller's tables (the profile's), then one with them.
+    r = servo_app_cli("check", str(write_two_stream_log(tmp_path / "none-then-loose.srvlog",
+                                                        (None, gentle), (loose, brisk[::-1]))))
+    assert r.returncode == 0, (r.stdout, r.stderr)
+    assert (f"the profile's tables to command {len(gentle)}, then the controller's tables, as streamed "
+            f"(published at command {len(gentle) + 1})") in r.stdout, r.stdout

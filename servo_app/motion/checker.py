@@ -167,6 +167,15 @@ class ControllerLimitChecker:
         self.first_jump = self.vel_lim * self.dt * self._jump_cycles[0]
         self.jump = self.vel_lim * self.dt * self._jump_cycles[1]
 
+    def set_tables(self, tables: LimitTables) -> None:
+        """Judge against these tables from now on (at the current payload): a controller that published
+        other tables at a later stream's start (one log can span several streams)."""
+        self.tables = tables
+        self.vmax = float(tables.vmax)
+        self.s_low = self.vmax / 20.0
+        self.n_check = max(1, round(tables.check_time_s / self.dt))
+        self.set_payload(self.payload_kg)
+
     @classmethod
     def for_profile(cls, profile: RobotProfile, flange_xyz_mm: FlangeFn | None = None, *,
                     tables: LimitTables | None = None, interval_s: float | None = None,
