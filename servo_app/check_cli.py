@@ -223,9 +223,28 @@ def cartesian_to_joints(traj: Trajectory, profile: Any) -> tuple[np.ndarray, Vio
         if res.joints_deg is None:
             assert res.code is not None
             seq = int(traj.seqs[i]) if traj.seqs is not None else i + 1
-            return out[:i], Violation(res.code, "cartesian", None, seq, math.nan, math.nan, detected_seq=seq)
+            return out[:i], RowViolation(res.code, "cartesian", None, seq, math.nan, math.nan, detected_seq=seq,
+                                         row=i, detected_row=i)
         out[i] = prev = res.joints_deg
     return out, None
+
+
+@dataclass(frozen=True)
+class RowViolation(Violation):
+    """A violation with the rows it names (0-based, among the rows checked): a log's sequence numbers
+    restart at 1 with each stream (the controller's), so a number alone named a row of the first."""
+
+    row: int | None = None
+    detected_row: int | None = None
+
+
+def _located(found: list[Violation], seqs: list[int], start: int, end: int) -> list[Violation]:
+    """``found`` (in the stream of rows start..end-1) with the rows their sequence numbers name there."""
+    row_of = {seqs[i]: i for i in range(end - 1, start - 1, -1)}  # (the first, were one repeated)
+    return [RowViolation(**{f: getattr(v, f) for f in Violation.__dataclass_fields__},
+                         row=row_of.get(v.seq) if v.seq is not None else None,
+                         detected_row=row_of.get(v.detected_seq) if v.detected_seq is not None else None)
+            for v in found]
 
 
 @dataclass
@@ -254,13 +273,15 @@ def check_joints(joints: np.ndarray, checker: ControllerLimitChecker, seqs: np.n
     start = 0
     for end in bounds:
         checker.reset()
+        stream: list[Violation] = []
         for i in range(start, end):
             if i in tables_at:
                 checker.set_tables(tables_at[i])
             if i in payload_at:
                 checker.set_payload(payload_at[i])
-            found.extend(checker.step(joints[i], seq_list[i]))
-        found.extend(checker.finish(seq_list[end - 1] if end > start else None))
+            stream.extend(checker.step(joints[i], seq_list[i]))
+        stream.extend(checker.finish(seq_list[end - 1] if end > start else None))
+        found.extend(_located(stream, seq_list, start, end))
         usage = _merge_usage(usage, checker.usage)
         start = end
     assert usage is not None
@@ -440,8 +461,14 @@ _UNITS = {"velocity": "deg/s", "acceleration": "deg/s^2", "jerk": "deg/s^3", "po
           "discontinuity": "deg", "flange_speed": "mm/s", "non_finite": "", "cartesian": ""}
 
 
+def _row_of(v: Violation, seq: int | None, traj: Trajectory, detected: bool = False) -> int | None:
+    if isinstance(v, RowViolation):
+        return v.detected_row if detected else v.row
+    return None if seq is None else traj.row_of_seq(seq)
+
+
 def _row_text(v: Violation, traj: Trajectory) -> str:
-    row = None if v.seq is None else traj.row_of_seq(v.seq)
+    row = _row_of(v, v.seq, traj)
     if row is None:
         return "row ?"
     if traj.seqs is not None:
@@ -461,7 +488,7 @@ def describe(v: Violation, traj: Trajectory) -> str:
     if v.flange_speed is not None:
         text += f", judged at Vpeak {v.flange_speed:.0f} mm/s"
     if v.detected_seq is not None and v.detected_seq != v.seq:
-        row = traj.row_of_seq(v.detected_seq)
+        row = _row_of(v, v.detected_seq, traj, detected=True)
         if row is not None:
             text += f", detected at row {row + 1}"
     return text

@@ -379,3 +379,21 @@ def test_each_stream_of_a_log_is_judged_at_the_tables_its_start_recorded(tmp_pat
     assert r.returncode == 0, (r.stdout, r.stderr)
     assert (f"the profile's tables to command {len(gentle)}, then the controller's tables, as streamed "
             f"(published at command {len(gentle) + 1})") in r.stdout, r.stdout
+
+
+def test_a_violation_in_a_later_stream_names_its_own_command_of_the_log(tmp_path: Path) -> None:
+    """The controller restarts its sequence numbers at each stream: a violation at Sq.5 of a log's
+    second stream was reported as "command 5 of the log", a command of the first stream, which
+    passed; it names the second stream's command now, and its detection row there."""
+    goal = [30.0, -20.0, 20.0, 40.0, -30.0, 60.0]
+    gentle = np.array(smooth_move(np.zeros(6), goal, 0.3, 0.3, 0.3))
+    loose = _scaled_tables(1.4)
+    brisk = np.array(smooth_move(np.zeros(6), goal, 0.9, 0.95, 0.95, limits=loose.for_cap(loose.vmax)))
+    r = servo_app_cli("check", str(write_two_stream_log(tmp_path / "gentle-then-brisk.srvlog",
+                                                        (None, gentle), (None, brisk[::-1]))))
+    assert r.returncode == 1, (r.stdout, r.stderr)
+    first = r.stdout.split("FIRST VIOLATION: ", 1)[1].splitlines()
+    seq = int(re.search(r"Sq\.(\d+)\)", first[0]).group(1))
+    assert f"command {len(gentle) + seq} of the log (Sq.{seq})" in first[1], first
+    detected = re.search(r"detected at row (\d+)", first[1])
+    assert detected is None or int(detected.group(1)) > len(gentle), first
