@@ -27,7 +27,8 @@ assumption), with a note. The report names the payload it judged at.
 
 The first row is taken as the controller's command position (no MOTN-617 check on it). Output:
 the first violation (code, axis, row, value, limit), then peak usage per axis in % of each limit.
-Exit code: 0 no violation (warnings allowed), 1 violation, 2 bad input.
+Exit code: 0 no violation (warnings allowed), 1 violation, 2 bad input. A long log's progress goes to
+stderr (on a terminal: one line, from the first second; elsewhere: a line every 10 s after 3 s).
 
 ``load_trajectory(path)`` dispatches on the file type: a servo_app session log (``SERVOLOG`` magic,
 any suffix) gives its command records with their wire sequence numbers, each stream (up to a
@@ -43,6 +44,7 @@ import io
 import math
 import re
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -51,6 +53,7 @@ import numpy as np
 
 from servo_app.fanuc.alarms import format_violation
 from servo_app.motion.checker import ControllerLimitChecker, Usage, Violation
+from servo_app.progress import Progress
 
 FORMATS = ("auto", "joints", "xyzwpr")
 CSV_SUFFIXES = {".csv", ".txt", ".tsv", ".dat", ""}
@@ -259,11 +262,13 @@ class CheckReport:
 def check_joints(joints: np.ndarray, checker: ControllerLimitChecker, seqs: np.ndarray | None = None,
                  stream_ends: list[int] | None = None,
                  payload_changes: list[tuple[int, float | None]] | None = None,
-                 table_changes: list[tuple[int, Any]] | None = None) -> CheckReport:
+                 table_changes: list[tuple[int, Any]] | None = None,
+                 progress: Callable[[int], None] | None = None) -> CheckReport:
     """Check the rows; each stream (ending at a row in ``stream_ends``) starts the checker afresh.
     ``payload_changes``: (row, kg or None) from that row on the tables are the payload's, as the live
     service's were after a tool change; ``table_changes``: (row, LimitTables) from that row on, the
-    controller's tables of the stream there. Violations carry ``seqs[row]`` (default: the 1-based row)."""
+    controller's tables of the stream there. Violations carry ``seqs[row]`` (default: the 1-based row).
+    ``progress(rows done)`` is called every 1024 rows."""
     seq_list = [int(s) for s in seqs] if seqs is not None else list(range(1, len(joints) + 1))
     bounds = sorted({e + 1 for e in (stream_ends or []) if e + 1 < len(joints)} | {len(joints)})
     payload_at = dict(payload_changes or [])  # (a tool change comes at rest: no window spans it)
@@ -279,6 +284,8 @@ def check_joints(joints: np.ndarray, checker: ControllerLimitChecker, seqs: np.n
                 checker.set_tables(tables_at[i])
             if i in payload_at:
                 checker.set_payload(payload_at[i])
+            if progress is not None and not i & 1023:
+                progress(i)
             stream.extend(checker.step(joints[i], seq_list[i]))
         stream.extend(checker.finish(seq_list[end - 1] if end > start else None))
         found.extend(_located(stream, seq_list, start, end))
@@ -396,8 +403,10 @@ def run_check(args: argparse.Namespace) -> int:
     if traj.fmt == "xyzwpr":
         joints, ik_failure = cartesian_to_joints(traj, profile)
     n = len(joints)
+    progress = Progress("servo-app check", n, "commands")
     report = check_joints(joints, checker, None if traj.seqs is None else traj.seqs[:n],
-                          [e for e in traj.stream_ends if e < n], changes, logged)
+                          [e for e in traj.stream_ends if e < n], changes, logged, progress.update)
+    progress.close()
     if ik_failure is not None:
         report.violations.append(ik_failure)
     print(render_report(report, traj, float(interval_ms), tables_note))

@@ -33,6 +33,7 @@ import argparse
 import json
 import math
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -45,6 +46,7 @@ from servo_app.fanuc.packets import StatusBit
 from servo_app.motion.cartesian import CartesianConverter
 from servo_app.motion.checker import ControllerLimitChecker, Violation
 from servo_app.motion.limit_tables import tables_from_rows
+from servo_app.progress import Progress
 from servo_app.robots.conventions import fanuc_deg_to_model_rad, xyzwpr_to_matrix
 from servo_app.robots.kinematics import ArmKinematics
 from servo_app.robots.profile import ProfileError, load_profile
@@ -302,8 +304,10 @@ class McapSink:
         self.writer.finish()
 
 
-def export_mcap(src: Path, out: Path, model: str | None = None) -> ExportSummary:
-    """Write ``src`` (a session log) as MCAP to ``out`` (whole, or not at all); what was written."""
+def export_mcap(src: Path, out: Path, model: str | None = None,
+                progress: Callable[[int, int], None] | None = None) -> ExportSummary:
+    """Write ``src`` (a session log) as MCAP to ``out`` (whole, or not at all); what was written.
+    ``progress(records done, records)`` is called every 1024 records."""
     try:
         log = read_session_log(src)
     except (SessionLogError, OSError) as exc:
@@ -313,7 +317,10 @@ def export_mcap(src: Path, out: Path, model: str | None = None) -> ExportSummary
     try:
         with open(tmp, "wb") as f:
             sink = McapSink(f, log.header)
-            for rec in log.records:
+            total = len(log.records)
+            for i, rec in enumerate(log.records):
+                if progress is not None and not i & 1023:
+                    progress(i, total)
                 sink.write(converter.feed(rec))
             sink.finish()
             sink.summary.no_solution = list(converter.no_solution)
@@ -329,10 +336,24 @@ def export_mcap(src: Path, out: Path, model: str | None = None) -> ExportSummary
 
 
 def run_export(args: argparse.Namespace) -> int:
+    shown: list[Progress] = []
+
+    def progress(done: int, total: int) -> None:
+        if not shown:
+            shown.append(Progress("servo-app export", total, "records"))
+        shown[0].update(done)
+
     try:
-        summary = export_mcap(Path(args.file), Path(args.mcap), args.model)
+        summary = export_mcap(Path(args.file), Path(args.mcap), args.model, progress)
     except ExportError as exc:
-        why = str(exc)  # (the session log's own errors name the file already)
+        failed: ExportError | None = exc
+    else:
+        failed = None
+    finally:
+        for p in shown:  # (its line erased before the report or the error)
+            p.close()
+    if failed is not None:
+        why = str(failed)  # (the session log's own errors name the file already)
         print(f"servo-app export: {why if why.startswith(str(args.file)) else f'{args.file}: {why}'}",
               file=sys.stderr)
         return 2

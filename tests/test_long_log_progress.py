@@ -1,0 +1,95 @@
+"""``servo-app check`` and ``export`` of a long session log show their progress on stderr: rewritten in
+place on a terminal (a real pseudo-terminal here), a line now and then once a job has run a few seconds
+elsewhere, nothing for a short job; the report on stdout is unchanged (real commands, real files)."""
+
+from __future__ import annotations
+
+import os
+import pty
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from servo_app.session_log import SessionLogWriter
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+
+pytestmark = pytest.mark.timeout(180)
+
+
+def write_long_log(path: Path, commands: int) -> Path:
+    """A FANUC joint log of a slow sway, ``commands`` of it (one stream)."""
+    t = np.arange(commands) * 0.008
+    q = np.zeros((commands, 6))
+    q[:, 0] = 10.0 * (1.0 - np.cos(2 * np.pi * t / 8.0))  # (from rest)
+    q[:, 4] = -60.0
+    w = SessionLogWriter(path, {"model": "lrmate200id", "interval_ms": 8.0, "protocol": "fanuc-j519-v1",
+                                "payload_kg": 3.0})
+    for i in range(commands):
+        w.command(float(t[i]), i + 1, int(i == commands - 1), 1, 0, 0.0, tuple(q[i]))
+    w.close()
+    return path
+
+
+def run_on_a_terminal(*argv: str) -> tuple[int, str, str]:
+    """``servo-app *argv`` with its stderr on a pseudo-terminal; (exit code, stdout, what the terminal got)."""
+    master, slave = pty.openpty()
+    try:
+        p = subprocess.Popen([sys.executable, "-m", "servo_app.cli", *argv], stdout=subprocess.PIPE,
+                             stderr=slave, text=True, env=ENV)
+        os.close(slave)
+        slave = -1
+        chunks: list[bytes] = []
+        while True:  # (read as it comes: a full terminal buffer would block the command)
+            try:
+                data = os.read(master, 4096)
+            except OSError:  # EIO: the command and its terminal end are gone
+                break
+            if not data:
+                break
+            chunks.append(data)
+        out, _ = p.communicate(timeout=120)
+        return p.returncode, out, b"".join(chunks).decode()
+    finally:
+        os.close(master)
+        if slave >= 0:
+            os.close(slave)
+
+
+@pytest.fixture(scope="module")
+def long_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_long_log(tmp_path_factory.mktemp("long") / "long.srvlog", 40_000)
+
+
+def test_check_of_a_long_log_shows_its_progress_on_a_terminal(long_log: Path) -> None:
+    code, out, term = run_on_a_terminal("check", str(long_log))
+    assert code == 0, (out, term)
+    assert out.startswith(f"{long_log}: 40000 rows (joints)") and "OK: no violation" in out, out
+    assert "\rservo-app check: " in term and "of 40,000 commands" in term and "s left" in term, repr(term)
+    assert term.endswith("\r\x1b[K"), repr(term[-80:])  # the line erased once done
+
+
+def test_export_of_a_long_log_prints_progress_lines_to_a_pipe_after_a_few_seconds(long_log: Path,
+                                                                                  tmp_path: Path) -> None:
+    r = subprocess.run([sys.executable, "-m", "servo_app.cli", "export", str(long_log), "--mcap",
+                        str(tmp_path / "long.mcap")], capture_output=True, text=True, env=ENV, timeout=150)
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.splitlines()
+    assert lines and all(line.startswith("servo-app export: ") and "of 40,000 records" in line for line in lines), \
+        r.stderr
+    assert "\r" not in r.stderr and "\x1b" not in r.stderr
+    assert r.stdout.startswith(f"{tmp_path / 'long.mcap'}: ")
+
+
+def test_a_short_check_prints_no_progress(tmp_path: Path) -> None:
+    log = write_long_log(tmp_path / "short.srvlog", 500)
+    code, out, term = run_on_a_terminal("check", str(log))
+    assert code == 0 and "OK: no violation" in out, (out, term)
+    assert "servo-app check:" not in term, repr(term)
+    r = subprocess.run([sys.executable, "-m", "servo_app.cli", "check", str(log)], capture_output=True, text=True,
+                       env=ENV, timeout=60)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
