@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import html
 import json
+import math
 import sys
 import threading
 import time
@@ -45,10 +46,15 @@ class FleetMonitor:
             self._session = None
 
     def _on_status(self, sample: Any) -> None:
+        # Anything may be published on the key: a status that is no JSON object is shown as such (one
+        # publisher's bad status took the whole monitor down with a TypeError, or was dropped unseen).
+        raw = sample.payload.to_bytes()
         try:
-            status = json.loads(sample.payload.to_bytes())
-        except ValueError:
-            return
+            status = json.loads(raw)
+        except ValueError as exc:
+            status = {"malformed": f"not JSON ({exc}): {raw[:40]!r}"}
+        if not isinstance(status, dict):
+            status = {"malformed": f"not a JSON object: {json.dumps(status)[:40]}"}
         cell = str(sample.key_expr).split("/")[1]
         with self._lock:
             self._cells[cell] = (time.monotonic(), status)
@@ -63,12 +69,23 @@ class FleetMonitor:
     def lines(self) -> list[str]:
         out = [f"{'CELL':16s} {'STATE':10s} {'P99':>9s}  {'LEASE':14s} ALARMS"]
         for cell, s in self.cells().items():
+            if s.get("malformed"):
+                out.append(f"{cell:16s} {'silent' if s['stale'] else 'malformed':10s} {'-':>9s}  {'-':14s} "
+                           f"status {s['malformed']}")
+                continue
+            # Each field as published, or '?' when it is not what servo-app run publishes there.
             p99 = s.get("latency_p99_us")
+            p99_text = "-" if not p99 else f"{p99 / 1000:.2f} ms" if _finite(p99) else "?"
             state = "silent" if s["stale"] else str(s.get("state"))
-            lease = (s.get("lease_client") or "held") if s.get("lease_held") else "-"
-            out.append(f"{cell:16s} {state:10s} {f'{p99 / 1000:.2f} ms' if p99 else '-':>9s}  {lease:14.14s} "
-                       f"{' '.join(s.get('alarms') or []) or '-'}")
+            lease = str(s.get("lease_client") or "held") if s.get("lease_held") else "-"
+            alarms = s.get("alarms") or []
+            alarm_text = " ".join(map(str, alarms)) if isinstance(alarms, list) else "?"
+            out.append(f"{cell:16s} {state:10s} {p99_text:>9s}  {lease:14.14s} {alarm_text or '-'}")
         return out
+
+
+def _finite(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _page(monitor: FleetMonitor) -> bytes:
@@ -116,9 +133,11 @@ def run_monitor(args: argparse.Namespace) -> int:
                 elif not args.once:
                     print("\n".join(monitor.lines()), flush=True)
         finally:
-            if args.once:
-                print("\n".join(monitor.lines()), flush=True)
-            if server is not None:
-                server.shutdown()
-            monitor.close()
+            try:
+                if args.once:
+                    print("\n".join(monitor.lines()), flush=True)
+            finally:  # whatever the printing met: a session left open kept the process from exiting
+                if server is not None:
+                    server.shutdown()
+                monitor.close()
     return 0

@@ -493,3 +493,40 @@ def test_a_joint_jog_with_a_nan_duration_is_refused_naming_it(cell: tuple[Rig, Z
     assert r["status"] == 422 and "['joint_1'] named more than once" in r["detail"], r
     s = rig.state()
     assert s["q_cmd"] == s0["q_cmd"] and s["at_rest"] and s["state"] == "streaming"
+
+
+@pytest.mark.e2e
+def test_the_monitor_shows_a_malformed_status_and_keeps_the_other_cells() -> None:
+    """Anything can be published on servo_app/<cell>/status: a status that is not a JSON object, or
+    whose fields are not what servo-app run publishes, took the monitor command down with a
+    traceback (exit 1) and every cell's line with it. Now the bad cell's line says what it got and the
+    good cell's line stays."""
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "servo_app.cli", "monitor", "--listen", f"tcp/127.0.0.1:{port}",
+                             "--seconds", "6", "--once"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    session = client_session(f"tcp/127.0.0.1:{port}")
+    statuses = {"good": {"state": "streaming", "latency_p99_us": 250.0, "alarms": [], "lease_held": False},
+                "listy": [1, 2], "odd": {"state": "ready", "latency_p99_us": "fast", "lease_held": True,
+                                          "lease_client": 7, "alarms": [3, "MOTN-017"]}}
+    deadline = time.monotonic() + 60.0
+    try:
+        while proc.poll() is None:  # (until the monitor has printed and exited: each peer's status, live)
+            # (the old monitor hung there: its Zenoh session left open by the exception)
+            assert time.monotonic() < deadline, "the monitor did not exit after --seconds 6"
+            for cell, status in statuses.items():
+                session.put(f"servo_app/{cell}/status", json.dumps(status).encode())
+            session.put("servo_app/text/status", b"not json")
+            time.sleep(0.1)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        session.close()
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    lines = {line.split()[0]: line for line in out.splitlines()[1:]}
+    assert lines["good"].split()[1:4] == ["streaming", "0.25", "ms"], lines
+    assert lines["listy"].split()[1] == "malformed" and "status not a JSON object: [1, 2]" in lines["listy"], lines
+    assert lines["text"].split()[1] == "malformed" and "status not JSON" in lines["text"], lines
+    assert lines["odd"].split()[1:5] == ["ready", "?", "7", "3"] and lines["odd"].endswith("MOTN-017"), lines
