@@ -20,7 +20,14 @@ from pathlib import Path
 from typing import Any
 
 from servo_app.stop_signals import stop_requested
-from servo_app.zenoh_api import JSON_ROOT, STATUS_SUFFIX, ZenohSettings, session_config
+from servo_app.zenoh_api import (
+    JSON_ROOT,
+    STATUS_SUFFIX,
+    ZenohConfigError,
+    ZenohSettings,
+    session_config,
+    zenoh_words,
+)
 
 STALE_S = 2.0  # a cell publishes its status at least every 0.2 s
 
@@ -118,7 +125,17 @@ def serve_page(monitor: FleetMonitor, port: int) -> ThreadingHTTPServer:
 def run_monitor(args: argparse.Namespace) -> int:
     settings = ZenohSettings(cell="monitor", config_file=Path(args.config) if args.config else None,
                              listen=args.listen, connect=args.connect, multicast_scouting=args.multicast)
-    monitor = FleetMonitor(settings).start()
+    import zenoh
+
+    try:
+        session_config(settings, {"config": "--config", "listen": "--listen", "connect": "--connect"})
+        monitor = FleetMonitor(settings).start()
+    except ZenohConfigError as exc:
+        print(f"servo-app monitor: {exc}", file=sys.stderr)
+        return 2
+    except zenoh.ZError as exc:  # (an endpoint it cannot listen on, say)
+        print(f"servo-app monitor: cannot open the Zenoh session: {zenoh_words(exc)}", file=sys.stderr)
+        return 2
     server = serve_page(monitor, args.http_port) if args.http_port is not None else None
     if server is not None:
         print(f"servo_app monitor: http://127.0.0.1:{server.server_address[1]}/", flush=True)

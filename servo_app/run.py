@@ -114,6 +114,9 @@ def run(args: argparse.Namespace) -> int:
         for s in servers:
             s.should_exit = True
 
+    if args.zenoh is not None and (why := zenoh_setting_error(args)) is not None:
+        print(f"servo_app: {why}", flush=True)
+        return 2
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
     try:
@@ -143,8 +146,18 @@ def run(args: argparse.Namespace) -> int:
           flush=True)
     try:
         app = create_app(service, token, cors_origins=args.cors_origin or None)
-        zenoh_iface = start_zenoh(app.state.api, args) if args.zenoh is not None else None
     except BaseException:  # the stream, the servo process and the simulator end with us, not after
+        service.close()
+        raise
+    try:
+        zenoh_iface = start_zenoh(app.state.api, args) if args.zenoh is not None else None
+    except Exception as exc:  # zenoh.ZError: an endpoint it cannot listen on, say (the settings were checked)
+        from servo_app.zenoh_api import zenoh_words
+
+        service.close()
+        print(f"servo_app: cannot open the Zenoh session: {zenoh_words(exc)}", flush=True)
+        return 2
+    except BaseException:
         service.close()
         raise
     config = uvicorn.Config(app, host=args.host, port=args.http_port, log_level="warning")
@@ -171,13 +184,32 @@ def run(args: argparse.Namespace) -> int:
     return 0 if summary.get("servo_exit_code") == 0 else 1
 
 
+def zenoh_settings(args: argparse.Namespace) -> Any:
+    from servo_app.zenoh_api import ZenohSettings, cell_name
+
+    return ZenohSettings(cell=cell_name(args.cell), domain=args.ros_domain,
+                         config_file=Path(args.zenoh) if args.zenoh else None, mode=args.zenoh_mode,
+                         listen=args.zenoh_listen, connect=args.zenoh_connect, json=args.zenoh_json)
+
+
+def zenoh_setting_error(args: argparse.Namespace) -> str | None:
+    """Why the Zenoh options cannot be used (naming the option and value), or None: checked before
+    anything starts (a bad endpoint was a traceback once the servo process and simulator were up)."""
+    from servo_app.zenoh_api import ZenohConfigError, session_config
+
+    try:
+        session_config(zenoh_settings(args), {"config": "--zenoh", "listen": "--zenoh-listen",
+                                              "connect": "--zenoh-connect"})
+    except ZenohConfigError as exc:
+        return str(exc)
+    return None
+
+
 def start_zenoh(api: Any, args: argparse.Namespace) -> Any:
     """The Zenoh interface in this (the API) process; never in the servo process."""
-    from servo_app.zenoh_api import ZenohInterface, ZenohSettings, cell_name
+    from servo_app.zenoh_api import ZenohInterface
 
-    settings = ZenohSettings(cell=cell_name(args.cell), domain=args.ros_domain,
-                             config_file=Path(args.zenoh) if args.zenoh else None, mode=args.zenoh_mode,
-                             listen=args.zenoh_listen, connect=args.zenoh_connect, json=args.zenoh_json)
+    settings = zenoh_settings(args)
     iface = ZenohInterface(api, settings).start()
     print(f"servo_app: Zenoh cell {settings.cell!r} (ROS domain {settings.domain}): topics /{settings.cell}/..., "
           f"status {iface.json_key('status')}", flush=True)

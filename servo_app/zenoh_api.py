@@ -109,15 +109,38 @@ class ZenohSettings:
     status_hz: float = 5.0  # TCP pose, safety state and the fleet status, besides every change
 
 
-def session_config(settings: ZenohSettings) -> zenoh.Config:
+class ZenohConfigError(ValueError):
+    """A Zenoh setting that cannot be used; the message names it (with the caller's option name)."""
+
+
+def zenoh_words(exc: BaseException) -> str:
+    """Zenoh's own reason, without its Rust source locations (``at /root/.cargo/...rs:86.``)."""
+    text = str(exc)
+    m = re.search(r'msg: "(.*?)", location', text)
+    return re.sub(r" at /\S+\.rs:\d+\.?", "", m.group(1) if m else text).strip()
+
+
+def session_config(settings: ZenohSettings, option_names: dict[str, str] | None = None) -> zenoh.Config:
+    """The session's configuration; ZenohConfigError naming the setting (``option_names`` maps
+    ``config``, ``listen`` and ``connect`` to the caller's options) when one cannot be used: a
+    traceback from deep in zenoh named neither the option nor the value."""
     import zenoh
 
-    conf = zenoh.Config.from_file(str(settings.config_file)) if settings.config_file else zenoh.Config()
+    names = {"config": "the Zenoh configuration", "listen": "listen", "connect": "connect", **(option_names or {})}
+    try:
+        conf = zenoh.Config.from_file(str(settings.config_file)) if settings.config_file else zenoh.Config()
+    except zenoh.ZError as exc:
+        raise ZenohConfigError(f"{names['config']} {settings.config_file}: {zenoh_words(exc)}") from None
     conf.insert_json5("mode", json.dumps(settings.mode))
-    if settings.listen:
-        conf.insert_json5("listen/endpoints", json.dumps(settings.listen))
-    if settings.connect:
-        conf.insert_json5("connect/endpoints", json.dumps(settings.connect))
+    for key, endpoints in (("listen", settings.listen), ("connect", settings.connect)):
+        for endpoint in endpoints:  # one at a time first: the error names the bad one
+            try:
+                conf.insert_json5(f"{key}/endpoints", json.dumps([endpoint]))
+            except zenoh.ZError as exc:
+                raise ZenohConfigError(f"{names[key]} {endpoint}: {zenoh_words(exc)}; give an endpoint such as "
+                                       "tcp/127.0.0.1:7447") from None
+        if endpoints:
+            conf.insert_json5(f"{key}/endpoints", json.dumps(endpoints))
     if settings.config_file is None:
         conf.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
     return conf

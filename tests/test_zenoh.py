@@ -530,3 +530,26 @@ def test_the_monitor_shows_a_malformed_status_and_keeps_the_other_cells() -> Non
     assert lines["listy"].split()[1] == "malformed" and "status not a JSON object: [1, 2]" in lines["listy"], lines
     assert lines["text"].split()[1] == "malformed" and "status not JSON" in lines["text"], lines
     assert lines["odd"].split()[1:5] == ["ready", "?", "7", "3"] and lines["odd"].endswith("MOTN-017"), lines
+
+
+@pytest.mark.parametrize(("argv", "words"), [
+    (["monitor", "--connect", "nonsense", "--seconds", "1"],
+     "servo-app monitor: --connect nonsense: Endpoints must be of the form"),
+    (["monitor", "--config", "/nonexistent/zenoh.json5", "--seconds", "1"],
+     "servo-app monitor: --config /nonexistent/zenoh.json5: No such file or directory"),
+    (["monitor", "--listen", "tcp/192.0.2.1:7447", "--seconds", "1"],
+     "servo-app monitor: cannot open the Zenoh session: Can not create a new TCP listener bound to tcp/192.0.2.1"),
+    (["run", "--zenoh", "--zenoh-connect", "nonsense", "--http-port", "0", "--token", TOKEN],
+     "servo_app: --zenoh-connect nonsense: Endpoints must be of the form"),
+])
+def test_an_unusable_zenoh_option_exits_2_naming_it(tmp_path: Path, argv: list[str], words: str) -> None:
+    """A Zenoh endpoint or configuration zenoh refuses was a Python traceback from deep in zenoh (exit 1;
+    servo-app run had started its servo process and simulator first); now exit 2, naming the option and
+    value, in zenoh's words without its source locations."""
+    if argv[0] == "run":
+        argv = [*argv, "--var-dir", str(tmp_path / "var")]
+    r = subprocess.run([sys.executable, "-m", "servo_app.cli", *argv], cwd=ROOT, capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    text = r.stdout + r.stderr
+    assert words in text and "Traceback" not in text and ".rs:" not in text, text
