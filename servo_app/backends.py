@@ -148,6 +148,12 @@ class RobotBackend(ABC):
         """The catalogue entry for a controller alarm code, or None."""
         return None
 
+    def twist_flange_cap(self, options: ProcessOptions) -> float | None:
+        """The flange speed (mm/s) above which the servo process refuses a twist (the TCP's speed plus
+        the swing of a turn about the tool), for the input feeds to refuse at the door; None: it
+        refuses none (it slows down instead)."""
+        return None
+
     # -- poses
     def check_pose(self, xyzwpr: tuple[float, ...], tool_xyzwpr: tuple[float, ...] | None = None) -> None:
         """InvalidRequest for a pose (of the tool ``tool_xyzwpr``, None: the flange) that is surely wrong

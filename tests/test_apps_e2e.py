@@ -820,3 +820,43 @@ def test_a_twist_faster_than_the_servo_takes_is_refused_at_the_door(tmp_path: Pa
         assert last["values"][0] == before["values"][0] == 20.0, (before, last)  # the slot is untouched
         s = rig.wait(lambda s: s["state"] == "stopped" and s["stop_reason"] is not None, 3.0, "stopped")
         assert s["stop_reason"] == "input jog stale" and s["input_error"] == "", (s["stop_reason"], s["input_error"])
+
+
+def test_a_twist_over_the_robots_flange_speed_cap_is_refused_at_the_door(tmp_path: Path) -> None:
+    """Under the servo's 4000 mm/s but over the robot's flange-speed cap (its servo takes 0.8 of a
+    250 mm/s cap: 200 mm/s), a twist was 'accepted' at the feed and then refused by the servo (its
+    input_error), the arm going on at the previous command. Now the feed refuses it (422: field, value,
+    the cap, what to do), also a slow twist whose turn swings the flange of a 1500 mm tool past the cap;
+    the slot keeps the previous sample and the servo never sees them."""
+    inputs, tools = tmp_path / "inputs.toml", tmp_path / "tools.toml"
+    inputs.write_text('[feeds.jog]\nkind = "twist"\nstale_after_s = 0.25\n')
+    tools.write_text('active = "lance"\n[tools.lance]\nxyzwpr = [0, 0, 1500, 0, 0, 0]\npayload_kg = 1.0\n')
+    feed = {"kind": "twist", "linear": [20.0, 0.0, 0.0], "frame": "base"}
+    with running_rig(tmp_path / "var", inputs_config=inputs, tools_file=tools, flange_speed_cap=250.0) as rig:
+        h = rig.lease()
+        rig.start_streaming(h)
+        rig.post("/api/inputs/enable", h, {"enable": True})
+        deadline = time.monotonic() + 5.0
+        while max(map(abs, rig.state()["vel"])) < 1.0:  # the feed moves the arm
+            assert time.monotonic() < deadline, "the feed does not move the arm"
+            r = rig.http.post("/api/feed/jog", json={**feed, "stamp": time.time()}, headers=AUTH)
+            assert r.status_code == 200 and r.json()["accepted"], r.text
+            time.sleep(0.02)
+        before = rig.http.get("/api/inputs").json()["last_command"]
+        r = rig.http.post("/api/feed/jog", json={**feed, "linear": [0.0, 230.0, 0.0], "stamp": time.time()},
+                          headers=AUTH)
+        assert r.status_code == 422, r.text
+        detail = str(r.json()["detail"])
+        assert "'linear'" in detail and "230" in detail and "flange-speed cap in force, 200 mm/s" in detail, detail
+        assert "send at most 200 mm/s" in detail and "max_linear_mm_s on feed 'jog'" in detail, detail
+        # 10 deg/s about the TCP 1500 mm away swings the flange at 262 mm/s.
+        r = rig.http.post("/api/feed/jog", json={**feed, "angular": [0.0, 0.0, 10.0], "stamp": time.time()},
+                          headers=AUTH)
+        assert r.status_code == 422, r.text
+        detail = str(r.json()["detail"])
+        assert "'angular'" in detail and "1500 mm" in detail and "200 mm/s" in detail, detail
+        assert "send a slower turn" in detail, detail
+        last = rig.http.get("/api/inputs").json()["last_command"]
+        assert last["values"][:6] == before["values"][:6], (before, last)  # the slot is untouched
+        s = rig.wait(lambda s: s["state"] == "stopped" and s["stop_reason"] is not None, 3.0, "stopped")
+        assert s["stop_reason"] == "input jog stale" and s["input_error"] == "", (s["stop_reason"], s["input_error"])

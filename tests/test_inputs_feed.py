@@ -23,7 +23,7 @@ from websockets.sync.client import connect as ws_connect
 
 from servo_app.api.body_limit import MAX_BODY_BYTES, BodyLimit
 from servo_app.inputs import Arbiter, Measurement, PoseSample, TwistSample
-from servo_app.inputs.feed import FeedRegistry, FeedRejected, FeedSourceConfig, UnknownSource
+from servo_app.inputs.feed import FeedRegistry, FeedRejected, FeedSourceConfig, FlangeLimit, UnknownSource
 from servo_app.inputs.feed.router import FeedPostFastPath, feed_post_handler, feed_router
 
 TOKEN = "s3cret"
@@ -170,6 +170,28 @@ def test_a_twist_in_an_unknown_frame_is_refused() -> None:
         reg.submit("jog", {"kind": "twist", "linear": [10, 0, 0], "frame": "world"})
     assert reg.slot("jog").seq == 0 and reg.stats("jog").rejected == 1
     assert reg.submit("jog", {"kind": "twist", "linear": [10, 0, 0], "frame": "tool"}).accepted
+
+
+def test_a_twist_over_the_flange_cap_the_service_passes_in_is_refused() -> None:
+    """The robot's flange-speed cap (the servo's share of it, and the tool's offset, which the service
+    passes in): a twist the servo would refuse is refused here, naming the field, value and cap."""
+    reg = FeedRegistry({"jog": FeedSourceConfig(kind="twist")})
+    twist = {"kind": "twist", "linear": [0, 3500, 0], "frame": "base"}
+    assert reg.submit("jog", twist).accepted  # no cap passed in: only the servo's 4000 mm/s per component
+    limit = FlangeLimit(3200.0)
+    reg.flange_limit = lambda: limit
+    with pytest.raises(FeedRejected, match=r"field 'linear' value \[0.0, 3500.0, 0.0\].*3500.0 mm/s is above "
+                                           r"the robot.s flange-speed cap in force, 3200 mm/s: send at most 3200 mm/s"):
+        reg.submit("jog", twist)
+    assert reg.slot("jog").seq == 1 and reg.stats("jog").rejected == 1  # the slot keeps the last sample
+    assert reg.submit("jog", {**twist, "linear": [0, 3199, 0], "angular": [0, 0, 500]}).accepted  # at the flange
+    limit = FlangeLimit(3200.0, tool_offset_mm=1500.0)  # 30 deg/s about a TCP 1500 mm away: 785 mm/s more
+    with pytest.raises(FeedRejected, match=r"field 'angular' value \[0.0, 0.0, 30.0\].*swings the flange at up to 785 "
+                                           r"mm/s.*3285 mm/s, above.*3200 mm/s: send a slower turn"):
+        reg.submit("jog", {**twist, "linear": [2500, 0, 0], "angular": [0, 0, 30]})
+    assert reg.submit("jog", {**twist, "linear": [2400, 0, 0], "angular": [0, 0, 30]}).accepted
+    reg.flange_limit = lambda: None  # a backend whose servo refuses none
+    assert reg.submit("jog", {**twist, "linear": [3900, 0, 0]}).accepted
 
 
 def test_a_pose_in_a_frame_other_than_base_is_refused() -> None:

@@ -13,6 +13,7 @@ from servo_app.fanuc.supervisor import check_pose_plausible
 from servo_app.fanuc.view import fanuc_view
 from servo_app.messages import Event
 from servo_app.motion.limit_tables import default_tables
+from servo_app.motion.servo import ServoSettings
 from servo_app.robots.profile import RobotProfile, available_profiles, load_profile
 
 IO_SPAN = 16  # a command packet's read or write covers 16 points from its index (manual 61.7)
@@ -86,6 +87,12 @@ class FanucBackend(RobotBackend):
             # Only what check_io lets through: a type with fewer points than an access covers has none.
             "io_allow": {t: [1, n] for t, n in self._io_allow.items() if n >= IO_SPAN},
         }
+
+    def twist_flange_cap(self, options: ProcessOptions) -> float | None:
+        # As the servo cycle checks a twist before the stream has the controller's tables
+        # (StreamSupervisor._flange_cap): its share of the configured cap, else of the profile's $MAX_SPD.
+        return float((options.flange_speed_cap or default_tables(self.profile).vmax)
+                     * ServoSettings.flange_speed_margin)
 
     def alarm(self, code: str) -> AlarmInfo | None:
         spec = ALARMS.get(code)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import threading
 import time
 from collections import Counter, deque
@@ -81,6 +82,16 @@ class ServoService:
                               payload_kg=self.tools.active.payload_kg, start_timeout_s=c.start_timeout_s,
                               input_slot=self.inputs.slot_name if self.inputs is not None else None)
 
+    def _refuse_at_the_feeds_door(self) -> None:
+        """The twist feeds refuse what the servo process would for the robot's flange-speed cap (with
+        the active tool's offset), naming it: else they answered "accepted" and the servo refused."""
+        from servo_app.inputs.feed import FlangeLimit
+
+        cap = self.backend.twist_flange_cap(self.options)
+        if cap is None:
+            return
+        self.inputs.feeds.flange_limit = lambda: FlangeLimit(cap, math.hypot(*self.tools.active.xyzwpr[:3]))
+
     @property
     def sim_scheduling(self) -> str:
         return str(getattr(self.sim, "scheduling", "no embedded simulator"))
@@ -91,6 +102,7 @@ class ServoService:
             from servo_app.inputs.bridge import InputsBridge
 
             self.inputs = InputsBridge.from_file(self.cfg.inputs_config)
+            self._refuse_at_the_feeds_door()
         target = self.backend.target
         if target.embedded:
             target = replace(target, port=self.cfg.sim_port)

@@ -22,7 +22,7 @@ import math
 import threading
 import time
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -48,6 +48,16 @@ MAX_STAMP_AGE_S = 86_400.0
 # command until its hold ran out: refused here instead, where the sender hears why.
 SERVO_MAX_LINEAR_MM_S = 4000.0
 SERVO_MAX_ANGULAR_DEG_S = 1000.0
+
+
+@dataclass(frozen=True)
+class FlangeLimit:
+    """The robot's flange-speed cap as its servo checks a twist, passed in by the service (the inputs
+    never import the robot backends): the share of the cap it takes (mm/s), and the TCP's distance from
+    the flange (mm), about which a turn swings the flange at up to |w| r on top of the TCP's speed."""
+
+    cap_mm_s: float
+    tool_offset_mm: float = 0.0
 
 
 _FINER_UNITS = (("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9))
@@ -129,6 +139,9 @@ class FeedRegistry:
         self._window = rate_window_s
         self._sources: dict[str, _Source] = {}
         self._lock = threading.Lock()
+        # The robot's flange-speed cap in force, when a servo checks one (the service sets it): a twist
+        # under the servo's 4000 mm/s but over the cap was "accepted" here and then refused by the servo.
+        self.flange_limit: Callable[[], FlangeLimit | None] | None = None
         for name, cfg in (sources or {}).items():
             self.add_source(name, cfg)
 
@@ -272,12 +285,33 @@ class FeedRegistry:
                                         f"limit of {servo_max:g} {unit} per component: send each within "
                                         f"+-{servo_max:g} {unit} (and set {key} on feed {src.name!r} to "
                                         "refuse lower speeds here); nothing was changed")
+            self._check_flange(src.name, msg.linear, msg.angular)
             return TwistSample(msg.linear, msg.angular, msg.frame, stamp, src.name)
         missing = [k for k in cfg.required if k not in msg.values]
         if missing:
             raise FeedRejected(f"field 'values' value {dict(msg.values)!r}: missing {missing}")
         values = {k: cfg.limits.get(k, DEFAULT_FIELD).convert(k, v) for k, v in msg.values.items()}
         return Measurement(values, stamp, src.name)
+
+    def _check_flange(self, source: str, linear: Sequence[float], angular: Sequence[float]) -> None:
+        """ValueRejected when the flange would move faster than the robot's cap, as the servo checks it
+        (``ServoCycle.check_twist``): the TCP's speed plus the swing of a turn about a TCP off the flange."""
+        limit = self.flange_limit() if self.flange_limit is not None else None
+        if limit is None:
+            return
+        speed, turn = math.hypot(*linear), math.hypot(*angular)
+        swing = math.radians(turn) * limit.tool_offset_mm
+        if speed + swing <= limit.cap_mm_s:
+            return
+        cap = f"the robot's flange-speed cap in force, {limit.cap_mm_s:.0f} mm/s"
+        how = f"(and set max_{{}} on feed {source!r} to refuse faster twists here); nothing was changed"
+        if speed > limit.cap_mm_s or swing == 0.0:
+            raise ValueRejected("linear", list(linear), f"linear speed {speed:.1f} mm/s is above {cap}: send at "
+                                f"most {limit.cap_mm_s:.0f} mm/s {how.format('linear_mm_s')}")
+        raise ValueRejected("angular", list(angular), f"{turn:g} deg/s about a TCP {limit.tool_offset_mm:.0f} mm from "
+                            f"the flange swings the flange at up to {swing:.0f} mm/s; with the linear speed "
+                            f"{speed:.1f} mm/s that is {speed + swing:.0f} mm/s, above {cap}: send a slower turn "
+                            f"or linear speed {how.format('angular_deg_s')}")
 
     def stats(self, source: str) -> FeedStats:
         src = self._get(source)
