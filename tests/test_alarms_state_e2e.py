@@ -251,3 +251,28 @@ def test_janome_robot_error_is_an_active_alarm_until_reset(tmp_path: Path) -> No
         sim.stop()
         server.stop()
         service.close()
+
+
+def test_metrics_agree_with_the_state_and_drop_the_status_interval_when_status_stops(tmp_path: Path) -> None:
+    """/metrics kept servo_status_interval_seconds at its last value after status packets stopped (and
+    before any stream, 0), as if the link were healthy. Now it is there only while status arrives, and
+    servo_state reads what GET /api/state does."""
+    def scrape() -> tuple[dict[str, Any], str]:
+        fams = {f.name: f for f in text_string_to_metric_families(rig.http.get("/metrics").text)}
+        on = [x.labels["state"] for x in fams["servo_state"].samples if x.value == 1.0]
+        assert len(on) == 1, on
+        return fams, on[0]
+
+    with running_rig(tmp_path) as rig:
+        fams, state = scrape()
+        assert "servo_status_interval_seconds" not in fams and state == rig.state()["state"] == "disconnected"
+        h = rig.lease()
+        rig.start_streaming(h)
+        fams, state = scrape()
+        assert 0.0 < fams["servo_status_interval_seconds"].samples[0].value < 0.1 and state == "streaming"
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as other:
+            other.sendto(StatusStop().encode(), rig.service.robot_address)
+        rig.wait(lambda s: s["state"] == "fault" and not s["status_live"], 5.0, "the link faulted")
+        fams, state = scrape()
+        assert "servo_status_interval_seconds" not in fams, fams["servo_status_interval_seconds"]
+        assert state == rig.state()["state"] == "fault"

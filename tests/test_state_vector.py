@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from prometheus_client.parser import text_string_to_metric_families
 
+from servo_app.api.metrics import Metrics
 from servo_app.motion.settle import SettleDetector
 from servo_app.service.alarms import fault_cause
 from servo_app.service.views import consistent
@@ -100,6 +104,31 @@ def test_status_bits_are_reported_only_while_status_arrives(link: str, state: st
     assert s["status_age_s"] == pytest.approx(age)
     none = consistent({"link": "connected", "state": "connected", "status_bits": 0, "status_unix": 0.0}, now)
     assert none["status_live"] is False and none["status_age_s"] is None
+
+
+@pytest.mark.parametrize(("link", "state", "age", "live", "shown_state"), [
+    ("streaming", "streaming", 0.01, True, "streaming"),
+    ("fault", "ready", 0.01, False, "disconnected"),  # what GET /api/state shows (metrics said "ready")
+    ("fault", "connected", 0.01, False, "disconnected"),
+    ("streaming", "streaming", 5.0, False, "streaming"),  # no status for 5 s
+    ("idle", "disconnected", 0.0, False, "disconnected"),  # no stream
+])
+def test_metrics_show_the_state_as_the_state_endpoint_does(link: str, state: str, age: float, live: bool,
+                                                           shown_state: str) -> None:
+    """/metrics rendered the servo process's state uncorrected: READY beside a faulted link, where GET
+    /api/state (``consistent``) says disconnected; and the last status interval stayed after status
+    packets stopped. The real collector and renderer, on a published state."""
+    now = time.time()
+    published = {"link": link, "state": state, "status_bits": 7, "status_unix": now - age if age else 0.0,
+                 "status_interval_last_ms": 8.0}
+    fams = {f.name: f for f in text_string_to_metric_families(Metrics(lambda: (published, {})).render().decode())}
+    states = {x.labels["state"]: x.value for x in fams["servo_state"].samples}
+    assert states[shown_state] == 1.0 and sum(states.values()) == 1.0, states
+    if live:
+        assert fams["servo_status_interval_seconds"].samples[0].value == pytest.approx(0.008)
+    else:  # absent: Prometheus marks the series stale, not a healthy-looking last interval
+        assert "servo_status_interval_seconds" not in fams
+    assert published["state"] == state  # the snapshot itself is not changed
 
 
 @pytest.mark.parametrize(("fault", "cause"), [

@@ -7,12 +7,14 @@ formats them, so a scrape costs one shared-memory read and never touches the cyc
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
 from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily, Metric
 
+from servo_app.service.views import consistent
 from servo_app.state import LATENCY_BUCKETS_US, MODES, PHASES
 
 _COUNTERS = (
@@ -39,6 +41,8 @@ class _StateCollector:
 
     def collect(self) -> Iterator[Metric]:
         state, stops = self._snapshot()
+        # As GET /api/state shows it: READY beside a faulted link reads disconnected there, and did not here.
+        state = consistent(dict(state), time.time())
         g = GaugeMetricFamily("servo_state", "1 for the current safety state", labels=["state"])
         for m in MODES:
             g.add_metric([m], 1.0 if state.get("state") == m else 0.0)
@@ -62,8 +66,13 @@ class _StateCollector:
         for q, key in (("0.5", "latency_p50_us"), ("0.99", "latency_p99_us"), ("1", "latency_max_us")):
             g.add_metric([q], float(state.get(key, 0.0)) / 1e6)
         yield g
-        yield GaugeMetricFamily("servo_status_interval_seconds", "last interval between status packets",
-                                value=float(state.get("status_interval_last_ms", 0.0)) / 1e3)
+        if state["status_live"]:
+            # Only while status packets arrive. Kept after they stopped, the last interval read as a
+            # healthy link; 0 would be an interval that never was, and NaN spoils avg_over_time. Absent,
+            # Prometheus marks the series stale: graphs show the gap, alerts on it resolve.
+            yield GaugeMetricFamily("servo_status_interval_seconds", "last interval between status packets; "
+                                    "absent while none arrive (no stream, a link fault)",
+                                    value=float(state.get("status_interval_last_ms", 0.0)) / 1e3)
         yield GaugeMetricFamily("servo_at_rest", "1 when the commanded motion is at rest",
                                 value=1.0 if state.get("at_rest") else 0.0)
         yield GaugeMetricFamily("servo_settled", "1 when the robot's reported position has stopped moving",
