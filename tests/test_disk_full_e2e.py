@@ -216,3 +216,13 @@ def test_a_live_mcap_cut_short_by_a_full_disk_is_told_to_the_operator(
     assert "No space left on device" in warned[0]["message"] and "servo-app export" in warned[0]["remedy"], warned
     assert any(a["code"] == "MCAP-LIVE" for a in s["alarm_history"]), s["alarm_history"]
     assert 'servo_alarms_total{code="MCAP-LIVE"} 1.0' in c.get("/metrics").text
+
+    # Room again: the next session's live MCAP is written whole, and mcap_error, which named the first
+    # file for as long as the service ran, is cleared (the warning stays in the alarm history).
+    free(p.pid, var / "filler")
+    assert c.post("/api/session/start", headers=h).status_code == 200
+    wait(c, lambda s: s["state"] == "streaming", "streaming again")
+    assert c.get("/api/state").json()["mcap_error"] == err  # the new one is not whole yet
+    assert c.post("/api/session/end", headers=h).status_code == 200
+    s = wait(c, lambda s: s["state"] == "ended" and s["mcap_error"] is None, "ended, mcap_error cleared")
+    assert any(a["code"] == "MCAP-LIVE" for a in s["alarm_history"]), s["alarm_history"]

@@ -511,8 +511,8 @@ class StateView(BaseModel):
                                                            "read now, and why (new alarms are listed once "
                                                            "it answers); null: it answers")
     mcap_error: McapErrorView | None = Field(None, description="the last live MCAP (servo-app run --mcap) that "
-                                                               "stopped short since the service started (also "
-                                                               "listed as an MCAP-LIVE warning); null: none")
+                                                               "stopped short, until a later one is written whole "
+                                                               "(also listed as an MCAP-LIVE warning); null: none")
     inputs: InputsSummary | None = Field(None, description="the input sources (servo-app run --inputs)")
 
     # The API's own.

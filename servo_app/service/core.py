@@ -253,13 +253,22 @@ class ServoService:
         self.events.append(ev)
         if self._recorder_class is not None and isinstance(ev, msg.LogOpened):
             self._close_recorders()
-            self.recorders.append(self._recorder_class(Path(ev.path), on_error=self._mcap_failed).start())
+            self.recorders.append(self._recorder_class(Path(ev.path), on_error=self._mcap_failed,
+                                                       on_finished=self._mcap_finished).start())
         elif isinstance(ev, msg.LogClosed):
             self._close_recorders()
         if isinstance(ev, msg.SafetyChanged):
             with self._safety_cv:
                 self._safety = ev.view
                 self._safety_cv.notify_all()
+
+    def _mcap_finished(self, rec: Any) -> None:
+        """A live MCAP was written whole: an earlier one's error is history (its MCAP-LIVE warning stays
+        in the alarm history). It stood for good before: a full disk once, freed, and every later
+        recording still showed that error as if it were the current one."""
+        err = self.mcap_error
+        if err is not None and err["file"] != str(rec.path):
+            self.mcap_error = None
 
     def _mcap_failed(self, rec: Any) -> None:
         """A live MCAP writer stopped short (on its own thread): the operator must hear of it, or the

@@ -29,13 +29,15 @@ log = logging.getLogger(__name__)
 
 class LiveMcapRecorder:
     def __init__(self, srvlog: Path, poll_s: float = 0.2, chunk_size: int = 64 * 1024,
-                 on_error: Callable[[LiveMcapRecorder], None] | None = None) -> None:
+                 on_error: Callable[[LiveMcapRecorder], None] | None = None,
+                 on_finished: Callable[[LiveMcapRecorder], None] | None = None) -> None:
         self.srvlog = Path(srvlog)
         self.path = self.srvlog.with_suffix(".mcap")
         self.poll_s = poll_s
         self.chunk_size = chunk_size
         self.error: str | None = None  # why the writer stopped (the OS's or the converter's words)
         self.on_error = on_error  # called once, on the writer's thread, when it stops short
+        self.on_finished = on_finished  # called once, on the writer's thread, when the file is whole
         self.records = 0
         self._closed = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"mcap {self.srvlog.name}", daemon=True)
@@ -76,6 +78,9 @@ class LiveMcapRecorder:
             log.warning("live MCAP stopped: %s: %s (%s)", self.path, self.error, self.remedy)
             if self.on_error is not None:
                 self.on_error(self)
+        else:
+            if self.on_finished is not None:
+                self.on_finished(self)
 
     @property
     def remedy(self) -> str:
