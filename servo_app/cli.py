@@ -84,8 +84,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", default=None, help="a Zenoh JSON5 configuration")
     p.add_argument("--multicast", action="store_true", help="find peers by multicast scouting")
     p.add_argument("--http-port", type=int, default=None, help="also serve the lines as one web page on this port")
-    p.add_argument("--seconds", type=float, default=None, help="stop after this long (default: until Ctrl-C)")
-    p.add_argument("--once", action="store_true", help="print the table once after --seconds, not live")
+    p.add_argument("--seconds", type=float, default=None,
+                   help="stop after this long (default: until Ctrl-C; with --once, 3 s)")
+    p.add_argument("--once", action="store_true",
+                   help="print the table once after --seconds (default 3 s), not live, and exit")
     p.set_defaults(handler=_cmd_monitor)
 
     p = sub.add_parser("profiles", help="list robot profiles")

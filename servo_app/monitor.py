@@ -30,6 +30,9 @@ from servo_app.zenoh_api import (
 )
 
 STALE_S = 2.0  # a cell publishes its status at least every 0.2 s
+# --once without --seconds: long enough to join the network and hear every cell's status several times
+# over (each publishes at least every 0.2 s); it waited for Ctrl-C before, then printed.
+ONCE_WINDOW_S = 3.0
 
 
 class FleetMonitor:
@@ -139,7 +142,8 @@ def run_monitor(args: argparse.Namespace) -> int:
     server = serve_page(monitor, args.http_port) if args.http_port is not None else None
     if server is not None:
         print(f"servo_app monitor: http://127.0.0.1:{server.server_address[1]}/", flush=True)
-    end = time.monotonic() + args.seconds if args.seconds is not None else float("inf")
+    seconds = ONCE_WINDOW_S if args.seconds is None and args.once else args.seconds
+    end = time.monotonic() + seconds if seconds is not None else float("inf")
     live = sys.stdout.isatty() and not args.once
     with stop_requested() as stop:
         try:

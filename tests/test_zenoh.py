@@ -532,6 +532,46 @@ def test_the_monitor_shows_a_malformed_status_and_keeps_the_other_cells() -> Non
     assert lines["odd"].split()[1:5] == ["ready", "?", "7", "3"] and lines["odd"].endswith("MOTN-017"), lines
 
 
+@pytest.mark.e2e
+def test_the_monitor_once_without_seconds_prints_after_a_short_window_and_exits() -> None:
+    """servo-app monitor --once without --seconds waited for Ctrl-C, then printed: a script running it
+    hung. Now it prints each cell's line once after ONCE_WINDOW_S and exits 0; its help says so."""
+    from servo_app.monitor import ONCE_WINDOW_S
+
+    port = free_port()
+    conf = zenoh.Config()  # a cell's peer, up first: the monitor connects to it as to a router
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    t0 = time.monotonic()
+    proc = subprocess.Popen([sys.executable, "-m", "servo_app.cli", "monitor", "--connect", f"tcp/127.0.0.1:{port}",
+                             "--once"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    status = {"state": "streaming", "latency_p99_us": 250.0, "alarms": [], "lease_held": False}
+    deadline = time.monotonic() + 60.0
+    try:
+        while proc.poll() is None:  # a cell's status at 10 Hz until the monitor has printed and exited
+            assert time.monotonic() < deadline, "servo-app monitor --once did not exit within 60 s"
+            session.put("servo_app/cell_a/status", json.dumps(status).encode())
+            time.sleep(0.1)
+        took = time.monotonic() - t0
+        out, err = proc.communicate(timeout=30)
+    finally:
+        session.close()
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    assert took >= ONCE_WINDOW_S, took
+    lines = {line.split()[0]: line for line in out.splitlines()[1:]}
+    assert lines["cell_a"].split()[1:4] == ["streaming", "0.25", "ms"], out
+    helptext = subprocess.run([sys.executable, "-m", "servo_app.cli", "monitor", "--help"], cwd=ROOT,
+                              capture_output=True, text=True, timeout=60).stdout
+    assert f"with --once, {ONCE_WINDOW_S:g} s" in " ".join(helptext.split()), helptext
+    docs = " ".join((ROOT / "docs" / "zenoh.md").read_text().split())
+    assert f"(after {ONCE_WINDOW_S:g} s unless `--seconds`" in docs
+
+
 @pytest.mark.parametrize(("argv", "words"), [
     (["monitor", "--connect", "nonsense", "--seconds", "1"],
      "servo-app monitor: --connect nonsense: Endpoints must be of the form"),
