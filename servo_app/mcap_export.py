@@ -33,6 +33,7 @@ import argparse
 import json
 import math
 import sys
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,6 +61,7 @@ from servo_app.session_log import (
     header_interval_ms,
     read_session_log,
 )
+from servo_app.stop_signals import stop_requested
 
 TOPICS: dict[str, str] = {
     "/joint_states": ros.JOINT_STATE,
@@ -75,6 +77,10 @@ DIAGNOSTIC_NAME = "servo_app/controller"
 
 class ExportError(ValueError):
     """A log that cannot be exported; the message names the file and the reason."""
+
+
+class ExportInterrupted(Exception):
+    """The export was stopped (Ctrl-C, SIGTERM) before its end; nothing was written."""
 
 
 @dataclass
@@ -305,9 +311,11 @@ class McapSink:
 
 
 def export_mcap(src: Path, out: Path, model: str | None = None,
-                progress: Callable[[int, int], None] | None = None) -> ExportSummary:
+                progress: Callable[[int, int], None] | None = None,
+                stop: threading.Event | None = None) -> ExportSummary:
     """Write ``src`` (a session log) as MCAP to ``out`` (whole, or not at all); what was written.
-    ``progress(records done, records)`` is called every 1024 records."""
+    ``progress(records done, records)`` is called every 1024 records; ``stop``, set, ends it there
+    (ExportInterrupted, nothing written)."""
     try:
         log = read_session_log(src)
     except (SessionLogError, OSError) as exc:
@@ -319,8 +327,11 @@ def export_mcap(src: Path, out: Path, model: str | None = None,
             sink = McapSink(f, log.header)
             total = len(log.records)
             for i, rec in enumerate(log.records):
-                if progress is not None and not i & 1023:
-                    progress(i, total)
+                if not i & 1023:
+                    if stop is not None and stop.is_set():
+                        raise ExportInterrupted(f"interrupted at record {i:,} of {total:,}")
+                    if progress is not None:
+                        progress(i, total)
                 sink.write(converter.feed(rec))
             sink.finish()
             sink.summary.no_solution = list(converter.no_solution)
@@ -343,15 +354,21 @@ def run_export(args: argparse.Namespace) -> int:
             shown.append(Progress("servo-app export", total, "records"))
         shown[0].update(done)
 
-    try:
-        summary = export_mcap(Path(args.file), Path(args.mcap), args.model, progress)
-    except ExportError as exc:
-        failed: ExportError | None = exc
-    else:
-        failed = None
-    finally:
-        for p in shown:  # (its line erased before the report or the error)
-            p.close()
+    # Ctrl-C (or SIGTERM) is a request to stop, not a traceback from wherever the loop was: the
+    # export ends at its next check, the partial file removed, and says so in one line.
+    with stop_requested() as stop:
+        try:
+            summary = export_mcap(Path(args.file), Path(args.mcap), args.model, progress, stop)
+        except (ExportError, ExportInterrupted) as exc:
+            failed: ExportError | ExportInterrupted | None = exc
+        else:
+            failed = None
+        finally:
+            for p in shown:  # (its line erased before the report or the error)
+                p.close()
+    if isinstance(failed, ExportInterrupted):
+        print(f"servo-app export: {failed}; nothing was written to {args.mcap}", file=sys.stderr)
+        return 130
     if failed is not None:
         why = str(failed)  # (the session log's own errors name the file already)
         print(f"servo-app export: {why if why.startswith(str(args.file)) else f'{args.file}: {why}'}",

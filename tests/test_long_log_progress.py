@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import os
 import pty
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -93,3 +95,35 @@ def test_a_short_check_prints_no_progress(tmp_path: Path) -> None:
     r = subprocess.run([sys.executable, "-m", "servo_app.cli", "check", str(log)], capture_output=True, text=True,
                        env=ENV, timeout=60)
     assert r.returncode == 0 and r.stderr == "", r.stderr
+
+
+@pytest.mark.parametrize("existing", [False, True])
+def test_ctrl_c_stops_an_export_in_one_line_leaving_no_partial_file(long_log: Path, tmp_path: Path,
+                                                                    existing: bool) -> None:
+    """Ctrl-C during `servo-app export` printed a KeyboardInterrupt traceback from wherever the loop was.
+    Now it stops at its next check with one line and exit 130; its partial file is removed, and an
+    MCAP already at the output path is left as it was (the export replaces it only when whole)."""
+    out = tmp_path / "long.mcap"
+    if existing:
+        out.write_bytes(b"an earlier export")
+    p = subprocess.Popen([sys.executable, "-m", "servo_app.cli", "export", str(long_log), "--mcap", str(out)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
+    partial = tmp_path / "long.mcap.partial"
+    try:
+        deadline = time.monotonic() + 60.0
+        while not (partial.exists() and partial.stat().st_size > 0):  # under way, mid-file
+            assert p.poll() is None and time.monotonic() < deadline, "the export did not get under way"
+            time.sleep(0.01)
+        p.send_signal(signal.SIGINT)
+        stdout, stderr = p.communicate(timeout=30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.communicate(timeout=10)
+    assert p.returncode == 130, (p.returncode, stderr)
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
+    lines = [line for line in stderr.splitlines() if " records" not in line]  # (not a progress line)
+    assert len(lines) == 1 and lines[0].startswith("servo-app export: interrupted at record "), stderr
+    assert lines[0].endswith(f"of 40,000; nothing was written to {out}"), stderr
+    assert stdout == "" and not partial.exists(), stdout
+    assert (out.read_bytes() == b"an earlier export") if existing else not out.exists()
