@@ -20,12 +20,12 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, field_validator, model_validator
 
 from servo_app.inputs.device_failure import DeviceFailure, generic_failure
 from servo_app.inputs.errors import check_stale_after
 from servo_app.inputs.problems import Problem, ProblemLog
-from servo_app.inputs.samples import ButtonEvent
+from servo_app.inputs.samples import ButtonEvent, check_jog_stale, check_twist_frames
 from servo_app.inputs.slots import EventQueue, LatestValue
 from servo_app.inputs.validate import ValueRejected
 from servo_app.realtime import make_realtime
@@ -63,6 +63,24 @@ class AdapterConfig(BaseModel):
         # left the arm moving on its last command until 'hold-to-run expired', the source not named.
         check_stale_after(self.stale_after_s)
         return self
+
+
+class JogDeviceConfig(AdapterConfig):
+    """What the hand-held jog devices (SpaceMouse, gamepad) check alike; each declares its own `frames`
+    (hence check_fields=False), so the field order of each config stays its own."""
+
+    @field_validator("frames", check_fields=False)
+    @classmethod
+    def _frames(cls, v: list[str]) -> list[str]:
+        # Checked here: a frame the servo lacks loaded silently, and after toggle_frame reached it
+        # every sample was refused and the arm stopped answering.
+        return check_twist_frames(v)
+
+    @field_validator("stale_after_s")
+    @classmethod
+    def _stale(cls, v: float) -> float:
+        # Each poll also waits at most a quarter of it: a tiny one spun the adapter's thread too.
+        return check_jog_stale(v)
 
 
 @dataclass(frozen=True)
@@ -265,4 +283,4 @@ class InputAdapter(ABC):
         )
 
 
-__all__ = ["AdapterConfig", "AdapterStatus", "Clock", "InputAdapter", "RobotState", "SourceSpec"]
+__all__ = ["AdapterConfig", "AdapterStatus", "Clock", "InputAdapter", "JogDeviceConfig", "RobotState", "SourceSpec"]

@@ -20,7 +20,7 @@ from typing import Any, Literal
 
 from pydantic import Field, PositiveFloat, field_validator, model_validator
 
-from servo_app.inputs.adapter import AdapterConfig, Clock, InputAdapter
+from servo_app.inputs.adapter import Clock, InputAdapter, JogDeviceConfig
 from servo_app.inputs.device_failure import DeviceFailure
 from servo_app.inputs.errors import KeyedError
 from servo_app.inputs.gamepad.mapping import (
@@ -35,7 +35,7 @@ from servo_app.inputs.gamepad.mapping import (
     parse_source,
 )
 from servo_app.inputs.gamepad.sdl import NoPad, SdlControllers, SdlPad
-from servo_app.inputs.samples import TwistSample, check_jog_stale, check_twist_frames
+from servo_app.inputs.samples import TwistSample
 
 # Left stick: X forward/back, Y left/right; right stick: Z up/down and yaw; triggers roll; D-pad pitch.
 DEFAULT_AXES = {"x": "-lefty", "y": "-leftx", "z": "-righty", "rx": "righttrigger-lefttrigger", "ry": "dpup-dpdown",
@@ -43,7 +43,7 @@ DEFAULT_AXES = {"x": "-lefty", "y": "-leftx", "z": "-righty", "rx": "righttrigge
 ROBOT_STATE_PERIOD_S = 0.1  # how often the robot's state is looked at for a new fault (rumble)
 
 
-class GamepadConfig(AdapterConfig):
+class GamepadConfig(JogDeviceConfig):
     type: Literal["gamepad"] = "gamepad"
     match: str | None = None  # part of the pad's name (any case); unset: the first pad SDL can map
     deadband: float = Field(0.1, ge=0.0, lt=1.0)  # fraction of full deflection; worn sticks rest off centre
@@ -75,19 +75,6 @@ class GamepadConfig(AdapterConfig):
                 raise ValueError(f"{component!r} is not a twist component: one of {', '.join(COMPONENTS)}")
             parse_source(source)
         return v
-
-    @field_validator("frames")
-    @classmethod
-    def _frames(cls, v: list[str]) -> list[str]:
-        # Checked here: a frame the servo lacks loaded silently, and after toggle_frame reached it
-        # every sample was refused and the arm stopped answering.
-        return check_twist_frames(v)
-
-    @field_validator("stale_after_s")
-    @classmethod
-    def _stale(cls, v: float) -> float:
-        # Each poll also waits at most a quarter of it: a tiny one spun the adapter's thread too.
-        return check_jog_stale(v)
 
     @field_validator("deadman")
     @classmethod

@@ -14,12 +14,12 @@ from dataclasses import replace
 from pydantic import Field, PositiveFloat, field_validator
 
 from servo_app.inputs.actions import LOCAL_ACTIONS, parse_action
-from servo_app.inputs.adapter import AdapterConfig
-from servo_app.inputs.samples import ButtonEvent, TwistSample, check_jog_stale, check_twist_frames
+from servo_app.inputs.adapter import JogDeviceConfig
+from servo_app.inputs.samples import ButtonEvent, TwistSample
 from servo_app.inputs.spacemouse.shaping import DEFAULT_AXIS_SIGNS, Shaping, shape
 
 
-class SpaceMouseConfig(AdapterConfig):
+class SpaceMouseConfig(JogDeviceConfig):
     deadband: float = Field(0.05, ge=0.0, lt=1.0)  # fraction of full scale
     yield_when_idle: bool = True  # a cap at rest lets lower-priority sources command
     full_scale: PositiveFloat = 350.0  # counts at full deflection (some units: 500)
@@ -46,19 +46,6 @@ class SpaceMouseConfig(AdapterConfig):
             except ValueError as exc:
                 raise ValueError(f"button {button}: {exc}") from None
         return v
-
-    @field_validator("frames")
-    @classmethod
-    def _frames(cls, v: list[str]) -> list[str]:
-        # Checked here: a frame the servo lacks loaded silently, and after toggle_frame reached it
-        # every sample was refused and the arm stopped answering.
-        return check_twist_frames(v)
-
-    @field_validator("stale_after_s")
-    @classmethod
-    def _stale(cls, v: float) -> float:
-        # Each poll also waits at most a quarter of it: a tiny one spun the adapter's thread too.
-        return check_jog_stale(v)
 
     @field_validator("axis_map")
     @classmethod
