@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from servo_app.api.auth import resolve_token
+from servo_app.cli_args import port_arg
 from servo_app.fanuc.session import MAX_PKT_STACK
 from servo_app.inputs.errors import ConfigError
 from servo_app.realtime import make_realtime
@@ -18,18 +19,6 @@ from servo_app.robots.tool import ToolError
 from servo_app.service import ServiceConfig, ServoService
 
 MAX_LEAD = MAX_PKT_STACK - 2  # the session's own bound (SessionConfig)
-
-
-def _port(text: str) -> int:
-    """``--http-port``: a TCP port (70000 had uvicorn's bind fail unreported, the service running on,
-    serving nothing)."""
-    try:
-        port = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number: a TCP port 0..65535") from None
-    if not 0 <= port <= 65535:
-        raise argparse.ArgumentTypeError(f"{port} is outside 0..65535")
-    return port
 
 
 def _lead(text: str) -> int:
@@ -50,7 +39,7 @@ def add_run_parser(sub: Any) -> None:
                    help="fanuc:HOST[:PORT] of an external controller; default: the embedded simulator")
     p.add_argument("--model", default=None, help="robot profile (see `servo-app profiles`); default: the backend's")
     p.add_argument("--host", default="127.0.0.1", help="HTTP interface to listen on")
-    p.add_argument("--http-port", type=_port, default=8000)
+    p.add_argument("--http-port", type=port_arg("TCP"), default=8000)
     p.add_argument("--interval-ms", type=int, choices=(4, 8), default=None,
                    help="communication interval; default: the profile's")
     p.add_argument("--lead", type=_lead, default=ServiceConfig.lead,

@@ -8,19 +8,9 @@ import signal
 import sys
 from typing import Any
 
+from servo_app.cli_args import port_arg
 from servo_app.fanuc.packets import ROBOT_PORT
 from servo_app.stop_signals import signal_event, stop_requested
-
-
-def _port(text: str) -> int:
-    """``--port``: a UDP port (argparse names the option with the message)."""
-    try:
-        port = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number: a UDP port 0..65535 (0: any free port)") from None
-    if not 0 <= port <= 65535:
-        raise argparse.ArgumentTypeError(f"{port} is outside 0..65535 (0: any free port)")
-    return port
 
 
 def _joints(text: str) -> list[float]:
@@ -48,7 +38,8 @@ def add_sim_parser(sub: Any) -> argparse.ArgumentParser:
 
     f = kinds.add_parser("fanuc", help="FANUC Stream Motion (J519) controller simulator")
     f.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
-    f.add_argument("--port", type=_port, default=ROBOT_PORT, help=f"UDP port (default {ROBOT_PORT}; 0: any)")
+    f.add_argument("--port", type=port_arg("UDP", zero_ok=True), default=ROBOT_PORT,
+                   help=f"UDP port (default {ROBOT_PORT}; 0: any)")
     f.add_argument("--model", default="lrmate200id", help="robot profile name or TOML path")
     f.add_argument("--interval-ms", type=int, choices=(4, 8), default=None,
                    help="communication interval (default: the profile's)")
