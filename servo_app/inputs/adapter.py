@@ -69,6 +69,8 @@ class JogDeviceConfig(AdapterConfig):
     """What the hand-held jog devices (SpaceMouse, gamepad) check alike; each declares its own `frames`
     (hence check_fields=False), so the field order of each config stays its own."""
 
+    device: ClassVar[str]  # as messages name it: "the gamepad takes one overall scale factor"
+
     @field_validator("frames", check_fields=False)
     @classmethod
     def _frames(cls, v: list[str]) -> list[str]:
@@ -81,6 +83,14 @@ class JogDeviceConfig(AdapterConfig):
     def _stale(cls, v: float) -> float:
         # Each poll also waits at most a quarter of it: a tiny one spun the adapter's thread too.
         return check_jog_stale(v)
+
+    @field_validator("scale", mode="before")
+    @classmethod
+    def _scalar_scale(cls, v: object) -> object:
+        # One factor for the whole device: AdapterConfig's per-field scales are for measurements.
+        if isinstance(v, dict):
+            raise ValueError(f"the {cls.device} takes one overall scale factor")
+        return v
 
 
 @dataclass(frozen=True)

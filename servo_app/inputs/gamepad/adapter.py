@@ -44,6 +44,7 @@ ROBOT_STATE_PERIOD_S = 0.1  # how often the robot's state is looked at for a new
 
 
 class GamepadConfig(JogDeviceConfig):
+    device = "gamepad"
     type: Literal["gamepad"] = "gamepad"
     match: str | None = None  # part of the pad's name (any case); unset: the first pad SDL can map
     deadband: float = Field(0.1, ge=0.0, lt=1.0)  # fraction of full deflection; worn sticks rest off centre
@@ -91,13 +92,6 @@ class GamepadConfig(JogDeviceConfig):
                 check_pad_action(action)
             except ValueError as exc:
                 raise ValueError(f"button {button}: {exc}") from None
-        return v
-
-    @field_validator("scale", mode="before")
-    @classmethod
-    def _scalar_scale(cls, v: object) -> object:
-        if isinstance(v, dict):
-            raise ValueError("the gamepad takes one overall scale factor")
         return v
 
     @model_validator(mode="after")

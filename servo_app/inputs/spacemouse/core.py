@@ -20,6 +20,7 @@ from servo_app.inputs.spacemouse.shaping import DEFAULT_AXIS_SIGNS, Shaping, sha
 
 
 class SpaceMouseConfig(JogDeviceConfig):
+    device = "SpaceMouse"
     deadband: float = Field(0.05, ge=0.0, lt=1.0)  # fraction of full scale
     yield_when_idle: bool = True  # a cap at rest lets lower-priority sources command
     full_scale: PositiveFloat = 350.0  # counts at full deflection (some units: 500)
@@ -61,12 +62,6 @@ class SpaceMouseConfig(JogDeviceConfig):
             raise ValueError("each sign must be 1 or -1")
         return v
 
-    @field_validator("scale", mode="before")
-    @classmethod
-    def _scalar_scale(cls, v: object) -> object:
-        if isinstance(v, dict):
-            raise ValueError("the SpaceMouse takes one overall scale factor")
-        return v
 
 
 class SpaceMouseCore:
