@@ -19,7 +19,7 @@ import numpy as np
 
 from servo_app.janome.kinematics import CartesianWorkspace, ScaraArm, ScaraWorkspace, Workspace
 from servo_app.janome.protocol import Arm, RobotKind
-from servo_app.robots.profile import ProfileError
+from servo_app.robots.profile import ProfileError, find_profile_file, profile_names, search_dirs
 
 JANOME_CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs" / "robots" / "janome"
 _KINDS = {"cartesian": RobotKind.CARTESIAN, "scara": RobotKind.SCARA}
@@ -30,8 +30,7 @@ Vec4 = tuple[float, float, float, float]
 
 def janome_profile_dirs() -> list[Path]:
     """``$SERVO_APP_JANOME_ROBOTS`` (os.pathsep-separated) first, then configs/robots/janome."""
-    extra = [Path(p) for p in os.environ.get("SERVO_APP_JANOME_ROBOTS", "").split(os.pathsep) if p]
-    return [*extra, JANOME_CONFIG_DIR]
+    return search_dirs("SERVO_APP_JANOME_ROBOTS", JANOME_CONFIG_DIR)
 
 
 @dataclass(frozen=True)
@@ -124,25 +123,11 @@ class _Reader:
 
 
 def find_janome_profile(name_or_path: str | os.PathLike[str]) -> Path:
-    p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists():
-        if not p.is_file():
-            raise ProfileError(f"{p}: no such Janome robot profile file")
-        return p
-    for d in janome_profile_dirs():
-        candidate = d / f"{name_or_path}.toml"
-        if candidate.is_file():
-            return candidate
-    known = ", ".join(available_janome_profiles()) or "none"
-    raise ProfileError(f"Janome robot model '{name_or_path}' is unknown (known: {known})")
+    return find_profile_file(name_or_path, janome_profile_dirs(), "Janome robot")
 
 
 def available_janome_profiles() -> list[str]:
-    names: set[str] = set()
-    for d in janome_profile_dirs():
-        if d.is_dir():
-            names.update(p.stem for p in d.glob("*.toml"))
-    return sorted(names)
+    return profile_names(janome_profile_dirs())
 
 
 def load_janome_profile(name_or_path: str | os.PathLike[str]) -> JanomeProfile:

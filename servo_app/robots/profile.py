@@ -19,10 +19,14 @@ from typing import Any
 REPO_CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs" / "robots"
 
 
+def search_dirs(env_var: str, default: Path) -> list[Path]:
+    """The folders named in ``$env_var`` (os.pathsep-separated), then ``default``."""
+    return [*(Path(p) for p in os.environ.get(env_var, "").split(os.pathsep) if p), default]
+
+
 def profile_dirs() -> list[Path]:
     """Where profiles are looked up: ``$SERVO_APP_ROBOTS`` (os.pathsep-separated), then configs/robots."""
-    extra = [Path(p) for p in os.environ.get("SERVO_APP_ROBOTS", "").split(os.pathsep) if p]
-    return [*extra, REPO_CONFIG_DIR]
+    return search_dirs("SERVO_APP_ROBOTS", REPO_CONFIG_DIR)
 
 
 class ProfileError(ValueError):
@@ -111,26 +115,37 @@ def _vector(data: dict[str, Any], key: str, path: Path, n: int, prefix: str = ""
     return tuple(out)
 
 
-def find_profile(name_or_path: str | os.PathLike[str]) -> Path:
+def find_profile_file(name_or_path: str | os.PathLike[str], dirs: list[Path], what: str) -> Path:
+    """A profile given by path, or by name (``<name>.toml`` in the first of ``dirs`` that has it);
+    ProfileError naming ``what`` ("robot", "Janome robot") and the names known."""
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists():
         if not p.is_file():
-            raise ProfileError(f"{p}: no such robot profile file")
+            raise ProfileError(f"{p}: no such {what} profile file")
         return p
-    for d in profile_dirs():
+    for d in dirs:
         candidate = d / f"{name_or_path}.toml"
         if candidate.is_file():
             return candidate
-    known = ", ".join(available_profiles()) or "none"
-    raise ProfileError(f"robot model '{name_or_path}' is unknown (known: {known})")
+    known = ", ".join(profile_names(dirs)) or "none"
+    raise ProfileError(f"{what} model '{name_or_path}' is unknown (known: {known})")
 
 
-def available_profiles() -> list[str]:
+def profile_names(dirs: list[Path]) -> list[str]:
+    """The names of the profiles (``*.toml``) in ``dirs``, sorted."""
     names: set[str] = set()
-    for d in profile_dirs():
+    for d in dirs:
         if d.is_dir():
             names.update(p.stem for p in d.glob("*.toml"))
     return sorted(names)
+
+
+def find_profile(name_or_path: str | os.PathLike[str]) -> Path:
+    return find_profile_file(name_or_path, profile_dirs(), "robot")
+
+
+def available_profiles() -> list[str]:
+    return profile_names(profile_dirs())
 
 
 def load_profile(name_or_path: str | os.PathLike[str]) -> RobotProfile:
