@@ -371,13 +371,7 @@ class ServoCycle:
     def jog_joints(self, v_deg_s: np.ndarray) -> None:
         """Jog at joint velocities (deg/s): a target kept ahead in the jog direction, clipped to the ranges,
         so the shaper brakes to rest at a joint limit instead of running into it."""
-        v = np.ascontiguousarray(v_deg_s, dtype=float)  # (the jog kernel takes contiguous arrays)
-        n = self.profile.dof
-        if v.shape != (n,):
-            raise CommandRejected(f"joints has {v.size} values, expected {n}")
-        bad = np.flatnonzero(~np.isfinite(v))
-        if bad.size:
-            raise CommandRejected(f"joints[{bad[0]}]={v[bad[0]]} is not a finite number")
+        v = np.ascontiguousarray(self._joint_values(v_deg_s))  # (the jog kernel takes contiguous arrays)
         shaper = self._require()
         self._leave_replay("a jog took over")
         renewal = self._jog is not None and np.array_equal(v, self._jog)  # the same button, still held
@@ -775,14 +769,19 @@ class ServoCycle:
             raise CommandRejected("not streaming: no motion command is accepted yet")
         return self.shaper
 
-    def _checked_position(self, q_fanuc_deg: np.ndarray) -> np.ndarray:
-        q = np.asarray(q_fanuc_deg, dtype=float)
+    def _joint_values(self, values: np.ndarray) -> np.ndarray:
+        """``values`` as floats, one finite number per joint; CommandRejected naming the first that is not."""
+        q = np.asarray(values, dtype=float)
         n = self.profile.dof
         if q.shape != (n,):
             raise CommandRejected(f"joints has {q.size} values, expected {n}")
         bad = np.flatnonzero(~np.isfinite(q))
         if bad.size:
             raise CommandRejected(f"joints[{bad[0]}]={q[bad[0]]} is not a finite number")
+        return q
+
+    def _checked_position(self, q_fanuc_deg: np.ndarray) -> np.ndarray:
+        q = self._joint_values(q_fanuc_deg)
         q_model = np.degrees(fanuc_deg_to_model_rad(q, self.profile.j23_factor))
         lo, hi = self._range_model_deg
         out = np.flatnonzero((q_model < lo) | (q_model > hi))
