@@ -103,6 +103,29 @@ def jog_until(c: httpx.Client, h: dict[str, str], done: threading.Event) -> None
         done.wait(0.05)
 
 
+def lease(c: httpx.Client) -> dict[str, str]:
+    """The headers of requests under a new lease."""
+    return {**AUTH, "X-Lease-Id": c.post("/api/lease", json={"client": "disk-test"}, headers=AUTH).json()["lease_id"]}
+
+
+def fill_mid_jog(p: subprocess.Popen[str], c: httpx.Client, h: dict[str, str], var: Path,
+                 pred: Callable[[dict[str, Any]], bool], what: str) -> dict[str, Any]:
+    """Start a stream, jog it (jog_until), fill the disk once the arm moves, and return the first state
+    that satisfies ``pred`` (``what``), the jog stopped."""
+    assert c.post("/api/session/start", headers=h).status_code == 200
+    wait(c, lambda s: s["state"] == "streaming", "streaming")
+    done = threading.Event()
+    jogger = threading.Thread(target=jog_until, args=(httpx.Client(base_url=str(c.base_url), timeout=10), h, done))
+    jogger.start()
+    try:
+        wait(c, lambda s: s["state"] == "streaming" and max(map(abs, s["vel"])) > 2.0, "jogging")
+        fill(p.pid, var / "filler")  # another process takes the disk's last byte
+        return wait(c, pred, what)
+    finally:
+        done.set()
+        jogger.join()
+
+
 def newest_log(c: httpx.Client, var: Path) -> SessionLog:
     name = max((s["name"] for s in c.get("/api/sessions").json()), key=lambda n: n)
     r = c.get(f"/api/sessions/{name}")
@@ -115,19 +138,8 @@ def newest_log(c: httpx.Client, var: Path) -> SessionLog:
 def test_a_disk_filling_up_mid_jog_ends_the_stream_softly_logged_whole_and_recovers(
         service: tuple[subprocess.Popen[str], httpx.Client, Path]) -> None:
     p, c, var = service
-    h = {**AUTH, "X-Lease-Id": c.post("/api/lease", json={"client": "disk-test"}, headers=AUTH).json()["lease_id"]}
-    assert c.post("/api/session/start", headers=h).status_code == 200
-    wait(c, lambda s: s["state"] == "streaming", "streaming")
-    done = threading.Event()
-    jogger = threading.Thread(target=jog_until, args=(httpx.Client(base_url=str(c.base_url), timeout=10), h, done))
-    jogger.start()
-    try:
-        wait(c, lambda s: s["state"] == "streaming" and max(map(abs, s["vel"])) > 2.0, "jogging")
-        fill(p.pid, var / "filler")  # another process takes the disk's last byte
-        s = wait(c, lambda s: s["state"] == "ended", "ended")
-    finally:
-        done.set()
-        jogger.join()
+    h = lease(c)
+    s = fill_mid_jog(p, c, h, var, lambda s: s["state"] == "ended", "ended")
     assert s["stop_reason"].startswith("session log: the disk is full: No space left on device"), s["stop_reason"]
     assert any(w["code"] == "SESSION-LOG" for w in s["warnings"]), s["warnings"]
     assert not [a for a in s.get("alarm_history") or [] if a["code"] != "SESSION-LOG"], s["alarm_history"]
@@ -162,7 +174,7 @@ def test_a_disk_filling_up_mid_jog_ends_the_stream_softly_logged_whole_and_recov
 def test_a_full_disk_refuses_a_points_change_409_and_keeps_the_file(
         service: tuple[subprocess.Popen[str], httpx.Client, Path]) -> None:
     p, c, var = service
-    h = {**AUTH, "X-Lease-Id": c.post("/api/lease", json={"client": "disk-test"}, headers=AUTH).json()["lease_id"]}
+    h = lease(c)
     assert c.post("/api/session/start", headers=h).status_code == 200
     wait(c, lambda s: s["state"] == "streaming" and s["settled"], "streaming, settled")
     assert c.post("/api/points/kept", headers=h).status_code == 200
@@ -192,19 +204,9 @@ def test_a_live_mcap_cut_short_by_a_full_disk_is_told_to_the_operator(
     finished. Before, only a log line said so; now the state's alarms and mcap_error name the file, the
     cause and the export that converts the complete .srvlog, and /metrics counts it."""
     p, c, var = service_with_mcap
-    h = {**AUTH, "X-Lease-Id": c.post("/api/lease", json={"client": "disk-test"}, headers=AUTH).json()["lease_id"]}
-    assert c.post("/api/session/start", headers=h).status_code == 200
-    wait(c, lambda s: s["state"] == "streaming", "streaming")
-    done = threading.Event()
-    jogger = threading.Thread(target=jog_until, args=(httpx.Client(base_url=str(c.base_url), timeout=10), h, done))
-    jogger.start()
-    try:
-        wait(c, lambda s: s["state"] == "streaming" and max(map(abs, s["vel"])) > 2.0, "jogging")
-        fill(p.pid, var / "filler")
-        s = wait(c, lambda s: s["state"] == "ended" and s.get("mcap_error") is not None, "ended, MCAP stopped")
-    finally:
-        done.set()
-        jogger.join()
+    h = lease(c)
+    s = fill_mid_jog(p, c, h, var, lambda s: s["state"] == "ended" and s.get("mcap_error") is not None,
+                     "ended, MCAP stopped")
     name = max(x["name"] for x in c.get("/api/sessions").json())
     err = s["mcap_error"]
     assert err["file"].endswith(name.removesuffix(".srvlog") + ".mcap"), err
