@@ -4,7 +4,6 @@ FANUC simulator on loopback, with a tools file)."""
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
@@ -15,9 +14,9 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from test_api_harness import Rig, running_rig
+from test_checker_cli import run_cli
 
 from servo_app import messages as msg
-from servo_app.check_cli import add_check_parser
 from servo_app.errors import CommandRejected
 from servo_app.mcap_export import export_mcap
 from servo_app.motion.limit_tables import AxisTable, LimitTables, default_tables
@@ -38,15 +37,6 @@ payload_kg = 1.0
 xyzwpr = [0, 0, 100, 0, 0, 0]
 payload_kg = 7.0
 """
-
-
-def run_check(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
-    parser = argparse.ArgumentParser()
-    add_check_parser(parser.add_subparsers())
-    args = parser.parse_args(["check", *argv])
-    code = args.handler(args)
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 @pytest.fixture
@@ -80,13 +70,13 @@ def test_a_light_tools_log_is_checked_at_its_payload(rig: Rig, capsys: pytest.Ca
     # The controller (at 1 kg) took every command (warnings near its limits aside).
     assert [c for c in rig.sim_alarms() if c not in WARNINGS] == []
     path = ended_log(rig, h)
-    code, out, err = run_check(capsys, str(path))
+    code, out, err = run_cli(capsys, str(path))
     assert code == 0, out + err  # (judged at the maximum payload: a false MOTN-611)
     assert read_session_log(path).header["payload_kg"] == 1.0
     assert "OK: no violation" in out
     assert "limit tables at payload 1 kg as streamed, tool 'light'" in out  # which tables, and why
     # Against the maximum payload's tables the same commands are too brisk: the payload mattered.
-    code, out, err = run_check(capsys, str(path), "--payload", "7")
+    code, out, err = run_cli(capsys, str(path), "--payload", "7")
     assert code == 1 and ("MOTN-610" in out or "MOTN-611" in out), out
     assert "streamed at payload 1 kg; checking at --payload 7 kg" in err
 
@@ -127,7 +117,7 @@ def test_a_tool_change_mid_log_changes_the_tables_from_there(rig: Rig, capsys: p
     log = read_session_log(path)
     assert log.header["payload_kg"] == 7.0 and log.header["tool"] == "heavy"
     assert [kg for _, kg in log.payload_changes()] == [1.0]
-    code, out, err = run_check(capsys, str(path))
+    code, out, err = run_cli(capsys, str(path))
     assert code == 0, out + err
     assert "changed by tool changes to payload 1 kg from command" in out
 
@@ -141,7 +131,7 @@ def test_a_log_without_the_payload_is_judged_at_the_maximum_with_a_note(
     for i in range(5):
         w.command(i * 0.008, i + 1, int(i == 4), 1, 0, 0.0, [0.0] * 6)
     w.close()
-    code, out, err = run_check(capsys, str(path))
+    code, out, err = run_cli(capsys, str(path))
     assert code == 0
     assert "the maximum payload, 7 kg (the log does not record its payload)" in out
     assert "does not record the payload" in err and "--payload KG" in err
@@ -168,7 +158,7 @@ def test_a_log_is_checked_against_the_controllers_own_tables(tmp_path: Path,
         brisk_moves(rig, h)
         assert [c for c in rig.sim_alarms() if c not in WARNINGS] == []
         path = ended_log(rig, h)
-    code, out, err = run_check(capsys, str(path))
+    code, out, err = run_cli(capsys, str(path))
     assert code == 0, out + err
     assert "the controller's tables, as streamed" in out
     assert export_mcap(path, tmp_path / "loose.mcap").alarms == []
