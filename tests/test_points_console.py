@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 import test_web_console as console
-from test_web_console import LAPTOP, Service, at_rest_without_alarm, call, shot, sign_in, take_control_and_stream
+from test_web_console import Service, at_rest_without_alarm, call, console_page, shot, sign_in, take_control_and_stream
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -68,27 +68,15 @@ def test_the_points_buttons_need_control(page: Any, fanuc: Service) -> None:
 @pytest.fixture
 def asking_page(browser: Any) -> Iterator[tuple[Any, list[str], list[bool]]]:
     """A page whose dialogs are answered from ``answers`` (True: OK), their texts kept in ``asked``."""
-    context = browser.new_context(viewport=LAPTOP)
-    pg = context.new_page()
     asked: list[str] = []
     answers: list[bool] = []
-    errors: list[str] = []
 
     def answer(d: Any) -> None:
         asked.append(d.message)
         d.accept() if (answers.pop(0) if answers else True) else d.dismiss()
 
-    pg.on("dialog", answer)
-    pg.on("pageerror", lambda exc: errors.append(str(exc)))
-    try:
+    with console_page(browser, answer) as pg:
         yield pg, asked, answers
-    finally:
-        with contextlib.suppress(Exception):
-            if pg.locator("#release").is_visible():
-                pg.click("#release")
-                pg.wait_for_selector("#take:not([hidden])", timeout=3000)
-        context.close()
-    assert errors == [], f"uncaught errors in the page: {errors}"
 
 
 def test_teaching_a_name_again_asks_before_replacing(asking_page: tuple[Any, list[str], list[bool]],

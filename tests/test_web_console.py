@@ -163,14 +163,15 @@ def with_inputs(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
     yield from _service(tmp_path_factory, "inputs", "--inputs", str(feeds))
 
 
-@pytest.fixture
-def page(browser: Any) -> Iterator[Any]:
-    """A fresh browser context per test (empty sessionStorage); uncaught page errors fail the test."""
+@contextlib.contextmanager
+def console_page(browser: Any, on_dialog: Callable[[Any], None]) -> Iterator[Any]:
+    """A fresh browser context (empty sessionStorage) whose dialogs go to ``on_dialog``; control is
+    released after, and uncaught page errors fail the test."""
     context = browser.new_context(viewport=LAPTOP)
     pg = context.new_page()
     errors: list[str] = []
     pg.on("pageerror", lambda exc: errors.append(str(exc)))
-    pg.on("dialog", lambda d: d.accept())  # "take control from ...?" when a previous test's lease lingers
+    pg.on("dialog", on_dialog)
     try:
         yield pg
     finally:
@@ -180,6 +181,14 @@ def page(browser: Any) -> Iterator[Any]:
                 pg.wait_for_selector("#take:not([hidden])", timeout=3000)
         context.close()
     assert errors == [], f"uncaught errors in the page: {errors}"
+
+
+@pytest.fixture
+def page(browser: Any) -> Iterator[Any]:
+    """A fresh browser context per test; "take control from ...?" (a previous test's lease lingers) is
+    answered OK."""
+    with console_page(browser, lambda d: d.accept()) as pg:
+        yield pg
 
 
 def call(svc: Service, method: str, path: str, body: Any = None, lease: str | None = None) -> Any:
