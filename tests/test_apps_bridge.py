@@ -5,11 +5,13 @@ same pipelines against the simulator through real ptys, sockets and HTTP."""
 
 from __future__ import annotations
 
+import contextlib
 import subprocess
 import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -87,18 +89,26 @@ class Clock:
         return self.t
 
 
+@contextlib.contextmanager
+def opened_bridge(path: Path, **kwargs: Any) -> Iterator[tuple[InputsBridge, InputSlotReader]]:
+    """The bridge of the inputs file ``path`` (InputsBridge.from_file's ``kwargs``) and a reader of its
+    slot, as the service runs them; both closed after."""
+    bridge = InputsBridge.from_file(path, **kwargs)
+    reader = InputSlotReader(bridge.slot_name)
+    try:
+        yield bridge, reader
+    finally:
+        reader.close()
+        bridge.close()
+
+
 @pytest.fixture
 def rig(tmp_path: Path) -> Iterator[tuple[InputsBridge, InputSlotReader, Clock]]:
     path = tmp_path / "inputs.toml"
     path.write_text(CONFIG)
     clock = Clock()
-    bridge = InputsBridge.from_file(path, clock=clock, hold_grace_s=0.05, stale_latch_s=0.05)
-    reader = InputSlotReader(bridge.slot_name)
-    try:
+    with opened_bridge(path, clock=clock, hold_grace_s=0.05, stale_latch_s=0.05) as (bridge, reader):
         yield bridge, reader, clock
-    finally:
-        reader.close()
-        bridge.close()
 
 
 def wrench(fx: float = 0.0, fy: float = 0.0, fz: float = 0.0) -> dict[str, object]:
@@ -239,9 +249,7 @@ def test_a_source_publishing_a_frame_the_servo_does_not_know_is_refused(tmp_path
     path = tmp_path / "inputs.toml"
     path.write_text('[feeds.jog]\nkind = "twist"\n')
     clock = Clock()
-    bridge = InputsBridge.from_file(path, clock=clock)
-    reader = InputSlotReader(bridge.slot_name)
-    try:
+    with opened_bridge(path, clock=clock) as (bridge, reader):
         with pytest.raises(FeedRejected, match="frame"):  # the feed refuses it at the door
             bridge.feeds.submit("jog", twist(1.0, frame="world"))
         # The bridge checks again whatever reaches a slot (an adapter publishes there directly).
@@ -249,20 +257,15 @@ def test_a_source_publishing_a_frame_the_servo_does_not_know_is_refused(tmp_path
         bridge.step(clock())
         assert reader.poll() is None
         assert bridge.describe()["bridge_problems"] == {"rejected": 1}
-    finally:
-        reader.close()
-        bridge.close()
 
 
 def test_the_thread_wakes_on_each_feed_sample(tmp_path: Path) -> None:
     """Event-driven: a feed sample reaches the slot without waiting for the housekeeping tick."""
     path = tmp_path / "inputs.toml"
     path.write_text('[feeds.jog]\nkind = "twist"\nstale_after_s = 1.5\n')
-    bridge = InputsBridge.from_file(path)
-    reader = InputSlotReader(bridge.slot_name)
-    requests: list[ConfigureInputs] = []
-    bridge.start(request=requests.append)
-    try:
+    with opened_bridge(path) as (bridge, reader):
+        requests: list[ConfigureInputs] = []
+        bridge.start(request=requests.append)
         assert bridge.enable(True) == {"enabled": True, "sources": ["jog"]}
         assert requests == [ConfigureInputs(enable=True, sources=("jog",))]
         for x in (1.0, 2.0, 3.0):
@@ -275,9 +278,6 @@ def test_the_thread_wakes_on_each_feed_sample(tmp_path: Path) -> None:
             assert cmd is not None and cmd.values[0] == x
         rows = {r["name"]: r for r in bridge.summary()["sources"]}
         assert rows["jog"]["active"] and not rows["jog"]["stale"]
-    finally:
-        reader.close()
-        bridge.close()
     assert not any(a.running for a in bridge.adapters)
 
 
@@ -335,9 +335,7 @@ def test_a_write_caught_half_done_reads_as_nothing_new(tmp_path: Path) -> None:
     path = tmp_path / "inputs.toml"
     path.write_text('[feeds.jog]\nkind = "twist"\n')
     clock = Clock()
-    bridge = InputsBridge.from_file(path, clock=clock)
-    reader = InputSlotReader(bridge.slot_name)
-    try:
+    with opened_bridge(path, clock=clock) as (bridge, reader):
         bridge.feeds.submit("jog", twist(1.0, frame="base"))
         bridge.step(clock())
         assert reader.poll() is not None
@@ -352,9 +350,6 @@ def test_a_write_caught_half_done_reads_as_nothing_new(tmp_path: Path) -> None:
         bridge.step(clock())
         cmd = reader.poll()
         assert cmd is not None and cmd.values[0] == 2.0
-    finally:
-        reader.close()
-        bridge.close()
 
 
 def test_servo_app_run_refuses_a_bad_inputs_file_before_starting_anything(tmp_path: Path) -> None:
@@ -377,17 +372,15 @@ def test_standoff_forgets_its_integral_while_the_distance_sensor_is_quiet(tmp_pa
                     'type = "standoff"\nsources = { distance = "gauge" }\ntarget_mm = 50.0\nkp = 1.0\nki = 5.0\n'
                     'max_speed_mm_s = 20.0\nintegral_limit_mm_s = 10.0\n')
     clock = Clock()
-    bridge = InputsBridge.from_file(path, clock=clock, stale_latch_s=0.05)
-    bridge.enabled = True  # stand-off commands: its integral gathers
-    reader = InputSlotReader(bridge.slot_name)
+    with opened_bridge(path, clock=clock, stale_latch_s=0.05) as (bridge, reader):
+        bridge.enabled = True  # stand-off commands: its integral gathers
 
-    def reading(distance: float) -> InputCommand | None:
-        clock.t += 0.02
-        bridge.feeds.submit("gauge", {"kind": "measurement", "values": {"distance": distance}})
-        bridge.step(clock())
-        return reader.poll()
+        def reading(distance: float) -> InputCommand | None:
+            clock.t += 0.02
+            bridge.feeds.submit("gauge", {"kind": "measurement", "values": {"distance": distance}})
+            bridge.step(clock())
+            return reader.poll()
 
-    try:
         for _ in range(5):
             cmd = reading(60.0)
         assert cmd is not None and cmd.values[2] > 10.0  # 10 mm too far: kp * 10 plus the integral
@@ -399,9 +392,6 @@ def test_standoff_forgets_its_integral_while_the_distance_sensor_is_quiet(tmp_pa
             cmd = reading(51.0) or cmd
         assert cmd is not None and not cmd.stale
         assert cmd.values[2] == pytest.approx(1.0 + 5.0 * 1.0 * 0.02 * 2)  # kp * 1 mm, and 40 ms of integral
-    finally:
-        reader.close()
-        bridge.close()
 
 
 def test_infinite_or_nan_settings_are_refused_when_the_file_is_read(tmp_path: Path) -> None:
@@ -455,18 +445,16 @@ def test_standoff_takes_over_without_an_integral_gathered_while_it_did_not_comma
                     'sources = { distance = "gauge" }\ntarget_mm = 50.0\nkp = 1.0\nki = 5.0\nmax_speed_mm_s = 20.0\n'
                     'integral_limit_mm_s = 10.0\n')
     clock = Clock()
-    bridge = InputsBridge.from_file(path, clock=clock, stale_latch_s=0.05)
-    reader = InputSlotReader(bridge.slot_name)
+    with opened_bridge(path, clock=clock, stale_latch_s=0.05) as (bridge, reader):
 
-    def reading(pilot: bool = False) -> InputCommand | None:
-        clock.t += 0.02
-        bridge.feeds.submit("gauge", {"kind": "measurement", "values": {"distance": 51.0}})
-        if pilot:
-            bridge.feeds.submit("pilot", twist(5.0))
-        bridge.step(clock())
-        return reader.poll()
+        def reading(pilot: bool = False) -> InputCommand | None:
+            clock.t += 0.02
+            bridge.feeds.submit("gauge", {"kind": "measurement", "values": {"distance": 51.0}})
+            if pilot:
+                bridge.feeds.submit("pilot", twist(5.0))
+            bridge.step(clock())
+            return reader.poll()
 
-    try:
         for _ in range(150):  # 3 s with input control off
             reading()
         bridge.enabled = True
@@ -484,9 +472,6 @@ def test_standoff_takes_over_without_an_integral_gathered_while_it_did_not_comma
         # In control since the jog's stale marker, whose latch held its first commands back: a few
         # passes of integral, not 3 s of it.
         assert cmd.values[2] == pytest.approx(1.0, abs=0.5)
-    finally:
-        reader.close()
-        bridge.close()
 
 
 def test_a_tracking_update_rate_faster_than_the_servo_reads_is_refused(tmp_path: Path) -> None:
@@ -564,23 +549,21 @@ def test_an_application_refusing_fresh_input_is_named_when_it_goes_stale_not_its
                     'stale_after_s = 0.2\n[[applications]]\nname = "standoff"\ntype = "standoff"\n'
                     'sources = { distance = "gauge", operator = "jog" }\ntarget_mm = 50.0\n')
     clock = Clock()
-    bridge = InputsBridge.from_file(path, clock=clock, stale_latch_s=0.05)
-    reader = InputSlotReader(bridge.slot_name)
+    with opened_bridge(path, clock=clock, stale_latch_s=0.05) as (bridge, reader):
 
-    def run(steps: int, jog: dict[str, object] | None = None, gauge: bool = True) -> InputCommand | None:
-        stale = None
-        for _ in range(steps):
-            clock.t += 0.05
-            if gauge:
-                bridge.feeds.submit("gauge", {"kind": "measurement", "values": {"distance": 52.0}})
-            if jog is not None:
-                bridge.feeds.submit("jog", jog)
-            bridge.step(clock())
-            cmd = reader.poll()
-            stale = cmd if cmd is not None and cmd.stale else stale
-        return stale
+        def run(steps: int, jog: dict[str, object] | None = None, gauge: bool = True) -> InputCommand | None:
+            stale = None
+            for _ in range(steps):
+                clock.t += 0.05
+                if gauge:
+                    bridge.feeds.submit("gauge", {"kind": "measurement", "values": {"distance": 52.0}})
+                if jog is not None:
+                    bridge.feeds.submit("jog", jog)
+                bridge.step(clock())
+                cmd = reader.poll()
+                stale = cmd if cmd is not None and cmd.stale else stale
+            return stale
 
-    try:
         assert run(5) is None
         stale = run(10, jog={"kind": "twist", "linear": [10.0, 0.0, 0.0]})  # frame "base"
         assert stale is not None and bridge.source_names[stale.source] == "standoff"
@@ -590,9 +573,6 @@ def test_an_application_refusing_fresh_input_is_named_when_it_goes_stale_not_its
         stale = run(10, jog=twist(10.0), gauge=False)
         assert stale is not None and bridge.source_names[stale.source] == "gauge"
         assert bridge.describe()["stale_events"] == {"standoff": 1, "gauge": 1}
-    finally:
-        reader.close()
-        bridge.close()
 
 
 @pytest.mark.parametrize("target", ["-50.0", "0.0"])
@@ -619,19 +599,17 @@ def test_standoff_integral_does_not_gather_while_the_arm_is_stopped(tmp_path: Pa
                     'type = "standoff"\nsources = { distance = "gauge" }\ntarget_mm = 50.0\nkp = 1.0\nki = 5.0\n'
                     'max_speed_mm_s = 20.0\nintegral_limit_mm_s = 10.0\n')
     clock = Clock()
-    bridge = InputsBridge.from_file(path, clock=clock)
-    reader = InputSlotReader(bridge.slot_name)
-    servo = {"state": "streaming"}
-    bridge._pipeline.feedback = lambda: servo  # the servo process's published state, as the service gives it
-    bridge.enabled = True
+    with opened_bridge(path, clock=clock) as (bridge, reader):
+        servo = {"state": "streaming"}
+        bridge._pipeline.feedback = lambda: servo  # the servo process's published state, as the service gives it
+        bridge.enabled = True
 
-    def reading() -> InputCommand | None:
-        clock.t += 0.02
-        bridge.feeds.submit("gauge", {"kind": "measurement", "values": {"distance": 51.0}})
-        bridge.step(clock())
-        return reader.poll()
+        def reading() -> InputCommand | None:
+            clock.t += 0.02
+            bridge.feeds.submit("gauge", {"kind": "measurement", "values": {"distance": 51.0}})
+            bridge.step(clock())
+            return reader.poll()
 
-    try:
         for _ in range(10):
             cmd = reading()
         assert cmd is not None and cmd.values[2] > 1.0  # streaming: the integral gathers as it should
@@ -641,9 +619,6 @@ def test_standoff_integral_does_not_gather_while_the_arm_is_stopped(tmp_path: Pa
         servo["state"] = "streaming"  # resumed
         cmd = reading()
         assert cmd is not None and cmd.values[2] == pytest.approx(1.0)
-    finally:
-        reader.close()
-        bridge.close()
 
 
 def test_zeroing_is_cancelled_when_the_force_sensor_goes_quiet_half_way(

@@ -693,6 +693,16 @@ def test_no_stream_keeps_moving_without_input(cell: Cell) -> None:
 # ------------------------------------------------------------------------------ servo process lost
 
 
+def feed_until_moving(rig: Rig, feed: dict[str, Any]) -> None:
+    """POST ``feed`` to the jog feed, freshly stamped, every 20 ms until the arm moves (each accepted)."""
+    deadline = time.monotonic() + 5.0
+    while max(map(abs, rig.state()["vel"])) < 1.0:
+        assert time.monotonic() < deadline, "the feed does not move the arm"
+        r = rig.http.post("/api/feed/jog", json={**feed, "stamp": time.time()}, headers=AUTH)
+        assert r.status_code == 200 and r.json()["accepted"], r.text
+        time.sleep(0.02)
+
+
 def test_input_control_is_off_after_the_servo_process_is_lost_until_enabled_again(tmp_path: Path) -> None:
     """The servo process dies under input control (SIGKILL) and a reset brings up a new one, which
     starts with input control off. The bridge used to go on saying "enabled" (GET /api/inputs, and
@@ -718,12 +728,7 @@ def test_input_control_is_off_after_the_servo_process_is_lost_until_enabled_agai
         rig.post("/api/inputs/enable", h, {"enable": True})
         s = rig.state()
         assert s["inputs"]["enabled"] and s["inputs_enabled"]
-        deadline = time.monotonic() + 5.0
-        while max(map(abs, rig.state()["vel"])) < 1.0:  # the feed moves the arm again
-            assert time.monotonic() < deadline, "the feed does not move the arm"
-            r = rig.http.post("/api/feed/jog", json={**feed, "stamp": time.time()}, headers=AUTH)
-            assert r.status_code == 200 and r.json()["accepted"], r.text
-            time.sleep(0.02)
+        feed_until_moving(rig, feed)  # the feed moves the arm again
         s = rig.wait(lambda s: s["state"] == "stopped" and s["stop_reason"] is not None, 3.0, "stopped")
         assert s["stop_reason"] == "input jog stale" and s["at_rest"]
 
@@ -804,12 +809,7 @@ def test_a_twist_faster_than_the_servo_takes_is_refused_at_the_door(tmp_path: Pa
         h = rig.lease()
         rig.start_streaming(h)
         rig.post("/api/inputs/enable", h, {"enable": True})
-        deadline = time.monotonic() + 5.0
-        while max(map(abs, rig.state()["vel"])) < 1.0:  # the feed moves the arm
-            assert time.monotonic() < deadline, "the feed does not move the arm"
-            r = rig.http.post("/api/feed/jog", json={**feed, "stamp": time.time()}, headers=AUTH)
-            assert r.status_code == 200 and r.json()["accepted"], r.text
-            time.sleep(0.02)
+        feed_until_moving(rig, feed)
         before = rig.http.get("/api/inputs").json()["last_command"]
         r = rig.http.post("/api/feed/jog", json={**feed, "linear": [50000.0, 0.0, 0.0], "stamp": time.time()},
                           headers=AUTH)
