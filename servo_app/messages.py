@@ -150,10 +150,14 @@ class SetTool(Request):
 
 @dataclass(frozen=True)
 class Envelope:
-    """A request on the pipe; ``id`` None means fire-and-forget (no reply)."""
+    """A request on the pipe; ``id`` None means fire-and-forget (no reply). ``deadline``: a
+    ``time.monotonic()`` (CLOCK_MONOTONIC, one clock for every process of the machine) after which the
+    servo process refuses the request unapplied, for a change the parent stops waiting for: a servo
+    process stalled past it must not apply it later, behind the back of a service that said "not done"."""
 
     id: int | None
     request: Request
+    deadline: float | None = None
 
 
 @dataclass(frozen=True)

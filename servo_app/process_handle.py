@@ -195,6 +195,11 @@ class ServoProcessHost:
         try:
             if not isinstance(req, msg.Request):
                 raise CommandRejected(f"{type(req).__name__} is not a request")
+            late = time.monotonic() - env.deadline if env.deadline is not None else 0.0
+            if late > 0.0:
+                raise CommandRejected(f"{type(req).__name__} came {late:.2f} s after its deadline (the servo process "
+                                      "was stalled; the service stopped waiting and reported it not done): not "
+                                      "applied")
             self._before_request(req)
             result = self.sup.request(req, time.monotonic())
             self._after_request()
@@ -346,6 +351,7 @@ class ServoProcessHandle:
         self.exit_cause = ""
         self._cv = threading.Condition()
         self._replies: dict[int, msg.Reply] = {}
+        self._late: dict[int, Callable[[msg.Reply], None]] = {}  # expired requests' on_late, by id
         self._next_id = 0
         self._send_lock = threading.Lock()
         self._reader: threading.Thread | None = None
@@ -384,8 +390,12 @@ class ServoProcessHandle:
                 break
             if isinstance(item, msg.Reply):
                 with self._cv:
-                    self._replies[item.id] = item
-                    self._cv.notify_all()
+                    on_late = self._late.pop(item.id, None)
+                    if on_late is None:
+                        self._replies[item.id] = item
+                        self._cv.notify_all()
+                if on_late is not None:  # in order with the other replies: before any later request's
+                    on_late(item)
                 continue
             with self._cv:
                 self.events.append(item)
@@ -414,25 +424,32 @@ class ServoProcessHandle:
         with self._send_lock:
             self._conn.send(msg.Envelope(None, req))
 
-    def request(self, req: msg.Request, timeout: float = 2.0) -> Any:
+    def request(self, req: msg.Request, timeout: float = 2.0,
+                on_late: Callable[[msg.Reply], None] | None = None) -> Any:
         """Send a request and wait for its reply; a refusal raises CommandRejected with its message
-        (InvalidRequest if the request itself was bad), a dead or silent process TimeoutError."""
+        (InvalidRequest if the request itself was bad), a dead or silent process TimeoutError.
+
+        With ``on_late`` the request expires with the wait: the servo process refuses it once
+        ``timeout`` has passed (Envelope.deadline), and the reply to one it took just before, which
+        came after the wait (a stall between the two), goes to ``on_late`` (from the pipe's reader)."""
         if not self.alive:
             raise TimeoutError(f"the {self.name} is not running ({self.exit_cause})")
+        deadline = time.monotonic() + timeout
         with self._send_lock:
             self._next_id += 1
             rid = self._next_id
             try:
-                self._conn.send(msg.Envelope(rid, req))
+                self._conn.send(msg.Envelope(rid, req, deadline if on_late is not None else None))
             except OSError as exc:
                 raise TimeoutError(f"the {self.name} is not reachable: {exc}") from None
-        deadline = time.monotonic() + timeout
         with self._cv:
             while rid not in self._replies:
                 left = deadline - time.monotonic()
                 if not self.alive:
                     raise TimeoutError(f"the {self.name} {self.exit_cause} before answering {type(req).__name__}")
                 if left <= 0:
+                    if on_late is not None:
+                        self._late[rid] = on_late
                     raise TimeoutError(f"the {self.name} did not answer {type(req).__name__} within {timeout} s")
                 self._cv.wait(left)
             reply = self._replies.pop(rid)

@@ -6,6 +6,8 @@ refusal and the command line's check of a bad file too."""
 from __future__ import annotations
 
 import math
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -324,5 +326,35 @@ def test_a_tool_change_the_embedded_controller_cannot_take_is_refused_and_change
         # The servo process moves the gripper's TCP: a pose target at the pose shown is where the arm is.
         rig.post("/api/target", h, {"xyzwpr": s["cart_servo"], "linear_speed": 50.0})
         after = rig.wait_at_rest_settled()
+        np.testing.assert_allclose(after["q_cmd"][:6], s["q_cmd"][:6], atol=1e-3)
+        assert rig.sim_alarms() == []
+
+
+def test_a_tool_change_that_times_out_is_not_taken_later_by_a_stalled_servo_process(tmp_path: Path) -> None:
+    """The servo process stalled (SIGSTOP) when a tool change comes: 503, the tool not changed. Once it
+    runs again (SIGCONT) it must not take the change it stopped on: the arm would move a TCP other than
+    the one the service shows (old code: it took 'tilted' with 'gripper' still shown)."""
+    (tmp_path / "tools.toml").write_text(TOOLS)
+    with running_rig(tmp_path, tools_file=tmp_path / "tools.toml", request_timeout_s=0.5) as rig:
+        h = rig.lease()
+        assert rig.state()["tool"]["name"] == "gripper"
+        assert rig.service.stream is not None and rig.service.stream.pid is not None
+        pid = rig.service.stream.pid
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            r = rig.http.put("/api/tool", json={"name": "tilted"}, headers=h)
+            assert r.status_code == 503, r.text
+            detail = r.json()["detail"]
+            assert "the tool is not changed ('gripper' is active)" in detail and "will not take" in detail, detail
+            assert rig.http.get("/api/tools").json()["active"] == "gripper"
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        # The stalled process reads the change now; the next request is answered after it (one pipe).
+        rig.start_streaming(h)
+        s = rig.wait_at_rest_settled(10.0)
+        assert s["tool"]["name"] == "gripper" and rig.http.get("/api/tools").json()["active"] == "gripper"
+        # The servo process moves the TCP shown: a pose target at the pose shown is where the arm is.
+        rig.post("/api/target", h, {"xyzwpr": s["cart_servo"], "linear_speed": 50.0})
+        after = rig.wait_at_rest_settled(10.0)
         np.testing.assert_allclose(after["q_cmd"][:6], s["q_cmd"][:6], atol=1e-3)
         assert rig.sim_alarms() == []

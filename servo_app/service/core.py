@@ -22,6 +22,7 @@ import math
 import threading
 import time
 from collections import Counter, deque
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -307,13 +308,15 @@ class ServoService:
     def servo_alive(self) -> bool:
         return self.stream is not None and self.stream.alive
 
-    def request(self, req: msg.Request, timeout: float | None = None) -> Any:
+    def request(self, req: msg.Request, timeout: float | None = None,
+                on_late: Callable[[msg.Reply], None] | None = None) -> Any:
         """Send a typed request to the servo process and wait for its reply.
 
         A refusal raises CommandRejected (InvalidRequest when the request itself is bad: the servo
         process checks counts, ranges and plausibility first). With the servo process dead: a stop is
         accepted (nothing moves any more), a start first brings up a new process, anything else is
-        refused with the cause and the way out."""
+        refused with the cause and the way out. ``on_late``: the request expires with the wait
+        (ProcessHandle.request)."""
         if not self.servo_alive:
             if isinstance(req, msg.Stop):
                 return "nothing was moving: the servo process is not running"
@@ -326,7 +329,7 @@ class ServoService:
             timeout = self.cfg.request_timeout_s
             if isinstance(req, msg.Start):
                 timeout += self.cfg.start_timeout_s
-        return self.stream.request(req, timeout)
+        return self.stream.request(req, timeout, on_late)
 
     def _dead_why(self) -> str:
         if self.stream is None:

@@ -13,6 +13,7 @@ the stream needs to be the faceplate: docs/tools.md). The controller's flange po
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Callable
 from pathlib import Path
@@ -32,6 +33,8 @@ from servo_app.robots.tool import (
     tcp_pose,
 )
 from servo_app.service.config import ServiceConfig
+
+_log = logging.getLogger(__name__)
 
 # Modes in which a stream is alive: a tool change then waits for the controller's feedback to settle.
 _STREAM_ALIVE = frozenset({"streaming", "stopping", "stopped", "ending"})
@@ -60,7 +63,7 @@ class ActiveTool:
     """Thread-safe: API worker threads read and change it; one change at a time."""
 
     def __init__(self, tools: ToolSet, max_payload_kg: float | None,
-                 request: Callable[[msg.Request], Any], state_vector: Callable[[], dict[str, Any]],
+                 request: Callable[..., Any], state_vector: Callable[[], dict[str, Any]],
                  set_simulator_payload: Callable[[float | None], None] | None = None) -> None:
         self._tools = tools
         self._active = tools.tools[tools.active]
@@ -105,13 +108,20 @@ class ActiveTool:
                 raise CommandRejected("tool change refused: the arm is moving (not at rest and settled); stop "
                                       "or let the motion end, wait until GET /api/state shows settled, then "
                                       "change the tool")
-            self._request(msg.SetTool(tool.name, tool.xyzwpr, tool.payload_kg))  # refused: raises, unchanged
+            old = self._active
+            try:  # refused: raises, unchanged
+                self._request(msg.SetTool(tool.name, tool.xyzwpr, tool.payload_kg), on_late=self._late(tool))
+            except TimeoutError as exc:
+                # Expired with the wait: a stalled servo process refuses it when it resumes, so the
+                # service and the arm keep the old TCP (or _late learns it was taken just in time).
+                raise TimeoutError(f"{exc}; the tool is not changed ({old.name!r} is active) and the servo "
+                                   "process will not take this change later: once it answers again (GET "
+                                   "/api/state), change the tool again") from None
             if self._set_simulator_payload is not None:
                 # The embedded controller's payload follows, as a cell's PAYLOAD[] instruction would.
                 try:
                     self._set_simulator_payload(tool.payload_kg)
                 except BaseException as exc:  # not taken (its process ended or froze): refused, so undone
-                    old = self._active
                     self._request(msg.SetTool(old.name, old.xyzwpr, old.payload_kg))
                     if isinstance(exc, TimeoutError):
                         raise TimeoutError(f"{exc}; the tool is not changed ({old.name!r} is active): once the "
@@ -120,6 +130,30 @@ class ActiveTool:
                     raise
             self._active = tool
             return tool
+
+    def _late(self, tool: Tool) -> Callable[[msg.Reply], None]:
+        """The reply to a change the servo process took just before its deadline and answered after
+        the wait (stalled between the two): it moves that TCP now, so the service shows it too. Called
+        from the pipe's reader (not under ``_lock``, which the next change may hold waiting for it),
+        in order with the other replies, so a later change's lands after it."""
+
+        def taken(reply: msg.Reply) -> None:
+            if not reply.ok:  # refused (late: the deadline), as the service reported
+                return
+            _log.warning("tool %r was taken by the servo process after the service stopped waiting: it is "
+                         "the active tool now", tool.name)
+            self._active = tool
+            if self._set_simulator_payload is not None:  # not from the reader: the call may wait
+                threading.Thread(target=self._late_payload, args=(tool.payload_kg,), daemon=True).start()
+
+        return taken
+
+    def _late_payload(self, payload_kg: float | None) -> None:
+        assert self._set_simulator_payload is not None
+        try:
+            self._set_simulator_payload(payload_kg)
+        except Exception as exc:  # the controller is gone or frozen: its own fault shows in the state
+            _log.warning("the embedded controller's payload did not follow tool change: %s", exc)
 
     def define(self, name: str, xyzwpr: Any, payload_kg: Any) -> Tool:
         """Add a tool at run time (kept until the service stops). The active tool cannot be redefined
