@@ -89,7 +89,9 @@ class RobotBackend(ABC):
         self.target = target
         self.model = self.resolve_model(model)
         self.profile: Any = self.load_profile(self.model)
-        self._io_allow = dict(self.default_io_allow if io_allow is None else io_allow)
+        # Checked here, at start: a misspelled type or a bad count would otherwise show only at the
+        # first access, as a refusal (or a 500) for I/O the configuration meant to allow.
+        self._io_allow = dict(self.default_io_allow) if io_allow is None else self.check_io_allow(io_allow)
 
     # -- profiles
     @classmethod
@@ -164,6 +166,14 @@ class RobotBackend(ABC):
     def io_allow(self) -> dict[str, int]:
         """I/O type -> assigned points that clients may read and write; empty: no I/O."""
         return dict(self._io_allow)
+
+    def check_io_allow(self, io_allow: dict[str, int]) -> dict[str, int]:
+        """``io_allow`` (type -> assigned points) checked for this backend; ValueError naming the key,
+        its value and what is allowed. Default: a backend without I/O (no ``check_io``) takes none."""
+        if io_allow and type(self).check_io is RobotBackend.check_io:
+            raise ValueError(f"io_allow={io_allow!r}: the {self.name} backend has no I/O through its stream; "
+                             "leave io_allow out")
+        return dict(io_allow)
 
     def check_io(self, io_type: str, index: int) -> str:
         """The I/O type's canonical name if an access at ``index`` is allowed; else InvalidRequest."""

@@ -7,10 +7,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
 from test_api_harness import AUTH, Rig, running_rig
+
+from servo_app.service import ServiceConfig, ServoService
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(120)]
 
@@ -189,3 +192,31 @@ def test_every_io_type_the_limits_allow_can_be_written_and_read(rig: Rig) -> Non
         body = r.json()
         assert (body["type"], body["index"], body["value"]) == (io_type, first, 1), body
     assert rig.sim_alarms() == []  # no PRIO-023
+
+
+@pytest.mark.parametrize(("io_allow", "named"), [
+    ({"do": 512}, "io_allow key 'do' (value 512) is not a FANUC I/O type (write 'DO')"),
+    ({"DOUT": 512}, "io_allow key 'DOUT' (value 512) is not a FANUC I/O type; the types are DI, DO"),
+    ({"DO": 0}, "io_allow['DO']=0: must be the number of DO points assigned, a whole number in 16..65535"),
+    ({"DO": 8}, "io_allow['DO']=8: must be"),
+    ({"F": 70000}, "io_allow['F']=70000: must be"),
+    ({"M": "1024"}, "io_allow['M']='1024': must be"),
+    ({"DI": True}, "io_allow['DI']=True: must be"),
+])
+def test_a_bad_io_allow_is_refused_at_start_naming_the_key(tmp_path: Path, io_allow: dict, named: str) -> None:
+    """Checked when the service is made, before anything starts (old code: taken, and every access to
+    the type refused later, or a 500 for a count that is not a number)."""
+    with pytest.raises(ValueError) as err:
+        ServoService(ServiceConfig(var_dir=tmp_path, io_allow=io_allow))
+    assert named in str(err.value)
+
+
+def test_an_io_allow_is_checked_for_the_backend(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="the janome backend has no I/O through its stream; leave io_allow out"):
+        ServoService(ServiceConfig(robot="janome:127.0.0.1:0", var_dir=tmp_path, io_allow={"DO": 512}))
+    # A good one is taken as written; none at all is the backend's default.
+    assert ServoService(ServiceConfig(var_dir=tmp_path, io_allow={"DO": 32, "F": 16})).backend.io_allow() == \
+        {"DO": 32, "F": 16}
+    assert ServoService(ServiceConfig(var_dir=tmp_path, io_allow={})).backend.io_allow() == {}
+    janome = ServoService(ServiceConfig(robot="janome:127.0.0.1:0", var_dir=tmp_path, io_allow={}))
+    assert janome.backend.io_allow() == {}

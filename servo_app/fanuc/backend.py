@@ -103,6 +103,20 @@ class FanucBackend(RobotBackend):
 
     # -- I/O: a command packet reads or writes 16 points from an index; anything outside the assigned
     # points makes the controller post PRIO-023 and stop, so it is refused here first.
+    def check_io_allow(self, io_allow: dict[str, int]) -> dict[str, int]:
+        types = ", ".join(t.name for t in IoType if t is not IoType.NONE)
+        for key, n in io_allow.items():
+            if not (isinstance(key, str) and key in IoType.__members__ and key != "NONE"):
+                hint = f" (write {key.upper()!r})" if isinstance(key, str) and key.upper() in IoType.__members__ else ""
+                raise ValueError(f"io_allow key {key!r} (value {n!r}) is not a FANUC I/O type{hint}; the types are "
+                                 f"{types}, in capitals")
+            # An access covers IO_SPAN points from an index sent as a u16: fewer points allow no access.
+            if isinstance(n, bool) or not isinstance(n, int) or not IO_SPAN <= n <= 0xFFFF:
+                raise ValueError(f"io_allow[{key!r}]={n!r}: must be the number of {key} points assigned, a whole "
+                                 f"number in {IO_SPAN}..{0xFFFF} (an access covers {IO_SPAN} points); leave {key} "
+                                 "out to allow none")
+        return dict(io_allow)
+
     def check_io(self, io_type: str, index: int) -> str:
         name = str(io_type).upper()
         allowed = ", ".join(f"{t} 1..{n}" for t, n in self._io_allow.items())
