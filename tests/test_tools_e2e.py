@@ -22,6 +22,7 @@ from servo_app.client import RefusedError, ServoClient
 from servo_app.robots.conventions import xyzwpr_to_matrix
 from servo_app.robots.tool import ToolError
 from servo_app.service import ServiceConfig, ServoService
+from servo_app.service.tools import MAX_RUNTIME_TOOLS
 
 pytestmark = pytest.mark.e2e
 
@@ -358,3 +359,28 @@ def test_a_tool_change_that_times_out_is_not_taken_later_by_a_stalled_servo_proc
         after = rig.wait_at_rest_settled(10.0)
         np.testing.assert_allclose(after["q_cmd"][:6], s["q_cmd"][:6], atol=1e-3)
         assert rig.sim_alarms() == []
+
+
+def test_tools_added_at_run_time_are_bounded(tmp_path: Path) -> None:
+    """POST /api/tools keeps each tool until the service stops: at most MAX_RUNTIME_TOOLS new names, the
+    next one a 409 naming the limit that changes nothing; redefining one is still allowed (old code:
+    no limit)."""
+    (tmp_path / "tools.toml").write_text(TOOLS)
+    with running_rig(tmp_path, tools_file=tmp_path / "tools.toml") as rig:
+        h = rig.lease()
+        for i in range(MAX_RUNTIME_TOOLS):
+            r = rig.http.post("/api/tools", json={"name": f"t{i}", "xyzwpr": [0, 0, 10 + i, 0, 0, 0],
+                                                  "payload_kg": 1.0}, headers=h)
+            assert r.status_code == 200, r.text
+        before = rig.http.get("/api/tools").json()
+        assert len(before["tools"]) == 4 + MAX_RUNTIME_TOOLS  # the flange, the file's three, the added
+        r = rig.http.post("/api/tools", json={"name": "one_more", "xyzwpr": [0, 0, 5, 0, 0, 0], "payload_kg": 1.0},
+                          headers=h)
+        assert r.status_code == 409, r.text
+        assert f"at most {MAX_RUNTIME_TOOLS} tools can be added at run time" in r.json()["detail"], r.text
+        assert rig.http.get("/api/tools").json() == before
+        r = rig.http.post("/api/tools", json={"name": "t0", "xyzwpr": [0, 0, 99, 0, 0, 0], "payload_kg": 1.0},
+                          headers=h)
+        assert r.status_code == 200, r.text
+        assert rig.http.put("/api/tool", json={"name": "t0"}, headers=h).status_code == 200
+        assert rig.state()["tool"] == {"name": "t0", "xyzwpr": [0.0, 0.0, 99.0, 0.0, 0.0, 0.0], "payload_kg": 1.0}

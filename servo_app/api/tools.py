@@ -54,8 +54,8 @@ def tool_select(body: SelectTool, client: Controlling, service: Service, calls: 
 @router.post("/api/tools", summary="Define a tool for this run", responses=REFUSALS)
 def tool_define(body: DefineTool, client: Controlling, service: Service, calls: Calls) -> ToolView:
     """Add (or replace) a tool until the service stops: its TCP from the flange and its payload, checked
-    as the tools file's are (422 naming the value). The active tool cannot be redefined (409). Token
-    and lease."""
+    as the tools file's are (422 naming the value). The active tool cannot be redefined (409), nor
+    more than 64 added (409: MAX_RUNTIME_TOOLS). Token and lease."""
 
     def define() -> dict[str, Any]:
         try:

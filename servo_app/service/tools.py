@@ -36,6 +36,11 @@ from servo_app.service.config import ServiceConfig
 
 _log = logging.getLogger(__name__)
 
+# Tools a client may add at run time (POST /api/tools; redefining one is not adding): each is kept
+# until the service stops, so without a bound a client could grow the set, GET /api/tools and the
+# console's list without end. A cell has a handful; the tools file (--tools) is the place for more.
+MAX_RUNTIME_TOOLS = 64
+
 # Modes in which a stream is alive: a tool change then waits for the controller's feedback to settle.
 _STREAM_ALIVE = frozenset({"streaming", "stopping", "stopped", "ending"})
 
@@ -66,6 +71,7 @@ class ActiveTool:
                  request: Callable[..., Any], state_vector: Callable[[], dict[str, Any]],
                  set_simulator_payload: Callable[[float | None], None] | None = None) -> None:
         self._tools = tools
+        self._at_start = frozenset(tools.tools)  # the file's and the flange: not counted in the bound
         self._active = tools.tools[tools.active]
         self._max_payload_kg = max_payload_kg
         self._request = request
@@ -166,6 +172,11 @@ class ActiveTool:
                 raise ToolError(f"tool {FLANGE!r} is built in (zero offset, --payload-kg): name the tool otherwise")
             tool = check_tool(name, xyzwpr, payload_kg, self._max_payload_kg, where="tool")
             check_distinct(name, self._tools.tools)
+            added = [n for n in self._tools.tools if n not in self._at_start]
+            if name not in self._tools.tools and len(added) >= MAX_RUNTIME_TOOLS:
+                raise CommandRejected(f"tool {name!r} not defined: at most {MAX_RUNTIME_TOOLS} tools can be added at "
+                                      f"run time and {len(added)} are; redefine one of them (POST /api/tools "
+                                      "with its name), or put the tools in the tools file (servo-app run --tools)")
             self._tools = self._tools.with_tool(tool)
             return tool
 
