@@ -27,7 +27,8 @@ assumption), with a note. The report names the payload it judged at.
 
 The first row is taken as the controller's command position (no MOTN-617 check on it). Output:
 the first violation (code, axis, row, value, limit), then peak usage per axis in % of each limit.
-Exit code: 0 no violation (warnings allowed), 1 violation, 2 bad input. A long log's progress goes to
+Exit code: 0 no violation (warnings allowed), 1 violation, 2 bad input, 130 stopped (Ctrl-C, SIGTERM:
+one line saying where, no report). A long log's progress goes to
 stderr (on a terminal: one line, from the first second; elsewhere: a line every 10 s after 3 s).
 
 ``load_trajectory(path)`` dispatches on the file type: a servo_app session log (``SERVOLOG`` magic,
@@ -44,6 +45,7 @@ import io
 import math
 import re
 import sys
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,6 +56,7 @@ import numpy as np
 from servo_app.fanuc.alarms import format_violation
 from servo_app.motion.checker import ControllerLimitChecker, Usage, Violation
 from servo_app.progress import Progress
+from servo_app.stop_signals import stop_requested
 
 FORMATS = ("auto", "joints", "xyzwpr")
 CSV_SUFFIXES = {".csv", ".txt", ".tsv", ".dat", ""}
@@ -61,6 +64,10 @@ CSV_SUFFIXES = {".csv", ".txt", ".tsv", ".dat", ""}
 
 class TrajectoryError(ValueError):
     """A file that is not a usable trajectory; the message names the file, the line and the value."""
+
+
+class CheckInterrupted(Exception):
+    """The check was stopped (Ctrl-C, SIGTERM) before its end: no verdict."""
 
 
 class NothingSent(TrajectoryError):
@@ -350,6 +357,18 @@ def _log_header(path: str) -> dict[str, Any] | None:
 
 
 def run_check(args: argparse.Namespace) -> int:
+    # Ctrl-C (or SIGTERM) is a request to stop, not a traceback from wherever the checker was: the
+    # check ends at its next look at the request (every 1024 rows) and says so in one line.
+    with stop_requested() as stop:
+        try:
+            return _run_check(args, stop)
+        except CheckInterrupted as exc:
+            print(f"servo-app check: {args.file}: {exc}: no verdict (run the check again to its end)",
+                  file=sys.stderr)
+            return 130
+
+
+def _run_check(args: argparse.Namespace, stop: threading.Event) -> int:
     from servo_app.robots.profile import ProfileError, load_profile
 
     try:
@@ -358,7 +377,7 @@ def run_check(args: argparse.Namespace) -> int:
         header = _log_header(args.file)
         if header is not None and str(header.get("protocol", "")).startswith("janome"):
             _refuse_fanuc_options(args)
-            return run_janome_check(Path(args.file), model_for(header, args.model, Path(args.file)))
+            return run_janome_check(Path(args.file), model_for(header, args.model, Path(args.file)), stop)
         profile = load_profile(model_for(header, args.model, Path(args.file)))
         traj = load_trajectory(args.file, args.fmt)
         if args.interval_ms is not None and not (math.isfinite(args.interval_ms) and args.interval_ms > 0):
@@ -404,9 +423,17 @@ def run_check(args: argparse.Namespace) -> int:
         joints, ik_failure = cartesian_to_joints(traj, profile)
     n = len(joints)
     progress = Progress("servo-app check", n, "commands")
-    report = check_joints(joints, checker, None if traj.seqs is None else traj.seqs[:n],
-                          [e for e in traj.stream_ends if e < n], changes, logged, progress.update)
-    progress.close()
+
+    def step(done: int) -> None:
+        if stop.is_set():
+            raise CheckInterrupted(f"interrupted at command {done:,} of {n:,}")
+        progress.update(done)
+
+    try:
+        report = check_joints(joints, checker, None if traj.seqs is None else traj.seqs[:n],
+                              [e for e in traj.stream_ends if e < n], changes, logged, step)
+    finally:
+        progress.close()  # (its line erased before the report or the interruption's)
     if ik_failure is not None:
         report.violations.append(ik_failure)
     print(render_report(report, traj, float(interval_ms), tables_note))
@@ -584,7 +611,7 @@ def check_janome_targets(values: np.ndarray, cmds: np.ndarray, seqs: np.ndarray,
     return JanomeReport(found, len(moves), peak, lo, hi)
 
 
-def run_janome_check(path: Path, model: str) -> int:
+def run_janome_check(path: Path, model: str, stop: threading.Event | None = None) -> int:
     from servo_app.janome.kinematics import AXES, UNITS
     from servo_app.janome.profile import load_janome_profile
     from servo_app.robots.profile import ProfileError
@@ -606,6 +633,8 @@ def run_janome_check(path: Path, model: str) -> int:
     start = before["values"][-1, :4].astype(float) if len(before) else None
     report = check_janome_targets(cmds["values"][:, :4].astype(float), (cmds["flags"] >> 1) & 0x7F,
                                   cmds["seq"].astype(np.int64), start, profile)
+    if stop is not None and stop.is_set():  # (a check of target frames is short: looked at once, here)
+        raise CheckInterrupted(f"interrupted after {len(cmds):,} target frames")
     out = [f"{path}: {len(cmds)} target frames, {report.moves} moves, {profile.display_name} ({profile.name})"]
     if report.violations:
         v = report.violations[0]

@@ -1,6 +1,6 @@
-"""The command-line tools that run until stopped (``servo-app sim``, ``monitor``, ``replay``) stop on
-SIGINT (Ctrl-C) and on SIGTERM, both handled explicitly. (``servo-app run`` has handlers of its own
-around uvicorn's; the servo process its own.)
+"""The command-line tools that run until stopped (``servo-app sim``, ``monitor``, ``replay``), and the
+long ones (``check``, ``export``), stop on SIGINT (Ctrl-C) and on SIGTERM, both handled explicitly.
+(``servo-app run`` has handlers of its own around uvicorn's; the servo process its own.)
 
 Python raises KeyboardInterrupt on SIGINT only when the process did not inherit it ignored, and a
 script's background job does inherit it ignored (POSIX shells without job control): such a tool

@@ -127,3 +127,43 @@ def test_ctrl_c_stops_an_export_in_one_line_leaving_no_partial_file(long_log: Pa
     assert lines[0].endswith(f"of 40,000; nothing was written to {out}"), stderr
     assert stdout == "" and not partial.exists(), stdout
     assert (out.read_bytes() == b"an earlier export") if existing else not out.exists()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_ctrl_c_stops_a_check_in_one_line(long_log: Path, sig: signal.Signals) -> None:
+    """Ctrl-C during `servo-app check` printed a KeyboardInterrupt traceback from wherever the checker
+    was (SIGTERM ended it without a word). Now it stops at its next check of the request with one
+    line naming where it was, no report on stdout, and exit 130."""
+    master, slave = pty.openpty()
+    p = subprocess.Popen([sys.executable, "-m", "servo_app.cli", "check", str(long_log)], stdout=subprocess.PIPE,
+                         stderr=slave, text=True, env=ENV)
+    os.close(slave)
+    term = b""
+    try:
+        while b"of 40,000 commands" not in term:  # the progress line: the checker is under way
+            data = os.read(master, 4096)  # (EIO / b"": the command ended before; the assert below says)
+            assert data, term
+            term += data
+        p.send_signal(sig)
+        while True:
+            try:
+                data = os.read(master, 4096)
+            except OSError:  # EIO: the command and its terminal end are gone
+                break
+            if not data:
+                break
+            term += data
+        stdout, _ = p.communicate(timeout=30)
+    finally:
+        os.close(master)
+        if p.poll() is None:
+            p.kill()
+            p.communicate(timeout=10)
+    text = term.decode()
+    assert p.returncode == 130, (p.returncode, text[-2000:])
+    assert "Traceback" not in text and "KeyboardInterrupt" not in text, text[-2000:]
+    lines = [line for line in text.replace("\r\x1b[K", "\n").replace("\r", "\n").splitlines()
+             if line.strip() and " commands, " not in line]  # (not a progress line)
+    assert len(lines) == 1 and lines[0].startswith(f"servo-app check: {long_log}: interrupted at command "), lines
+    assert lines[0].endswith("of 40,000: no verdict (run the check again to its end)"), lines
+    assert stdout == "", stdout
