@@ -1,5 +1,7 @@
 """The diff-IK as it was before issue 15 (commit f31c1c5), kept verbatim as the reference the fast
-implementation in :mod:`servo_app.motion.diffik` is compared with (tests/test_diffik_equivalence.py).
+implementation in :mod:`servo_app.motion.diffik` is compared with (tests/test_diffik_equivalence.py),
+but for one later change of behaviour made to both: a pose target's reference slides along its line
+to the goal (``_along_track_to``), and there is no pull-back once it has arrived.
 
 It assembles its QP from mink task and limit objects every cycle (``compute_qp_objective`` /
 ``compute_qp_inequalities``); the limits in :mod:`servo_app.motion.ik_limits` keep that contract.
@@ -300,6 +302,9 @@ class DifferentialIK:
                 self._ref = tcp
             elif cartesian_mode == "twist" and self._last_xi is not None:
                 self._ref = self._along_track(self._ref, tcp, self._last_xi)
+            elif mode == "pose":
+                assert isinstance(command, PoseTarget)
+                self._ref = self._along_track_to(self._ref, tcp, _pose_of_matrix(xyzwpr_to_matrix(command.xyzwpr)))
             if xi.any():
                 s_sing = self._singularity_factor(q, xi, kappa)
                 if s_sing < 1.0:
@@ -343,7 +348,7 @@ class DifferentialIK:
         # reference itself. It is added unscaled so that scaling the command (even below 0 while
         # reversing) never turns the correction into a push away from the line.
         p, c, task_c = self._objective_terms(tasks)
-        if xi is not None and asks_motion and self._ref is not None:
+        if xi is not None and asks_motion and self._ref is not None and not arrived:
             # Only the frame task's linear term depends on its target: swap that term alone.
             self.frame_task.set_target(mink.SE3(self._ref))
             c_ref = c - task_c[0] + self.frame_task.compute_qp_objective(cfg).c
@@ -646,6 +651,20 @@ class DifferentialIK:
         if norm <= 0.0:
             return ref
         return _advance(ref, (float(err @ (w * xi)) / norm) * xi)
+
+    @staticmethod
+    def _along_track_to(ref: np.ndarray, tcp: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """A pose target's :meth:`_along_track`: the reference moved on its line to ``goal`` to where
+        the TCP is along it, translation and rotation each on their own (the fast implementation's
+        ``along_track_to``, added since that commit)."""
+        step = np.concatenate([goal[4:] - ref[4:], _rotation_between(goal, ref)])
+        err = np.concatenate([tcp[4:] - ref[4:], _rotation_between(tcp, ref)])
+        norms = [float(step[p] @ step[p]) for p in (slice(0, 3), slice(3, 6))]
+        if max(norms) <= 0.0:
+            return ref
+        for p, norm in zip((slice(0, 3), slice(3, 6)), norms, strict=True):
+            step[p] *= float(err[p] @ step[p]) / norm if norm > 0.0 else 0.0
+        return _advance(ref, step)
 
     def _near(self, a: np.ndarray, b: np.ndarray) -> bool:
         tol = self.settings.reference_tolerance_m

@@ -112,6 +112,35 @@ def test_along_track_and_near_match_numpy(ref: np.ndarray, xi: np.ndarray, step:
     assert k.poses_near(tcp, ref, 1e-2, 0.7) == near
 
 
+@given(ref=poses, to_goal=vec6, step=vec6)
+def test_along_track_to_moves_each_part_along_its_line_to_the_goal(ref: np.ndarray, to_goal: np.ndarray,
+                                                                   step: np.ndarray) -> None:
+    tcp, goal = np.empty(7), np.empty(7)
+    k.advance(tcp, ref, step, 1.0, 0.01)
+    k.advance(goal, ref, to_goal, 1.0, 0.1)
+    line, err = np.empty(6), np.empty(6)
+    line[:3], err[:3] = goal[4:] - ref[4:], tcp[4:] - ref[4:]
+    k.rotation_between(line[3:], goal, ref)
+    k.rotation_between(err[3:], tcp, ref)
+    norms = float(line[:3] @ line[:3]), float(line[3:] @ line[3:])
+    out = np.empty(7)
+    moved = k.along_track_to(out, ref, tcp, goal)
+    assert moved == (max(norms) > 0.0)
+    if not moved:
+        return
+    shift = np.zeros(6)
+    for part, norm in ((slice(0, 3), norms[0]), (slice(3, 6), norms[1])):
+        if norm > 0.0:
+            shift[part] = float(err[part] @ line[part]) / norm * line[part]
+    expected = np.empty(7)
+    k.advance(expected, ref, shift, 1.0, 1.0)
+    np.testing.assert_allclose(out, expected, rtol=1e-9, atol=1e-12)
+    # Still on the line to the goal, and the position error left is across it (the pull-back never
+    # pushes along it).
+    assert np.linalg.norm(np.cross(out[4:] - ref[4:], line[:3])) <= 1e-12 * (1.0 + norms[0])
+    assert abs(float((tcp[4:] - out[4:]) @ line[:3])) <= 1e-12 * (1.0 + norms[0])
+
+
 @given(jac=mat6, reach=st.floats(0.1, 2.0))
 def test_condition_number_matches_the_svd(jac: np.ndarray, reach: float) -> None:
     scaled = jac.copy()

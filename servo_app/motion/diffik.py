@@ -8,7 +8,8 @@ actually sent, so the request must already be deliverable:
    pose target (P-control clipped by its speed caps and a braking profile: no overshoot), a joint jog
    or a joint target (straight joint-space line, synchronised, braking profile). No command: stop.
 2. **mink problem**: a ``FrameTask`` on the TCP site (target = reference pose advanced by the twist;
-   the reference integrates what was achieved, so a held twist of zero never drifts), a low-weight
+   the reference integrates what was achieved, so a held twist of zero never drifts, and slides along
+   the line to where the TCP is, so the pull-back only corrects across it), a low-weight
    ``PostureTask`` toward the start posture, damping; limits ``ConfigurationLimit``,
    ``VelocityLimit`` and ours (:mod:`servo_app.motion.ik_limits`): joint rates in the FANUC
    convention with an acceleration bound, braking distance to every joint bound, the arm
@@ -407,6 +408,14 @@ class DifferentialIK:
                 self._ref = tcp
             elif cartesian_mode == "twist" and self._last_xi is not None:
                 self._ref = self._along_track(self._ref, tcp, self._last_xi)
+            elif mode == "pose":
+                # As for a twist: the reference integrated what was asked, the shaper delivered it
+                # later, and pulling the TCP up to it ran a 40 mm/s target at 64 mm/s. It slides on
+                # its line to the goal (translation and rotation each on their own, so neither pushes
+                # the other's speed), and the pull-back never turns the TCP away from the goal.
+                ref = np.empty(7)
+                if kernels.along_track_to(ref, self._ref, tcp, self._pose_goal):
+                    self._ref = ref
             if xi_moves:
                 asks_motion = True
                 if kappa > st.singularity_slow:  # (below, the factor is 1)
@@ -454,7 +463,9 @@ class DifferentialIK:
         if target is not None:
             # With a reference: the optimum toward it too (only the frame task's linear term depends
             # on its target); d = the line plus this cycle's share of the pull-back d_corr.
-            with_ref = xi is not None and asks_motion and self._ref is not None
+            # (Arrived: nothing is left to pull back. The pull-back's posture share alone, no longer
+            # held by a reference ahead of the TCP, moved it 0.07 um off the goal as it stopped.)
+            with_ref = xi is not None and asks_motion and self._ref is not None and not arrived
             p, c = self._cartesian_objective(target, self._ref if with_ref else None)
             d, d_corr = self._d  # views of the optimum: read (never written) until the next objective
         else:
@@ -781,6 +792,8 @@ class DifferentialIK:
         self._rhs = np.zeros((N, 2))
         self._zero = np.zeros(N)
         self._no_pose = np.zeros(7)  # cartesian_step's reference when there is none
+        self._pose_goal = np.zeros(7)  # the pose target's pose (wxyz_xyz) ...
+        self._pose_goal_of: tuple[float, ...] | None = None  # ... of this xyzwpr
         self._fast_table: np.ndarray | None = None  # cartesian_step's arrays that stay, made at its first call
         self._fast_arrays: list[np.ndarray] = []
         # Where the row blocks start, for the kernel that fills them (limit_rows: the same path for the
@@ -933,7 +946,10 @@ class DifferentialIK:
         capped by the speed caps and by the speed from which the target can still be reached
         braking at the target accelerations."""
         st, dt = self.settings, self.dt
-        goal = _pose_of_matrix(xyzwpr_to_matrix(cmd.xyzwpr))
+        goal = self._pose_goal
+        if cmd.xyzwpr != self._pose_goal_of:  # (once per target, not every cycle: pays for the along-track)
+            goal = self._pose_goal = _pose_of_matrix(xyzwpr_to_matrix(cmd.xyzwpr))
+            self._pose_goal_of = cmd.xyzwpr
         dp = goal[4:] - tcp[4:]
         dth = _rotation_between(goal, tcp)
         lin, ang = float(np.linalg.norm(dp)), float(np.linalg.norm(dth))

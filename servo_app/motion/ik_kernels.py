@@ -150,6 +150,42 @@ def along_track(out: np.ndarray, ref: np.ndarray, tcp: np.ndarray, xi: np.ndarra
     return True
 
 
+@kernel("boolean(float64[::1], float64[::1], float64[::1], float64[::1])")
+def along_track_to(out: np.ndarray, ref: np.ndarray, tcp: np.ndarray, goal: np.ndarray) -> bool:
+    """A pose target's :func:`along_track`: the reference ``ref`` moved on its straight line to ``goal``
+    to where ``tcp`` is along it, the position along the line between the positions and the rotation
+    along the turn between the orientations, each on its own (a part already at the goal stays),
+    into ``out``; False (``out`` untouched) when ``ref`` is at the goal.
+
+    One metric for both left the error across the line a mix: the TCP behind in translation and
+    ahead in rotation, the pull-back pushed the translation forward (+4 % of a pose target's speed)."""
+    rot = np.empty(3)
+    rotation_between(rot, tcp, ref)
+    line = np.empty(6)  # ref -> goal: the translation, then the rotation vector
+    for i in range(3):
+        line[i] = goal[4 + i] - ref[4 + i]
+    turn = np.empty(3)
+    rotation_between(turn, goal, ref)
+    for i in range(3):
+        line[3 + i] = turn[i]
+    moved = False
+    for part in (0, 3):
+        norm = 0.0
+        along = 0.0
+        for i in range(3):
+            x = line[part + i]
+            norm += x * x
+            along += (tcp[4 + i] - ref[4 + i] if part == 0 else rot[i]) * x
+        share = along / norm if norm > 0.0 else 0.0
+        moved = moved or norm > 0.0
+        for i in range(3):
+            line[part + i] *= share
+    if not moved:
+        return False
+    advance(out, ref, line, 1.0, 1.0)
+    return True
+
+
 @kernel("boolean(float64[::1], float64[::1], float64, float64)")
 def poses_near(a: np.ndarray, b: np.ndarray, tol: float, reach: float) -> bool:
     """``a`` within ``tol`` of ``b``: position (m), and rotation times ``reach`` (m)."""
