@@ -9,6 +9,7 @@ phantom record. (SIGTERM while the arm moves: tests/test_faults_e2e.py::test_sig
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import re
 import signal
@@ -27,6 +28,7 @@ import pytest
 from prometheus_client.parser import text_string_to_metric_families
 from test_api_harness import AUTH, TOKEN, Rig, assert_log_complete, running_rig
 
+from servo_app import cli
 from servo_app.fanuc.packets import StatusStart, StatusStop
 from servo_app.service.config import ServiceConfig
 from servo_app.session_log import read_session_log
@@ -87,11 +89,15 @@ def alive(pid: int) -> bool:
 
 
 def check_log(path: Path) -> str:
-    """``servo-app check`` passes the log, as the controller would judge what was sent; its report."""
-    r = subprocess.run([sys.executable, "-m", "servo_app.cli", "check", str(path), "--model", MODEL],
-                       cwd=ROOT, capture_output=True, text=True, timeout=60)
-    assert r.returncode == 0, r.stdout + r.stderr
-    return r.stdout
+    """``servo-app check`` passes the log, as the controller would judge what was sent; its report.
+    Its own main() in this process: the same parser, checker and report as the command, without a new
+    interpreter's 2+ s of imports for each of a test's logs; the command as a process is
+    tests/test_checker_cli.py's."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli.main(["check", str(path), "--model", MODEL])
+    assert code == 0, out.getvalue() + err.getvalue()
+    return out.getvalue()
 
 
 def all_logs(var_dir: Path) -> list[Path]:
