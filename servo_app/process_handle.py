@@ -21,6 +21,7 @@ its cause ("ended by signal 9"), so the service can name the fault and start a n
 from __future__ import annotations
 
 import contextlib
+import logging
 import multiprocessing as mp
 import os
 import pickle
@@ -43,6 +44,8 @@ from servo_app.realtime import single_threaded_blas
 from servo_app.safety import Mode
 from servo_app.session_log import SessionLogWriter
 from servo_app.state import MODES, OFFSET, PHASES, STATE_SIZE, StateVector, decode_state
+
+log = logging.getLogger(__name__)
 
 # ------------------------------------------------------------------------------------- child side
 
@@ -331,8 +334,10 @@ class ServoProcessHandle:
     """The parent's side: start, request (from any thread), watch, shut down.
 
     One reader thread owns the pipe: replies wake their waiters, events are kept (``events``) and
-    passed to ``on_event``. When the process dies, ``alive`` turns False, every waiter wakes with a
-    TimeoutError naming the cause, and ``on_exit(cause)`` is called once."""
+    passed to ``on_event``. A reply nobody waits for any more (its request timed out, without
+    ``on_late``) is counted (``late_replies``) and dropped: kept, they piled up for the service's life.
+    When the process dies, ``alive`` turns False, every waiter wakes with a TimeoutError naming the
+    cause, and ``on_exit(cause)`` is called once."""
 
     def __init__(self, cfg: Any, target: Callable[..., None], name: str,
                  on_event: Callable[[msg.Event], None] | None = None,
@@ -350,7 +355,9 @@ class ServoProcessHandle:
         self.on_exit = on_exit
         self.exit_cause = ""
         self._cv = threading.Condition()
-        self._replies: dict[int, msg.Reply] = {}
+        self._replies: dict[int, msg.Reply] = {}  # only for requests in _waiting
+        self._waiting: set[int] = set()  # ids of requests whose caller still waits for the reply
+        self.late_replies = 0  # replies that came after their caller had given up (dropped)
         self._late: dict[int, Callable[[msg.Reply], None]] = {}  # expired requests' on_late, by id
         self._next_id = 0
         self._send_lock = threading.Lock()
@@ -391,9 +398,15 @@ class ServoProcessHandle:
             if isinstance(item, msg.Reply):
                 with self._cv:
                     on_late = self._late.pop(item.id, None)
-                    if on_late is None:
+                    if item.id in self._waiting:
                         self._replies[item.id] = item
                         self._cv.notify_all()
+                    elif on_late is None:
+                        self.late_replies += 1
+                        if self.late_replies == 1:  # once: a stalled process may leave many
+                            log.warning("the %s answered request %d after its caller had given up: "
+                                        "reply dropped (late replies are counted, not logged again)",
+                                        self.name, item.id)
                 if on_late is not None:  # in order with the other replies: before any later request's
                     on_late(item)
                 continue
@@ -438,21 +451,29 @@ class ServoProcessHandle:
         with self._send_lock:
             self._next_id += 1
             rid = self._next_id
+            with self._cv:  # before the send: its reply may come before we wait
+                self._waiting.add(rid)
             try:
                 self._conn.send(msg.Envelope(rid, req, deadline if on_late is not None else None))
             except OSError as exc:
+                with self._cv:
+                    self._waiting.discard(rid)
                 raise TimeoutError(f"the {self.name} is not reachable: {exc}") from None
         with self._cv:
-            while rid not in self._replies:
-                left = deadline - time.monotonic()
-                if not self.alive:
-                    raise TimeoutError(f"the {self.name} {self.exit_cause} before answering {type(req).__name__}")
-                if left <= 0:
-                    if on_late is not None:
-                        self._late[rid] = on_late
-                    raise TimeoutError(f"the {self.name} did not answer {type(req).__name__} within {timeout} s")
-                self._cv.wait(left)
-            reply = self._replies.pop(rid)
+            try:
+                while rid not in self._replies:
+                    left = deadline - time.monotonic()
+                    if not self.alive:
+                        raise TimeoutError(f"the {self.name} {self.exit_cause} before answering {type(req).__name__}")
+                    if left <= 0:
+                        if on_late is not None:
+                            self._late[rid] = on_late
+                        raise TimeoutError(f"the {self.name} did not answer {type(req).__name__} within {timeout} s")
+                    self._cv.wait(left)
+                reply = self._replies.pop(rid)
+            finally:  # (also on an interrupt in the wait: a reply stored meanwhile goes with it)
+                self._waiting.discard(rid)
+                self._replies.pop(rid, None)
         if not reply.ok:
             raise (InvalidRequest if reply.invalid else CommandRejected)(reply.error)
         return reply.result

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from servo_app.errors import CommandRejected
 from servo_app.fanuc.runner import StreamConfig, StreamProcess
 from servo_app.messages import (
     ConfigureInputs,
@@ -180,6 +181,32 @@ def test_controller_alarm_mid_stream_is_a_fault_and_needs_reset(
     sp.request(Reset())
     assert sp.state()["state"] in ("connected", "ready", "disconnected")
     assert s["link"] == "fault"
+
+
+def test_a_reply_after_its_request_timed_out_is_dropped_not_kept(tmp_path: Path) -> None:
+    """The servo process stalled (SIGSTOP) past a request's timeout answers it once it runs again
+    (SIGCONT): nobody waits for that reply any more, so it is counted and dropped, while the next
+    request still gets its own (old code: every late reply stayed in the handle for its whole life)."""
+    sim = FanucSimulator(port=0, initial_joints=HOME).start()
+    host, port = sim.address
+    sp = StreamProcess(StreamConfig(host=host, port=port, log_dir=str(tmp_path)))
+    sp.start()
+    try:
+        assert sp.pid is not None
+        os.kill(sp.pid, signal.SIGSTOP)
+        try:
+            for _ in range(3):
+                with pytest.raises(TimeoutError, match=r"did not answer Reset within 0\.2 s"):
+                    sp.request(Reset(), timeout=0.2)
+        finally:
+            os.kill(sp.pid, signal.SIGCONT)
+        # Its own answer (no fault to reset), which comes after the three late ones (one pipe, in order).
+        with pytest.raises(CommandRejected, match="reset refused in disconnected"):
+            sp.request(Reset(), timeout=5.0)
+        assert sp._replies == {} and sp.late_replies == 3
+    finally:
+        sp.shutdown()
+        sim.stop()
 
 
 def test_cartesian_format_stream_moves_with_zero_alarms(tmp_path: Path) -> None:
