@@ -12,7 +12,8 @@ supplies its link (``_link_*``: open, close, arm, end, abandon), its motion stag
 - every safety event goes through :func:`servo_app.safety.transition`, and its actions are carried out
   in order (decelerate, resume, abandon, record);
 - a start waits for the controller: ``start_pending`` until the stream runs, or until it is given up
-  (the link failed, or ``start_timeout_s`` passed), with ``start_error`` saying why;
+  (the link failed, a status shows SYSRDY off past ``SYSRDY_GRACE_S``, or ``start_timeout_s``
+  passed), with ``start_error`` saying why;
 - hold-to-run, the motion gate, input control (a stale source stops a streaming arm), and the safety
   part of ``describe()``.
 
@@ -143,6 +144,17 @@ def not_waiting_why(state: SafetyState) -> str:
     return "the controller already received commands in this program run: restart the program"
 
 
+# A start is given up on a status with SYSRDY off only this long after it was asked: a reset just
+# before it (POST /api/reset, or RESET at the pendant) brings servo power back, but a status sent
+# before that reset, or its first interval after, may still show SYSRDY off. Past this, SYSRDY off
+# needs the operator: waiting the whole start_timeout_s for it only delayed the answer (5 s).
+SYSRDY_GRACE_S = 0.5
+SYSRDY_OFF = ("SYSRDY is off (servo power not ready) in the controller's status: an emergency stop, an "
+              "open fence, a released deadman switch or an alarm holds servo power off; clear its cause "
+              "at the controller (release the stop, reset the alarm at the teach pendant, or POST "
+              "/api/reset for the embedded controller) until not_ready in GET /api/state is empty")
+
+
 def not_ready(state: SafetyState) -> str | None:
     """Why a start would wait now, while status flows but does not show the controller waiting (an alarm
     held with SYSRDY off, no streaming program running, ...); None when it is ready or has no status."""
@@ -197,6 +209,7 @@ class SupervisorBase:
         self.start_timeout_s = start_timeout_s
         self.start_pending = False  # a start waits for the controller (read by the host every cycle)
         self._start_deadline = 0.0
+        self._start_asked = 0.0  # when the pending start was asked (for SYSRDY_GRACE_S)
         self.start_error = ""  # why the last start was given up
         self._fed_actions: tuple[Action, ...] = ()
 
@@ -342,6 +355,7 @@ class SupervisorBase:
         self._feed(ConnectRequested(), now)
         self.start_pending = True
         self._start_deadline = now + self.start_timeout_s
+        self._start_asked = now
         self.start_error = ""
 
     def _on_stop(self, req: msg.Stop, now: float) -> str | None:
@@ -457,6 +471,8 @@ class SupervisorBase:
         if self.state.mode == Mode.READY or (self.state.mode == Mode.ENDED and st is not None and st.waiting):
             self.start_pending = False
             self._feed(StartRequested(), now)
+        elif st is not None and not st.sysrdy and now - self._start_asked >= SYSRDY_GRACE_S:
+            self._cancel_start(SYSRDY_OFF)  # (a status just received says so: not a stale one)
 
     def watch_start(self, now: float) -> None:
         """A pending start that cannot succeed is given up, with the reason, instead of waiting forever.

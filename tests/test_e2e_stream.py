@@ -209,6 +209,36 @@ def test_a_reply_after_its_request_timed_out_is_dropped_not_kept(tmp_path: Path)
         sim.stop()
 
 
+def test_a_start_with_sysrdy_off_fails_at_once_naming_it(tmp_path: Path) -> None:
+    """The controller holds an alarm (MOTN-606: its mode changed while the program waited), so its
+    status shows SYSRDY off: a start fails as soon as a status says so, past a short grace, naming
+    SYSRDY and what to do, and leaves the state as it was (old code: it waited its whole 5 s for a
+    controller only the operator can make ready). Reset there, a start right after it streams."""
+    sim = FanucSimulator(port=0, initial_joints=HOME).start()
+    host, port = sim.address
+    sp = StreamProcess(StreamConfig(host=host, port=port, log_dir=str(tmp_path)))
+    sp.start()
+    try:
+        sim.set_mode("T1")  # MOTN-606: an alarm, servo power off
+        sim.set_mode("AUTO")
+        assert [e.code for e in sim.alarms] == ["MOTN-606"]
+        t0 = time.monotonic()
+        with pytest.raises(CommandRejected, match=r"start failed: SYSRDY is off \(servo power not ready\)") as err:
+            sp.request(Start(), timeout=START_TIMEOUT)
+        took = time.monotonic() - t0
+        assert took < 2.0, took  # (grace 0.5 s; old code: 5 s)
+        assert "reset the alarm at the teach pendant" in str(err.value), err.value
+        s = sp.state()
+        assert s["state"] == "connected" and not s["status_bits"] & 0x04, s
+        sim.reset()  # as at the pendant: a start right after it is not refused on a status sent before
+        sp.request(Start(), timeout=START_TIMEOUT)
+        wait_for(sp, "streaming")
+        assert [e.code for e in sim.alarms] == ["MOTN-606"]
+    finally:
+        sp.shutdown()
+        sim.stop()
+
+
 def test_cartesian_format_stream_moves_with_zero_alarms(tmp_path: Path) -> None:
     """Data format 0: the flange pose of the shaped joints goes on the wire; the controller converts back."""
     sim = FanucSimulator(port=0, initial_joints=HOME).start()
