@@ -16,6 +16,8 @@ import importlib
 import sys
 from collections.abc import Callable, Sequence
 
+from servo_app.cli_args import port_arg
+
 Handler = Callable[[argparse.Namespace], int]
 
 
@@ -86,7 +88,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT")
     p.add_argument("--config", default=None, help="a Zenoh JSON5 configuration")
     p.add_argument("--multicast", action="store_true", help="find peers by multicast scouting")
-    p.add_argument("--http-port", type=int, default=None, help="also serve the lines as one web page on this port")
+    p.add_argument("--http-port", type=port_arg("TCP", zero_ok=True), default=None,
+                   help="also serve the lines as one web page on this port (0: any free port)")
     p.add_argument("--seconds", type=float, default=None,
                    help="stop after this long (default: until Ctrl-C; with --once, 3 s)")
     p.add_argument("--once", action="store_true",

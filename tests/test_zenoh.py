@@ -581,6 +581,10 @@ def test_the_monitor_once_without_seconds_prints_after_a_short_window_and_exits(
      "servo-app monitor: cannot open the Zenoh session: Can not create a new TCP listener bound to tcp/192.0.2.1"),
     (["run", "--zenoh", "--zenoh-connect", "nonsense", "--http-port", "0", "--token", TOKEN],
      "servo_app: --zenoh-connect nonsense: Endpoints must be of the form"),
+    # Taken as any int: the Zenoh session opened, then an OverflowError traceback, and it hung.
+    (["monitor", "--http-port", "70000", "--seconds", "1"],
+     "servo-app monitor: error: argument --http-port: 70000 is outside 0..65535 (0: any free port)"),
+    (["monitor", "--http-port", "-1", "--seconds", "1"], "argument --http-port: -1 is outside 0..65535"),
 ])
 def test_an_unusable_zenoh_option_exits_2_naming_it(tmp_path: Path, argv: list[str], words: str) -> None:
     """A Zenoh endpoint or configuration zenoh refuses was a Python traceback from deep in zenoh (exit 1;
