@@ -63,8 +63,9 @@ def streaming_again(pg: Any, svc: Service) -> None:
 def test_a_start_that_cannot_stream_shows_the_services_reason(page: Any, fanuc: Service) -> None:
     """The servo process is killed mid-stream; Start alone brings up a new one, but the controller still
     holds the alarm of the stream it was starved of (SYSRDY off), so the service answers 409 with that
-    reason after its 5 s start timeout. The console gave up after 3 s ("no answer in 3000 ms") and never
-    showed the reason."""
+    reason (about 0.5 s after the start; it once came after the 5 s start timeout). The console gave up
+    after 3 s ("no answer in 3000 ms") and never showed the reason: a refusal slower than that must still
+    be shown."""
     sign_in(page, fanuc)
     take_control_and_stream(page, fanuc)
     os.kill(servo_pid(fanuc), signal.SIGKILL)
