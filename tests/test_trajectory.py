@@ -161,6 +161,34 @@ def test_cartesian_waypoints_keep_the_tcp_on_the_straight_segment() -> None:
     assert np.allclose(xyz[-1], b, atol=1e-2)
 
 
+@pytest.mark.parametrize("apart", [0.0, 3.6e-211, 1e-9, 9e-7])
+def test_a_repeated_waypoint_is_one_point_the_path_stays_at(apart: float) -> None:
+    # Measured on the old code: waypoints 3.6e-211 deg apart on a joint at 0 (hypothesis' find) made the
+    # spline's knots equal (scipy: "`x` must be strictly increasing"), 1e-9 deg apart left TOPP-RA no
+    # timing (refused); and so a Cartesian pose repeated 1e-9 mm apart.
+    step = np.array([0.0, 0.0, 0.0, 0.0, 0.0, apart])
+    waypoints = HOME + np.array([[0.0, 5.0, 0.0, 0.0, 0.0, 0.0], [0.0, 5.0, 0.0, 0.0, 0.0, 0.0],
+                                 [0.0, 0.0, 0.0, 0.0, 0.0, 10.0], [0.0, 0.0, 0.0, 0.0, 0.0, 10.0]])
+    waypoints[1] += step
+    waypoints[3] += step
+    for times in (None, [0.5, 1.5, 2.5, 3.0]):
+        p = planner()
+        traj = p.plan(p.joint_segments(HOME, waypoints, times))
+        q = traj.samples
+        assert np.allclose(q[-1], waypoints[-1], atol=1e-4)
+        assert np.array_equal(q[-1], q[-2]) and np.array_equal(q[-2], q[-3]), "ends at rest"
+        assert controller_alarms(q) == []
+        assert first_violation(q, p.limits.envelope, DT) == -1
+        if times is not None:  # the repeated waypoint is held for its time
+            assert traj.duration_s >= 2.5
+    x0 = matrix_to_xyzwpr(ArmKinematics(PROFILE).fk_fanuc_deg(HOME))
+    poses = x0 + np.array([[20.0, 0.0, 0.0, 0.0, 0.0, 0.0], [20.0 + apart, 0.0, 0.0, 0.0, 0.0, 0.0],
+                           [40.0, 0.0, 0.0, 0.0, 0.0, 0.0]])
+    p = planner()
+    segs, _ = p.cartesian_segments(HOME, poses, None)
+    assert controller_alarms(p.plan(segs).samples) == []
+
+
 def test_times_are_honoured_when_feasible_and_refused_when_not() -> None:
     p = planner()
     w = np.array([HOME, HOME + np.array([20.0, 0, 0, 0, 0, 0])])

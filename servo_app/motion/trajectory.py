@@ -60,6 +60,9 @@ CART_STEP_DEG = 1.0  # ... and this many deg of orientation
 # between two statuses (unpickled, checked, copied: ~95 ns a sample here, 9.5 ms for 100 000, no alarm
 # at 4 ms with lead 2); 197 504 samples at 4 ms held the cycle up long enough for MOTN-603.
 MAX_SAMPLES = 100_000
+# deg: consecutive joint waypoints this close are one point (the wire's float32 step is 7.6e-6 deg at
+# 64-128 deg; the approach takes an arm resting within 1e-6 deg of the first waypoint as there).
+COINCIDENT_DEG = 1e-6
 
 
 class TrajectoryRefused(ValueError):
@@ -298,15 +301,20 @@ class TrajectoryPlanner:
         """Straight joint-space segments: start -> waypoint 0 (the approach), then waypoint to waypoint."""
         self._check_inside(waypoints, "joints")
         segs = self._approach(start, waypoints[0])
+        at = 0  # the waypoint the path has reached
         for i in range(1, len(waypoints)):
-            pts = np.array([waypoints[i - 1], waypoints[i]])
-            if np.array_equal(pts[0], pts[1]):
+            pts = np.array([waypoints[at], waypoints[i]])
+            if _coincident(pts[0], pts[1]):
+                # A repeated point (to COINCIDENT_DEG: 3e-211 deg apart made the spline's knots equal,
+                # 1e-9 deg left TOPP-RA no timing): the arm stays, for its time if it has one.
                 if times is not None and times[i] > times[i - 1]:
-                    segs.append(_Segment(pts, float(times[i] - times[i - 1]), label=f"waypoint {i}"))
+                    segs.append(_Segment(pts[:1].repeat(2, axis=0), float(times[i] - times[i - 1]),
+                                         label=f"waypoint {i}"))
                 continue
             duration = None if times is None else float(times[i] - times[i - 1])
-            label = f"waypoint {i - 1} -> {i}" + (f" (times[{i}])" if times is not None else "")
+            label = f"waypoint {at} -> {i}" + (f" (times[{i}])" if times is not None else "")
             segs.append(_Segment(_densify_line(pts[0], pts[1]), duration, label=label))
+            at = i
         return self._anchored(segs)
 
     def dense_segments(self, start: np.ndarray, rows: np.ndarray, what: str, *, recorded_pace: bool = True,
@@ -423,7 +431,7 @@ class TrajectoryPlanner:
 
         env, dt = self.limits.envelope, self.limits.dt
         pts = seg.points
-        if len(pts) < 2 or (np.array_equal(pts[0], pts[-1]) and len(pts) == 2):
+        if len(pts) < 2 or np.abs(pts - pts[0]).max() <= COINCIDENT_DEG:  # (a repeated pose, too)
             steps = max(1, round((seg.duration_s or 0.0) / dt))
             return to_f32(np.repeat(pts[:1], steps + 1, axis=0))
         chord = np.linalg.norm(np.diff(pts, axis=0), axis=1)
@@ -548,6 +556,11 @@ class TrajectoryPlanner:
             out.append(model_rad_to_fanuc_deg(q, self.profile.j23_factor))
             seed = q
         return np.array(out)
+
+
+def _coincident(a: np.ndarray, b: np.ndarray) -> bool:
+    """The same point to within COINCIDENT_DEG on every joint."""
+    return bool(np.abs(np.asarray(b) - np.asarray(a)).max() <= COINCIDENT_DEG)
 
 
 def _densify_line(a: np.ndarray, b: np.ndarray) -> np.ndarray:
