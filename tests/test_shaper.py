@@ -332,6 +332,22 @@ def test_ruckig_errors_fall_back_without_breaking_the_limits(fail: int) -> None:
     assert sh.guard.failures == 0
 
 
+def test_a_plan_too_long_for_ruckig_is_a_planning_error_not_an_exception() -> None:
+    # Measured on the old code: ruckig's -101 (ErrorTrajectoryDuration, a plan over ~7.6e3 s), which its
+    # Python Result does not name, raised "ValueError: -101 is not a valid Result" out of step() (a held
+    # J2 jog with J3 asked 1e-5 deg/s, tests/test_flange_speed_cap.py); here 100 deg at 1e-7 of the limit.
+    dt = 0.008
+    sh = JointShaper(limits(), dt, HOME)
+    out = run(sh, 3)
+    sh.set_target(HOME + 100.0, max_vel_scale=1e-7)
+    out += run(sh, 20)
+    assert sh.planning_errors >= 1 and "-101" in sh.last_planning_error
+    assert_within(np.array(out), dt, sh.check_limits())
+    sh.set_target(HOME + 1.0)  # ruckig plans again once it can
+    out += run_until_rest(sh)
+    assert np.allclose(out[-1], to_f32(HOME + 1.0)) and sh.guard.failures == 0
+
+
 def test_stop_path_where_ruckig_cannot_synchronise_is_the_less_synchronised_stop() -> None:
     # A state seen braking between two joint targets (v and a along one line, 2 cycles from rest),
     # from which ruckig's phase and time synchronisation raise "error in step 2": it killed the servo

@@ -672,6 +672,11 @@ class JointShaper:
         except RuckigError as exc:
             self.last_planning_error = str(exc)
             return False
+        except ValueError as exc:
+            # ruckig 0.19's Python Result lacks two of its C++ codes, and its binding raises converting
+            # them: -101 ErrorTrajectoryDuration (the plan would last over ~7.6e3 s), -104 ErrorZeroLimits.
+            self.last_planning_error = f"ruckig result {exc} (-101: too long a plan, -104: zero limits): {self._inp}"
+            return False
         self._finished = result == Result.Finished
         if self._finished or result == Result.Working:
             return True
