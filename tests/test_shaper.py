@@ -348,6 +348,24 @@ def test_a_plan_too_long_for_ruckig_is_a_planning_error_not_an_exception() -> No
     assert np.allclose(out[-1], to_f32(HOME + 1.0)) and sh.guard.failures == 0
 
 
+def test_an_axis_a_straight_move_barely_moves_stays_put() -> None:
+    # Measured on the old code: J3's share of the line was under 1e-9, so it kept its own limits, and
+    # ruckig's synchronization swung it 11.5 deg for a 1e-12 deg move when the target moved on along
+    # the line (a streamed target); J3 0.0019 deg at 0.71 deg/s in a joint jog with J3 asked 1e-12.
+    dt = 0.008
+    sh = JointShaper(limits(), dt, HOME)
+    d = np.array([29.51380562115871, -44.782230197119844, 1e-12, 39.750133036233734, -38.660905971947294,
+                  15.233759828706425])
+    out = run(sh, 2)
+    for k in range(2):
+        sh.set_target(HOME + d * (1 + 0.01 * k))
+        out += run(sh, 1)
+    out += run_until_rest(sh)
+    assert np.abs(np.array(out)[:, 2] - HOME[2]).max() <= 1e-9
+    assert np.array_equal(out[-1], to_f32(HOME + d * 1.01))
+    assert_within(np.array(out), dt, sh.check_limits())
+
+
 def test_stop_path_where_ruckig_cannot_synchronise_is_the_less_synchronised_stop() -> None:
     # A state seen braking between two joint targets (v and a along one line, 2 cycles from rest),
     # from which ruckig's phase and time synchronisation raise "error in step 2": it killed the servo

@@ -98,10 +98,10 @@ def line_limits_oracle(p, v, a, q, env, vel_scale):
         off = x - (x @ u) * u
         if np.linalg.norm(off) > 1e-9 * (np.linalg.norm(x) + 1e-12):
             return False, limits
-    moving = line > 0.0
+    share = np.maximum(np.abs(d), 1e-9 * size)  # (an axis not moving: the limits of 1e-9 of the line)
     for k, lim in enumerate(limits):
-        rate = np.min(lim[moving] / line[moving])
-        limits[k] = np.where(moving, line * rate, lim)
+        rate = np.min(lim / share)
+        limits[k] = share * rate
     return True, limits
 
 
@@ -139,7 +139,7 @@ def test_line_limits_take_each_branch():
     p, q = np.zeros(6), np.array([10.0, 5.0, 0.0, 0.0, 0.0, 0.0])
     args = (ENV.plan_vel, ENV.plan_acc, ENV.plan_jerk, 1.0, out)
     assert line_limits(p, np.zeros(6), np.zeros(6), q, *args)
-    assert out[0, 1] / out[0, 0] == 0.5 and out[0, 2] == ENV.plan_vel[2]
+    assert out[0, 1] / out[0, 0] == 0.5 and math.isclose(out[0, 2], 1e-9 * out[0, 0], rel_tol=1e-12)
     assert not line_limits(p, np.array([0.0, 0.0, 1.0, 0, 0, 0]), np.zeros(6), q, *args)  # moving across
     assert not line_limits(p, np.zeros(6), np.zeros(6), p + 1e-8, *args)  # nothing to keep straight
 

@@ -71,7 +71,7 @@ def line_limits(p: np.ndarray, v: np.ndarray, a: np.ndarray, q: np.ndarray, plan
     norm_u = 0.0
     for i in range(n):
         d = q[i] - p[i]
-        if abs(d) >= 1e-9 * size:  # numerically not moving otherwise: keeps its own limits, stays put
+        if abs(d) >= 1e-9 * size:  # numerically not moving otherwise: left out of the direction
             norm_u += d * d
     norm_u = math.sqrt(norm_u)
     for x in (v, a):
@@ -89,16 +89,16 @@ def line_limits(p: np.ndarray, v: np.ndarray, a: np.ndarray, q: np.ndarray, plan
             norm_off += off * off
         if math.sqrt(norm_off) > 1e-9 * (math.sqrt(norm_x) + 1e-12):
             return False
+    # An axis numerically not moving (under 1e-9 of the line) gets the limits of 1e-9 of it, not its own:
+    # with its own, ruckig's synchronization sent J3 4.6e-13 deg from its target 0.0019 deg off in one
+    # cycle, at 0.71 deg/s (a jog of J2 120, J4 -115, J5 195 deg/s with J3 asked 1e-12).
+    floor = 1e-9 * size
     for k in range(3):
         rate = np.inf
         for i in range(n):
-            line = abs(q[i] - p[i])
-            if line >= 1e-9 * size:
-                rate = min(rate, out[k, i] / line)
+            rate = min(rate, out[k, i] / max(abs(q[i] - p[i]), floor))
         for i in range(n):
-            line = abs(q[i] - p[i])
-            if line >= 1e-9 * size:
-                out[k, i] = line * rate
+            out[k, i] = max(abs(q[i] - p[i]), floor) * rate
     return True
 
 
