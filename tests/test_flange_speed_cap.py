@@ -166,6 +166,28 @@ def test_a_jog_near_a_joint_limit_runs_no_joint_faster_than_asked() -> None:
         assert sent[-1][4] < -100.0  # J5 went on towards its limit
 
 
+def test_a_jog_with_a_tiny_asked_speed_keeps_it_and_plans_throughout() -> None:
+    # Hypothesis' finds, measured on the old code: J2 -33 deg/s with J3 1e-5 (cap 292) ran J2 into J3's
+    # model range, the clipped line needed 4.9 deg of J3, and the target 27 deg away at 0.0035 deg/s was
+    # over ruckig's longest plan ("ValueError: -101 is not a valid Result" out of the cycle). Off the
+    # line the shaper's time synchronization gave every joint its whole limit: J1 asked 0.0156 deg/s
+    # beside J2 68 (cap 660) ran at 0.031 deg/s as J2 stopped at its range, J5 asked 0.0039 beside J6
+    # 196 (cap 230) at 0.015 deg/s (ruckig's velocity, 0.057 and 0.070 deg/s: not float32 rounding).
+    # The last: J3 asked 1e-12 beside J2 120, J4 -115, J5 195 ran at 0.6 deg/s once these caps held
+    # (JointShaper's line limits left J3 its own, see test_an_axis_a_straight_move_barely_moves_stays_put).
+    for v, cap in (([0.0, -33.0, 1e-5, 0.0, 0.0, 0.0], 292.0), ([0.015625, 68.0, 0.0, 0.0, 0.0, 0.0], 660.0),
+                   ([0.0, 0.0, 0.0, 0.0, 0.00390625, 196.0], 230.0),
+                   ([14.13231712903422, 120.02074400437948, 1e-12, -115.39310961007804, 194.84669730371627,
+                     1.2678506032477207e-217], 1461.711878837265)):
+        cycle, sent = streaming(cap)
+        _held_jog(cycle, sent, np.array(v))
+        got = np.abs(np.diff(np.vstack(sent), axis=0)).max(axis=0) / DT
+        jogged = np.array(v) != 0.0
+        assert (got[jogged] <= np.abs(v)[jogged] * 1.01).all(), (v, got.tolist())
+        assert cycle.shaper.planning_errors == 0, cycle.shaper.last_planning_error
+        assert peak_flange_speed(sent) <= cap
+
+
 @settings(max_examples=25, deadline=None)
 @given(st.lists(st.floats(-200.0, 200.0), min_size=6, max_size=6), st.floats(100.0, 1500.0))
 def test_a_held_joint_jog_runs_no_joint_faster_than_asked(v: list[float], cap: float) -> None:

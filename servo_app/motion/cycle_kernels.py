@@ -190,6 +190,13 @@ def jog_target(q: np.ndarray, v: np.ndarray, speed_scale: float, vmax: np.ndarra
                 asked = min(asked, abs(v[j] * speed_scale) / d)
     if asked < np.inf and allowed < np.inf:
         scale = min(scale, asked / allowed)
+    # The target no further than the jog runs in ``horizon`` (share of the line per second: min(scale, 1)
+    # x allowed): a slowed line's clipped end was not. J2 -33 deg/s, J3 1e-5 ran J2 into J3's model range,
+    # the line needed 4.9 deg of J3: 27 deg at 0.0035 deg/s, over ruckig's 7.6e3 s plan (its error -101).
+    ahead = min(scale, 1.0) * allowed * horizon
+    if ahead < 1.0:
+        for j in range(n):
+            out[j] = q[j] + (out[j] - q[j]) * ahead
     reach = config_keeping_reach(q, out, 24, j23_factor, region, point)
     for j in range(n):
         out[j] = q[j] + (out[j] - q[j]) * reach

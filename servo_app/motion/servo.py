@@ -169,6 +169,7 @@ class ServoCycle:
         self._speed_scale = 1.0
         self._cap_scale = 1.0  # the joint target's speed share that keeps the flange under the cap
         self._jog_cap = 1.0  # the same for the joint jog
+        self._jog_caps = np.full(self.profile.dof, np.inf)  # deg/s: each joint's asked jog speed (inf: not jogged)
         self._q_prev = None
         self._replay, self.replay_error = None, ""
         q_model = fanuc_deg_to_model_rad(np.asarray(q_start[: self.profile.dof], float), self.profile.j23_factor)
@@ -377,6 +378,10 @@ class ServoCycle:
         renewal = self._jog is not None and np.array_equal(v, self._jog)  # the same button, still held
         redirect = not renewal and not self._pending and self._redirects(shaper, v)
         self._jog, self._target = v, None
+        if not renewal:  # no jogged joint faster than asked, also where the shaper leaves the line (caps
+            # 1e-9 of the fastest at least: ruckig takes no zero limit); joints not jogged run as the line asks
+            floor = 1e-9 * float(np.max(np.abs(v)))
+            self._jog_caps = np.where(v != 0.0, np.maximum(np.abs(v), floor), np.inf)
         # Each renewal too (cheap: 2 x 24 flange points), as the arm moves on along the line. Along the
         # clipped line and the jog's own: the target runs ahead by the horizon times the guard's share,
         # clipped only once that reaches a limit. (The clipped line alone took 0.42 for J3 -200, J6 200
@@ -737,7 +742,7 @@ class ServoCycle:
             if not shaper.at_rest and shaper.mode != "stop-soft":
                 shaper.stop("soft")
             return
-        shaper.set_target(self._jog_goal, min(scale, 1.0))
+        shaper.set_target(self._jog_goal, min(scale, 1.0), speed_caps=self._jog_caps)
 
     def _safe(self, q_fanuc_deg: np.ndarray) -> np.ndarray:
         """Per row (or for one vector): inside the joint ranges and the held configuration, with margins.

@@ -372,6 +372,7 @@ class JointShaper:
         self._within = np.empty(self.n)  # scratch of set_velocity
         self._no_change = _NO_CHANGE[self.n]  # the guard's mask when it changed nothing
         self._target_still = True  # ruckig's target velocity is zero (what _settle asks)
+        self._speed_caps: np.ndarray | None = None  # set_target's, for _apply_line_limits
         self.set_limits(limits)
         self.reseed(q0)
 
@@ -424,13 +425,16 @@ class JointShaper:
 
     # -- commands --------------------------------------------------------------------------------
 
-    def set_target(self, q: ArrayLike, max_vel_scale: float = 1.0, straight: bool = True) -> None:
+    def set_target(self, q: ArrayLike, max_vel_scale: float = 1.0, straight: bool = True,
+                   speed_caps: np.ndarray | None = None) -> None:
         """Move to joint position ``q`` (deg), at most ``max_vel_scale`` x the velocity limit.
 
         ``straight``: from rest, or from a motion along the same line, the path is the straight line in
         joint space (the time-optimal one along it); otherwise ruckig's phase synchronization, which
         the community edition drops for time synchronization (a curved path) whenever a straight
-        profile is not the time-optimal one.
+        profile is not the time-optimal one. ``speed_caps`` (deg/s, positive, per axis; inf: none): no
+        axis faster off the line either (a jog's asked speeds; along the line the caller's scale keeps
+        them), where time synchronization gives every axis its whole limit.
         """
         q = _arr(q)
         if q.shape != (self.n,) or not np.isfinite(q).all():
@@ -441,6 +445,7 @@ class JointShaper:
         if self._mode == "position" and key == self._target_key and self._plan_mode == "soft":
             return  # re-sent every cycle by a streaming caller: nothing changes, ruckig keeps its plan
         self._target_key = key
+        self._speed_caps = speed_caps
         self._select_plan("soft", max_vel_scale, apply=not straight)
         if straight:
             self._apply_line_limits(q)
@@ -619,8 +624,9 @@ class JointShaper:
         e = self._env[self._plan_mode]
         p, v, a = self.state
         lim = self._line_limits
-        line_limits(p, v, a, np.ascontiguousarray(q, dtype=np.float64), e.plan_vel, e.plan_acc, e.plan_jerk,
-                    self._vel_scale, lim)
+        if not line_limits(p, v, a, np.ascontiguousarray(q, dtype=np.float64), e.plan_vel, e.plan_acc,
+                           e.plan_jerk, self._vel_scale, lim) and self._speed_caps is not None:
+            np.minimum(lim[0], self._speed_caps, out=lim[0])
         self._inp.max_velocity, self._inp.max_acceleration, self._inp.max_jerk = lim.tolist()
         self._applied_plan = None
 
