@@ -315,10 +315,11 @@ class FailingRuckig:
         self.otg.reset()  # type: ignore[attr-defined]
 
 
-@pytest.mark.parametrize("fail", [1, 4, 60])
+@pytest.mark.parametrize("fail", [1, 4, 5, 60])
 def test_ruckig_errors_fall_back_without_breaking_the_limits(fail: int) -> None:
-    # 1: the time-synchronized retry plans; 4: every retry fails once, the emergency braking step
-    # runs for a cycle; 60: ruckig is out for 60 cycles and the guard alone brakes.
+    # 1: the time-synchronized retry plans; 4: every retry to the target fails once, ruckig's braking
+    # plans; 5: that fails too, the guard's braking step runs for a cycle; 60: ruckig is out for 60
+    # cycles and the guard alone brakes.
     dt = 0.008
     sh = JointShaper(limits(), dt, HOME)
     sh.set_velocity(sh.check_limits()[0] * 0.8)

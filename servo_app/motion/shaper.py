@@ -658,7 +658,7 @@ class JointShaper:
         """Ruckig's next position after its update failed, or None if it cannot plan at all.
 
         Not expected, but ruckig 0.19 does raise on rare numerical edge cases (seen: velocity
-        interface, "error in step 1"): retry less synchronized, then with a hair less jerk."""
+        interface, "error in step 1"): retry less synchronized, then with a hair less jerk, then brake."""
         self.planning_errors += 1
         sync = self._inp.synchronization
         for retry in (Synchronization.Time, Synchronization.No):
@@ -670,6 +670,18 @@ class JointShaper:
         self._inp.max_jerk = [j * (1.0 - 1e-6) for j in jerk]
         ok = self._update()
         self._inp.max_jerk, self._inp.synchronization = jerk, sync
+        if ok:
+            return self._out.new_position  # type: ignore[no-any-return]
+        # No plan to the target (-101: braking from 190 deg/s to a jog target the line cut 1e-4 deg
+        # ahead, then back at 1e-4 deg/s), but still a stop: brake towards rest on ruckig's velocity
+        # interface, each axis on its own, and plan again from there next cycle.
+        inp = self._inp
+        interface, target = inp.control_interface, inp.target_velocity
+        inp.control_interface, inp.synchronization, inp.target_velocity = (
+            ControlInterface.Velocity, Synchronization.No, [0.0] * self.n)
+        ok = self._update()
+        inp.control_interface, inp.synchronization, inp.target_velocity = interface, sync, target
+        self._finished = False  # (the stop's end is not the command's)
         return self._out.new_position if ok else None  # type: ignore[no-any-return]
 
     def _update(self) -> bool:
