@@ -677,10 +677,14 @@ class ServoCycle:
         # before, ignored the tool: 1 deg about a TCP 1.5 m away swung the flange at 138 mm/s under a
         # 100 mm/s cap, the TCP at 125 mm/s for a 40 mm/s target. Once, when the finish begins.
         scale = self._cap_share(q_f, q_goal, samples=5, tcp_speeds=(cmd.linear_speed, cmd.angular_speed))
+        # That share holds along the line alone: a move curved by the IK's motion across it ran each axis
+        # at its own limit (3 x angular_speed, a 200 mm tool at 5 deg/s) and swung J3 out and back. Not
+        # yet if the motion's turn onto the line would need more jerk than there is: the IK goes on.
+        if not shaper.set_target_on_line(q_goal, scale * self._speed_scale):
+            return False
         self._cart, self._cart_active = None, False
         self._target, self._finishing = (q_goal, scale), cmd
         self._cap_scale = 1.0  # (in scale already)
-        shaper.set_target(q_goal, scale * self._speed_scale)
         return True
 
     def _guard_ik_velocity(self, q: np.ndarray, velocity_model: np.ndarray, v_now: np.ndarray,

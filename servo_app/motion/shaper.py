@@ -46,6 +46,7 @@ from ruckig import (
     Ruckig,
     RuckigError,
     Synchronization,
+    Trajectory,
 )
 
 from servo_app.motion.ik_kernels import any_nonzero2
@@ -450,6 +451,63 @@ class JointShaper:
         if straight:
             self._apply_line_limits(q)
         self._set_position_mode(q)
+
+    def set_target_on_line(self, q: ArrayLike, max_vel_scale: float = 1.0) -> bool:
+        """:meth:`set_target` along the straight joint line from here to ``q``, also from a motion only
+        nearly along it: the state's velocity and acceleration across the line are dropped, if the
+        positions then sent pass the guard as they are. False (nothing changed) if they would not.
+
+        ruckig keeps a move straight only from a state exactly along the line; else its time
+        synchronization curves it, each axis at its own limits rather than its share of the line's
+        (the TCP faster than the speeds the line was scaled for), and an axis with almost nothing to
+        cover can go out and back. A motion handed over by the differential IK is along the line to
+        ~1e-5 at best. Dropping (dv, da) shifts the next positions by k dv dt + (k dt)^2 da / 2 from a
+        history that had them, a step in the finite differences the guard would have to correct (and
+        its re-seed is off the line again): so the first three positions of the new plan (after them
+        the differences are the new plan's alone) are checked exactly as the guard will check them.
+        """
+        q = _arr(q)
+        p, v, a = self.state
+        d = q - p
+        if q.shape != (self.n,) or not np.isfinite(q).all() or float(np.max(np.abs(d))) < 1e-6:
+            self.set_target(q, max_vel_scale)  # (its errors; nothing to keep straight)
+            return True
+        # An axis with (numerically) nothing to cover (as line_limits counts it) is put on its target at
+        # rest: ruckig checks the line on all of them, and 1e-15 deg/s there against a 1e-16 deg move
+        # was enough for its time synchronization (J1 and J4 out by 0.15 deg and back at full acceleration).
+        still = np.abs(d) < 1e-9 * float(np.max(np.abs(d)))
+        d[still] = 0.0
+        u = d / float(np.linalg.norm(d))
+        before = (self._inp.current_position, self._inp.current_velocity, self._inp.current_acceleration)
+        self._inp.current_position = np.where(still, q, p).tolist()
+        self._inp.current_velocity = (u * float(v @ u)).tolist()
+        self._inp.current_acceleration = (u * float(a @ u)).tolist()
+        self._target_key = None  # (plan again even if the target is the same)
+        self.set_target(q, max_vel_scale)
+        if self._passes_first_cycles():
+            return True
+        self._inp.current_position, self._inp.current_velocity, self._inp.current_acceleration = before
+        self._target_key = None
+        self.set_velocity(v)  # (as it was: the caller's motion goes on)
+        return False
+
+    def _passes_first_cycles(self, cycles: int = 3) -> bool:
+        """Would the guard pass the next ``cycles`` positions of ruckig's plan from its input unchanged?"""
+        traj = Trajectory(self.n)
+        try:
+            if self._otg.calculate(self._inp, traj) not in (Result.Working, Result.Finished):
+                return False
+        except RuckigError:
+            return False
+        g = DiscreteGuard(self.dt, self.guard.s1)
+        g._s, g._v, g._a = self.guard.s1, self.guard.v1, self.guard.a1
+        env = self._guard_env
+        for k in range(1, cycles + 1):
+            r = to_f32(traj.at_time(min(k * self.dt, traj.duration))[0])
+            if not g.passes(r, env).all():
+                return False
+            g.commit(r)
+        return True
 
     def set_velocity(self, v: ArrayLike) -> None:
         """Reach joint velocity ``v`` (deg/s) jerk-limited; above the limit all axes are scaled by one
