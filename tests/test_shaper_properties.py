@@ -163,3 +163,49 @@ def test_target_switch_mid_move_still_arrives(dt: float, a: np.ndarray, b: np.nd
         out.append(sh.step())
     assert np.array_equal(out[-1], to_f32(b))
     assert_within(np.array(out), dt, sh.check_limits())
+
+
+@SETTINGS
+@given(st.sampled_from([0.008, 0.004]), joints, st.lists(unit, min_size=6, max_size=6).map(np.array),
+       st.lists(unit, min_size=6, max_size=6).map(np.array), st.floats(1e-6, 0.05),
+       st.lists(st.booleans(), min_size=6, max_size=6).map(np.array), st.floats(0.05, 1.0), st.integers(2, 40),
+       st.floats(0.05, 20.0), st.floats(0.02, 1.0))
+def test_a_target_set_on_line_from_a_motion_nearly_along_it_runs_straight(
+        dt: float, q0: np.ndarray, way: np.ndarray, skew: np.ndarray, skew_size: float, still: np.ndarray,
+        speed: float, cycles: int, length: float, scale: float) -> None:
+    """``set_target_on_line`` from a motion nearly along the line (as the differential IK hands a pose
+    target's finish over): the positions sent run on the straight line to the target (float32 rounding
+    only) and within the limits, with nothing for the guard to correct, or it refuses and the motion goes
+    on as it was. Without it (set_target): the move curves (ruckig's time synchronisation), and an axis
+    with nothing to cover but 1e-15 deg/s went out by 0.15 deg and back."""
+    way = np.where(still, 0.0, way)  # (some axes with nothing to cover)
+    if np.linalg.norm(way) < 0.1:
+        return
+    u = way / np.linalg.norm(way)
+    sh = JointShaper(ShaperLimits(*RAW, pos_abs_max=POS_MAX), dt, q0 * 0.5)
+    sh.step()
+    vel = sh.check_limits()[0]
+    sh.set_velocity((u + skew * skew_size) * speed * float(np.min(vel / (np.abs(u) + skew_size))) * 0.5)
+    sent = [sh.step() for _ in range(cycles)]
+    p, v, a = sh.state
+    q = p + u * length
+    interventions = sh.guard.interventions
+    if not sh.set_target_on_line(q, scale):
+        event("refused")
+        assert sh.mode == "velocity" and all(np.array_equal(x, y) for x, y in zip(sh.state, (p, v, a), strict=True))
+        return
+    event("straight")
+    start = len(sent)
+    for _ in range(5000):
+        sent.append(sh.step())
+        if sh.at_rest:
+            break
+    qs = np.vstack(sent)
+    assert sh.at_rest and np.array_equal(qs[-1], to_f32(q))
+    assert_within(qs, dt, sh.check_limits(), start)
+    assert sh.guard.interventions == interventions
+    h = float(np.spacing(np.float32(POS_MAX))) / 2.0
+    d = qs[start:] - p
+    off = np.linalg.norm(d - np.outer(d @ u, u), axis=1)
+    note(f"off the line: {off.max():.2e} deg")
+    assert off.max() <= np.sqrt(6.0) * h

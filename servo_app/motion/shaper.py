@@ -455,7 +455,8 @@ class JointShaper:
     def set_target_on_line(self, q: ArrayLike, max_vel_scale: float = 1.0) -> bool:
         """:meth:`set_target` along the straight joint line from here to ``q``, also from a motion only
         nearly along it: the state's velocity and acceleration across the line are dropped, if the
-        positions then sent pass the guard as they are. False (nothing changed) if they would not.
+        positions then sent pass the guard as they are. False if they would not: the motion it was in
+        goes on (its target again).
 
         ruckig keeps a move straight only from a state exactly along the line; else its time
         synchronization curves it, each axis at its own limits rather than its share of the line's
@@ -479,6 +480,7 @@ class JointShaper:
         d[still] = 0.0
         u = d / float(np.linalg.norm(d))
         before = (self._inp.current_position, self._inp.current_velocity, self._inp.current_acceleration)
+        mode, key, target_v = self._mode, self._target_key, np.array(self._inp.target_velocity)
         self._inp.current_position = np.where(still, q, p).tolist()
         self._inp.current_velocity = (u * float(v @ u)).tolist()
         self._inp.current_acceleration = (u * float(a @ u)).tolist()
@@ -488,7 +490,12 @@ class JointShaper:
             return True
         self._inp.current_position, self._inp.current_velocity, self._inp.current_acceleration = before
         self._target_key = None
-        self.set_velocity(v)  # (as it was: the caller's motion goes on)
+        if mode == "position" and key is not None:  # the motion it was in goes on
+            self.set_target(np.array(key[0]), key[1], key[2])
+        elif mode.startswith("stop-"):
+            self.stop(mode.removeprefix("stop-"))  # type: ignore[arg-type]
+        else:
+            self.set_velocity(target_v)
         return False
 
     def _passes_first_cycles(self, cycles: int = 3) -> bool:
