@@ -480,7 +480,8 @@ class JointShaper:
         d[still] = 0.0
         u = d / float(np.linalg.norm(d))
         before = (self._inp.current_position, self._inp.current_velocity, self._inp.current_acceleration)
-        mode, key, target_v = self._mode, self._target_key, np.array(self._inp.target_velocity)
+        mode, key, caps = self._mode, self._target_key, self._speed_caps
+        target_v = np.array(self._inp.target_velocity)
         self._inp.current_position = np.where(still, q, p).tolist()
         self._inp.current_velocity = (u * float(v @ u)).tolist()
         self._inp.current_acceleration = (u * float(a @ u)).tolist()
@@ -491,7 +492,7 @@ class JointShaper:
         self._inp.current_position, self._inp.current_velocity, self._inp.current_acceleration = before
         self._target_key = None
         if mode == "position" and key is not None:  # the motion it was in goes on
-            self.set_target(np.array(key[0]), key[1], key[2])
+            self.set_target(np.array(key[0]), key[1], key[2], caps)
         elif mode.startswith("stop-"):
             self.stop(mode.removeprefix("stop-"))  # type: ignore[arg-type]
         else:
