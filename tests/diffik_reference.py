@@ -1,7 +1,8 @@
 """The diff-IK as it was before issue 15 (commit f31c1c5), kept verbatim as the reference the fast
 implementation in :mod:`servo_app.motion.diffik` is compared with (tests/test_diffik_equivalence.py),
 but for one later change of behaviour made to both: a pose target's reference slides along its line
-to the goal (``_along_track_to``), and there is no pull-back once it has arrived.
+to the goal (``_along_track_to``), and there is no pull-back once it has arrived; and a pose target's
+line runs no faster than its turn in joint space lets the arm follow it (``_turn_cap``).
 
 It assembles its QP from mink task and limit objects every cycle (``compute_qp_objective`` /
 ``compute_qp_inequalities``); the limits in :mod:`servo_app.motion.ik_limits` keep that contract.
@@ -88,6 +89,7 @@ class IkSettings:
     pose_gain: float = 10.0  # 1/s, P-gain of pose and joint targets (gain * dt must stay < 1)
     target_linear_acc: float = 2000.0  # mm/s^2, braking profile toward a pose target
     target_angular_acc: float = 720.0  # deg/s^2
+    line_turn_fraction: float = 0.1  # a pose line's share of the acceleration for its turn in joint space
     arrive_mm: float = 0.01
     arrive_deg: float = 0.01
     reference_tolerance_m: float = 1e-3  # re-latch the integrated TCP reference beyond this drift
@@ -180,6 +182,7 @@ class DifferentialIK:
         self.c_inv = np.linalg.inv(self.c)
         self.vel = np.radians(profile.vel_limit) * st.vel_fraction
         self.acc = np.radians(profile.acc_limit) * st.acc_fraction
+        self._line_prev, self._line_goal_of = np.zeros(N), None
         brake = self.acc * st.brake_fraction
         brake[2] = min(brake[2], self.acc[2] - abs(profile.j23_factor) * brake[1])
         if brake[2] <= 0.0:
@@ -258,6 +261,7 @@ class DifferentialIK:
         self._ref = None
         self._last_xi = None
         self._mode = ""
+        self._line_prev = np.zeros(N)
         self._started = True
         self._before = None
         if self.qp is not None:
@@ -366,6 +370,10 @@ class DifferentialIK:
 
         solver_status = ""
         dq: np.ndarray | None = None
+        if state_mode == "pose" and asks_motion:
+            if self._before[3] != "pose":
+                self._line_prev = np.zeros(N)
+            s_goal = min(s_goal, self._turn_cap(direction))
         s = _path_scale(direction, s_goal, g, h_path - g @ d_corr)
         if s is None and d_corr.any():
             d_corr = np.zeros(N)  # the correction does not fit this cycle: the line alone
@@ -493,12 +501,30 @@ class DifferentialIK:
                 mujoco.mju_rotVecQuat(part, part.copy(), tcp[:4])
         return xi
 
+    def _turn_cap(self, direction: np.ndarray) -> float:
+        """The share of the line at which its turn in joint space (per unit of path, FANUC axes) needs
+        no more than ``line_turn_fraction`` of the acceleration; inf with nothing to compare."""
+        u, prev = self.c @ direction, self._line_prev
+        self._line_prev = u
+        nu, npv = float(np.linalg.norm(u)), float(np.linalg.norm(prev))
+        if nu == 0.0 or npv == 0.0:
+            return math.inf
+        share = float(np.linalg.norm(self.c @ self._dq_prev)) / npv
+        if share < 0.01:
+            return math.inf
+        turn = np.abs(u - prev * (nu / npv)) / share
+        lim = self.acc * (self.settings.line_turn_fraction * self.dt * self.dt)
+        caps = [math.sqrt(li / t) for li, t in zip(lim, turn, strict=True) if t > 0.0]
+        return min(caps, default=math.inf)
+
     def _pose_twist(self, cmd: PoseTarget, tcp: np.ndarray) -> tuple[np.ndarray, bool]:
         """Straight-line P-control: one rate for translation and rotation (they arrive together),
         capped by the speed caps and by the speed from which the target can still be reached
         braking at the target accelerations."""
         st, dt = self.settings, self.dt
         goal = _pose_of_matrix(xyzwpr_to_matrix(cmd.xyzwpr))
+        if cmd.xyzwpr != self._line_goal_of:
+            self._line_goal_of, self._line_prev = cmd.xyzwpr, np.zeros(N)
         dp = goal[4:] - tcp[4:]
         dth = _rotation_between(goal, tcp)
         lin, ang = float(np.linalg.norm(dp)), float(np.linalg.norm(dth))

@@ -141,6 +141,31 @@ def test_along_track_to_moves_each_part_along_its_line_to_the_goal(ref: np.ndarr
     assert abs(float((tcp[4:] - out[4:]) @ line[:3])) <= 1e-12 * (1.0 + norms[0])
 
 
+@given(prev=vec6, direction=vec6, dq_prev=vec6, lim=arrays(np.float64, 6, elements=st.floats(1e-6, 1.0)))
+def test_turn_cap_is_the_speed_at_which_the_turn_fits(prev: np.ndarray, direction: np.ndarray, dq_prev: np.ndarray,
+                                                      lim: np.ndarray) -> None:
+    c = fanuc_rate_matrix(PROFILE.j23_factor)
+    out = np.empty(6)
+    prev0 = prev.copy()
+    cap = k.turn_cap(prev, direction, c, dq_prev, lim, out)
+    u = c @ direction
+    np.testing.assert_allclose(out, u, rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(prev, prev0)  # read only: the caller keeps it for undo
+    nu, npv = float(np.linalg.norm(u)), float(np.linalg.norm(prev))
+    share = float(np.linalg.norm(c @ dq_prev)) / npv if npv > 0.0 else 0.0
+    if nu == 0.0 or npv == 0.0 or share < 0.01:
+        assert cap == math.inf
+        return
+    # Per unit of path, the full-speed increment turns by `turn`; at the share cap, cap**2 * turn is
+    # within lim on every axis, and on one of them at it.
+    turn = np.abs(u - prev * (nu / npv)) / share
+    if not (turn > 0.0).any():
+        assert cap == math.inf
+        return
+    assert np.all(cap * cap * turn <= lim * (1.0 + 1e-9))
+    assert np.any(cap * cap * turn >= lim * (1.0 - 1e-9))
+
+
 @given(jac=mat6, reach=st.floats(0.1, 2.0))
 def test_condition_number_matches_the_svd(jac: np.ndarray, reach: float) -> None:
     scaled = jac.copy()

@@ -149,6 +149,9 @@ class IkSettings:
     pose_gain: float = 10.0  # 1/s, P-gain of pose and joint targets (gain * dt must stay < 1)
     target_linear_acc: float = 2000.0  # mm/s^2, braking profile toward a pose target
     target_angular_acc: float = 720.0  # deg/s^2
+    # The share of the acceleration a pose target's line may take for its turn in joint space (the rest:
+    # the pull-back and the shaper's jerk-limited lag); 0.3 still ran a 1.5 m tool at 2.3 x its speed.
+    line_turn_fraction: float = 0.1
     arrive_mm: float = 0.01
     arrive_deg: float = 0.01
     reference_tolerance_m: float = 1e-3  # re-latch the integrated TCP reference beyond this drift
@@ -244,6 +247,9 @@ class DifferentialIK:
         self.c_inv = np.linalg.inv(self.c)
         self.vel = np.radians(profile.vel_limit) * st.vel_fraction
         self.acc = np.radians(profile.acc_limit) * st.acc_fraction
+        # A pose target's line direction last cycle (FANUC axes; zeros: none) and the buffer for this one's.
+        self._line_prev, self._line_spare = np.zeros(N), np.zeros(N)
+        self._turn_lim = self.acc * (st.line_turn_fraction * dt * dt)
         brake = self.acc * st.brake_fraction
         brake[2] = min(brake[2], self.acc[2] - abs(profile.j23_factor) * brake[1])
         if brake[2] <= 0.0:
@@ -301,7 +307,7 @@ class DifferentialIK:
         self.frame_target: np.ndarray | None = None  # the last Cartesian cycle's frame target (wxyz_xyz)
         self._layout()
         # What the last step() started from, for step_again().
-        self._before: tuple[np.ndarray, np.ndarray | None, np.ndarray | None, str] | None = None
+        self._before: tuple[np.ndarray, np.ndarray | None, np.ndarray | None, str, np.ndarray] | None = None
 
     # ---------------------------------------------------------------------------------- public
     @property
@@ -324,6 +330,7 @@ class DifferentialIK:
         self._ref = None
         self._last_xi = None
         self._mode = ""
+        self._line_prev[:] = 0.0
         self._started = True
         self._before = None
         if self.qp is not None:
@@ -365,7 +372,7 @@ class DifferentialIK:
         if not self._started:
             self.reset(q)
         # Everything step() changes (the rows and targets it sets are rebuilt by every step).
-        self._before = (self._dq_prev, self._ref, self._last_xi, self._mode)
+        self._before = (self._dq_prev, self._ref, self._last_xi, self._mode, self._line_prev)
         if dq_prev is not None:
             self._dq_prev = dq_prev
         # (set_previous without its copy: the IK's dq_prev is never changed in place, only replaced)
@@ -482,6 +489,13 @@ class DifferentialIK:
 
         solver_status = ""
         dq: np.ndarray | None = None
+        if state_mode == "pose" and asks_motion:
+            # Not faster than the line's turn in joint space lets the arm follow it (kernels.turn_cap).
+            prev, out = self._line_prev, self._line_spare
+            if self._before[3] != "pose":
+                prev[:] = 0.0  # (nothing to compare with)
+            s_goal = min(s_goal, kernels.turn_cap(prev, direction, self.c, self._dq_prev, self._turn_lim, out))
+            self._line_prev, self._line_spare = out, prev  # (swapped, not copied: undo_step restores prev)
         s = _path_scale(direction, s_goal, g, h_path, d_corr)
         if s is None and kernels.any_nonzero(d_corr):
             d_corr = np.zeros(N)  # the correction does not fit this cycle: the line alone
@@ -658,14 +672,20 @@ class DifferentialIK:
         process uses it for an input that arrived while the cycle was being solved)."""
         if self._before is None:
             raise RuntimeError("step_again() needs a step() since the last reset()")
-        self._dq_prev, self._ref, self._last_xi, self._mode = self._before
+        self._restore()
         return self.step(q_model_rad, command, dq_prev=dq_prev)
 
     def undo_step(self) -> None:
         """Forget the last step(): the next one starts from where it started (the servo cycle solves
         a command ahead, and drops that solve when the command it needs is no longer the same)."""
         if self._before is not None:
-            self._dq_prev, self._ref, self._last_xi, self._mode = self._before
+            self._restore()
+
+    def _restore(self) -> None:
+        assert self._before is not None
+        self._dq_prev, self._ref, self._last_xi, self._mode, line = self._before
+        if line is not self._line_prev:  # (the step swapped the buffers: swap them back)
+            self._line_prev, self._line_spare = line, self._line_prev
 
     def objective(self, tasks: list[mink.Task]) -> tuple[np.ndarray, np.ndarray]:
         """mink's QP objective (P, c) for ``tasks`` at the current configuration, with our damping
@@ -950,6 +970,7 @@ class DifferentialIK:
         if cmd.xyzwpr != self._pose_goal_of:  # (once per target, not every cycle: pays for the along-track)
             goal = self._pose_goal = _pose_of_matrix(xyzwpr_to_matrix(cmd.xyzwpr))
             self._pose_goal_of = cmd.xyzwpr
+            self._line_prev[:] = 0.0  # another line: nothing to compare with (kernels.turn_cap)
         dp = goal[4:] - tcp[4:]
         dth = _rotation_between(goal, tcp)
         lin, ang = float(np.linalg.norm(dp)), float(np.linalg.norm(dth))

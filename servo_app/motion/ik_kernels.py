@@ -186,6 +186,49 @@ def along_track_to(out: np.ndarray, ref: np.ndarray, tcp: np.ndarray, goal: np.n
     return True
 
 
+@kernel("float64(float64[::1], float64[::1], float64[:, ::1], float64[::1], float64[::1], float64[::1])")
+def turn_cap(prev: np.ndarray, direction: np.ndarray, c: np.ndarray, dq_prev: np.ndarray, lim: np.ndarray,
+             out: np.ndarray) -> float:
+    """A pose target's speed cap (the share ``s`` of its line ``direction``, model rad per cycle at full
+    speed) from how fast the line turns in joint space: the full-speed increment's turn per unit of path
+    (measured on FANUC axes ``c @ direction`` against ``prev``, last cycle's, over the share of it the arm
+    delivered, ``c @ dq_prev``), at ``s`` s**2 times that per cycle, within ``lim`` (per axis, per cycle).
+    This cycle's into ``out`` (not ``prev``); inf when there is nothing to compare (zeros in ``prev``, or
+    barely moving).
+
+    Why: with a long tool the flange can pass near J1's axis (the flange Jacobian's condition number only
+    18) while the joints that keep the TCP on its line counter-rotate fast (J1 and J6 at 240 deg/s for a
+    219 mm/s, 17.7 deg/s target, 1.5 m tool), and the line's joint
+    direction turns faster than the acceleration rows let it, cycle by cycle at full speed: the IK fell
+    off the line, and any blend, QP step or per-joint brake there (or the shaper's lag) upsets the
+    cancellation: the TCP ran at 3-4 x its speed."""
+    n = direction.shape[0]
+    u = out
+    nu = 0.0
+    npv = 0.0
+    moved = 0.0
+    for i in range(n):
+        x = 0.0
+        y = 0.0
+        for k in range(n):
+            x += c[i, k] * direction[k]
+            y += c[i, k] * dq_prev[k]
+        u[i] = x
+        nu += x * x
+        npv += prev[i] * prev[i]
+        moved += y * y
+    nu, npv, moved = math.sqrt(nu), math.sqrt(npv), math.sqrt(moved)
+    cap = math.inf
+    if nu > 0.0 and npv > 0.0:
+        share = moved / npv  # the path covered last cycle, in full-speed increments
+        if share >= 0.01:
+            for i in range(n):
+                turn = abs(u[i] - prev[i] * (nu / npv)) / share
+                if turn > 0.0:
+                    cap = min(cap, math.sqrt(lim[i] / turn))
+    return cap
+
+
 @kernel("boolean(float64[::1], float64[::1], float64, float64)")
 def poses_near(a: np.ndarray, b: np.ndarray, tol: float, reach: float) -> bool:
     """``a`` within ``tol`` of ``b``: position (m), and rotation times ``reach`` (m)."""
