@@ -291,3 +291,40 @@ def test_cartesian_jog_keeps_its_line_and_speed_through_the_shaper(
         turned = [np.degrees(np.arccos(np.clip((np.trace(poses[0][:3, :3].T @ m[:3, :3]) - 1) / 2, -1, 1)))
                   for m in poses]
         assert max(turned) < 0.05
+
+
+@pytest.mark.parametrize("take_over", ["pose", "twist"])
+def test_a_jog_after_the_ik_took_over_a_pending_joint_motion_is_followed(take_over: str) -> None:
+    """A joint target reversed while moving waits for rest (pending); a pose target or twist that takes
+    the moving arm over replaces it. A jog after that is steered. Old code: still pending, the jog
+    issued no stop and was never steered: the shaper ran on at the IK's last velocity (seed 2 above:
+    across the elbow boundary)."""
+    from servo_app.fanuc.packets import Status
+    from servo_app.motion.commands import PoseTarget as IkPoseTarget
+    from servo_app.motion.commands import Twist as IkTwist
+
+    dt = 0.008
+    home = np.array(HOME)
+    cycle = ServoCycle(PROFILE, dt)
+    cycle.begin(home, None)
+    sent = [cycle.next_command(Status(seq=0))]
+
+    def run(seconds: float) -> None:
+        for _ in range(round(seconds / dt)):
+            sent.append(cycle.next_command(Status(seq=len(sent))))
+
+    cycle.set_joint_target(home + np.array([30.0, 0, 0, 0, 0, 0]))
+    run(0.3)
+    cycle.set_joint_target(home - np.array([30.0, 0, 0, 0, 0, 0]))  # the other way: waits for rest
+    if take_over == "pose":
+        here = matrix_to_xyzwpr(KIN.fk_fanuc_deg(sent[-1]))
+        goal = tuple(here + np.array([0.0, 80.0, 0.0, 0.0, 0.0, 0.0]))
+        cycle.pose_target(IkPoseTarget(xyzwpr=goal, linear_speed=100.0, angular_speed=30.0, source="t", stamp=0.0))
+    else:
+        cycle.twist(IkTwist(linear=(0.0, 60.0, 0.0), angular=(0.0, 0.0, 0.0), frame="base", source="t", stamp=0.0))
+    run(0.2)
+    jog = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 20.0])
+    cycle.jog_joints(jog)
+    run(1.5)
+    step = (np.asarray(sent[-1]) - np.asarray(sent[-2])) / dt
+    assert np.allclose(step, jog, atol=0.05), step  # the jog's speed on J6 alone, the rest at rest
