@@ -9,12 +9,12 @@ past it: 451 mm/s under a 250 mm/s cap for a joint target from rest, 423 for a J
 
 from __future__ import annotations
 
-import itertools
 import math
 
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_pose_target_speed import pose_run
 
 from servo_app.errors import CommandRejected
 from servo_app.fanuc.packets import Status
@@ -85,46 +85,15 @@ def test_a_held_joint_jog_keeps_the_flange_under_the_cap(v: list[float], cap: fl
     assert peak_flange_speed(sent) <= cap
 
 
-def _pose_run(cap: float, tool: tuple[float, ...] | None, offset: list[float], linear: float, angular: float
-              ) -> tuple[ServoCycle, list[np.ndarray], float, float] | None:
-    """A pose target ``offset`` (mm, deg) from the TCP at HOME, run until it is reached: the cycle, the
-    commands sent, and the peak TCP speeds (mm/s, deg/s) between consecutive commands."""
-    from servo_app.motion.commands import PoseTarget
-    from servo_app.robots.conventions import fanuc_deg_to_model_rad, matrix_to_xyzwpr
-
-    cycle = ServoCycle(PROFILE, DT, ServoSettings(flange_speed_cap=cap, tool_xyzwpr=tool))
-    cycle.begin(HOME, None)
-    sent = [cycle.next_command(Status(seq=1))]
-    kin = cycle.ik.kin
-    x = np.asarray(matrix_to_xyzwpr(kin.fk_tcp(fanuc_deg_to_model_rad(HOME, PROFILE.j23_factor)))) + offset
-    try:
-        cycle.pose_target(PoseTarget(xyzwpr=tuple(x), linear_speed=linear, angular_speed=angular, source="t",
-                                     stamp=0.0))
-    except CommandRejected:
-        return None
-    finished = False
-    for _ in range(3000):
-        sent.append(cycle.next_command(Status(seq=1)))
-        finished = finished or cycle._finishing is not None
-        if finished and cycle.at_rest():
-            break
-    tcp = [kin.fk_tcp(fanuc_deg_to_model_rad(np.float32(q).astype(float), PROFILE.j23_factor)) for q in sent]
-    lin = max(float(np.linalg.norm(b[:3, 3] - a[:3, 3])) * 1000.0 / DT for a, b in itertools.pairwise(tcp))
-    ang = max(float(np.degrees(np.arccos(np.clip((np.trace(b[:3, :3] @ a[:3, :3].T) - 1.0) / 2.0, -1.0, 1.0))))
-              / DT for a, b in itertools.pairwise(tcp))
-    return cycle, sent, lin, ang
-
-
 def test_a_pose_targets_last_millimetres_keep_the_flange_under_the_cap_with_a_long_tool() -> None:
     # Measured on the old code: the last 2 mm / 1 deg ran as a joint move at linear_speed / cap of
     # the joint speed limits (0.4 here), whatever the tool: 1 deg about a TCP 1.5 m away swung the
     # flange at 138 mm/s under a 100 mm/s cap, and the TCP at 125 mm/s for a 40 mm/s target.
-    got = _pose_run(100.0, (0.0, 0.0, 1500.0, 0.0, 0.0, 0.0), [11.7, -23.4, 8.1, 3.3, -6.0, 5.2], 40.0, 1.5)
-    assert got is not None
-    cycle, sent, lin, _ = got
-    assert cycle._finishing is not None and cycle.at_rest()  # it did finish as a joint move
-    assert peak_flange_speed(sent) <= 100.0
-    assert lin <= 40.0 * 1.02  # (the IK's approach overshot by up to 31 % before its reference stopped leading)
+    run = pose_run([11.7, -23.4, 8.1, 3.3, -6.0, 5.2], 40.0, 1.5, DT, (0.0, 0.0, 1500.0, 0.0, 0.0, 0.0), cap=100.0)
+    assert run is not None
+    assert run.arrived  # it did finish as a joint move
+    assert peak_flange_speed(list(run.joints)) <= 100.0
+    assert run.lin.max() <= 40.0 * 1.02  # (the IK's approach overshot by up to 31 % while its reference led)
 
 
 @settings(max_examples=15, deadline=None)
@@ -136,10 +105,10 @@ def test_a_pose_target_keeps_the_flange_under_the_cap(xyz: list[float], wpr: lis
                                                        tool: tuple[float, ...] | None) -> None:
     r = math.hypot(*tool[:3]) if tool else 0.0
     angular = min(60.0, float(np.degrees(cap * 0.8 * 0.45 / r))) if r else 60.0
-    got = _pose_run(cap, tool, xyz + wpr, cap * 0.8 * 0.5, angular)
-    if got is None:
+    run = pose_run(xyz + wpr, cap * 0.8 * 0.5, angular, DT, tool, cap=cap)
+    if run is None:
         return
-    assert peak_flange_speed(got[1]) <= cap
+    assert peak_flange_speed(list(run.joints)) <= cap
 
 
 def _held_jog(cycle: ServoCycle, sent: list[np.ndarray], v: np.ndarray, cycles: int = 190) -> None:

@@ -46,9 +46,10 @@ class Run(NamedTuple):
 
 
 def pose_run(offset: list[float], linear: float, angular: float, dt: float = 0.008,
-             tool: tuple[float, ...] | None = None) -> Run | None:
-    """A pose target ``offset`` (mm, deg) from the TCP at HOME, run until it is reached (None if refused)."""
-    cycle = ServoCycle(PROFILE, dt, ServoSettings(tool_xyzwpr=tool))
+             tool: tuple[float, ...] | None = None, cap: float | None = None) -> Run | None:
+    """A pose target ``offset`` (mm, deg) from the TCP at HOME, run until it is reached (None if refused);
+    ``cap``: the flange speed cap (mm/s; None: the profile's)."""
+    cycle = ServoCycle(PROFILE, dt, ServoSettings(flange_speed_cap=cap, tool_xyzwpr=tool))
     cycle.begin(HOME, None)
     sent = [cycle.next_command(Status(seq=1))]
     kin = cycle.ik.kin
