@@ -495,6 +495,27 @@ def test_a_joint_jog_with_a_nan_duration_is_refused_naming_it(cell: tuple[Rig, Z
     assert s["q_cmd"] == s0["q_cmd"] and s["at_rest"] and s["state"] == "streaming"
 
 
+
+def publish_until_exit(session: zenoh.Session, proc: subprocess.Popen[str], puts: dict[str, bytes],
+                       what: str) -> tuple[str, str, float]:
+    """Put each key's payload at 10 Hz (a cell's status, live) until the monitor ``proc`` has printed and
+    exited (``what`` if not within 60 s); closes ``session``. Its stdout, stderr and when it was seen gone."""
+    deadline = time.monotonic() + 60.0
+    try:
+        while proc.poll() is None:
+            assert time.monotonic() < deadline, what
+            for key, payload in puts.items():
+                session.put(key, payload)
+            time.sleep(0.1)
+        exited = time.monotonic()
+        out, err = proc.communicate(timeout=30)
+    finally:
+        session.close()
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=10)
+    return out, err, exited
+
 @pytest.mark.e2e
 def test_the_monitor_shows_a_malformed_status_and_keeps_the_other_cells() -> None:
     """Anything can be published on servo_app/<cell>/status: a status that is not a JSON object, or
@@ -509,21 +530,10 @@ def test_the_monitor_shows_a_malformed_status_and_keeps_the_other_cells() -> Non
     statuses = {"good": {"state": "streaming", "latency_p99_us": 250.0, "alarms": [], "lease_held": False},
                 "listy": [1, 2], "odd": {"state": "ready", "latency_p99_us": "fast", "lease_held": True,
                                           "lease_client": 7, "alarms": [3, "MOTN-017"]}}
-    deadline = time.monotonic() + 60.0
-    try:
-        while proc.poll() is None:  # (until the monitor has printed and exited: each peer's status, live)
-            # (the old monitor hung there: its Zenoh session left open by the exception)
-            assert time.monotonic() < deadline, "the monitor did not exit after --seconds 6"
-            for cell, status in statuses.items():
-                session.put(f"servo_app/{cell}/status", json.dumps(status).encode())
-            session.put("servo_app/text/status", b"not json")
-            time.sleep(0.1)
-        out, err = proc.communicate(timeout=30)
-    finally:
-        session.close()
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate(timeout=10)
+    puts = {f"servo_app/{cell}/status": json.dumps(status).encode() for cell, status in statuses.items()}
+    puts["servo_app/text/status"] = b"not json"
+    # (the old monitor hung: its Zenoh session left open by the exception)
+    out, err, _ = publish_until_exit(session, proc, puts, "the monitor did not exit after --seconds 6")
     assert proc.returncode == 0, err
     lines = {line.split()[0]: line for line in out.splitlines()[1:]}
     assert lines["good"].split()[1:4] == ["streaming", "0.25", "ms"], lines
@@ -548,21 +558,10 @@ def test_the_monitor_once_without_seconds_prints_after_a_short_window_and_exits(
     proc = subprocess.Popen([sys.executable, "-m", "servo_app.cli", "monitor", "--connect", f"tcp/127.0.0.1:{port}",
                              "--once"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     status = {"state": "streaming", "latency_p99_us": 250.0, "alarms": [], "lease_held": False}
-    deadline = time.monotonic() + 60.0
-    try:
-        while proc.poll() is None:  # a cell's status at 10 Hz until the monitor has printed and exited
-            assert time.monotonic() < deadline, "servo-app monitor --once did not exit within 60 s"
-            session.put("servo_app/cell_a/status", json.dumps(status).encode())
-            time.sleep(0.1)
-        took = time.monotonic() - t0
-        out, err = proc.communicate(timeout=30)
-    finally:
-        session.close()
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate(timeout=10)
+    out, err, exited = publish_until_exit(session, proc, {"servo_app/cell_a/status": json.dumps(status).encode()},
+                                          "servo-app monitor --once did not exit within 60 s")
     assert proc.returncode == 0, err
-    assert took >= ONCE_WINDOW_S, took
+    assert exited - t0 >= ONCE_WINDOW_S, exited - t0
     lines = {line.split()[0]: line for line in out.splitlines()[1:]}
     assert lines["cell_a"].split()[1:4] == ["streaming", "0.25", "ms"], out
     helptext = subprocess.run([sys.executable, "-m", "servo_app.cli", "monitor", "--help"], cwd=ROOT,
