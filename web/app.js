@@ -78,7 +78,7 @@ const logs = new LogsPanel({ api, root: $("#logs-card"), limits: () => ui.limits
 const arm = new ArmView($("#arm-side"), $("#arm-top"));
 const joints = new JointTable($("#joint-rows"));
 const points = new PointsPanel({
-  api, root: $("#points-card"), onRender: () => refreshControls(), telemetry: () => ui.tel,
+  api, root: $("#points-card"), onRender: () => refreshControls(),
 });
 const tools = new ToolPanel({ api, root: $("#control-card"), canControl: () => api.signedIn && lease.held });
 const target = new TargetForm({ api, root: $("#target-form"), telemetry: () => ui.tel, robot: () => ui.robot });

@@ -5,10 +5,9 @@
 import { $, el, fmt } from "./dom.js";
 
 export class PointsPanel {
-  /** api: Api; root: the card; onRender(): lets the console enable the new buttons (data-needs);
-   * telemetry(): the last state. */
-  constructor({ api, root, onRender, telemetry }) {
-    Object.assign(this, { api, root, onRender, telemetry });
+  /** api: Api; root: the card; onRender(): lets the console enable the new buttons (data-needs). */
+  constructor({ api, root, onRender }) {
+    Object.assign(this, { api, root, onRender });
     this.list = $("#point-list", root);
     this.message = $("#point-message", root);
     $("#point-teach-form", root).addEventListener("submit", (ev) => { ev.preventDefault(); this.teach(); });
@@ -46,10 +45,12 @@ export class PointsPanel {
     const name = $("#point-name", this.root).value.trim();
     try {
       // A name already taught is replaced only when the operator says so (the server refuses otherwise).
-      const old = (await this.api.get("/api/points")).find((p) => p.name === name);
+      // The state is read now, beside the points: the telemetry can be a frame behind, and an arm that
+      // settled since then was taken for a moving one (no question, then the server refused the name).
+      const [points, s] = await Promise.all([this.api.get("/api/points"), this.api.get("/api/state")]);
+      const old = points.find((p) => p.name === name);
       // Asked only where teaching can succeed: elsewhere the server's refusal says what to do first
       // (it checks the state before the name), rather than a question answered for nothing.
-      const s = (this.telemetry && this.telemetry()) || {};
       const teachable = ["streaming", "stopped"].includes(s.state) && s.status_live && s.settled;
       if (old && teachable) {
         const by = old.taught_by ? ` by ${old.taught_by}` : "";
