@@ -9,8 +9,9 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -41,6 +42,31 @@ def stop(p: subprocess.Popen[str]) -> tuple[int, str, str]:
     return p.returncode, out, err
 
 
+def wait_healthy(c: httpx.Client, timeout: float = 30.0) -> None:
+    """Until the service answers /api/health (it binds its port a moment after it starts)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            if c.get("/api/health").status_code == 200:
+                return
+        except httpx.TransportError:
+            pass
+        assert time.monotonic() < deadline, f"no /api/health answer within {timeout} s"
+        time.sleep(0.05)
+
+
+def wait_state(c: httpx.Client, pred: Callable[[dict[str, Any]], bool], what: str,
+               timeout: float = 20.0) -> dict[str, Any]:
+    """The first /api/state for which ``pred`` holds; fails naming ``what`` and the last state."""
+    deadline = time.monotonic() + timeout
+    while True:
+        s = c.get("/api/state").json()
+        if pred(s):
+            return s
+        assert time.monotonic() < deadline, f"not {what} within {timeout} s: {s}"
+        time.sleep(0.02)
+
+
 @pytest.fixture
 def sim() -> Iterator[tuple[subprocess.Popen[str], int]]:
     p = servo_app("sim", "fanuc", "--port", "0", "--joints", "0,0,0,0,-90,0")
@@ -60,37 +86,20 @@ def test_run_against_an_external_simulator_process(sim: tuple[subprocess.Popen[s
     base = f"http://127.0.0.1:{http}"
     try:
         with httpx.Client(base_url=base, timeout=5) as c:
-            for _ in range(300):
-                try:
-                    if c.get("/api/health").status_code == 200:
-                        break
-                except httpx.TransportError:
-                    time.sleep(0.1)
+            wait_healthy(c)
             auth = {"Authorization": f"Bearer {TOKEN}"}
             lease = c.post("/api/lease", json={"client": "cli-test"}, headers=auth).json()["lease_id"]
             hdr = {**auth, "X-Lease-Id": lease}
             assert c.post("/api/session/start", headers=hdr).status_code == 200
-            for _ in range(200):
-                if c.get("/api/state").json()["state"] == "streaming":
-                    break
-                time.sleep(0.02)
-            state = c.get("/api/state").json()
+            state = wait_state(c, lambda s: s["state"] == "streaming", "streaming")
             assert state["state"] == "streaming" and state["simulated"] is False
             assert state["robot"] == f"127.0.0.1:{udp_port}"
             r = c.post("/api/target", json={"joints": [15, 5, -5, 10, -80, 20], "speed_scale": 0.5}, headers=hdr)
             assert r.status_code == 200, r.text
-            for _ in range(300):
-                s = c.get("/api/state").json()
-                if s["at_rest"] and abs(s["q_cmd"][0] - 15) < 1e-3:
-                    break
-                time.sleep(0.02)
+            s = wait_state(c, lambda s: s["at_rest"] and abs(s["q_cmd"][0] - 15) < 1e-3, "at rest at J1 15")
             assert abs(s["q_servo"][0] - 15) < 0.5  # the external controller followed
             assert c.post("/api/session/end", headers=hdr).status_code == 200
-            for _ in range(200):
-                if c.get("/api/state").json()["state"] == "ended":
-                    break
-                time.sleep(0.02)
-            assert c.get("/api/state").json()["state"] == "ended"
+            wait_state(c, lambda s: s["state"] == "ended", "ended")
     finally:
         code, run_out, run_err = stop(run)
         _, _, sim_err = stop(sim_proc)
@@ -108,47 +117,27 @@ def test_run_janome_with_its_embedded_simulator_through_rest(tmp_path: Path) -> 
     base = f"http://127.0.0.1:{http}"
     try:
         with httpx.Client(base_url=base, timeout=5) as c:
-            for _ in range(300):
-                try:
-                    if c.get("/api/health").status_code == 200:
-                        break
-                except httpx.TransportError:
-                    time.sleep(0.1)
+            wait_healthy(c)
             auth = {"Authorization": f"Bearer {TOKEN}"}
             lease = c.post("/api/lease", json={"client": "janome-test"}, headers=auth).json()["lease_id"]
             hdr = {**auth, "X-Lease-Id": lease}
-            for _ in range(300):  # the point job connects on its own
-                if c.get("/api/state").json()["state"] == "ready":
-                    break
-                time.sleep(0.02)
+            wait_state(c, lambda s: s["state"] == "ready", "ready (the point job connects on its own)")
             assert c.get("/api/limits").json()["axes"] == ["X", "Y", "Z", "R"]
             assert c.post("/api/session/start", headers=hdr).status_code == 200
-            for _ in range(300):
-                if c.get("/api/state").json()["state"] == "streaming":
-                    break
-                time.sleep(0.02)
+            wait_state(c, lambda s: s["state"] == "streaming", "streaming")
             x0 = c.get("/api/state").json()["q_servo"][0]
             for _ in range(10):  # hold the jog button for about a second
                 r = c.post("/api/jog", json={"joints": [40.0, 0.0, 0.0, 0.0], "hold_ms": 500}, headers=hdr)
                 assert r.status_code == 200, r.text
                 time.sleep(0.1)
             assert c.post("/api/session/stop", headers=auth).status_code == 200
-            for _ in range(300):
-                s = c.get("/api/state").json()
-                if s["state"] == "stopped":
-                    break
-                time.sleep(0.02)
-            assert s["state"] == "stopped"
+            s = wait_state(c, lambda s: s["state"] == "stopped", "stopped")
             assert s["q_servo"][0] > x0 + 5.0  # the robot moved along +X
             r = c.post("/api/jog", content='{"joints": [NaN, 0, 0, 0]}',
                        headers={**hdr, "content-type": "application/json"})
             assert r.status_code == 422 and "joints[0]=nan" in r.text  # named; nothing reaches the robot
             assert c.post("/api/session/end", headers=hdr).status_code == 200
-            for _ in range(300):
-                if c.get("/api/state").json()["state"] == "ended":
-                    break
-                time.sleep(0.02)
-            assert c.get("/api/state").json()["state"] == "ended"
+            wait_state(c, lambda s: s["state"] == "ended", "ended")
     finally:
         code, out, err = stop(run)
     assert code == 0, (out, err)
