@@ -5,14 +5,22 @@ to" brings the arm back, a refusal shows the server's words, delete removes it; 
 from __future__ import annotations
 
 import contextlib
-import json
 from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 import pytest
 import test_web_console as console
-from test_web_console import Service, at_rest_without_alarm, call, console_page, shot, sign_in, take_control_and_stream
+from test_web_console import (
+    Service,
+    at_rest_without_alarm,
+    call,
+    console_page,
+    rewrite_telemetry,
+    shot,
+    sign_in,
+    take_control_and_stream,
+)
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -131,18 +139,11 @@ def test_teaching_again_asks_from_the_state_now_not_from_the_last_telemetry_fram
     not settled, while the service says it is: the console still asks, and replaces on OK."""
     page, asked, answers = asking_page
 
-    def route(ws: Any) -> None:
-        server = ws.connect_to_server()
+    def not_settled(frame: dict[str, Any]) -> None:
+        if "settled" in frame:
+            frame["settled"] = False
 
-        def forward(m: str | bytes) -> None:
-            frame = json.loads(m)
-            if isinstance(frame, dict) and "settled" in frame:
-                frame["settled"] = False
-            ws.send(json.dumps(frame))
-
-        server.on_message(forward)
-
-    page.route_web_socket("**/ws/telemetry*", route)
+    rewrite_telemetry(page, not_settled)
     sign_in(page, fanuc)
     take_control_and_stream(page, fanuc)
     lease_id = page.evaluate("sessionStorage.getItem('servo.lease')")

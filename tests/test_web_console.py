@@ -234,6 +234,25 @@ def take_control_and_stream(pg: Any, svc: Service) -> dict[str, Any]:
     return svc.wait(lambda s: s["state"] == "streaming" and s["at_rest"], "streaming at rest")
 
 
+def rewrite_telemetry(pg: Any, rewrite: Callable[[dict[str, Any]], None]) -> None:
+    """The page's telemetry socket through Playwright, each frame changed in place by ``rewrite``
+    before the page sees it: the page shown a state the service has left (a frame behind it). Call
+    before the page loads."""
+
+    def route(ws: Any) -> None:
+        server = ws.connect_to_server()
+
+        def forward(m: str | bytes) -> None:
+            frame = json.loads(m)
+            if isinstance(frame, dict):
+                rewrite(frame)
+            ws.send(json.dumps(frame))
+
+        server.on_message(forward)
+
+    pg.route_web_socket("**/ws/telemetry*", route)
+
+
 def hold(pg: Any, selector: str, seconds: float) -> None:
     """Press and hold a jog button with the mouse for ``seconds`` (released by the caller)."""
     pg.hover(selector)
@@ -388,6 +407,62 @@ def test_step_jog_moves_exactly_one_step(page: Any, fanuc: Service) -> None:
     s0, s1 = step("[data-jog='+J1']")
     assert s1["q_cmd"][0] - s0["q_cmd"][0] == pytest.approx(1.0, abs=0.01)
     assert s1["q_cmd"][1:] == pytest.approx(s0["q_cmd"][1:], abs=0.01)
+
+
+def _elsewhere(frame: dict[str, Any]) -> None:
+    """The arm shown 5° further on J1 than it is (where it was a frame before)."""
+    for key in ("q_servo", "q_cmd"):
+        if frame.get(key):
+            frame[key][0] += 5.0
+
+
+def _stopped_by_hold_to_run(frame: dict[str, Any]) -> None:
+    """The arm shown stopped by its hold-to-run (as a frame before a press resumed it)."""
+    frame.update(state="stopped", stop_reason="hold-to-run expired")
+
+
+# What the page shows once the rewritten frames reach it (arg: the service's J1).
+SHOWS_ELSEWHERE = ("q => Math.abs(parseFloat(document.querySelector(\"#joint-rows tr[data-joint='J1'] td.num\")"
+                   ".textContent) - (q + 5)) < 0.02")
+SHOWS_STOPPED = "() => document.querySelector('#mode').textContent === 'stopped'"
+
+
+@pytest.mark.parametrize(("rewrite", "shown"),
+                         [(_elsewhere, SHOWS_ELSEWHERE), (_stopped_by_hold_to_run, SHOWS_STOPPED)],
+                         ids=["position", "hold-to-run-stop"])
+def test_a_step_goes_from_the_state_now_not_from_the_last_telemetry_frame(
+        page: Any, fanuc: Service, rewrite: Callable[[dict[str, Any]], None], shown: str) -> None:
+    """A step jog took the arm's position, and whether to resume first, from the console's last
+    telemetry frame, which can be a frame behind the service. Every frame here shows the stale value:
+    the arm 5° further on J1 (the step went to 6° from where it was), or stopped by its hold-to-run
+    while it streams (the resume sent first was refused, "already streaming", and the step with it).
+    The step now reads /api/state at the press and sends no resume (the server resumes a target after
+    its hold-to-run, as a jog): exactly one degree on J1."""
+    stale = threading.Event()  # from the stream on: the console waits for the stream in its header
+    rewrite_telemetry(page, lambda frame: rewrite(frame) if stale.is_set() else None)
+    resumes: list[str] = []
+    page.on("request", lambda r: resumes.append(r.url) if r.url.endswith("/api/session/resume") else None)
+    sign_in(page, fanuc)
+    take_control_and_stream(page, fanuc)
+    stale.set()
+    page.check("input[name=jog-mode][value=step]", force=True)
+    page.check("input[name=jog-kind][value=joint]", force=True)
+    page.select_option("#step-deg", "1")
+    before = at_rest_without_alarm(fanuc)
+    page.wait_for_function(shown, arg=before["q_servo"][0])
+    sent = len(resumes)  # take_control_and_stream may have resumed through the button
+
+    def step_done(s: dict[str, Any]) -> bool:
+        said = page.text_content("#message") or ""
+        assert "Step refused" not in said, said
+        return abs(s["q_cmd"][0] - before["q_cmd"][0]) > 1e-3 and s["at_rest"]
+
+    page.click("[data-jog='+J1']")
+    fanuc.wait(step_done, "the step done")
+    after = at_rest_without_alarm(fanuc)
+    assert after["q_cmd"][0] - before["q_cmd"][0] == pytest.approx(1.0, abs=0.01)
+    assert after["q_cmd"][1:] == pytest.approx(before["q_cmd"][1:], abs=0.01)
+    assert resumes[sent:] == []
 
 
 def test_digital_output_toggle_reads_back(page: Any, fanuc: Service) -> None:

@@ -16,7 +16,7 @@ from typing import Any
 
 import pytest
 import test_web_console as console
-from test_web_console import Service, call, hold, sign_in, take_control_and_stream
+from test_web_console import Service, call, console_page, hold, rewrite_telemetry, sign_in, take_control_and_stream
 
 # The console tests' fixtures, found by pytest under these names: one browser and one service per module.
 browser = console.browser
@@ -107,6 +107,32 @@ def test_a_takeover_mid_jog_shows_at_once_who_has_control(page: Any, fanuc: Serv
         assert s["stop_reason"].startswith("control lease lost"), s["stop_reason"]
     finally:
         page.mouse.up()
+
+
+def test_take_control_asks_from_the_lease_now_not_from_the_last_telemetry_frame(browser: Any,
+                                                                                 fanuc: Service) -> None:
+    """Take control chose whether to ask "Take control from ...?" (and to take over) from the
+    console's last telemetry frame, which can be a frame behind the service: a lease another client
+    took since then went unasked, and the server refused the take ("control is held by 'intruder'").
+    Every frame here says control is free while another client holds it: the console asks, and takes
+    over on OK."""
+    asked: list[str] = []
+
+    def answer(d: Any) -> None:
+        asked.append(d.message)
+        d.accept()
+
+    with console_page(browser, answer) as pg:
+        rewrite_telemetry(pg, lambda frame: frame.update(lease={"held": False, "client": None}))
+        sign_in(pg, fanuc)
+        pg.wait_for_selector("#signed:not([hidden])")
+        call(fanuc, "POST", "/api/lease", {"client": "intruder", "force": True})
+        pg.click("#take")
+        pg.wait_for_function("!document.querySelector('#release').hidden"
+                             " || document.querySelector('#message').textContent.startsWith('Take control:')")
+        assert not pg.locator("#release").is_hidden(), pg.text_content("#message")
+        assert len(asked) == 1 and asked[0].startswith("Take control from intruder?"), asked
+        assert fanuc.get("/api/lease")["client"] == "pytest"
 
 
 @pytest.mark.parametrize("how", ["window-blur", "page-hidden"])

@@ -71,7 +71,7 @@ function showSpeed() {
 
 // ------------------------------------------------------------------ panels
 const jog = new JogPad({
-  api, root: $("#jog-pad"), settings, telemetry: () => ui.tel, onError: sayError, onLost: (why) => stop(false, why),
+  api, root: $("#jog-pad"), settings, onError: sayError, onLost: (why) => stop(false, why),
 });
 const io = new IoPanel({ api, root: $("#io-buttons"), onError: sayError });
 const logs = new LogsPanel({ api, root: $("#logs-card"), limits: () => ui.limits, onError: sayError });
@@ -203,7 +203,11 @@ const actions = {
     say(done && done.detail ? `reset: ${done.detail}` : "reset done");
   }),
   take: () => action("Take control", async () => {
-    const other = ui.tel && ui.tel.lease && ui.tel.lease.held ? ui.tel.lease.client : null;
+    // Who holds it is read now: the telemetry can be a frame behind, and a lease taken since then by
+    // another client went unasked and was refused ("control is held by ..."); one released since was
+    // asked about for nothing.
+    const held = await api.get("/api/lease");
+    const other = held.held ? held.client : null;
     if (other && !window.confirm(`Take control from ${other}? Their jogs will be refused.`)) return;
     await lease.take(Boolean(other));
     say("you have control");

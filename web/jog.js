@@ -20,11 +20,11 @@ const ANGULAR = ["W", "P", "R"];
 export class JogPad {
   /**
    * api: Api; root: the pad's container; settings(): {kind: "cart"|"joint", frame, step: bool,
-   * stepMm, stepDeg, speed: 0..1}; telemetry(): the last state; onError(text); onLost(why): a held
-   * jog got no answer (the console sends STOP, as when the telemetry is lost).
+   * stepMm, stepDeg, speed: 0..1}; onError(text); onLost(why): a held jog got no answer (the console
+   * sends STOP, as when the telemetry is lost).
    */
-  constructor({ api, root, settings, telemetry, onError, onLost }) {
-    Object.assign(this, { api, root, settings, telemetry, onError, onLost });
+  constructor({ api, root, settings, onError, onLost }) {
+    Object.assign(this, { api, root, settings, onError, onLost });
     this.active = null; // the press being held: {axis, btn, timer, sent}
     this.pending = false; // a jog request is in flight
     this.chain = Promise.resolve(); // jog requests go out strictly in order (see queue)
@@ -168,10 +168,12 @@ export class JogPad {
   async step(axis, btn) {
     btn.classList.add("held");
     try {
-      const s = this.telemetry() || {};
+      // The step starts from where the arm is now, read from the service at the press: the last telemetry
+      // frame can be a frame behind it (a step taken from an arm still moving there, or from before a
+      // move another client made). No resume is sent: the server resumes a target after its own
+      // hold-to-run expiry, as it does a jog (one sent on a stale "stopped" was refused as "already streaming").
+      const s = await this.api.get("/api/state", { timeoutMs: 1000 });
       const { stepMm, stepDeg, speed, frame } = this.settings();
-      // The server resumes a jog after its own hold-to-run expiry, but not a target: do the same here.
-      const resume = s.state === "stopped" && String(s.stop_reason || "").startsWith("hold-to-run expired");
       let body;
       if (axis.kind === "joint") {
         // From the feedback once the controller reports (Janome's commanded axes start at zero).
@@ -189,7 +191,6 @@ export class JogPad {
           angular_speed: Math.max(1, speed * JOG.MAX_ANGULAR_DEG_S),
         };
       }
-      if (resume) await this.api.post("/api/session/resume");
       await this.api.post("/api/target", body);
     } catch (exc) {
       this.onError(`Step refused: ${exc.message}`);
