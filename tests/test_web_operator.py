@@ -15,6 +15,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import test_web_console as console
 from test_web_console import (
@@ -331,13 +332,21 @@ def test_target_entry_goes_and_shows_refusals(page: Any, fanuc: Service) -> None
     s = fanuc.wait(lambda s: s["at_rest"] and abs(s["q_cmd"][0] - 20.0) < 0.01, "J1 at 20°", timeout=30)
     assert abs(s["q_cmd"][4] - HOME[4]) < 0.01
     page.wait_for_function("document.querySelector('#target-error').textContent.startsWith('going to')")
-    # A pose target: 30 mm lower than where the flange is.
+    # A pose target: 30 mm lower than where the flange is. "From current" fills from the page's
+    # telemetry, which can be a frame behind the service (and the servo follows the commands with a
+    # lag): the fill waits until the page shows the flange where it settled.
+    s = at_rest_without_alarm(fanuc)
+    page.wait_for_function("xyz => ['X', 'Y', 'Z'].every((n, i) =>"
+                           " Math.abs(Number(document.querySelector(`#pose-${n}`).textContent) - xyz[i]) < 0.1)",
+                           arg=s["cart_servo"][:3])
     page.check("input[name=target-kind][value=xyzwpr]", force=True)
     page.click("#target-fill")
     z0 = float(page.input_value("[data-target='Z']"))
     page.fill("[data-target='Z']", str(z0 - 30.0))
     page.click("#target-go")
-    s = fanuc.wait(lambda s: s["at_rest"] and abs(s["cart_servo"][2] - (z0 - 30.0)) < 0.5, "Z 30 mm lower", timeout=30)
+    fanuc.wait(lambda s: s["at_rest"] and abs(s["cart_servo"][2] - (z0 - 30.0)) < 0.5, "Z 30 mm lower", timeout=30)
+    s1 = at_rest_without_alarm(fanuc)
+    assert np.allclose(s1["cart_servo"][:2], s["cart_servo"][:2], atol=0.5), (s["cart_servo"], s1["cart_servo"])
     # Refused: J1 beyond its range. The server's words are shown, and nothing moved.
     page.check("input[name=target-kind][value=joints]", force=True)
     page.click("#target-fill")
