@@ -63,6 +63,7 @@ from servo_app.motion.ik_limits import (
     ConfigurationMargins,
     PathBraking,
     braking_speed,
+    braking_speed_scalar,
     default_collision_pairs,
     fanuc_rate_matrix,
     jacobian_tree,
@@ -980,7 +981,7 @@ class DifferentialIK:
         for dist, cap, acc in ((lin, cmd.linear_speed / 1000.0, st.target_linear_acc / 1000.0),
                                (ang, math.radians(cmd.angular_speed), math.radians(st.target_angular_acc))):
             if dist > 0.0:
-                rate = min(rate, cap / dist, float(braking_speed(dist, acc, dt + self.follow_lag)) / dist)
+                rate = min(rate, cap / dist, braking_speed_scalar(dist, acc, dt + self.follow_lag) / dist)
         return rate * np.concatenate([dp, dth]), False
 
     def _jog_increment(self, cmd: JointJog) -> np.ndarray:
