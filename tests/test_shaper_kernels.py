@@ -1,5 +1,6 @@
 """The shaper's compiled kernels (servo_app.motion.shaper_kernels) against the readings they replace:
-the guard's check on Python floats and the straight-line limits in numpy."""
+the guard's check on Python floats and the straight-line limits in numpy; the velocity share limits
+against ruckig itself."""
 
 import math
 
@@ -8,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from servo_app.motion.shaper import Envelope, ShaperLimits
-from servo_app.motion.shaper_kernels import emit_if_passes, line_limits, velocity_within
+from servo_app.motion.shaper_kernels import emit_if_passes, line_limits, velocity_share_limits, velocity_within
 
 DT = 0.008
 LIMITS = ShaperLimits(np.array([370.0, 310.0, 410.0, 550.0, 545.0, 1000.0]),
@@ -160,3 +161,55 @@ def test_velocity_cap_refuses_what_is_not_finite():
     assert velocity_within(np.array([0.0, np.nan, 0, 0, 0, 0]), ENV.plan_vel, out) < 0.0
     assert velocity_within(np.array([0.0, 0, 0, 0, 0, -np.inf]), ENV.plan_vel, out) < 0.0
 
+
+
+def _velocity_plan(v0: np.ndarray, a0: np.ndarray, target: np.ndarray, lim: np.ndarray) -> list[np.ndarray]:
+    """ruckig's velocities, cycle by cycle, from (v0, a0) to ``target`` within the limits ``lim``, as the
+    shaper asks it (velocity interface, phase synchronisation falling back to time)."""
+    from ruckig import ControlInterface, InputParameter, Result, Ruckig, Synchronization, Trajectory
+
+    inp = InputParameter(6)
+    inp.control_interface, inp.synchronization = ControlInterface.Velocity, Synchronization.Phase
+    inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0] * 6, v0.tolist(), a0.tolist()
+    inp.target_velocity, inp.target_acceleration = target.tolist(), [0.0] * 6
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = lim.tolist()
+    traj = Trajectory(6)
+    assert Ruckig(6).calculate(inp, traj) in (Result.Working, Result.Finished)
+    return [np.array(traj.at_time(k * DT)[1]) for k in range(int(traj.duration / DT) + 2)]
+
+
+@settings(max_examples=200, deadline=None)
+@given(six, six, st.floats(0.0, 0.5), st.sampled_from([1.0, 1e-3, 0.0]))
+def test_velocity_share_limits_keep_the_axes_in_proportion(v, dv, along, rest):
+    """With the acceleration along the change (none, or some of it), ruckig's velocities under the share
+    limits stay on the straight line from the present velocity to the target (each axis in proportion,
+    none past its target), within the plain limits: the TCP keeps its line and speed while it ramps.
+    With the plain limits (time synchronisation) an axis with little to change lagged the others."""
+    plain = LIMITS.scaled()
+    v0 = v * plain[0] * 0.5
+    target = v0 + dv * rest * plain[0] * 0.5
+    d = target - v0
+    moving = np.abs(d) > 0.0
+    # An acceleration along the change that each axis can still end before its target (else no plan can).
+    reach = np.minimum(plain[1], np.sqrt(2.0 * plain[2] * np.abs(d))) / np.where(moving, np.abs(d), 1.0)
+    a0 = d * along * float(np.min(reach[moving])) if moving.any() else np.zeros(6)
+    lim = np.empty((3, 6))
+    ok = velocity_share_limits(v0, a0, target, *plain, lim)
+    assert np.all(lim <= np.stack(plain)) and np.all(lim[0] == plain[0])
+    if not moving.any():
+        assert not ok
+        return
+    assert ok and np.all(lim > 0.0)
+    scale = float(np.max(np.abs(d)))
+    for vk in _velocity_plan(v0, a0, target, lim):
+        share = float((vk - v0) @ d / (d @ d))
+        assert -1e-9 <= share <= 1.0 + 1e-9
+        assert np.max(np.abs(vk - v0 - share * d)) <= 1e-6 * scale, (vk - v0) / np.where(moving, d, 1.0)
+
+
+def test_velocity_share_limits_leave_an_acceleration_across_the_change_to_ruckig():
+    plain = LIMITS.scaled()
+    lim = np.empty((3, 6))
+    v0, target = np.zeros(6), np.array([10.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    assert not velocity_share_limits(v0, np.array([0.0, 50.0, 0.0, 0.0, 0.0, 0.0]), target, *plain, lim)
+    assert np.all(lim == np.stack(plain))

@@ -645,7 +645,9 @@ class ServoCycle:
             self._cart_active = False  # braked to rest along the path
             shaper.stop("soft")
             return
-        shaper.set_velocity(v)
+        # A pose target's line: its joints change velocity in proportion, or the TCP (joint motions that
+        # partly cancel) ran up to 5 % over its speed while the shaper ramped (velocity_share_limits).
+        shaper.set_velocity(v, one_profile=self._cart.__class__ is PoseTarget, v_now=v_f)
 
     def _finish_pose(self, shaper: JointShaper, cmd: PoseTarget) -> bool:
         """Within ``finish_mm`` / ``finish_deg`` of a pose target that has stayed the same for

@@ -51,7 +51,7 @@ from ruckig import (
 
 from servo_app.motion.ik_kernels import any_nonzero2
 from servo_app.motion.limit_tables import LimitTables
-from servo_app.motion.shaper_kernels import emit_if_passes, line_limits, velocity_within
+from servo_app.motion.shaper_kernels import emit_if_passes, line_limits, velocity_share_limits, velocity_within
 from servo_app.motion.stops import STOP_MODES, StopMode, stop_path, time_optimal_stop_duration
 
 ArrayLike = Sequence[float] | np.ndarray
@@ -368,8 +368,12 @@ class JointShaper:
         self._env = self._envelopes(limits)
         self.limits = limits
         self._guard_env = self._wanted_guard = self._env["soft"]  # guard: enforced now / to adopt
-        self._applied_plan: tuple[Envelope, float] | None = None  # plain limits ruckig has (see _apply_plan_limits)
-        self._line_limits = np.empty((3, self.n))  # scratch of _apply_line_limits
+        # The plain limits ruckig has (see _apply_plan_limits).
+        self._applied_plan: tuple[Envelope | None, float] | None = None
+        self._line_limits = np.empty((3, self.n))  # scratch of _apply_line_limits and set_velocity
+        # _applied_plan while ruckig has set_velocity's share limits (one_profile): no plan's, so the
+        # next plain plan gives ruckig its limits again.
+        self._share_plan = (None, 0.0)
         self._within = np.empty(self.n)  # scratch of set_velocity
         self._no_change = _NO_CHANGE[self.n]  # the guard's mask when it changed nothing
         self._target_still = True  # ruckig's target velocity is zero (what _settle asks)
@@ -517,16 +521,29 @@ class JointShaper:
             g.commit(r)
         return True
 
-    def set_velocity(self, v: ArrayLike) -> None:
+    def set_velocity(self, v: ArrayLike, one_profile: bool = False, v_now: np.ndarray | None = None) -> None:
         """Reach joint velocity ``v`` (deg/s) jerk-limited; above the limit all axes are scaled by one
-        factor, which keeps the direction."""
+        factor, which keeps the direction. ``one_profile``: while the acceleration is along the change,
+        the axes change velocity in proportion (:func:`velocity_share_limits`), the joint velocity on
+        the straight line from the present one to ``v``; ``v_now``: the present velocity, if the caller
+        has it from :meth:`position_velocity` this cycle (saves reading it again)."""
         v = np.ascontiguousarray(v, dtype=np.float64)  # (not kept: no copy)
         within = self._within
         soft = self._env["soft"]
         if v.shape != (self.n,) or velocity_within(v, soft.plan_vel, within) < 0.0:
             raise ValueError(f"expected {self.n} finite joint velocities, got {v}")
         applied = self._applied_plan
-        if (self._plan_mode == "soft" and applied is not None and applied[0] is soft and applied[1] == 1.0):
+        inp = self._inp
+        lim = self._line_limits
+        if one_profile and self._plan_mode == "soft" and velocity_share_limits(
+                np.asarray(inp.current_velocity) if v_now is None else v_now, np.asarray(inp.current_acceleration),
+                within, soft.plan_vel, soft.plan_acc, soft.plan_jerk, lim):
+            if applied is not self._share_plan:  # (the velocity limits are the plan's: set once)
+                inp.max_velocity = soft.plan_vel.tolist()
+                self._applied_plan = applied = self._share_plan
+            inp.max_acceleration, inp.max_jerk = lim[1].tolist(), lim[2].tolist()
+            self._vel_scale = 1.0
+        elif (self._plan_mode == "soft" and applied is not None and applied[0] is soft and applied[1] == 1.0):
             # A velocity stream (a Cartesian jog: every cycle): ruckig has the plan's limits already.
             # What _select_plan comes to then, without its call and _apply_plan_limits' (each Python
             # layer costs ~0.5 us with caches cold after the wait).

@@ -102,6 +102,51 @@ def line_limits(p: np.ndarray, v: np.ndarray, a: np.ndarray, q: np.ndarray, plan
     return True
 
 
+@kernel("boolean(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], "
+        "float64[:, ::1])")
+def velocity_share_limits(v: np.ndarray, a: np.ndarray, target: np.ndarray, plan_vel: np.ndarray,
+                          plan_acc: np.ndarray, plan_jerk: np.ndarray, out: np.ndarray) -> bool:
+    """The planning limits (rows: velocity, acceleration, jerk) for a change of velocity from (v, a) to
+    ``target`` into ``out``; True when the acceleration is along the change (none, or within ~8 deg of
+    it): acceleration and jerk are then scaled to each axis' share of the change, so that the axes run
+    one profile scaled (:func:`line_limits` for a velocity), each at least what ends its present
+    acceleration as soon as the profile does and without passing its target; else the plain limits.
+
+    Why: ruckig keeps the axes in phase only for a change exactly along the acceleration; the IK's
+    target moves a little every cycle of a ramp, and time synchronisation then stretched an axis with
+    little to change over the slowest one's time, its own way (J3 stalled at 0.3 of its target while
+    J2 reached it): the TCP, the sum of joint motions that partly cancel, ran 2-5 % over its speed."""
+    n = v.shape[0]
+    size, dot, na, nd = 0.0, 0.0, 0.0, 0.0
+    for i in range(n):
+        out[0, i] = plan_vel[i]
+        out[1, i] = plan_acc[i]
+        out[2, i] = plan_jerk[i]
+        d = target[i] - v[i]
+        size = max(size, abs(d))
+        dot += a[i] * d
+        na += a[i] * a[i]
+        nd += d * d
+    if size <= 0.0 or dot < 0.99 * math.sqrt(na * nd):
+        return False
+    floor = 1e-6 * size  # an axis with (almost) nothing to change: a share of 1e-6, not a vanishing one
+    ka, kj = np.inf, np.inf
+    for i in range(n):
+        share = max(abs(target[i] - v[i]), floor)
+        ka = min(ka, plan_acc[i] / share)
+        kj = min(kj, plan_jerk[i] / share)
+    for i in range(n):
+        d = target[i] - v[i]
+        share = max(abs(d), floor)
+        acc = max(ka * share, abs(a[i]) * 1.0001)  # (its present acceleration within its limit)
+        jerk = max(kj * share, abs(a[i]) * kj / ka)  # its acceleration ended within the profile's time
+        if a[i] * d > 0.0:
+            jerk = max(jerk, 1.01 * a[i] * a[i] / (2.0 * share))  # ... before it passes the target
+        out[1, i] = min(plan_acc[i], acc)
+        out[2, i] = min(plan_jerk[i], jerk)
+    return True
+
+
 @kernel("float64(float64[::1], float64[::1], float64[::1])")
 def velocity_within(v: np.ndarray, vmax: np.ndarray, out: np.ndarray) -> float:
     """``v`` scaled by one factor so that no axis exceeds ``vmax`` (keeps the direction), into ``out``.
