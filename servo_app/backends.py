@@ -167,6 +167,11 @@ class RobotBackend(ABC):
         """I/O type -> assigned points that clients may read and write; empty: no I/O."""
         return dict(self._io_allow)
 
+    def io_indexes(self) -> dict[str, tuple[int, int]]:
+        """Canonical I/O type -> (first, last) index ``check_io`` allows (the API documents them);
+        empty: no I/O. Default: none."""
+        return {}
+
     def check_io_allow(self, io_allow: dict[str, int]) -> dict[str, int]:
         """``io_allow`` (type -> assigned points) checked for this backend; ValueError naming the key,
         its value and what is allowed. Default: a backend without I/O (no ``check_io``) takes none."""

@@ -42,6 +42,7 @@ from servo_app.api.calls import ServiceCalls
 from servo_app.api.deps import ApiContext, api_of, client_of, controlling
 from servo_app.api.metrics import Metrics
 from servo_app.api.models import TOO_DEEP
+from servo_app.api.openapi_doc import document_robot
 from servo_app.errors import validation_errors
 from servo_app.service import ServoService
 
@@ -142,6 +143,16 @@ def create_app(service: ServoService, token: str, *, jog_rate_per_s: int = 100,
 
     for module in (session, motion, lease, state, io, logs, telemetry, points, tools, trajectory):
         app.include_router(module.router)
+
+    plain_openapi = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        # The configured robot's axis count, I/O and payload, once (FastAPI caches the document).
+        if app.openapi_schema is None:
+            document_robot(plain_openapi(), service.backend, service.tools.max_payload_kg)
+        return app.openapi_schema  # type: ignore[return-value]
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
     if getattr(service, "inputs", None) is not None:  # servo-app run --inputs: feeds, sources, applications
         from servo_app.api.inputs_router import include_inputs

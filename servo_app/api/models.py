@@ -15,11 +15,25 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationInfo, field_validator
 
-from servo_app.motion.commands import MIN_ANGULAR_DEG_S, MIN_LINEAR_MM_S, MIN_SPEED_SCALE
+from servo_app.motion.commands import (
+    MAX_ANGULAR_DEG_S,
+    MAX_LINEAR_MM_S,
+    MAX_POSITION_MM,
+    MIN_ANGULAR_DEG_S,
+    MIN_LINEAR_MM_S,
+    MIN_SPEED_SCALE,
+)
+from servo_app.robots.tool import FLANGE, MAX_OFFSET_MM
 from servo_app.state import MODES, PHASES
 
 _OPEN = ConfigDict(extra="allow")
 _CLOSED = ConfigDict(extra="forbid", strict=True)  # requests
+
+
+def bounded(*limits: float) -> dict[str, Any]:
+    """The schema of a fixed-length list whose values the service bounds (``prefixItems``: value i
+    within +-limits[i]). Documentation only: the service's own check, with its message, refuses them."""
+    return {"prefixItems": [{"type": "number", "minimum": -lim, "maximum": lim} for lim in limits]}
 
 
 def _finite(name: str, values: list[float]) -> list[float]:
@@ -35,8 +49,12 @@ def _finite(name: str, values: list[float]) -> list[float]:
 class TwistJog(BaseModel):
     model_config = _CLOSED
     frame: Literal["base", "tool"] = "base"
-    linear: list[float] = Field(min_length=3, max_length=3, description="mm/s along x y z")
-    angular: list[float] = Field(default=[0.0, 0.0, 0.0], min_length=3, max_length=3, description="deg/s")
+    # The bounds are the servo process's (servo_app.motion.commands.Twist); a faster TCP than the
+    # flange-speed cap is refused there too.
+    linear: list[float] = Field(min_length=3, max_length=3, description="mm/s along x y z",
+                                json_schema_extra=bounded(*[MAX_LINEAR_MM_S] * 3))
+    angular: list[float] = Field(default=[0.0, 0.0, 0.0], min_length=3, max_length=3, description="deg/s",
+                                 json_schema_extra=bounded(*[MAX_ANGULAR_DEG_S] * 3))
     hold_ms: float = Field(200.0, gt=0, le=2000, description="hold-to-run time: keep sending to keep moving")
 
     @field_validator("linear", "angular")
@@ -82,7 +100,8 @@ class JointTarget(BaseModel):
 
 class PoseTargetBody(BaseModel):
     model_config = _CLOSED
-    xyzwpr: list[float] = Field(min_length=6, max_length=6, description="TCP pose: X Y Z mm, W P R deg (world)")
+    xyzwpr: list[float] = Field(min_length=6, max_length=6, description="TCP pose: X Y Z mm, W P R deg (world)",
+                                json_schema_extra=bounded(*[MAX_POSITION_MM] * 3, *[360.0] * 3))
     linear_speed: float = Field(100.0, ge=MIN_LINEAR_MM_S, le=2000, description="mm/s")
     angular_speed: float = Field(30.0, ge=MIN_ANGULAR_DEG_S, le=360, description="deg/s")
 
@@ -132,9 +151,13 @@ class SelectTool(BaseModel):
 
 class DefineTool(BaseModel):
     model_config = _CLOSED
-    name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+    # The built-in flange tool cannot be redefined, in any case (servo_app.service.tools).
+    name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$",
+                      json_schema_extra={"not": {"pattern": "^" + "".join(f"[{c.upper()}{c}]" for c in FLANGE) + "$"}})
+    # X Y Z within MAX_OFFSET_MM of the flange (each within it is what a schema can say), W P R within 360.
     xyzwpr: list[float] = Field(min_length=6, max_length=6,
-                                description="the TCP from the flange: X Y Z mm, W P R deg (FANUC UTOOL data)")
+                                description="the TCP from the flange: X Y Z mm, W P R deg (FANUC UTOOL data)",
+                                json_schema_extra=bounded(*[MAX_OFFSET_MM] * 3, *[360.0] * 3))
     payload_kg: float = Field(gt=0, description="the tool's weight; at most the robot's maximum payload")
 
     @field_validator("xyzwpr")

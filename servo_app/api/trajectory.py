@@ -14,7 +14,7 @@ upload.
 import json
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.exceptions import RequestValidationError
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -71,6 +71,37 @@ class TrajectoryBody(BaseModel):
         return self
 
 
+def _documented_schema() -> dict[str, Any]:
+    """TrajectoryBody's JSON schema with the rules plan_trajectory checks (its messages name the value):
+    six values a waypoint, at least one waypoint and time, a window not before the log's start, exactly
+    one of joints, poses and log, the window only with log and times only with waypoints. Documentation
+    only: a client or fuzzer working from the schema sends what the service takes."""
+    schema = TrajectoryBody.model_json_schema()
+    props = schema["properties"]
+    for key in ("joints", "poses"):  # FANUC J1..J6 or X Y Z W P R: trajectories are FANUC's alone
+        rows = props[key]["anyOf"][0]
+        rows["minItems"] = 1
+        rows["items"].update(minItems=6, maxItems=6)
+    props["times"]["anyOf"][0]["minItems"] = 1
+    props["from_s"]["anyOf"][0]["minimum"] = 0
+    props["to_s"]["anyOf"][0]["exclusiveMinimum"] = 0
+
+    def given(key: str) -> dict[str, Any]:
+        return {"required": [key], "properties": {key: {"not": {"type": "null"}}}}
+
+    def absent(*keys: str) -> dict[str, Any]:
+        return {"properties": {k: {"type": "null"} for k in keys}}
+
+    schema["oneOf"] = [given("joints"), given("poses"), given("log")]
+    schema["allOf"] = [{"anyOf": [given("log"), absent("from_s", "to_s", "from_unix", "to_unix")]},
+                       {"anyOf": [absent("log"), absent("times")]}]
+    return schema
+
+
+# The query's speed_scale is checked where it is used (a CSV body: check_speed_scale, naming the value);
+# documented here with the same range.
+_SCALE_RANGE = {"minimum": MIN_SPEED_SCALE, "maximum": 1}
+
 _CSV_FORM = ("A CSV body (Content-Type: text/csv) in `servo-app check`'s form: one row per line, J1..J6 "
              "(FANUC deg) or, with the header x,y,z,w,p,r, flange poses; `speed_scale` and `pace` (recorded: no "
              "faster than one row per interval; limits: as fast as the limits allow) as query parameters.")
@@ -104,11 +135,13 @@ async def uploaded(request: Request, _: Authed) -> bytes:
 
 @router.post("/api/trajectory", summary="Replay waypoints, a CSV or a session log within the limits",
              responses=REFUSALS, openapi_extra={"requestBody": {"required": True, "content": {
-                 "application/json": {"schema": TrajectoryBody.model_json_schema()},
+                 "application/json": {"schema": _documented_schema()},
                  "text/csv": {"schema": {"type": "string", "description": _CSV_FORM}}}}})
 async def trajectory(request: Request, raw: Annotated[bytes, Depends(uploaded)], client: Controlling,
                      calls: Calls, service: Service,
-                     speed_scale: float = 1.0, pace: Literal["recorded", "limits"] = "recorded") -> Ack:
+                     speed_scale: Annotated[float, Query(json_schema_extra=_SCALE_RANGE, description=(
+                         "with a CSV body: share of the joint speed limits"))] = 1.0,
+                     pace: Literal["recorded", "limits"] = "recorded") -> Ack:
     """Plan the path from where the arm rests (an approach move first if it does not start there),
     timed by TOPP-RA with a jerk bound and checked as the controller checks a stream, then replay it
     one position per cycle. A stop pauses along the path, resume continues it; a fast stop, a fault or

@@ -117,6 +117,10 @@ class FanucBackend(RobotBackend):
                                  "out to allow none")
         return dict(io_allow)
 
+    def io_indexes(self) -> dict[str, tuple[int, int]]:
+        # As check_io: a type with fewer points than an access covers allows none.
+        return {t: (1, n - IO_SPAN + 1) for t, n in self._io_allow.items() if n >= IO_SPAN}
+
     def check_io(self, io_type: str, index: int) -> str:
         name = str(io_type).upper()
         allowed = ", ".join(f"{t} 1..{n}" for t, n in self._io_allow.items())

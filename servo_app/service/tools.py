@@ -89,6 +89,11 @@ class ActiveTool:
     def describe(self) -> dict[str, Any]:
         return {"active": self._active.name, "tools": [t.describe() for t in self.all()]}
 
+    @property
+    def max_payload_kg(self) -> float | None:
+        """The heaviest tool that may be defined (None: no bound)."""
+        return self._max_payload_kg
+
     # ------------------------------------------------------------------ changes
     def apply_to_new_process(self) -> None:
         """A new servo process starts with the flange and the payload of its options: give it the
