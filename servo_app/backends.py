@@ -162,6 +162,11 @@ class RobotBackend(ABC):
         before any solve: in the wrong units, out of reach. Default: none is."""
         return None
 
+    def target_bounds(self) -> list[tuple[float, float]] | None:
+        """Per axis, the (lowest, highest) value a joint target can have, in the request's units: what
+        the API documents (the target check refuses outside, and may refuse more). None: no bound known."""
+        return None
+
     # -- I/O
     def io_allow(self) -> dict[str, int]:
         """I/O type -> assigned points that clients may read and write; empty: no I/O."""

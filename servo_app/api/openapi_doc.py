@@ -1,6 +1,6 @@
 """The OpenAPI document with what this service's robot takes: the request models (api.models) are the
-same for every backend, but the axis count, the I/O types and indexes and the maximum payload are the
-configured robot's. Its checks refuse the rest (422, naming the field and value); without these
+same for every backend, but the axis count, the joint ranges, the I/O types and indexes and the maximum
+payload are the configured robot's. Its checks refuse the rest (422, naming the field and value); without these
 constraints in the document a client or fuzzer generated from it sends 5 joints to a 6-axis arm, I/O
 type "SO" or a 90 kg tool, all of which the document allowed.
 
@@ -22,6 +22,14 @@ def document_robot(doc: dict[str, Any], backend: RobotBackend, max_payload_kg: f
         joints = schemas[model]["properties"]["joints"]
         joints.update(minItems=axes, maxItems=axes)
         joints["description"] += f"; this robot has {axes}"
+    bounds = backend.target_bounds()
+    if bounds is not None:
+        axes_in_range = [{"type": "number", "minimum": lo, "maximum": hi} for lo, hi in bounds]
+        schemas["JointTarget"]["properties"]["joints"]["prefixItems"] = axes_in_range
+        replay = doc["paths"].get("/api/trajectory", {}).get("post")
+        if replay is not None and len(bounds) == 6:  # (FANUC's alone: six values a waypoint)
+            rows = replay["requestBody"]["content"]["application/json"]["schema"]["properties"]["joints"]
+            rows["anyOf"][0]["items"]["prefixItems"] = axes_in_range
     if max_payload_kg is not None:
         schemas["DefineTool"]["properties"]["payload_kg"]["maximum"] = max_payload_kg
     indexes = backend.io_indexes()

@@ -98,6 +98,15 @@ class FanucBackend(RobotBackend):
         spec = ALARMS.get(code)
         return None if spec is None else AlarmInfo(code, spec.cause, spec.remedy, spec.warning)
 
+    def target_bounds(self) -> list[tuple[float, float]] | None:
+        # The ranges are in the model convention; a target is in FANUC's, where J3 = J3_model - f * J2
+        # (robots.conventions): J3's bound is the widest over J2's range.
+        p = self.profile
+        lo, hi = list(p.joint_min_deg), list(p.joint_max_deg)
+        shifts = (p.j23_factor * lo[1], p.j23_factor * hi[1])
+        lo[2], hi[2] = lo[2] - max(shifts), hi[2] - min(shifts)
+        return list(zip(lo, hi, strict=True))
+
     def check_pose(self, xyzwpr: tuple[float, ...], tool_xyzwpr: tuple[float, ...] | None = None) -> None:
         check_pose_plausible(xyzwpr, self.profile, tool_xyzwpr)
 

@@ -51,6 +51,10 @@ class JanomeBackend(RobotBackend):
     def robot_view(self, q: list[float]) -> dict[str, Any]:
         return janome_view(self.profile, q)
 
+    def target_bounds(self) -> list[tuple[float, float]] | None:
+        # The work envelope's bounding box (JanomeMotion.check_target refuses outside the envelope).
+        return list(zip(self.profile.axis_min, self.profile.axis_max, strict=True))
+
     def limits(self, state: dict[str, Any], options: ProcessOptions) -> dict[str, Any]:
         p = self.profile
         return {
