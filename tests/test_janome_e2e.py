@@ -323,3 +323,53 @@ def test_a_connection_closed_after_a_link_fault_shows_as_disconnected(
         assert views[-1]["robot_connected"] and views[-1]["link_error"] == "", views[-1]
     finally:
         again.stop()
+
+
+def test_a_scara_jog_held_along_the_reach_stops_softly_at_it() -> None:
+    """JS3 from X=300 Y=0, a held jog at 95 deg in XY: it meets the outer reach at a slant. The jog's
+    target, found again from each position, crept back there while the shaper braked to it; the shaper
+    overshot it past the stretched-arm limit (J2 1.85 deg, under 2), that step was refused before it
+    went out (warning "step refused: ..."): the jog stopped dead 3 mm short of the reach, and the held
+    jog's renewals started it again from rest. Now that step ends on the limit and the jog rests there:
+    no warning, the robot refusing nothing, the held jog moving nothing further."""
+    sp = JanomeProcess(JanomeConfig(port=0, model="js3"))
+    sp.start()
+    sim = JanomeSimulator(sp.address, "js3", start=(300.0, 0.0, 50.0, 0.0)).start()
+    try:
+        wait_state(sp, "ready")
+        sp.request(Start())
+        wait_state(sp, "streaming")
+        a = np.radians(95.0)
+        jog = Jog(joints=(100.0 * np.cos(a), 100.0 * np.sin(a), 0.0, 0.0), hold_s=0.5)
+
+        def reach() -> float:
+            return float(np.hypot(*sim.position[:2]))
+
+        def resting() -> bool:  # the service's last step done, none after it
+            s = sp.state()
+            return s["q_servo"][:4] == pytest.approx(s["q_cmd"][:4], abs=1e-6) and sim.plan is None
+
+        deadline = time.monotonic() + 15.0
+        sp.request(jog)
+        while not (reach() > 349.0 and resting()):  # held: renewed as a button held down is
+            assert time.monotonic() < deadline, f"no rest near the reach: {sim.position}, {sp.state()['state']}"
+            time.sleep(0.05)
+            sp.request(jog)
+        at_rest = sim.position.copy()
+        moves = sim.moves
+        n = sp.state()["status_received"]
+        while sp.state()["status_received"] < n + 5:  # still held: nothing more moves
+            assert time.monotonic() < deadline, "no status while held at the reach"
+            time.sleep(0.05)
+            sp.request(jog)
+        assert sim.moves == moves and sim.position == pytest.approx(at_rest, abs=1e-9)
+        _j1, j2, _, _ = sim.robot.joints()
+        assert reach() > 349.9 and 2.0 < j2 < 2.6 and sim.robot.arm == 1  # at the limit, with its margin
+        assert not sim.events("rejected")
+        assert sp.state()["state"] == "streaming"
+        sp.request(Stop())  # (a warning alone sends no safety view: the stop's shows them)
+        view = wait_safety(sp, 5.0, state="stopped")
+        assert not view["link_error"] and not view["warnings"], view
+    finally:
+        sim.stop()
+        sp.shutdown()

@@ -79,6 +79,7 @@ class JanomeMotion:
         self.stopped = False
         self._jog: np.ndarray | None = None
         self._target: tuple[np.ndarray, float] | None = None
+        self._jog_at_limit: np.ndarray | None = None  # the jog that stopped at the envelope's edge
         # a jog target runs this far ahead: beyond the braking distance at full speed
         self._horizon = float(np.max(2.0 * (self.vel / self.acc + self.acc / self.jerk))) + self.step_s
         self.steps_sent = 0
@@ -96,6 +97,7 @@ class JanomeMotion:
         self.stopped = False
         self._jog = None
         self._target = None
+        self._jog_at_limit = None
 
     def next_step(self) -> Step | None:
         """The next target, or None when nothing moves (the session then sends HOLD)."""
@@ -104,8 +106,19 @@ class JanomeMotion:
         if self._jog is not None and not self.stopped:
             self._steer_jog(shaper, self._jog)
         q = np.round(shaper.step() * SCALE) / SCALE
+        at_limit = False
+        if self._jog is not None and self.ws.check_path(self.last, q, self.arm) is not None:
+            # The jog's target is clipped to the envelope, but it is found again from each new position
+            # and can creep back while the shaper brakes to it: the shaper then overshoots it (JS3 along
+            # the outer reach, where 0.5 deg of J2 is 0.03 mm, by up to 0.05 mm: past the hard limit).
+            # The jog has reached the limit: this step ends on it and the jog stops there.
+            clipped = np.round(self.ws.clip_segment(self.last, q, self.arm) * SCALE) / SCALE
+            at_limit = not np.array_equal(clipped, q)
+            q = clipped
         d = q - self.last
         if np.all(np.abs(d) < _MOVE_EPS):
+            if at_limit:
+                self._stop_at_limit()
             return None
         why = self.ws_hard.check_path(self.last, q, self.arm)
         if why is not None:  # never expected: targets and jogs are clipped to the workspace
@@ -117,6 +130,8 @@ class JanomeMotion:
             if abs(d[3]) >= _MOVE_EPS else 0.0
         self.last = q
         self.steps_sent += 1
+        if at_limit:
+            self._stop_at_limit()
         s = self.settings
         return Step((float(q[0]), float(q[1]), float(q[2]), float(q[3])), speed, rspeed, s.move, s.ptp_cond, self.arm)
 
@@ -146,7 +161,7 @@ class JanomeMotion:
     def set_target(self, xyzr: np.ndarray, speed_scale: float = 1.0) -> None:
         shaper = self._require()
         p = self.check_target(xyzr, speed_scale)
-        self._target, self._jog = (p, float(speed_scale)), None
+        self._target, self._jog, self._jog_at_limit = (p, float(speed_scale)), None, None
         self.stopped = False
         shaper.set_target(p, float(speed_scale))
 
@@ -157,7 +172,10 @@ class JanomeMotion:
         self._require()
         lin = float(np.linalg.norm(v[:3]))
         over = max(1.0, lin / self.cp_speed, float(np.max(np.abs(v) / self.vel)))
-        self._jog, self._target = v / over, None
+        v = v / over
+        if self._jog_at_limit is not None and np.array_equal(v, self._jog_at_limit):
+            return  # the held jog renewed: it stays stopped at the limit (from rest it would crawl on)
+        self._jog, self._target, self._jog_at_limit = v, None, None
         self.stopped = False
 
     def stop(self, fast: bool = False) -> None:
@@ -165,6 +183,7 @@ class JanomeMotion:
         Soft and fast stops are the same here; a fast one only needs acknowledging (the state machine)."""
         self.stopped = True
         self._jog = None
+        self._jog_at_limit = None
         if self.shaper is None or self.last is None:
             return
         shaper = self.shaper
@@ -186,6 +205,11 @@ class JanomeMotion:
         p = shaper.state[0]
         ahead = self.ws.clip_segment(p, p + v * self._horizon, self.arm)
         shaper.set_target(ahead, min(scale, 1.0))
+
+    def _stop_at_limit(self) -> None:
+        jog = self._jog
+        self.stop()  # (re-seeds the shaper at the last step: the robot ends it and stays)
+        self._jog_at_limit = jog
 
     def _require(self) -> JointShaper:
         if self.shaper is None:
