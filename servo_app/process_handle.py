@@ -514,6 +514,16 @@ class ServoProcessHandle:
         end is no fault to report."""
         self._closing = True
 
+    def end_now(self, grace_s: float = 1.0) -> None:
+        """End the process by our will (SIGTERM, SIGKILL after ``grace_s``: a stalled one takes no
+        SIGTERM), keeping its state slot: the views read its last state, as a dead process's."""
+        self._closing = True
+        if self.alive:
+            self.process.terminate()
+            if not self.wait_exit(grace_s):
+                self.process.kill()
+                self.wait_exit(3.0)
+
     def wait_exit(self, timeout: float) -> bool:
         """Wait until the reader has seen the process end (it alone reaps it); True if it has."""
         with self._cv:

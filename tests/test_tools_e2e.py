@@ -5,6 +5,7 @@ refusal and the command line's check of a bad file too."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import signal
@@ -359,6 +360,103 @@ def test_a_tool_change_that_times_out_is_not_taken_later_by_a_stalled_servo_proc
         after = rig.wait_at_rest_settled(10.0)
         np.testing.assert_allclose(after["q_cmd"][:6], s["q_cmd"][:6], atol=1e-3)
         assert rig.sim_alarms() == []
+
+
+def test_an_undone_tool_change_that_times_out_stops_the_stalled_servo_process(tmp_path: Path) -> None:
+    """The controller cannot take the new tool's payload (its process killed), so the change is undone;
+    the servo process, which took 'heavy', stalls (SIGSTOP) before the undoing. It holds a tool the
+    service does not show: it is stopped (a named fault), the 503 says the tool is not changed, and a
+    reset starts another with 'gripper' (old code: the raw timeout, the stalled process kept, and the
+    reset could not replace it: every request to it timed out)."""
+    (tmp_path / "tools.toml").write_text(TOOLS)
+    with running_rig(tmp_path, tools_file=tmp_path / "tools.toml", request_timeout_s=0.5) as rig:
+        h = at_rest_with(rig, "gripper")
+        assert rig.service.stream is not None and rig.service.stream.pid is not None
+        pid = rig.service.stream.pid
+        rig.service.sim.process.kill()  # the controller's process dies: its payload cannot follow the tool
+        rig.wait_state("fault")
+        tools = rig.service.tools
+        set_payload = tools._set_simulator_payload
+        assert set_payload is not None
+
+        def stall_then_set(payload_kg: float | None) -> None:  # the servo process stops before the undoing
+            os.kill(pid, signal.SIGSTOP)
+            set_payload(payload_kg)
+
+        tools._set_simulator_payload = stall_then_set
+        try:
+            r = rig.http.put("/api/tool", json={"name": "heavy"}, headers=h)
+            tools._set_simulator_payload = set_payload
+            assert r.status_code == 503, r.text
+            detail = r.json()["detail"]
+            assert "the tool is not changed ('gripper' is active)" in detail and "was stopped (fault)" in detail, detail
+            assert "took tool 'heavy' and did not answer its undoing in time" in detail, detail
+            s = rig.state()
+            assert s["state"] == "fault" and "did not answer its undoing" in s["fault"]["message"], s["fault"]
+            assert rig.http.get("/api/tools").json()["active"] == "gripper" and s["tool"]["name"] == "gripper"
+            h = rig.lease()  # (the last one may have run out meanwhile: its 10 s)
+            rig.post("/api/reset", h)  # the stalled process never runs again: another, given the active tool
+            rig.wait_state("disconnected", "connected", "ready", "ended")
+            assert rig.service.stream is not None and rig.service.stream.pid != pid
+        finally:
+            tools._set_simulator_payload = set_payload
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGCONT)
+        rig.start_streaming(h)
+        s = rig.wait_at_rest_settled(10.0)
+        assert s["tool"]["name"] == "gripper" and rig.http.get("/api/limits").json()["payload_kg"] == 2.5
+        # The servo process moves the TCP shown: a pose target at the pose shown is where the arm is.
+        rig.post("/api/target", h, {"xyzwpr": s["cart_servo"], "linear_speed": 50.0})
+        after = rig.wait_at_rest_settled(10.0)
+        np.testing.assert_allclose(after["q_cmd"][:6], s["q_cmd"][:6], atol=1e-3)
+
+
+def test_a_new_servo_process_that_does_not_take_the_tool_in_time_is_stopped(tmp_path: Path) -> None:
+    """A reset's new servo process stalls (SIGSTOP) before it takes the active tool: it would stream
+    the flange's TCP while the service shows 'gripper'. It is stopped (a named fault), the reset's 503
+    says so, the service stays up and the next reset starts another that takes the tool (old code: the
+    raw timeout, the stalled process kept, and the next reset could not replace it)."""
+    (tmp_path / "tools.toml").write_text(TOOLS)
+    with running_rig(tmp_path, tools_file=tmp_path / "tools.toml", request_timeout_s=0.5) as rig:
+        h = rig.lease()
+        service = rig.service
+        assert service.stream is not None and service.stream.pid is not None
+        os.kill(service.stream.pid, signal.SIGKILL)  # the servo process dies: a reset replaces it
+        rig.wait_state("fault")
+        spawn = service._spawn
+        stalled: list[int] = []
+
+        def spawn_and_stall() -> None:  # the new process is up, then stops before the tool reaches it
+            spawn()
+            assert service.stream is not None and service.stream.pid is not None
+            stalled.append(service.stream.pid)
+            os.kill(service.stream.pid, signal.SIGSTOP)
+
+        service._spawn = spawn_and_stall  # type: ignore[method-assign]
+        try:
+            r = rig.http.post("/api/reset", headers=h)
+            assert r.status_code == 503, r.text
+            detail = r.json()["detail"]
+            assert "the new servo process did not take the active tool 'gripper' in time and was stopped (fault)" \
+                in detail and "reset again" in detail, detail
+            s = rig.state()
+            assert s["state"] == "fault" and "did not take the active tool" in s["fault"]["message"], s["fault"]
+            assert s["tool"]["name"] == "gripper"
+            service._spawn = spawn  # type: ignore[method-assign]
+            rig.post("/api/reset", h)  # the stalled process never runs again: another
+            rig.wait_state("disconnected", "connected", "ready", "ended")
+            assert service.stream is not None and service.stream.pid not in stalled
+        finally:
+            service._spawn = spawn  # type: ignore[method-assign]
+            for pid in stalled:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGCONT)
+        rig.start_streaming(h)
+        s = rig.wait_at_rest_settled(10.0)
+        assert s["tool"]["name"] == "gripper" and rig.http.get("/api/limits").json()["payload_kg"] == 2.5
+        rig.post("/api/target", h, {"xyzwpr": s["cart_servo"], "linear_speed": 50.0})
+        after = rig.wait_at_rest_settled(10.0)
+        np.testing.assert_allclose(after["q_cmd"][:6], s["q_cmd"][:6], atol=1e-3)
 
 
 def test_tools_added_at_run_time_are_bounded(tmp_path: Path) -> None:

@@ -73,7 +73,8 @@ class ServoService:
         self.views = StateViews(self)
         self.points = PointStore(cfg.var_dir / "points.json")  # teach points (servo_app.api.points)
         self.tools = ActiveTool(load_tool_set(cfg, self.profile), getattr(self.profile, "max_payload_kg", None),
-                                self.request, self.state_vector, self._set_simulator_payload)
+                                self.request, self.state_vector, self._set_simulator_payload,
+                                retire_servo=self._retire_servo)
 
     @property
     def options(self) -> ProcessOptions:
@@ -118,7 +119,7 @@ class ServoService:
             self._spawn()
         try:
             self.tools.apply_to_new_process()
-        except ToolError:
+        except (ToolError, TimeoutError):  # (a process that did not take the tool is stopped already)
             self.close()
             raise
         if target.embedded and not self.backend.simulator_first:  # the robot connects to us: it comes second
@@ -185,11 +186,28 @@ class ServoService:
     def _on_servo_exit(self, cause: str) -> None:
         """The servo process ended unasked (the pipe's end of file): a fault the operator can leave
         with reset. (Even a clean exit on a signal: no stream can run until a new process is up.)"""
+        self._servo_gone(f"servo process {cause}",
+                         "The process that streams to the robot ended unexpectedly; the controller got no "
+                         "further commands and stopped the arm itself.")
+
+    def _retire_servo(self, message: str) -> None:
+        """Stop a servo process that holds a tool other than the active one and did not answer its
+        change in time (ActiveTool): it must not move that TCP once it runs again. The same fault as a
+        dead process's, ``message`` naming why; a reset starts another, given the active tool. Not under
+        ``_lifecycle``: a replacement (which holds it) calls this for the process it started."""
+        stream = self.stream
+        if stream is None or not stream.alive:
+            return
+        log.warning("%s: stopping that servo process", message)
+        stream.end_now(grace_s=1.0)
+        self._servo_gone(message, "The servo process was stopped: it did not answer in time and may hold a "
+                                  "tool other than the active one; nothing streams to the robot.")
+
+    def _servo_gone(self, message: str, cause: str) -> None:
         self.servo_fault = {
-            "message": f"servo process {cause}",
+            "message": message,
             "code": None,
-            "cause": "The process that streams to the robot ended unexpectedly; the controller got no "
-                     "further commands and stopped the arm itself.",
+            "cause": cause,
             "remedy": "Reset (POST /api/reset) to start a new servo process, then start a new stream. "
                       "The session log is complete up to the process's last record.",
             "during": self._safety.get("state"),

@@ -60,6 +60,15 @@ def load_tool_set(cfg: ServiceConfig, profile: Any) -> ToolSet:
                       source=source)
 
 
+def _expired(name: str) -> Callable[[msg.Reply], None]:
+    """on_late for a tool change whose process is stopped when the wait ends: its reply is history."""
+
+    def late(reply: msg.Reply) -> None:
+        _log.info("late reply to the change to tool %r (ok=%s): its servo process was stopped", name, reply.ok)
+
+    return late
+
+
 class UnknownTool(LookupError):
     """No tool of that name (the API answers 404)."""
 
@@ -69,7 +78,8 @@ class ActiveTool:
 
     def __init__(self, tools: ToolSet, max_payload_kg: float | None,
                  request: Callable[..., Any], state_vector: Callable[[], dict[str, Any]],
-                 set_simulator_payload: Callable[[float | None], None] | None = None) -> None:
+                 set_simulator_payload: Callable[[float | None], None] | None = None, *,
+                 retire_servo: Callable[[str], None]) -> None:
         self._tools = tools
         self._at_start = frozenset(tools.tools)  # the file's and the flange: not counted in the bound
         self._active = tools.tools[tools.active]
@@ -77,6 +87,8 @@ class ActiveTool:
         self._request = request
         self._state_vector = state_vector
         self._set_simulator_payload = set_simulator_payload
+        # Stops a servo process that did not answer a tool change in time (a fault; reset starts another).
+        self._retire_servo = retire_servo
         self._lock = threading.Lock()
 
     @property
@@ -97,14 +109,21 @@ class ActiveTool:
     # ------------------------------------------------------------------ changes
     def apply_to_new_process(self) -> None:
         """A new servo process starts with the flange and the payload of its options: give it the
-        active tool's offset. A backend that refuses it (no tool offsets) raises ToolError."""
+        active tool's offset. A backend that refuses it (no tool offsets) raises ToolError; one that
+        does not answer in time is stopped (a fault) and TimeoutError says so."""
         tool = self._active
         if tool.is_flange:
             return
         try:
-            self._request(msg.SetTool(tool.name, tool.xyzwpr, tool.payload_kg))
+            self._request(msg.SetTool(tool.name, tool.xyzwpr, tool.payload_kg), on_late=_expired(tool.name))
         except CommandRejected as exc:
             raise ToolError(f"tool {tool.name!r}: {exc}") from None
+        except TimeoutError as exc:
+            # It would stream the flange's TCP under the active tool's name: stopped, not kept waiting.
+            why = f"the new servo process did not take the active tool {tool.name!r} in time"
+            self._retire_servo(why)
+            raise TimeoutError(f"{exc}; {why} and was stopped (fault): reset again (POST /api/reset) to start "
+                               "another") from None
 
     def select(self, name: str) -> Tool:
         """Make ``name`` the active tool: refused (CommandRejected) while the arm moves, UnknownTool for
@@ -133,7 +152,7 @@ class ActiveTool:
                 try:
                     self._set_simulator_payload(tool.payload_kg)
                 except BaseException as exc:  # not taken (its process ended or froze): refused, so undone
-                    self._request(msg.SetTool(old.name, old.xyzwpr, old.payload_kg))
+                    self._undo(tool, old, exc)
                     if isinstance(exc, TimeoutError):
                         raise TimeoutError(f"{exc}; the tool is not changed ({old.name!r} is active): once the "
                                            "controller answers again (reset: POST /api/reset), change the tool "
@@ -141,6 +160,19 @@ class ActiveTool:
                     raise
             self._active = tool
             return tool
+
+    def _undo(self, tool: Tool, old: Tool, exc: BaseException) -> None:
+        """Give the servo process ``old`` again after ``tool`` could not be completed (``exc``). With the
+        deadline of a change: if it does not answer in time it holds ``tool``, which the service does
+        not show, so it is stopped (a fault) rather than trusted to take ``old`` once it runs again."""
+        try:
+            self._request(msg.SetTool(old.name, old.xyzwpr, old.payload_kg), on_late=_expired(old.name))
+        except TimeoutError as undo_exc:
+            why = f"the servo process took tool {tool.name!r} and did not answer its undoing in time"
+            self._retire_servo(why)
+            raise TimeoutError(f"{exc}; the tool is not changed ({old.name!r} is active): {why} ({undo_exc}) and "
+                               "was stopped (fault): reset (POST /api/reset) to start another with "
+                               f"{old.name!r}") from None
 
     def _late(self, tool: Tool) -> Callable[[msg.Reply], None]:
         """The reply to a change the servo process took just before its deadline and answered after
