@@ -363,6 +363,8 @@ class ServoProcessHandle:
         self._send_lock = threading.Lock()
         self._reader: threading.Thread | None = None
         self._closing = False
+        self._quiet_version = -1  # the state's version as quiet_for last saw it, and since when
+        self._quiet_since = 0.0
 
     @property
     def alive(self) -> bool:
@@ -504,6 +506,18 @@ class ServoProcessHandle:
                     raise TimeoutError(f"no {kind.__name__} event {match} within {timeout} s; "
                                        f"events: {self.events[-5:]}")
                 self._cv.wait(left)
+
+    def quiet_for(self, now: float) -> float:
+        """How long the process has published no new state, as seen by this method's calls (one
+        watcher's: a watcher that was itself held up sees the new version, not a stall). The process
+        publishes every pass of its loop (~20 ms at most): a long quiet is a stalled process."""
+        try:
+            version = self.slot.version
+        except AttributeError:  # its slot is closed: it has been shut down
+            return 0.0
+        if version != self._quiet_version:
+            self._quiet_version, self._quiet_since = version, now
+        return now - self._quiet_since
 
     def state(self) -> dict[str, Any]:
         _, data = self.slot.read(patience_s=0.25)  # (a writer preempted mid-write: see LatestValueSlot.read)

@@ -421,6 +421,55 @@ def test_servo_process_killed_again_while_reset_starts_its_replacement(tmp_path:
     no_children_left()
 
 
+@pytest.mark.parametrize("reset_at", ["after-the-fault", "at-once"])
+def test_servo_process_stalled_is_ended_and_replaced(tmp_path: Path, reset_at: str) -> None:
+    """SIGSTOP to the servo process mid-jog (alive, but running no cycle): within the stall time and a
+    poll the state names the fault (`servo process stalled`), the service ends that process (SIGTERM,
+    SIGKILL) by itself, and a reset starts a new one, also a reset sent at once, before the stall is
+    seen; SIGCONT to the old one then finds nothing that could send the controller a stale command:
+    the controller holds only the MOTN-603 of the stream it was starved of, start and jog move the
+    arm. (Before the fix: `streaming` shown for good, and every reset 503 "did not answer Reset";
+    continued, the old process sent its stale commands and the controller posted MOTN-600.)"""
+    with running_rig(tmp_path) as rig:
+        stall_s = rig.service.cfg.servo_stall_s
+        h = rig.lease()
+        rig.start_streaming(h)
+        rig.jog_for(h, JOG, 0.3)
+        pid = rig.service.stream.pid  # type: ignore[union-attr]
+        assert pid is not None
+        t_stop = time.monotonic()
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            if reset_at == "at-once":  # before the stall is seen: it waits for it, then replaces the process
+                rig.post("/api/reset", h)
+                assert not alive(pid)
+            else:
+                s = rig.wait_state("fault", timeout=stall_s + 2.0)
+                seen = time.monotonic() - t_stop
+                assert stall_s <= seen < stall_s + 1.0, seen
+                assert s["fault"]["message"].startswith("servo process stalled: it ran no cycle for"), s["fault"]
+                assert s["servo_process"].startswith("stalled"), s["servo_process"]
+                assert "POST /api/reset" in s["fault"]["remedy"], s["fault"]
+                r = rig.post("/api/jog", h, json={"joints": JOG}, expect=409)  # refused at once, naming the way out
+                assert "stalled" in r.json()["detail"] and "POST /api/reset" in r.json()["detail"], r.text
+                assert eventually(lambda: not alive(pid), timeout=5.0), "the stalled process was not ended"
+                rig.post("/api/reset", h)
+            s = rig.wait_state("disconnected", "connected", "ready", timeout=15)
+            assert s["fault"] is None and s["servo_process"] == "running" and s["servo_starts"] == 2, s
+            assert rig.service.stream.pid != pid  # type: ignore[union-attr]
+        finally:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGCONT)
+        rig.post("/api/session/start", h)
+        assert rig.state()["state"] == "streaming"
+        moves(rig, h)
+        assert rig.sim_alarms() == ["MOTN-603"]  # no MOTN-600: nothing stale reached the controller
+    log = read_session_log(all_logs(tmp_path)[0])
+    assert len(log.commands) > 0  # the stalled process's log: complete up to the stall (assert_logs_sound)
+    assert_logs_sound(tmp_path)
+    no_children_left()
+
+
 # ------------------------------------------------------------------------------------ the main process
 
 

@@ -35,6 +35,10 @@ class ServiceConfig:
     # MOTN-603. Below the servo process's priority (20), so that one still comes first. None: leave.
     sim_realtime_priority: int | None = 10
     request_timeout_s: float = 2.0
+    # A servo process that publishes no state for this long is stalled (stopped by a signal, stuck):
+    # its loop publishes every ~20 ms at most, and the controller faults after a few missed commands.
+    # The service names the fault and ends it (SIGTERM, SIGKILL after 1 s); a reset starts another.
+    servo_stall_s: float = 1.0
     # A control of the embedded simulator (reset, alarm list, override, ...) answers in milliseconds;
     # one not answered in this time fails (a reset: 503), so a stopped controller process cannot hold
     # a reset anywhere near the lease's 10 s, and the alarm monitor polls again.

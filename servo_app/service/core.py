@@ -67,6 +67,8 @@ class ServoService:
         self.servo_fault: dict[str, Any] | None = None  # the servo process died: why, and what to do
         self.servo_starts = 0
         self.spawning = False  # a servo process is being started (its predecessor, if any, is gone)
+        self._watchdog: threading.Thread | None = None  # ends a stalled servo process (_watch_servo)
+        self._watchdog_stop = threading.Event()
         self.inputs: Any = None  # the InputsBridge, with cfg.inputs_config
         self.alarm_forwarder = AlarmForwarder(self.backend, self.sim_call, self.send, cfg.alarm_poll_s)
         self.io = StreamIo(self.backend, self.request, self.state_vector, cfg.lead)
@@ -130,6 +132,8 @@ class ServoService:
         # Also with an external robot (no alarm list to poll): the forwarder counts the faults the
         # service detects itself, whether or not anyone reads /api/state.
         self.alarm_forwarder.start()
+        self._watchdog = threading.Thread(target=self._watch_servo, name="servo watchdog", daemon=True)
+        self._watchdog.start()
         if self.inputs is not None:
             self.inputs.start(request=self.request, feedback=self.state_vector, act=self.io.on_action)
 
@@ -196,12 +200,41 @@ class ServoService:
         dead process's, ``message`` naming why; a reset starts another, given the active tool. Not under
         ``_lifecycle``: a replacement (which holds it) calls this for the process it started."""
         stream = self.stream
-        if stream is None or not stream.alive:
+        if stream is None or not stream.alive or self.servo_fault is not None:  # (being ended: _watch_servo)
             return
         log.warning("%s: stopping that servo process", message)
         stream.end_now(grace_s=1.0)
         self._servo_gone(message, "The servo process was stopped: it did not answer in time and may hold a "
                                   "tool other than the active one; nothing streams to the robot.")
+
+    def _watch_servo(self) -> None:
+        """End a servo process that is alive but stalled (SIGSTOP, stuck in a computation): it publishes
+        its state every loop pass, so ``cfg.servo_stall_s`` without a new one is a stall. Without this
+        the state showed the stalled process's last "streaming" for good, every request (a reset too)
+        timed out, and the process, continued, sent the controller its stale commands (MOTN-600)."""
+        stall_s = self.cfg.servo_stall_s
+        while not self._watchdog_stop.wait(min(0.1, stall_s / 4)):
+            stream = self.stream
+            if stream is None or not stream.alive or self.servo_fault is not None:
+                continue
+            quiet = stream.quiet_for(time.monotonic())
+            # Not while a reset or start replaces the process (they hold _lifecycle): look again next time.
+            if quiet > stall_s and self._lifecycle.acquire(blocking=False):
+                try:
+                    if stream is self.stream and stream.alive and self.servo_fault is None:
+                        self._end_stalled(stream, quiet)
+                finally:
+                    self._lifecycle.release()
+
+    def _end_stalled(self, stream: ServoProcessHandle, quiet_s: float) -> None:
+        message = f"servo process stalled: it ran no cycle for {quiet_s:.1f} s"
+        log.warning("%s: ending it (SIGTERM, then SIGKILL)", message)
+        # The fault first: the state names it, and requests are refused with it, while the process is ended.
+        self._servo_gone(message, "The process that streams to the robot stopped running its cycle (stopped by "
+                                  "a signal, or stuck); the controller got no further commands and stopped the "
+                                  "arm itself. The service ended that process (SIGTERM, then SIGKILL), so it "
+                                  "cannot send the controller stale commands if it runs again.")
+        stream.end_now(grace_s=1.0)
 
     def _servo_gone(self, message: str, cause: str) -> None:
         self.servo_fault = {
@@ -227,6 +260,9 @@ class ServoService:
         this long to see it shutting down by itself, since a second signal would escalate its soft
         stop to the fast ramp."""
         summary: dict[str, Any] = {}
+        self._watchdog_stop.set()  # the process is ours to end from here
+        if self._watchdog is not None:
+            self._watchdog.join(10.0)
         stream = self.stream
         if stream is not None:
             stream.expect_exit()  # from here on its end is ours, not a fault
@@ -324,7 +360,8 @@ class ServoService:
 
     @property
     def servo_alive(self) -> bool:
-        return self.stream is not None and self.stream.alive
+        """A servo process runs and may be asked (not one the service is ending: servo_fault)."""
+        return self.stream is not None and self.stream.alive and self.servo_fault is None
 
     def request(self, req: msg.Request, timeout: float | None = None,
                 on_late: Callable[[msg.Reply], None] | None = None) -> Any:
@@ -398,6 +435,11 @@ class ServoService:
         done = None
         try:
             self.request(msg.Reset())
+        except TimeoutError:
+            if self.servo_fault is None or self.stream is None:
+                raise
+            # The process stalled or died while it was asked: replace it as a reset after the fact would.
+            return self.reset()
         except CommandRejected:
             # No fault here, but the embedded controller held one (a start alone after the servo process
             # died found MOTN-603): its reset at the pendant was this reset's work, so it is no refusal.
