@@ -75,10 +75,14 @@ class NothingSent(TrajectoryError):
     could refuse, so it passes; not an error."""
 
 
-def _nothing_sent(p: Path, n_status: int, what: str) -> str:
+def _nothing_sent(p: Path, log: Any, what: str) -> str:
+    from servo_app.session_log import end_of_log
+
+    n_status = len(log.statuses)
     packets = "1 status packet" if n_status == 1 else f"{n_status} status packets"
+    why = end_of_log(log)  # the log's own word on why its start was given up (logs since it was written)
     return (f"{p}: no {what} were sent in this session ({packets} logged; a start that "
-            f"never streamed): nothing the controller could refuse")
+            f"never streamed{': ' + why if why else ''}): nothing the controller could refuse")
 
 
 @dataclass
@@ -139,7 +143,7 @@ def _load_session_log(p: Path, fmt: str) -> Trajectory:
         interval_ms, interval_problem = None, str(exc)
     cmds = log.commands
     if len(cmds) == 0:
-        raise NothingSent(_nothing_sent(p, len(log.statuses), "commands"))
+        raise NothingSent(_nothing_sent(p, log, "commands"))
     formats = set(((cmds["flags"] >> 1) & 1).tolist())  # flags = last_data | data_format << 1
     if len(formats) > 1:
         raise TrajectoryError(f"{p}: the log mixes joint and Cartesian commands")
@@ -625,7 +629,7 @@ def run_janome_check(path: Path, model: str, stop: threading.Event | None = None
     log = read_session_log(path)
     cmds = log.commands
     if len(cmds) == 0:
-        print(f"{_nothing_sent(path, len(log.statuses), 'target frames')}\nOK: no violation")
+        print(f"{_nothing_sent(path, log, 'target frames')}\nOK: no violation")
         return 0
     statuses = log.statuses
     first_cmd_t = float(cmds["t"][0])

@@ -266,11 +266,17 @@ class ServoProcessHost:
             self.sup.log_failing(trouble, now)
         self._after_request()  # what ending the stream sends at once
 
-    def _close_log(self) -> None:
+    def _close_log(self, remove_empty: bool = False) -> None:
+        """Close the session log; ``remove_empty``: delete it if it holds no record (its header alone
+        records nothing, and the log list would show it as a session)."""
         if self.log is not None:
-            self.log.close()
-            self._event(msg.LogClosed(path=str(self.log.path), records=self.log.records))
-            self.log = None
+            log, self.log = self.log, None
+            log.close()
+            removed = remove_empty and log.records == 0
+            if removed:
+                with contextlib.suppress(OSError):
+                    log.path.unlink(missing_ok=True)
+            self._event(msg.LogClosed(path=str(log.path), records=log.records, removed=removed))
 
     def _event(self, event: msg.Event) -> None:
         self._send_message(event)

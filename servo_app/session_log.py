@@ -24,7 +24,8 @@ Format (version 1), little-endian:
                 values[0] the payload in kg, NaN for the maximum; seq the last status's), 3 a note
                 (bytes 13..55 a piece of a JSON object's UTF-8 text, NUL-padded; the pieces of
                 consecutive note records joined, a note ends with a newline: ``limit_tables``, the
-                controller's tables as read at the stream's start)
+                controller's tables as read at the stream's start; ``ended``, why a start was given
+                up before its stream ran, with ``streamed`` false)
   1      f64   t: seconds since the session opened (monotonic clock)
   9      u32   seq: status or command sequence number
   13     u8    flags: FANUC status bits / Janome robot state (status);
@@ -103,6 +104,18 @@ def note_records(t: float, note: dict[str, Any]) -> list[bytes]:
     text = (json.dumps(note, separators=(",", ":")) + "\n").encode()
     return [_NOTE_HEAD.pack(KIND_NOTE, t, 0) + text[i: i + _NOTE_TEXT].ljust(_NOTE_TEXT, b"\0")
             for i in range(0, len(text), _NOTE_TEXT)]
+
+
+def end_note(why: str, streamed: bool) -> dict[str, Any]:
+    """The note that ends a log: why its session ended (``streamed`` false: a start given up before its
+    stream ran, after the records before it were exchanged)."""
+    return {"ended": why, "streamed": streamed}
+
+
+def end_of_log(log: SessionLog) -> str | None:
+    """Why the log's session ended, as its last ``ended`` note says (None: no such note)."""
+    ends = [note["ended"] for _, note in log.notes() if isinstance(note.get("ended"), str)]
+    return ends[-1] if ends else None
 
 
 def tables_note(tables: Any) -> dict[str, Any]:

@@ -61,6 +61,7 @@ from servo_app.session_log import (
     RECORD_DTYPE,
     RECORD_SIZE,
     command_record,
+    end_note,
     note_records,
     payload_record,
     status_record,
@@ -579,6 +580,8 @@ class _ServoProcess(ServoProcessHost):
             with contextlib.suppress(OSError):
                 self._send(self.sup.session.close_now())
         self.wake.close()
+        if self.log is not None and not self._log_streamed:  # a start under way at the shutdown
+            self._close_unstreamed_log("the servo process shut down before the stream started")
         self._close_log()
         self.sock.close()
         # Break runner <-> cycle (late_command is a bound method of this runner): gc.freeze() in run()
@@ -884,7 +887,20 @@ class _ServoProcess(ServoProcessHost):
         # A start that was given up closes its log: the next start opens a new one.
         if (self.log is not None and not self._log_streamed and not self.sup.start_pending
                 and self.sup.state.mode != _STREAMING):
-            self._close_log()
+            self._close_unstreamed_log()
+
+    def _close_unstreamed_log(self, why: str = "") -> None:
+        """Close the log of a start that never streamed. What came before the start was given up (status
+        packets, the controller's tables) stays, ended by a note saying why; a log that holds nothing
+        (a controller that never answered, a start refused at once) is deleted: its header alone
+        recorded nothing, and GET /api/sessions listed it as a session."""
+        log = self.log
+        if log is not None and log.records and not log.failed:
+            fault = self.sup.state.fault
+            why = why or self.sup.start_error or (fault.message if fault else
+                                                  f"the start was given up in {self.sup.state.mode.value}")
+            log.write_records(note_records(time.monotonic() - self.t0, end_note(why, streamed=False)))
+        self._close_log(remove_empty=True)
 
     # -- publishing
     def _publish_backend(self, sv: StateVector) -> None:

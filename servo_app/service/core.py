@@ -311,6 +311,10 @@ class ServoService:
             self.recorders.append(self._recorder_class(Path(ev.path), on_error=self._mcap_failed,
                                                        on_finished=self._mcap_finished).start())
         elif isinstance(ev, msg.LogClosed):
+            if ev.removed:  # a log that held nothing, deleted: its MCAP goes with it
+                for rec in self.recorders:
+                    if str(rec.srvlog) == ev.path:
+                        rec.discard()
             self._close_recorders()
         if isinstance(ev, msg.SafetyChanged):
             with self._safety_cv:

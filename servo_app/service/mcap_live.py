@@ -40,6 +40,7 @@ class LiveMcapRecorder:
         self.on_finished = on_finished  # called once, on the writer's thread, when the file is whole
         self.records = 0
         self._closed = threading.Event()
+        self._discarded = False
         self._thread = threading.Thread(target=self._run, name=f"mcap {self.srvlog.name}", daemon=True)
 
     def start(self) -> LiveMcapRecorder:
@@ -48,6 +49,12 @@ class LiveMcapRecorder:
 
     def close(self) -> None:
         """The session log is complete: write what is left and finish the file (without waiting)."""
+        self._closed.set()
+
+    def discard(self) -> None:
+        """The session log held nothing and was deleted: so is the MCAP, and neither error nor finish
+        is told (without waiting)."""
+        self._discarded = True
         self._closed.set()
 
     def join(self, timeout: float | None = None) -> None:
@@ -59,7 +66,7 @@ class LiveMcapRecorder:
 
     def _run(self) -> None:
         try:
-            with open(self.srvlog, "rb") as src:
+            with self._open_srvlog() as src:
                 header, offset = self._header(src)
                 if header is None:
                     return
@@ -74,13 +81,27 @@ class LiveMcapRecorder:
                         self._closed.wait(self.poll_s)
                     sink.finish()
         except (OSError, ExportError, SessionLogError) as exc:
+            if self._discarded:  # (the log deleted before it was opened here)
+                self.path.unlink(missing_ok=True)
+                return
             self.error = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
             log.warning("live MCAP stopped: %s: %s (%s)", self.path, self.error, self.remedy)
             if self.on_error is not None:
                 self.on_error(self)
         else:
-            if self.on_finished is not None:
+            if self._discarded:
+                self.path.unlink(missing_ok=True)
+            elif self.on_finished is not None:
                 self.on_finished(self)
+
+    def _open_srvlog(self) -> BinaryIO:
+        try:
+            return open(self.srvlog, "rb")
+        except FileNotFoundError:
+            # Deleted as it closed (it held nothing: discard), which its LogClosed tells, maybe after
+            # this thread began: no error until the close says it was not that.
+            self._closed.wait()
+            raise
 
     @property
     def remedy(self) -> str:
