@@ -150,10 +150,11 @@ class RobotBackend(ABC):
         """The catalogue entry for a controller alarm code, or None."""
         return None
 
-    def twist_flange_cap(self, options: ProcessOptions) -> float | None:
+    def twist_flange_cap(self, options: ProcessOptions, tables: Any = None) -> float | None:
         """The flange speed (mm/s) above which the servo process refuses a twist (the TCP's speed plus
         the swing of a turn about the tool), for the input feeds to refuse at the door; None: it
-        refuses none (it slows down instead)."""
+        refuses none (it slows down instead). ``tables``: the limit tables the controller published
+        (LimitTablesReceived), whose cap may be tighter than the configured one; None: none yet."""
         return None
 
     # -- poses

@@ -10,6 +10,7 @@ past it: 451 mm/s under a 250 mm/s cap for a joint target from rest, 423 for a J
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 from hypothesis import given, settings
@@ -18,6 +19,7 @@ from test_pose_target_speed import pose_run
 
 from servo_app.errors import CommandRejected
 from servo_app.fanuc.packets import Status
+from servo_app.motion.limit_tables import default_tables
 from servo_app.motion.servo import ServoCycle, ServoSettings
 from servo_app.robots.kernels import flange_speeds_mm_s, pack_dims
 from servo_app.robots.kinematics import ArmKinematics
@@ -182,3 +184,18 @@ def test_a_held_joint_jog_runs_no_joint_faster_than_asked(v: list[float], cap: f
     asked = np.abs(speeds) * 1.01 + 0.01  # (the shaper re-planning each cycle: up to 0.2 % over)
     jogged = np.abs(speeds) > 0.0
     assert (got[jogged] <= asked[jogged]).all(), (speeds.round(1).tolist(), got.round(1).tolist())
+
+
+@settings(max_examples=40, deadline=None)
+@given(vmax=st.floats(50.0, 5000.0), configured=st.none() | st.floats(1.0, 10000.0))
+def test_the_cap_in_force_is_the_configured_one_never_above_the_tables_vmax(vmax: float,
+                                                                             configured: float | None) -> None:
+    """``LimitTables.cap``: a controller whose tables carry a $MAX_SPD below the configured cap holds the
+    flange to it; without a configured cap, the tables' own."""
+    tables = replace(default_tables(PROFILE), vmax=vmax)
+    cap = tables.cap(configured)
+    assert cap == (vmax if configured is None else min(configured, vmax))
+    assert cap <= vmax
+    cycle = ServoCycle(PROFILE, DT, ServoSettings(flange_speed_cap=configured))
+    cycle.begin(HOME, tables)
+    assert cycle.cap == cap  # the cycle's cap, which its twist and pose checks take their share of

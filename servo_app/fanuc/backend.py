@@ -12,7 +12,7 @@ from servo_app.fanuc.runner import StreamConfig, StreamProcess
 from servo_app.fanuc.supervisor import check_pose_plausible
 from servo_app.fanuc.view import fanuc_view
 from servo_app.messages import Event
-from servo_app.motion.limit_tables import default_tables
+from servo_app.motion.limit_tables import LimitTables, default_tables
 from servo_app.motion.servo import ServoSettings
 from servo_app.robots.profile import RobotProfile, available_profiles, load_profile
 
@@ -68,7 +68,7 @@ class FanucBackend(RobotBackend):
     def limits(self, state: dict[str, Any], options: ProcessOptions) -> dict[str, Any]:
         p = self.profile
         tables = default_tables(p)
-        vel, acc, jerk = tables.for_cap(options.flange_speed_cap or tables.vmax, options.payload_kg)
+        vel, acc, jerk = tables.for_cap(tables.cap(options.flange_speed_cap), options.payload_kg)
         from_ctrl = bool(state.get("tables_from_controller"))
         if from_ctrl:
             vel, acc, jerk = state["vel_limit"], state["acc_limit"], state["jerk_limit"]
@@ -88,11 +88,12 @@ class FanucBackend(RobotBackend):
             "io_allow": {t: [1, n] for t, n in self._io_allow.items() if n >= IO_SPAN},
         }
 
-    def twist_flange_cap(self, options: ProcessOptions) -> float | None:
-        # As the servo cycle checks a twist before the stream has the controller's tables
-        # (StreamSupervisor._flange_cap): its share of the configured cap, else of the profile's $MAX_SPD.
-        return float((options.flange_speed_cap or default_tables(self.profile).vmax)
-                     * ServoSettings.flange_speed_margin)
+    def twist_flange_cap(self, options: ProcessOptions, tables: LimitTables | None = None) -> float | None:
+        # As the servo cycle checks a twist (StreamSupervisor._flange_cap): its share of the configured
+        # cap, never above the $MAX_SPD of the controller's tables once a start has read them, else of
+        # the profile's.
+        tables = tables if tables is not None else default_tables(self.profile)
+        return float(tables.cap(options.flange_speed_cap) * ServoSettings.flange_speed_margin)
 
     def alarm(self, code: str) -> AlarmInfo | None:
         spec = ALARMS.get(code)

@@ -172,13 +172,13 @@ class StreamSupervisor(SupervisorBase):
             src = "the controller's limit table" if c.tables_source == "controller" else "the profile's limit table"
             return np.asarray(c.limits[0]), src
         tables = default_tables(c.profile)
-        vel = tables.for_cap(c.settings.flange_speed_cap or tables.vmax, c.settings.payload_kg)[0]
+        vel = tables.for_cap(tables.cap(c.settings.flange_speed_cap), c.settings.payload_kg)[0]
         return np.asarray(vel[: c.profile.dof]), "the profile's limit table"
 
     def _flange_cap(self) -> float:
         """The Cartesian speed the cycle takes (mm/s): its share of the flange-speed cap."""
         c = self.cycle
-        cap = c.cap or c.settings.flange_speed_cap or default_tables(c.profile).vmax
+        cap = c.cap or default_tables(c.profile).cap(c.settings.flange_speed_cap)
         return float(cap * c.settings.flange_speed_margin)
 
     def _check_jog(self, v: np.ndarray) -> np.ndarray:

@@ -51,6 +51,12 @@ class LimitTables:
     def n_axes(self) -> int:
         return len(self.tables[VEL])
 
+    def cap(self, configured: float | None) -> float:
+        """The flange-speed cap in force (mm/s): the configured one (None: none), never above these
+        tables' Vmax. A controller's tables carry its own $MAX_SPD: one set lower than the configured
+        cap holds the flange to it, and limits evaluated above Vmax are Appendix B's extrapolation."""
+        return self.vmax if not configured else min(float(configured), self.vmax)
+
     def stage_values(self, limit_type: int, payload_kg: float | None) -> np.ndarray:
         """(n_axes, 20) stage values for one payload (None: the maximum payload)."""
         frac = 1.0 if payload_kg is None else min(max(payload_kg / self.max_payload_kg, 0.0), 1.0)

@@ -187,7 +187,7 @@ class ServoCycle:
     def _limits_of(self, tables: LimitTables) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The (vel, acc, jerk) limits of ``tables`` at the cap and the payload (Appendix B), built
         again only when one of them changed (``self.limits``, which the runner publishes)."""
-        cap = self.settings.flange_speed_cap or tables.vmax
+        cap = tables.cap(self.settings.flange_speed_cap)  # (the controller's $MAX_SPD if lower)
         self.cap = cap
         key = (tables, cap, self.settings.payload_kg)
         if self._limits_for is None or any(a is not b for a, b in zip(self._limits_for, key, strict=True)):

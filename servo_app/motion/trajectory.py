@@ -278,7 +278,7 @@ class TrajectoryPlanner:
         """A planner for a stream resting at ``q_now`` (FANUC deg), with the servo cycle's settings: the
         limits for the flange-speed cap, the joint ranges less the margin and ``q_now``'s configuration
         (as :meth:`ServoCycle.begin` holds it), the controller's check with ``tables``."""
-        cap = float(cap or tables.vmax)
+        cap = tables.cap(cap)
         dof = profile.dof
         vel, acc, jerk = (np.asarray(x[:dof], float) for x in tables.for_cap(cap, payload_kg))
         limits = PlanLimits.for_servo(vel, acc, jerk, dt, cap, limit_fraction, flange_margin)

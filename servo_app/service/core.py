@@ -53,6 +53,7 @@ class ServoService:
         self.stops_by_reason: Counter[str] = Counter()
         self.robot_address: tuple[str, int] | None = None
         self.events: deque[msg.Event] = deque(maxlen=2000)
+        self.controller_tables: Any = None  # the last limit tables a start read from the controller
         self.recorders: list[Any] = []  # LiveMcapRecorder per session log, with cfg.mcap_live
         # The last live MCAP that stopped short (file, why, what to do): GET /api/state's mcap_error.
         self.mcap_error: dict[str, str] | None = None
@@ -91,10 +92,16 @@ class ServoService:
         the active tool's offset), naming it: else they answered "accepted" and the servo refused."""
         from servo_app.inputs.feed import FlangeLimit
 
-        cap = self.backend.twist_flange_cap(self.options)
-        if cap is None:
+        if self.backend.twist_flange_cap(self.options) is None:
             return
-        self.inputs.feeds.flange_limit = lambda: FlangeLimit(cap, math.hypot(*self.tools.active.xyzwpr[:3]))
+
+        def limit() -> FlangeLimit | None:
+            # The cap as the servo holds it now: the controller's tables, once a start has read them,
+            # may carry a $MAX_SPD below the configured cap (the feed refused by the configured one).
+            cap = self.backend.twist_flange_cap(self.options, self.controller_tables)
+            return None if cap is None else FlangeLimit(cap, math.hypot(*self.tools.active.xyzwpr[:3]))
+
+        self.inputs.feeds.flange_limit = limit
 
     @property
     def sim_scheduling(self) -> str:
@@ -316,6 +323,8 @@ class ServoService:
                     if str(rec.srvlog) == ev.path:
                         rec.discard()
             self._close_recorders()
+        if isinstance(ev, msg.LimitTablesReceived):
+            self.controller_tables = ev.tables
         if isinstance(ev, msg.SafetyChanged):
             with self._safety_cv:
                 self._safety = ev.view
