@@ -6,6 +6,9 @@ loopback): a start opens its log before the controller has answered, so a refusa
 - Status packets and the controller's tables came before the refusal (SYSRDY off): the log stays, it
   records what was received, and ends with a note saying why the start was given up, which
   ``servo-app check`` reports.
+- Janome (a log per connection, opened as the robot connects): a point job whose HELLO is refused
+  (another robot kind) left a header-only log, the HELLO it sent unlogged; it now holds the HELLO and
+  ends saying why. A connection that never says HELLO leaves none.
 """
 
 from __future__ import annotations
@@ -14,14 +17,18 @@ import contextlib
 import io
 import socket
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from test_api_harness import Rig, running_rig
+from test_api_harness import TOKEN, LiveServer, Rig, running_rig
 
 from servo_app import cli
+from servo_app.api.app import create_app
 from servo_app.messages import LogClosed, LogOpened
+from servo_app.service import ServiceConfig, ServoService
 from servo_app.session_log import read_session_log
+from servo_app.sim.janome_sim import JanomeSimulator
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(120)]
 
@@ -106,3 +113,56 @@ def test_a_start_refused_for_sysrdy_off_keeps_what_came_and_says_why(tmp_path: P
         names = {p["name"] for p in rig.http.get("/api/sessions").json()}
         assert len(names) == 2 and listed["name"] in names, names
         assert refused.stat().st_size == size
+
+
+@contextlib.contextmanager
+def janome_service(tmp: Path) -> Iterator[Rig]:
+    """The service listening for a Janome JR3000 (a Cartesian robot) on a free port, no robot yet."""
+    service = ServoService(ServiceConfig(robot="janome:127.0.0.1:0", model="jr3000", var_dir=tmp))
+    service.open()
+    try:
+        server = LiveServer(create_app(service, TOKEN)).start()
+        rig = Rig(service, server, tmp)
+        try:
+            yield rig
+        finally:
+            rig.http.close()
+            server.stop()
+    finally:
+        service.close()
+
+
+def test_a_janome_point_job_refused_at_its_hello_leaves_the_hello_and_why(tmp_path: Path) -> None:
+    """A JS3 (SCARA) point job connects to a service for a JR3000: its HELLO is refused and the
+    connection closed. The log holds the HELLO received and ends saying why (before: a 222-byte
+    header-only log, listed as a session, the HELLO unlogged)."""
+    with janome_service(tmp_path) as rig:
+        assert rig.service.robot_address is not None
+        sim = JanomeSimulator(rig.service.robot_address, "js3").start()
+        try:
+            assert sim.done.wait(15), "the point job was not closed"
+            closed = wait_log_closed(rig)
+        finally:
+            sim.stop()
+        (listed,) = rig.http.get("/api/sessions").json()
+        assert str(tmp_path / "sessions" / listed["name"]) == closed.path
+        log = read_session_log(Path(closed.path))
+        assert len(log.statuses) == 1 and len(log.commands) == 0, (len(log.statuses), len(log.commands))
+        ((_, note),) = log.notes()
+        assert note["ended"].startswith("handshake refused: HELLO has detail=2 (robot kind SCARA)"), note
+        assert note["streamed"] is False, note
+        assert note["ended"] == rig.state()["link_error"]
+
+
+def test_a_janome_connection_that_never_says_hello_leaves_no_log(tmp_path: Path) -> None:
+    """A TCP connection that sends nothing is closed after the handshake time-out; nothing was
+    received, so no log is left (before: a header-only log, listed as a session)."""
+    with janome_service(tmp_path) as rig:
+        assert rig.service.robot_address is not None
+        with socket.create_connection(rig.service.robot_address, timeout=10) as mute:
+            closed = wait_log_closed(rig)
+            assert mute.recv(1) == b"", "the service did not close the connection"
+        assert closed.records == 0, closed
+        assert not Path(closed.path).exists(), f"{closed.path} left: {Path(closed.path).stat().st_size} bytes"
+        assert rig.http.get("/api/sessions").json() == []
+        assert "no HELLO frame" in rig.state()["link_error"], rig.state()["link_error"]

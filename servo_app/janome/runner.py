@@ -38,6 +38,7 @@ from servo_app.messages import PeerConnected, PeerDisconnected, PeerRefused, Rea
 from servo_app.motion.settle import SettleDetector
 from servo_app.process_handle import ServoProcessHandle, ServoProcessHost, run_child
 from servo_app.safety import Mode, safe_to_exit
+from servo_app.session_log import end_note, note_records
 from servo_app.state import FIELDS, MODES, OFFSET, PHASES, StateVector, command_derivatives, write_link_counters
 
 assert all(p.value in PHASES for p in Phase)
@@ -100,6 +101,7 @@ class _JanomeServoProcess(ServoProcessHost):
         self.last_status_t = 0.0
         self._last_pub = 0.0
         self._logged_seq: int | None = None
+        self._logged_targets = False  # a target frame was logged on this connection
         self.inputs = InputSlotReader(cfg.input_slot) if cfg.input_slot else None
         self.settle = SettleDetector(cfg.settle_tol, cfg.settle_window_s)
         self._settle_seq: int | None = None
@@ -229,7 +231,7 @@ class _JanomeServoProcess(ServoProcessHost):
         log = self.log
         if log is None:
             return
-        st = self.sup.session.last_status
+        st = self.sup.session.last_status or self.sup.session.refused_hello
         t = t_recv - self.t0
         if st is not None and st.seq != self._logged_seq:
             self._logged_seq = st.seq
@@ -240,6 +242,7 @@ class _JanomeServoProcess(ServoProcessHost):
             except FrameError:
                 continue
             log.command(t, tg.seq, int(tg.stop), int(tg.cmd), 0, latency_us, (tg.x, tg.y, tg.z, tg.r))
+            self._logged_targets = True
 
     def _open_connection_log(self, peer: str) -> None:
         path = Path(self.cfg.log_dir) / f"janome-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.srvlog"
@@ -247,6 +250,7 @@ class _JanomeServoProcess(ServoProcessHost):
                               "axes": ["X", "Y", "Z", "R"], "peer": peer, "commands": "all",
                               "fixed_interval": False}, reserve_bytes=LOG_RESERVE_BYTES)
         self._logged_seq = None
+        self._logged_targets = False
 
     def _lost(self, reason: str) -> None:
         self._close_conn(reason, notify=True)
@@ -257,7 +261,12 @@ class _JanomeServoProcess(ServoProcessHost):
         with contextlib.suppress(OSError):
             self.sock.close()
         self.sock = None
-        self._close_log()
+        # The log ends saying why (its records are what was exchanged); a connection that brought no
+        # frame leaves none: a header alone records nothing, and the log list showed it as a session.
+        log = self.log
+        if log is not None and log.records and not log.failed:
+            log.write_records(note_records(time.monotonic() - self.t0, end_note(reason, self._logged_targets)))
+        self._close_log(remove_empty=True)
         if notify:
             self.sup.on_disconnect(reason, time.monotonic())
             self._event(PeerDisconnected(peer=self.peer, reason=reason))

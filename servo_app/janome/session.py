@@ -130,6 +130,7 @@ class JanomeSession:
         self.handshaken = False
         self.accepting = True
         self.want_close = False  # the runner closes the connection when set
+        self.refused_hello: Status | None = None  # a HELLO refused: received, so logged (the runner's log)
         self.sent: list[Target] = []  # frames of the last call, for the runner's log
         self._reader = FrameReader(STATUS_MAGIC)
         self._armed = False
@@ -147,7 +148,7 @@ class JanomeSession:
     def on_connect(self, now: float) -> None:
         self.connected, self.handshaken, self.want_close = True, False, False
         self._reader = FrameReader(STATUS_MAGIC)
-        self.last_status = None
+        self.last_status = self.refused_hello = None
         self._last_target = None
         self._next_seq = 1
         self._retransmits = self._malformed_run = 0
@@ -321,6 +322,7 @@ class JanomeSession:
             why = (f"HELLO has detail={st.detail} (robot kind {kind}), but the profile is "
                    f"{self.config.kind.name.lower()}: choose the matching --model")
         if why is not None:
+            self.refused_hello = st
             self.stats.last_error = f"handshake refused: {why}"
             self.want_close = True
             self._awaiting = False
