@@ -226,7 +226,7 @@ class LogOpened(Event):
 class LogClosed(Event):
     path: str
     records: int
-    removed: bool = False  # it held no record (a start given up before anything came): deleted
+    removed: bool = False  # it held no record (nothing came before it closed): deleted
 
 
 @dataclass(frozen=True)

@@ -24,8 +24,9 @@ Format (version 1), little-endian:
                 values[0] the payload in kg, NaN for the maximum; seq the last status's), 3 a note
                 (bytes 13..55 a piece of a JSON object's UTF-8 text, NUL-padded; the pieces of
                 consecutive note records joined, a note ends with a newline: ``limit_tables``, the
-                controller's tables as read at the stream's start; ``ended``, why a start was given
-                up before its stream ran, with ``streamed`` false)
+                controller's tables as read at the stream's start; ``ended``, why the log ended: a
+                FANUC start given up before its stream ran, a Janome connection's end; ``streamed``:
+                commands were sent)
   1      f64   t: seconds since the session opened (monotonic clock)
   9      u32   seq: status or command sequence number
   13     u8    flags: FANUC status bits / Janome robot state (status);
@@ -107,8 +108,8 @@ def note_records(t: float, note: dict[str, Any]) -> list[bytes]:
 
 
 def end_note(why: str, streamed: bool) -> dict[str, Any]:
-    """The note that ends a log: why its session ended (``streamed`` false: a start given up before its
-    stream ran, after the records before it were exchanged)."""
+    """The note that ends a log: why its session ended (a FANUC start given up before its stream ran, a
+    Janome connection closed); ``streamed``: commands (target frames) were sent."""
     return {"ended": why, "streamed": streamed}
 
 

@@ -20,7 +20,7 @@ class ServiceConfig:
     var_dir: Path = Path("var")
     sim_port: int = 0  # embedded simulator port (0: any free port)
     limit_fraction: float = 0.9
-    flange_speed_cap: float | None = None
+    flange_speed_cap: float | None = None  # mm/s; None: $MAX_SPD. Held to the controller's $MAX_SPD when that is lower
     payload_kg: float | None = None
     # Options for the embedded simulator, on top of the backend's own defaults (FANUC: it starts at
     # the usual home, wrist bent down, as a cell would after a taught joint move before IBGN start).
