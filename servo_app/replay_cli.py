@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -89,16 +90,23 @@ def run_replay(args: argparse.Namespace) -> int:
         print(f"servo-app replay: {path}: no such file", file=sys.stderr)
         return 2
     try:
-        with ServoClient(args.url, args.token, name="servo-app replay", take_over=args.take_over) as arm:
+        # The handlers from the start: a signal between the replay's request and _follow (a replay already
+        # playing) ended the command by SIGTERM's default (-15, seen under load), the arm left playing.
+        with stop_requested() as interrupted, ServoClient(args.url, args.token, name="servo-app replay",
+                                                           take_over=args.take_over) as arm:
             kwargs = _request(path, arm)
             arm.ensure_streaming()
             # A resume (after the take-over's stop) answers once streaming, and the arm may still count
             # as moving for a cycle: a trajectory sent at once was refused ("the arm is moving").
             arm.wait_settled()
+            if interrupted.is_set():
+                print("servo-app replay: interrupted before the replay was sent: nothing replayed",
+                      file=sys.stderr)
+                return 130
             summary = arm.replay(**kwargs, speed_scale=args.speed_scale, pace=args.pace, wait=False)
             print(f"replaying {summary.get('label', path.name)}: {summary.get('samples')} samples, "
                   f"{summary.get('duration_s')} s", flush=True)
-            return _follow(arm, args.timeout)
+            return _follow(arm, args.timeout, interrupted)
     except RefusedError as exc:
         print(f"servo-app replay: refused: {exc}", file=sys.stderr)
         return 2
@@ -113,39 +121,38 @@ def run_replay(args: argparse.Namespace) -> int:
         return 2
 
 
-def _follow(arm: ServoClient, timeout: float) -> int:
-    """Print progress until the replay is done at rest; Ctrl-C (or SIGTERM) stops the arm."""
+def _follow(arm: ServoClient, timeout: float, interrupted: threading.Event) -> int:
+    """Print progress until the replay is done at rest; Ctrl-C (or SIGTERM: ``interrupted``) stops the arm."""
     deadline = time.monotonic() + timeout
     last = ""
-    with stop_requested() as interrupted:
-        while not interrupted.is_set():
-            s = arm.state()
-            t = s.trajectory
-            if s.state == "fault":
-                raise arm._fault_of(s)
-            if t is not None:
-                share = 100.0 * t.index / max(1, t.total - 1)
-                line = f"{t.state:8s} {share:5.1f} %  {t.time_s:7.2f} / {t.total_s:.2f} s"
-                if line != last:
-                    print(line, flush=True)
-                    last = line
-                if t.state == "done" and s.at_rest:
-                    return 0
-                if t.state == "ended":
-                    print("servo-app replay: the replay was ended before its end (a fast stop or another "
-                          "command)", file=sys.stderr)
-                    return 1
-                if t.state == "paused" and s.state == "stopped" and s.at_rest:
-                    # Stopped from elsewhere (a stop request, the lease taken): not done, and nothing here
-                    # resumes it (it waited out --timeout, 10 min by default).
-                    print(f"servo-app replay: the arm was stopped ({s.stop_reason or 'a stop'}) with the replay "
-                          f"paused at {share:.1f} %: POST /api/session/resume continues it", file=sys.stderr)
-                    return 1
-            if time.monotonic() > deadline:
-                print(f"servo-app replay: not done within {timeout:g} s", file=sys.stderr)
+    while not interrupted.is_set():
+        s = arm.state()
+        t = s.trajectory
+        if s.state == "fault":
+            raise arm._fault_of(s)
+        if t is not None:
+            share = 100.0 * t.index / max(1, t.total - 1)
+            line = f"{t.state:8s} {share:5.1f} %  {t.time_s:7.2f} / {t.total_s:.2f} s"
+            if line != last:
+                print(line, flush=True)
+                last = line
+            if t.state == "done" and s.at_rest:
+                return 0
+            if t.state == "ended":
+                print("servo-app replay: the replay was ended before its end (a fast stop or another "
+                      "command)", file=sys.stderr)
                 return 1
-            interrupted.wait(_POLL_S)
-        arm.stop(fast=False, wait=False)
-        print("servo-app replay: interrupted: the arm pauses along the path (POST /api/session/resume "
-              "continues it)", file=sys.stderr)
-        return 130
+            if t.state == "paused" and s.state == "stopped" and s.at_rest:
+                # Stopped from elsewhere (a stop request, the lease taken): not done, and nothing here
+                # resumes it (it waited out --timeout, 10 min by default).
+                print(f"servo-app replay: the arm was stopped ({s.stop_reason or 'a stop'}) with the replay "
+                      f"paused at {share:.1f} %: POST /api/session/resume continues it", file=sys.stderr)
+                return 1
+        if time.monotonic() > deadline:
+            print(f"servo-app replay: not done within {timeout:g} s", file=sys.stderr)
+            return 1
+        interrupted.wait(_POLL_S)
+    arm.stop(fast=False, wait=False)
+    print("servo-app replay: interrupted: the arm pauses along the path (POST /api/session/resume "
+          "continues it)", file=sys.stderr)
+    return 130

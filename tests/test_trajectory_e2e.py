@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
@@ -417,6 +419,44 @@ def test_servo_app_replay_interrupted_pauses_the_arm_on_its_path(rig: Rig, tmp_p
     s = rig.wait(lambda s: s["state"] == "stopped" and s["at_rest"], 10.0, "paused")
     assert s["trajectory"]["state"] == "paused", s["trajectory"]
     assert not np.allclose(s["q_cmd"][:6], rows[-1], atol=1e-3)  # stopped on the way, not at the end
+    assert rig.sim_alarms() == []
+
+
+@pytest.mark.parametrize(("how", "sig"), STOP_WAYS, ids=[how for how, _ in STOP_WAYS])
+def test_servo_app_replay_interrupted_before_its_replay_plays_exits_130(rig: Rig, tmp_path: Path, how: str,
+                                                                        sig: int) -> None:
+    """Ctrl-C or SIGTERM while ``servo-app replay`` takes over a moving arm (before it sent its replay):
+    the handlers were set only once the replay played, so SIGTERM ended the command by its default
+    (-15) and Ctrl-C with a traceback; an interrupt in the last moment before the replay (seen under
+    load) left the arm playing with no one following. Now it exits 130 whenever it comes, and no replay
+    plays on."""
+    h = at_home(rig)
+    rig.post("/api/target", h, {"joints": [HOME[0] + 40.0, *HOME[1:]], "speed_scale": 0.05})
+    rig.wait(lambda s: not s["at_rest"], 10.0, "moving under the old holder")
+    t = np.linspace(0.0, 1.0, 200)[:, None]
+    rows = np.array(HOME) + np.hstack([10.0 * t, np.zeros((200, 5))])
+    csv = tmp_path / "short.csv"
+    csv.write_text("j1,j2,j3,j4,j5,j6\n" + "\n".join(",".join(f"{v:.5f}" for v in r) for r in rows))
+    proc = subprocess.Popen(servo_app_argv(how, "replay", str(csv), "--url", rig.base_url, "--token", TOKEN,
+                                           "--take-over"), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        # The take-over done: the command now stops the arm, resumes and waits for it to settle.
+        deadline = time.monotonic() + 30.0
+        while rig.http.get("/api/lease", headers=AUTH).json().get("client") != "servo-app replay":
+            assert proc.poll() is None and time.monotonic() < deadline, "servo-app replay took no lease"
+            time.sleep(0.01)
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+    assert proc.returncode == 130, (proc.returncode, out + err)
+    assert "Traceback" not in err, err
+    assert re.search(r"interrupted (before the replay was sent: nothing replayed|: the arm pauses along)", err), err
+    s = rig.wait(lambda s: s["at_rest"], 20.0, "at rest")
+    assert (s.get("trajectory") or {}).get("state") != "playing", s["trajectory"]
     assert rig.sim_alarms() == []
 
 
