@@ -62,6 +62,8 @@ def run_child(conn: Connection, body: Callable[[], None]) -> None:
 
 
 READS_PER_PASS = 8  # of the request pipe per loop pass, 64 KB each (pipe_frames): ~1 ms here
+# A new warning's safety view goes out at most this often (the last one of a burst goes out too).
+WARNINGS_PUBLISH_S = 0.05
 
 
 class ServoProcessHost:
@@ -94,6 +96,7 @@ class ServoProcessHost:
         # (4 us here, every loop iteration), this one call costs 0.6 us.
         self._pipe_poll = select.poll()
         self._pipe_poll.register(conn.fileno(), select.POLLIN)
+        self._warnings_due = 0.0  # monotonic: the next warning-only safety view not before then
 
     # -- what each backend implements
     def _io_step(self) -> None:
@@ -300,10 +303,14 @@ class ServoProcessHost:
             self._on_link_phase(phase)
 
     def _publish(self) -> None:
-        # The safety event first, so a reader who sees the new mode can have its reason too.
-        if self.sup.changed:
-            self.sup.changed = False
-            self._event(msg.SafetyChanged(view=self.sup.describe()))
+        # The safety event first, so a reader who sees the new mode can have its reason too. A new
+        # warning alone (no state change) is published too, at most every WARNINGS_PUBLISH_S: it was
+        # seen only at the next state change, and a warning every cycle must not cost a view every cycle.
+        sup = self.sup
+        if sup.changed or (sup.warned and time.monotonic() >= self._warnings_due):
+            sup.changed = sup.warned = False
+            self._warnings_due = time.monotonic() + WARNINGS_PUBLISH_S
+            self._event(msg.SafetyChanged(view=sup.describe()))
         sv = self.state
         d = sv.data
         d[_PUBLISHED_UNIX] = time.time()

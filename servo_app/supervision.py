@@ -206,6 +206,9 @@ class SupervisorBase:
             self.default_hold_s = hold_s
         self.hold = HoldToRun(timeout_s=self.default_hold_s)
         self.changed = False  # set when the safety state changed; the runner clears it after publishing
+        # Set by a new warning, which changes no state (ReportWarning): the runner publishes the view for
+        # it too, coalesced (process_handle.WARNINGS_PUBLISH_S), and clears it with ``changed``.
+        self.warned = False
         self.start_timeout_s = start_timeout_s
         self.start_pending = False  # a start waits for the controller (read by the host every cycle)
         self._start_deadline = 0.0
@@ -316,6 +319,7 @@ class SupervisorBase:
     def _warn(self, code: str, message: str, now: float) -> None:
         self.log.warnings.append({"code": code, "message": message, "t": now})
         del self.log.warnings[:-50]
+        self.warned = True
 
     def _request(self, event: Event, now: float) -> None:
         name = type(event).__name__

@@ -115,6 +115,22 @@ def test_reset_and_a_new_stream_clear_the_active_alarms_the_history_keeps_them_w
         assert s["alarms"] == [] and codes(s["alarm_history"]) == ["MOTN-603", "MOTN-606"]
 
 
+def test_a_controller_warning_reaches_the_safety_views_warnings_while_the_stream_runs_on(tmp_path: Path) -> None:
+    """A controller warning changes no safety state: it is in the state's ``warnings`` while the stream
+    runs on ($WARN_LIM at 5 %: a joint target posts MOTN-612/613/614). Old code: only at the next state
+    change (the servo process sent its safety view only then), though ``alarms`` listed it at once."""
+    with running_rig(tmp_path, sim_options={"config": ControllerConfig(warn_lim_pct=5.0)}) as rig:
+        h = rig.streaming()
+        q = rig.state()["q_cmd"][:6]
+        rig.post("/api/target", h, json={"joints": [q[0] + 20.0, *q[1:]], "speed_scale": 0.5})  # not held
+        s = rig.wait(lambda s: bool(s["alarms"]), 10.0, "a warning listed")
+        first = s["alarms"][0]
+        assert first["warning"] and first["code"] in ("MOTN-612", "MOTN-613", "MOTN-614"), s["alarms"]
+        s = rig.wait(lambda s: first["code"] in codes(s["warnings"]), 5.0, f"{first['code']} in the warnings")
+        assert s["state"] == "streaming" and s["fault"] is None, s
+        assert s["warnings"][0]["message"] == first["message"], s["warnings"]
+
+
 # ----------------------------------------------------------------------------- a consistent view
 
 

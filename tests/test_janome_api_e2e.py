@@ -6,11 +6,13 @@ its frames; servo_app listens in its own servo process, as in production.
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import websockets.sync.client
 from test_api_harness import TOKEN, Rig, running_janome_rig
 
 from servo_app.sim.janome_sim import JanomeSimulator
@@ -105,3 +107,25 @@ def test_bad_frames_are_rejected_with_a_clear_error_and_the_arm_keeps_safe(
     assert s["fault"] is None
     rig.post("/api/session/end", hdr)  # ending needs the lease (stopping does not)
     rig.wait_state("ended")
+
+
+def test_a_link_warning_shows_at_once_while_the_stream_runs_on(janome: tuple[Rig, JanomeSimulator]) -> None:
+    """A warning on its own (no change of the safety state) reaches GET /api/state and /ws/telemetry
+    while the stream runs on. It showed only at the next state change (a stop) before: the servo
+    process sent its safety view only when the state changed."""
+    rig, sim = janome
+    hdr = rig.lease()
+    rig.wait_state("ready")
+    rig.start_streaming(hdr)
+    assert rig.state()["warnings"] == []
+    with websockets.sync.client.connect(f"{rig.ws_url}/ws/telemetry?hz=50") as ws:
+        sim.corrupt_next_target()  # the robot answers a frame error: the target is sent again, a warning
+        s = rig.wait(lambda s: bool(s["warnings"]), 5.0, "the warning in GET /api/state")
+        assert s["state"] == "streaming" and s["fault"] is None, s
+        w = s["warnings"][-1]
+        assert w["code"] == "link" and w["message"].startswith("robot rejected target"), w
+        deadline = time.monotonic() + 5.0
+        while not (seen := json.loads(ws.recv(timeout=5)))["warnings"]:
+            assert time.monotonic() < deadline, "no warning on /ws/telemetry"
+        assert seen["warnings"][-1]["message"] == w["message"] and seen["state"] == "streaming", seen
+    assert rig.state()["state"] == "streaming"  # nothing but the warning changed
