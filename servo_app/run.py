@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import math
 import signal
 import sys
 from pathlib import Path
@@ -17,6 +18,7 @@ from servo_app.realtime import make_realtime
 from servo_app.robots.profile import ProfileError
 from servo_app.robots.tool import ToolError
 from servo_app.service import ServiceConfig, ServoService
+from servo_app.service.config import servo_stall_error
 
 MAX_LEAD = MAX_PKT_STACK - 2  # the session's own bound (SessionConfig)
 
@@ -33,6 +35,17 @@ def _lead(text: str) -> int:
     return lead
 
 
+def _stall_s(text: str) -> float:
+    """``--servo-stall-s``: checked here, not once the service runs (ServiceConfig checks it too)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if (why := servo_stall_error(value)) is not None:
+        raise argparse.ArgumentTypeError(f"{text!r}: {why}")
+    return value
+
+
 def add_run_parser(sub: Any) -> None:
     p = sub.add_parser("run", help="run the service (default: against the embedded FANUC simulator)")
     p.add_argument("--robot", default=None,
@@ -45,6 +58,9 @@ def add_run_parser(sub: Any) -> None:
     p.add_argument("--lead", type=_lead, default=ServiceConfig.lead,
                    help="extra commands kept in the controller's buffer (61.4); the default 2 rides out two "
                         "lost status packets in a row, 0 alarms (MOTN-603) at the first one")
+    p.add_argument("--servo-stall-s", type=_stall_s, default=ServiceConfig.servo_stall_s, metavar="SECONDS",
+                   help="a servo process that runs no cycle for this long is stalled: the service names the fault "
+                        "and ends it, a reset starts another (docs/faults.md)")
     p.add_argument("--token", default=None, help="API token (else $SERVO_APP_TOKEN, else var/token)")
     p.add_argument("--var-dir", type=Path, default=Path("var"), help="session logs, audit log, token")
     p.add_argument("--payload-kg", type=float, default=None, help="payload for the limit tables")
@@ -112,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
         service = ServoService(ServiceConfig(robot=args.robot, model=args.model, interval_ms=args.interval_ms,
                                              lead=args.lead, var_dir=args.var_dir, payload_kg=args.payload_kg,
                                              inputs_config=args.inputs, mcap_live=args.mcap, tools_file=args.tools,
-                                             tool=args.tool))
+                                             tool=args.tool, servo_stall_s=args.servo_stall_s))
     except (ValueError, ProfileError) as exc:  # --robot, --model: nothing is started yet
         if isinstance(exc, ToolError):
             print(f"servo_app: invalid tools configuration: {exc}", flush=True)

@@ -346,6 +346,10 @@ def test_ctrl_c_during_start_up_stops_the_service(tmp_path: Path) -> None:
     (["--http-port", "70000"], ["--http-port", "70000", "0..65535"]),
     # Tracebacks, exit 1, after a servo process had been started (and advice to POST /api/reset).
     (["--lead", "9"], ["--lead", "9", "0..8"]),
+    # Not settable before; a stall time below the idle Janome loop's publish gap ended it needlessly.
+    (["--servo-stall-s", "0.1"], ["--servo-stall-s", "'0.1'", "at least 0.5", "stalled"]),
+    (["--servo-stall-s", "nan"], ["--servo-stall-s", "'nan'", "number of seconds"]),
+    (["--servo-stall-s", "soon"], ["--servo-stall-s", "'soon'", "number of seconds"]),
     (["--robot", "fanuc:127.0.0.1:99999"], ["--robot='fanuc:127.0.0.1:99999'", "99999", "0..65535"]),
     # Tracebacks, exit 1.
     (["--robot", "kuka"], ["--robot='kuka'", "unknown robot backend", "fanuc"]),

@@ -519,7 +519,7 @@ class StateView(BaseModel):
     # The service's additions.
     backend: str | None = Field(None, description="the robot backend's registered name (fanuc, janome, ...)")
     servo_process: str | None = Field(None, description="running, or how it ended (e.g. 'ended by signal 9', "
-                                          "'stalled: it ran no cycle for 1.0 s')")
+                                          "'stalled: it ran no cycle for 1.1 s (stall time 1 s, ...)')")
     servo_starts: int | None = Field(None, description="servo processes started (a reset after one died starts one)")
     model: str | None = Field(None, description="the robot profile")
     cartesian: CartesianView | None = Field(None, description="why a Cartesian motion is held back (null: none)")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,8 +37,9 @@ class ServiceConfig:
     sim_realtime_priority: int | None = 10
     request_timeout_s: float = 2.0
     # A servo process that publishes no state for this long is stalled (stopped by a signal, stuck):
-    # its loop publishes every ~20 ms at most, and the controller faults after a few missed commands.
-    # The service names the fault and ends it (SIGTERM, SIGKILL after 1 s); a reset starts another.
+    # its loop publishes every ~20 ms (FANUC) or ~50 ms (Janome, idle) at most, and the controller
+    # faults after a few missed commands. The service names the fault and ends it (SIGTERM, SIGKILL
+    # after 1 s); a reset starts another. servo-app run --servo-stall-s; at least MIN_SERVO_STALL_S.
     servo_stall_s: float = 1.0
     # A control of the embedded simulator (reset, alarm list, override, ...) answers in milliseconds;
     # one not answered in this time fails (a reset: 503), so a stopped controller process cannot hold
@@ -51,6 +53,24 @@ class ServiceConfig:
     tools_file: Path | None = None  # tools TOML (servo-app run --tools): [tools.NAME] xyzwpr, payload_kg
     tool: str | None = None  # the active tool at start (servo-app run --tool); None: the file's, else the flange
 
+    def __post_init__(self) -> None:
+        if (why := servo_stall_error(self.servo_stall_s)) is not None:
+            raise ValueError(f"servo_stall_s={self.servo_stall_s!r}: {why}")
+
     @property
     def log_dir(self) -> Path:
         return self.var_dir / "sessions"
+
+
+# An idle Janome servo process publishes every 50 ms (125 ms seen with no robot connected), and the
+# watchdog looks every 0.1 s: below this, an idle process or a busy machine's scheduling would be
+# taken for a stall (and the process ended).
+MIN_SERVO_STALL_S = 0.5
+
+
+def servo_stall_error(value: float) -> str | None:
+    """Why ``value`` cannot be the servo stall time (what to give instead), or None."""
+    if not math.isfinite(value) or value < MIN_SERVO_STALL_S:
+        return (f"give a number of seconds of at least {MIN_SERVO_STALL_S} (default {ServiceConfig.servo_stall_s}): "
+                f"a servo process that runs no cycle for that long is taken as stalled and ended")
+    return None

@@ -234,7 +234,9 @@ class ServoService:
                     self._lifecycle.release()
 
     def _end_stalled(self, stream: ServoProcessHandle, quiet_s: float) -> None:
-        message = f"servo process stalled: it ran no cycle for {quiet_s:.1f} s"
+        # The stall time too: which setting made this a fault (servo-app run --servo-stall-s).
+        message = (f"servo process stalled: it ran no cycle for {quiet_s:.1f} s "
+                   f"(stall time {self.cfg.servo_stall_s:g} s, servo-app run --servo-stall-s)")
         log.warning("%s: ending it (SIGTERM, then SIGKILL)", message)
         # The fault first: the state names it, and requests are refused with it, while the process is ended.
         self._servo_gone(message, "The process that streams to the robot stopped running its cycle (stopped by "
