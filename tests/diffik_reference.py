@@ -378,6 +378,10 @@ class DifferentialIK:
         if s is None and d_corr.any():
             d_corr = np.zeros(N)  # the correction does not fit this cycle: the line alone
             s = _path_scale(direction, s_goal, g, h_path)
+        if s is None and xi is not None:  # a Cartesian line into a joint's braking distance
+            s = self._line_past_braking(direction, s_goal, g, h, h_path)
+            if s is not None:
+                flags |= self._braking_flags(s * direction, g, h_path)
         if s is not None:  # 1. on the line
             dq = s * direction + d_corr
             if xi is not None and self._ref is not None and asks_motion:
@@ -467,6 +471,25 @@ class DifferentialIK:
         if lo > hi + 1e-9:  # rounding: a bound met exactly at t = 0 may read -1e-13
             return None
         return base + max(hi, lo) * (target - base)
+
+    def _line_past_braking(self, direction: np.ndarray, s_goal: float, g: np.ndarray, h: np.ndarray,
+                           h_path: np.ndarray) -> float | None:
+        """The path braking rows ask for a harder brake than the acceleration rows allow: the ``s``
+        nearest their interval within the other rows, each joint's own braking row widened by 20 ms
+        of its acceleration."""
+        rows = self._braking_rows
+        h_other = h_path.copy()
+        h_other[rows] = h[rows] + np.tile(self.acc * self.dt * 0.02, 2)  # (20 ms of each joint's acceleration)
+        other = _scale_interval(direction, g, h_other)
+        braking = _scale_interval(direction, g[rows], h_path[rows])
+        if other is None or braking is None:
+            return None
+        return min(max(min(max(s_goal, braking[0]), braking[1]), other[0]), other[1])
+
+    def _braking_flags(self, dq: np.ndarray, g: np.ndarray, h_path: np.ndarray) -> IkFlag:
+        rows = self._braking_rows
+        bind = g[rows] @ dq >= h_path[rows] - self.settings.binding_tol
+        return IkFlag(int(np.bitwise_or.reduce(self._row_flags[rows][bind]))) if bind.any() else IkFlag.NONE
 
     def _path_rows(self, h: np.ndarray) -> np.ndarray:
         """``h`` with the braking rows of the limits that brake the whole path together."""

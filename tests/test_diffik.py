@@ -383,6 +383,7 @@ def test_qp_fallback_and_solver_failure_never_give_nan(monkeypatch: pytest.Monke
         # The one-call Cartesian step off (an empty table): its line is not _path_scale's call.
         ik._fast_table = np.zeros((0, 3), dtype=np.int64)
         monkeypatch.setattr(ik, "_blend", lambda *a: None)
+        monkeypatch.setattr(ik, "_line_past_braking", lambda *a: None)  # (the line at its braking rows' cost)
         ik.reset(HOME)
         _, results, qs = run(ik, HOME, twist((200.0, 0.0, 0.0)), 30)
         assert all(r.flags & IkFlag.QP_FALLBACK for r in results)

@@ -23,7 +23,10 @@ actually sent, so the request must already be deliverable:
    scaled, so the TCP keeps its direction (no joint is clipped alone). Acceleration rows make this a
    ramp along the path; a reversal decelerates along the same line (``s < 0``); no command brakes
    along the last line (``s -> 0``). Braking rows here brake the whole path together
-   (:class:`~servo_app.motion.ik_limits.PathBraking`), so a stop before a bound stays on the line.
+   (:class:`~servo_app.motion.ik_limits.PathBraking`), so a stop before a bound stays on the line;
+   a Cartesian line whose braking rows outrun its acceleration (the shaper's late deceleration)
+   brakes as hard as it may and starts each joint's own stop up to 20 ms late, rather than leave
+   the line (``_line_past_braking``).
 4. **Blend** (a commanded change of direction the acceleration limit cannot follow at once): a
    straight line in joint-velocity space from last cycle's increment toward the command scaled to
    the position and velocity limits, as far as every row allows: first order a ramp between the two
@@ -104,6 +107,10 @@ class IkFlag(enum.IntFlag):
 # The flags as plain ints for the cycle: IntFlag's operators run Python code (several us each here).
 _B = types.SimpleNamespace(**{f.name: int(f) for f in IkFlag if f.name})
 _VELOCITY_LIMIT_BIT, _ACCEL_LIMIT_BIT = int(IkFlag.VELOCITY_LIMIT), int(IkFlag.ACCEL_LIMIT)
+
+# How late a Cartesian line braking for a joint bound may start each joint's own stop (DifferentialIK.
+# _line_past_braking): 20 ms of the ~0.15 s the braking rows allow for the shaper's lag.
+LINE_BRAKE_LATE_S = 0.02
 
 _ZERO3 = (0.0, 0.0, 0.0)  # cartesian_step's twist when there is none
 
@@ -501,6 +508,10 @@ class DifferentialIK:
         if s is None and kernels.any_nonzero(d_corr):
             d_corr = np.zeros(N)  # the correction does not fit this cycle: the line alone
             s = _path_scale(direction, s_goal, g, h_path)
+        if s is None and xi is not None:  # (a Cartesian line into a joint's braking distance)
+            s = self._line_past_braking(direction, s_goal, g, h, h_path)
+            if s is not None:
+                flags |= self._braking_flags(s * direction, g, h_path)
         if s is not None:  # 1. on the line
             dq = np.empty(N)
             kernels.line_point(s, direction, d_corr, dq)  # s * direction + d_corr
@@ -919,6 +930,39 @@ class DifferentialIK:
         c = self._posture_terms(jt, np.asarray(jt.cost, dtype=float), goal)
         p.flat[:: N + 1] += self.settings.damping
         return p, c
+
+    def _line_past_braking(self, direction: np.ndarray, s_goal: float, g: np.ndarray, h: np.ndarray,
+                           h_path: np.ndarray) -> float | None:
+        """A Cartesian line whose braking rows for a joint bound ask for a harder brake than its
+        acceleration rows allow: the ``s`` nearest the braking rows' interval within every other row,
+        each joint's own braking row widened by ``LINE_BRAKE_LATE_S`` of its acceleration (its stop
+        starting that much later), so the line brakes as hard as it may. None if that leaves none.
+
+        The path's rows count on 0.8 of the acceleration, but the acceleration rows start from what the
+        shaper delivers, whose deceleration builds up at its jerk limit: at 4 ms a pose target into J5's
+        limit found them a hair (0.004 of its speed) below what J2 could shed in a cycle, and J5's own
+        row then up to 0.9 cycle's acceleration (3.7 toward the reach at 359 mm/s). The blend and the QP
+        then kept every row and let the orientation go: a pure translation turned the TCP at 5.6 deg/s
+        for 5 (up to 3.4 x its angular speed). The joint ranges' own rows (ConfigurationLimit) still
+        hold, and the servo cycle's guard still keeps a stop in range."""
+        rows = self._braking_rows
+        assert rows is not None
+        _, da = self.accel_limit.bounds(self.dt)
+        h_other = h_path.copy()
+        h_other[rows] = h[rows] + np.tile(da, 2) * (LINE_BRAKE_LATE_S / self.dt)
+        other = _scale_interval(direction, g, h_other)
+        braking = _scale_interval(direction, g[rows], h_path[rows])
+        if other is None or braking is None:
+            return None
+        return min(max(min(max(s_goal, braking[0]), braking[1]), other[0]), other[1])
+
+    def _braking_flags(self, dq: np.ndarray, g: np.ndarray, h_path: np.ndarray) -> int:
+        """The flags (JOINT_LIMIT, CONFIGURATION) of the path's braking rows ``dq`` binds: what holds the
+        motion back (the flags of the step are read from each joint's own rows, looser than these)."""
+        rows = self._braking_rows
+        assert rows is not None and self._row_flags is not None
+        bind = g[rows] @ dq >= h_path[rows] - self.settings.binding_tol
+        return int(np.bitwise_or.reduce(self._row_flags[rows][bind])) if bind.any() else 0
 
     def _blend(self, d: np.ndarray, g: np.ndarray, h: np.ndarray) -> np.ndarray | None:
         """From last cycle's increment straight toward ``sigma * d`` (``sigma``: the share of the
