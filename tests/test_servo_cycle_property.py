@@ -283,7 +283,9 @@ def test_cartesian_jog_keeps_its_line_and_speed_through_the_shaper(
     off_line = np.linalg.norm(rel - np.outer(along, u), axis=1)
     speed = np.diff(along) / dt
     assert off_line.max() < 0.5, off_line.max()
-    assert np.linalg.norm(linear) * 0.97 < speed.max() < np.linalg.norm(linear) * 1.03
+    # Not over by more than 0.1 %: the joints change velocity in proportion while the shaper ramps
+    # (shaper_kernels.velocity_share_limits); before, 120 mm/s along z ran at 120.42 (+0.35 %).
+    assert np.linalg.norm(linear) * 0.97 < speed.max() < np.linalg.norm(linear) * 1.001
     # Stopped without backing up: at most a cycle a hair past zero speed (8 um: the IK's braking is not
     # jerk-aware, the shaper's is), where the old pull-back made it back up at 7 mm/s.
     assert speed.min() > -1.5 and cycle.at_rest()

@@ -645,9 +645,11 @@ class ServoCycle:
             self._cart_active = False  # braked to rest along the path
             shaper.stop("soft")
             return
-        # A pose target's line: its joints change velocity in proportion, or the TCP (joint motions that
-        # partly cancel) ran up to 5 % over its speed while the shaper ramped (velocity_share_limits).
-        shaper.set_velocity(v, one_profile=self._cart.__class__ is PoseTarget, v_now=v_f)
+        # The IK's line (a pose target's, a twist's, a stop braking along it): its joints change velocity
+        # in proportion, or the TCP (joint motions that partly cancel) ran over its speed while the
+        # shaper ramped (velocity_share_limits): a pose target's by up to 5 %, a twist's by up to 17 %
+        # (14 % of its turn).
+        shaper.set_velocity(v, one_profile=True, v_now=v_f)
 
     def _finish_pose(self, shaper: JointShaper, cmd: PoseTarget) -> bool:
         """Within ``finish_mm`` / ``finish_deg`` of a pose target that has stayed the same for
