@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_pose_target_speed import HOME, PROFILE, RAMP_S, assert_within
+from test_pose_target_speed import HOME, PROFILE, RAMP_S, RANDOM_RAMP_REL, assert_within, ramp_window
 
 from servo_app.fanuc.packets import Status
 from servo_app.motion.commands import PoseTarget
@@ -99,4 +99,5 @@ def test_a_translation_the_arm_cannot_finish_keeps_its_speeds(xyz: tuple[float, 
     # Old code, 200 random ones at 4 and 8 ms: 5 over the angular speed, all at 4 ms into J5's limit, up to
     # 3.4 x (+200, -39, +214 mm at 399 mm/s, 6.2 deg/s, 200 mm tool: 21 deg/s).
     got = approach([*xyz, 0.0, 0.0, 0.0], linear, angular, dt, tool, seconds=5.0)
-    assert_within(got.lin, got.ang, linear, angular, ramp=int(RAMP_S / dt))
+    assert_within(got.lin, got.ang, linear, angular, ramp=ramp_window(got.lin, got.ang, dt),
+                  ramp_rel=RANDOM_RAMP_REL)
