@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import subprocess
 import sys
 import threading
 import time
@@ -43,6 +44,22 @@ def servo_app_argv(how: str, *argv: str) -> list[str]:
     """The command line of ``servo-app *argv`` started as ``how`` (a first word of STOP_WAYS) says."""
     return [sys.executable, "-c", _CLI_SHIM, how, *argv]
 
+
+def wait_healthy(c: httpx.Client, proc: subprocess.Popen[Any] | None = None, timeout: float = 60.0,
+                 output: Callable[[], str] = str) -> None:
+    """Until the service ``c`` talks to answers /api/health (it binds its port a moment after it starts);
+    fails at once if ``proc`` (that service) exits first, or after ``timeout``, with ``output()``."""
+    deadline = time.monotonic() + timeout
+    while True:
+        assert proc is None or proc.poll() is None, \
+            f"the service exited ({proc.returncode}) before it answered /api/health: {output()}"
+        try:
+            if c.get("/api/health").status_code == 200:
+                return
+        except httpx.TransportError:
+            pass
+        assert time.monotonic() < deadline, f"no /api/health answer within {timeout} s: {output()}"
+        time.sleep(0.05)
 
 class LiveServer:
     """uvicorn.Server in a daemon thread on 127.0.0.1, any free port (signal handlers stay unset)."""

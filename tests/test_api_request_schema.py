@@ -9,14 +9,14 @@ schemas checked with jsonschema_rs (Draft 2020-12, OpenAPI 3.1's dialect)."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import httpx
 import jsonschema_rs
 import pytest
-from test_api_harness import AUTH, Rig, running_janome_rig, running_rig
+import test_api_schema as api_schema
+from test_api_harness import AUTH, Rig, running_janome_rig
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(120)]
 
@@ -65,17 +65,10 @@ ACCEPTED: list[tuple[str, dict[str, Any]]] = [
 ]
 
 
-@pytest.fixture(scope="module")
-def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
-    with running_rig(tmp_path_factory.mktemp("requests")) as r:
-        yield r
-
-
-@pytest.fixture(scope="module")
-def openapi(rig: Rig) -> dict[str, Any]:
-    r = rig.http.get("/openapi.json")
-    assert r.status_code == 200, r.text
-    return r.json()  # type: ignore[no-any-return]
+# test_api_schema.py's fixtures (a running service on the embedded simulator, its document), found by
+# pytest under these names.
+rig = api_schema.rig
+openapi = api_schema.openapi
 
 
 def schema_errors(doc: dict[str, Any], operation: str, sent: dict[str, Any]) -> list[str]:

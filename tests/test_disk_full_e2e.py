@@ -21,7 +21,7 @@ from typing import Any
 import httpx
 import pytest
 from small_disk import fill, free, launch, read, unavailable
-from test_api_harness import assert_came_to_rest, assert_log_complete
+from test_api_harness import assert_came_to_rest, assert_log_complete, wait_healthy
 
 from servo_app.session_log import SessionLog, read_session_log
 
@@ -70,15 +70,7 @@ def run_service(tmp_path: Path, *extra: str) -> Iterator[tuple[subprocess.Popen[
                env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     c = httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10)
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                if c.get("/api/health").status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            assert p.poll() is None and time.monotonic() < deadline, "the service did not come up"
-            time.sleep(0.1)
+        wait_healthy(c, p)
         yield p, c, var
     finally:
         c.close()

@@ -15,6 +15,7 @@ from typing import Any
 
 import httpx
 import pytest
+from test_api_harness import wait_healthy
 
 pytestmark = pytest.mark.e2e
 TOKEN = "cli-test-token"
@@ -40,19 +41,6 @@ def stop(p: subprocess.Popen[str]) -> tuple[int, str, str]:
         p.kill()
         out, err = p.communicate()
     return p.returncode, out, err
-
-
-def wait_healthy(c: httpx.Client, timeout: float = 30.0) -> None:
-    """Until the service answers /api/health (it binds its port a moment after it starts)."""
-    deadline = time.monotonic() + timeout
-    while True:
-        try:
-            if c.get("/api/health").status_code == 200:
-                return
-        except httpx.TransportError:
-            pass
-        assert time.monotonic() < deadline, f"no /api/health answer within {timeout} s"
-        time.sleep(0.05)
 
 
 def wait_state(c: httpx.Client, pred: Callable[[dict[str, Any]], bool], what: str,
@@ -86,7 +74,7 @@ def test_run_against_an_external_simulator_process(sim: tuple[subprocess.Popen[s
     base = f"http://127.0.0.1:{http}"
     try:
         with httpx.Client(base_url=base, timeout=5) as c:
-            wait_healthy(c)
+            wait_healthy(c, run, timeout=30.0)
             auth = {"Authorization": f"Bearer {TOKEN}"}
             lease = c.post("/api/lease", json={"client": "cli-test"}, headers=auth).json()["lease_id"]
             hdr = {**auth, "X-Lease-Id": lease}
@@ -117,7 +105,7 @@ def test_run_janome_with_its_embedded_simulator_through_rest(tmp_path: Path) -> 
     base = f"http://127.0.0.1:{http}"
     try:
         with httpx.Client(base_url=base, timeout=5) as c:
-            wait_healthy(c)
+            wait_healthy(c, run, timeout=30.0)
             auth = {"Authorization": f"Bearer {TOKEN}"}
             lease = c.post("/api/lease", json={"client": "janome-test"}, headers=auth).json()["lease_id"]
             hdr = {**auth, "X-Lease-Id": lease}

@@ -26,6 +26,7 @@ from test_api_harness import (
     assert_came_to_rest,
     assert_log_complete,
     running_rig,
+    wait_healthy,
 )
 
 from servo_app.session_log import SessionLog, read_session_log
@@ -334,15 +335,7 @@ def test_signal_mid_motion_to_servo_app_run(tmp_path: Path, how: str) -> None:
         base = f"http://127.0.0.1:{port}"
         deadline = time.monotonic() + 60
         with httpx.Client(base_url=base, timeout=5.0) as c:
-            while True:
-                assert proc.poll() is None, "".join(err)
-                try:
-                    if c.get("/api/health").status_code == 200:
-                        break
-                except httpx.TransportError:
-                    pass
-                assert time.monotonic() < deadline, "servo-app run did not come up"
-                time.sleep(0.1)
+            wait_healthy(c, proc, 60.0, lambda: "".join(err))
             r = c.post("/api/lease", json={"client": "ops"}, headers=AUTH)
             h = {**AUTH, "X-Lease-Id": r.json()["lease_id"]}
             assert c.post("/api/session/start", headers=h).status_code == 200

@@ -14,6 +14,7 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -325,12 +326,16 @@ def test_a_tool_change_the_embedded_controller_cannot_take_is_refused_and_change
         rig.start_streaming(h)
         s = rig.wait_at_rest_settled()
         assert rig.http.get("/api/limits").json()["payload_kg"] == 2.5
-        # The servo process moves the gripper's TCP: a pose target at the pose shown is where the arm is.
-        rig.post("/api/target", h, {"xyzwpr": s["cart_servo"], "linear_speed": 50.0})
-        after = rig.wait_at_rest_settled()
-        np.testing.assert_allclose(after["q_cmd"][:6], s["q_cmd"][:6], atol=1e-3)
+        assert_moves_the_tcp_shown(rig, h, s, timeout=3.0)
         assert rig.sim_alarms() == []
 
+
+def assert_moves_the_tcp_shown(rig: Rig, h: dict[str, str], s: dict[str, Any], timeout: float = 10.0) -> None:
+    """The servo process moves the TCP the service shows (state ``s``, at rest): a pose target at the
+    pose shown is where the arm already is."""
+    rig.post("/api/target", h, {"xyzwpr": s["cart_servo"], "linear_speed": 50.0})
+    after = rig.wait_at_rest_settled(timeout)
+    np.testing.assert_allclose(after["q_cmd"][:6], s["q_cmd"][:6], atol=1e-3)
 
 def test_a_tool_change_that_times_out_is_not_taken_later_by_a_stalled_servo_process(tmp_path: Path) -> None:
     """The servo process stalled (SIGSTOP) when a tool change comes: 503, the tool not changed. Once it
@@ -355,10 +360,7 @@ def test_a_tool_change_that_times_out_is_not_taken_later_by_a_stalled_servo_proc
         rig.start_streaming(h)
         s = rig.wait_at_rest_settled(10.0)
         assert s["tool"]["name"] == "gripper" and rig.http.get("/api/tools").json()["active"] == "gripper"
-        # The servo process moves the TCP shown: a pose target at the pose shown is where the arm is.
-        rig.post("/api/target", h, {"xyzwpr": s["cart_servo"], "linear_speed": 50.0})
-        after = rig.wait_at_rest_settled(10.0)
-        np.testing.assert_allclose(after["q_cmd"][:6], s["q_cmd"][:6], atol=1e-3)
+        assert_moves_the_tcp_shown(rig, h, s)
         assert rig.sim_alarms() == []
 
 
@@ -405,10 +407,7 @@ def test_an_undone_tool_change_that_times_out_stops_the_stalled_servo_process(tm
         rig.start_streaming(h)
         s = rig.wait_at_rest_settled(10.0)
         assert s["tool"]["name"] == "gripper" and rig.http.get("/api/limits").json()["payload_kg"] == 2.5
-        # The servo process moves the TCP shown: a pose target at the pose shown is where the arm is.
-        rig.post("/api/target", h, {"xyzwpr": s["cart_servo"], "linear_speed": 50.0})
-        after = rig.wait_at_rest_settled(10.0)
-        np.testing.assert_allclose(after["q_cmd"][:6], s["q_cmd"][:6], atol=1e-3)
+        assert_moves_the_tcp_shown(rig, h, s)
 
 
 def test_a_new_servo_process_that_does_not_take_the_tool_in_time_is_stopped(tmp_path: Path) -> None:
@@ -454,9 +453,7 @@ def test_a_new_servo_process_that_does_not_take_the_tool_in_time_is_stopped(tmp_
         rig.start_streaming(h)
         s = rig.wait_at_rest_settled(10.0)
         assert s["tool"]["name"] == "gripper" and rig.http.get("/api/limits").json()["payload_kg"] == 2.5
-        rig.post("/api/target", h, {"xyzwpr": s["cart_servo"], "linear_speed": 50.0})
-        after = rig.wait_at_rest_settled(10.0)
-        np.testing.assert_allclose(after["q_cmd"][:6], s["q_cmd"][:6], atol=1e-3)
+        assert_moves_the_tcp_shown(rig, h, s)
 
 
 def test_tools_added_at_run_time_are_bounded(tmp_path: Path) -> None:

@@ -392,6 +392,17 @@ def test_servo_app_replay_of_an_unusable_file_exits_2_naming_it(rig: Rig, tmp_pa
     assert rig.state()["q_cmd"] == before
 
 
+def write_joint_csv(path: Path, rows: np.ndarray) -> None:
+    """Joint rows (FANUC deg) as the CSV ``servo-app replay`` reads."""
+    path.write_text("j1,j2,j3,j4,j5,j6\n" + "\n".join(",".join(f"{v:.5f}" for v in r) for r in rows))
+
+
+def start_replay(rig: Rig, csv: Path, how: str) -> subprocess.Popen[str]:
+    """``servo-app replay CSV --take-over`` against the rig, started as ``how`` (STOP_WAYS) says."""
+    return subprocess.Popen(servo_app_argv(how, "replay", str(csv), "--url", rig.base_url, "--token", TOKEN,
+                                           "--take-over"), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+
 @pytest.mark.parametrize(("how", "sig"), STOP_WAYS, ids=[how for how, _ in STOP_WAYS])
 def test_servo_app_replay_interrupted_pauses_the_arm_on_its_path(rig: Rig, tmp_path: Path, how: str,
                                                                  sig: int) -> None:
@@ -401,10 +412,8 @@ def test_servo_app_replay_interrupted_pauses_the_arm_on_its_path(rig: Rig, tmp_p
     t = np.linspace(0.0, 1.0, 1000)[:, None]  # 8 s at the recorded pace
     rows = np.array(HOME) + np.hstack([15.0 * t, np.zeros((1000, 4)), -15.0 * t])
     csv = tmp_path / "long.csv"
-    csv.write_text("j1,j2,j3,j4,j5,j6\n" + "\n".join(",".join(f"{v:.5f}" for v in r) for r in rows))
-    proc = subprocess.Popen(servo_app_argv(how, "replay", str(csv), "--url", rig.base_url, "--token", TOKEN,
-                                           "--take-over"), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    write_joint_csv(csv, rows)
+    proc = start_replay(rig, csv, how)
     try:
         rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "playing" and not s["at_rest"], 30.0,
                  "the replay playing")
@@ -436,10 +445,8 @@ def test_servo_app_replay_interrupted_before_its_replay_plays_exits_130(rig: Rig
     t = np.linspace(0.0, 1.0, 200)[:, None]
     rows = np.array(HOME) + np.hstack([10.0 * t, np.zeros((200, 5))])
     csv = tmp_path / "short.csv"
-    csv.write_text("j1,j2,j3,j4,j5,j6\n" + "\n".join(",".join(f"{v:.5f}" for v in r) for r in rows))
-    proc = subprocess.Popen(servo_app_argv(how, "replay", str(csv), "--url", rig.base_url, "--token", TOKEN,
-                                           "--take-over"), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    write_joint_csv(csv, rows)
+    proc = start_replay(rig, csv, how)
     try:
         # The take-over done: the command now stops the arm, resumes and waits for it to settle.
         deadline = time.monotonic() + 30.0
@@ -467,7 +474,7 @@ def test_servo_app_replay_exits_1_when_the_arm_is_stopped_from_elsewhere(rig: Ri
     t = np.linspace(0.0, 1.0, 1000)[:, None]  # 8 s at the recorded pace
     rows = np.array(HOME) + np.hstack([15.0 * t, np.zeros((1000, 4)), -15.0 * t])
     csv = tmp_path / "long.csv"
-    csv.write_text("j1,j2,j3,j4,j5,j6\n" + "\n".join(",".join(f"{v:.5f}" for v in r) for r in rows))
+    write_joint_csv(csv, rows)
     proc = subprocess.Popen([sys.executable, "-m", "servo_app.cli", "replay", str(csv), "--url", rig.base_url,
                              "--token", TOKEN, "--take-over", "--timeout", "120"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
