@@ -2,10 +2,11 @@
 its progress.
 
 FILE is a CSV in ``servo-app check``'s form (J1..J6 rows, or flange poses under an ``x,y,z,w,p,r``
-header), a JSON body for POST /api/trajectory (``{"joints": [...], "times": [...]}``, ``{"poses": ...}``
-or ``{"log": NAME, "from_s": ..., "to_s": ...}``), or a session log (.srvlog): one the service
-lists (same name and size) is replayed by name, any other is sent as the CSV of its commands (joints,
-or a Cartesian log's flange poses under the header ``x,y,z,w,p,r``); a Janome log is refused.
+header), a JSON body for POST /api/trajectory (``{"joints": [...], "times": [...]}``, ``{"joints": [...],
+"blend": true}``, ``{"poses": ...}`` or ``{"log": NAME, "from_s": ..., "to_s": ...}``), or a session
+log (.srvlog): one the service lists (same name and size) is replayed by name, any other is sent as
+the CSV of its commands (joints, or a Cartesian log's flange poses under the header ``x,y,z,w,p,r``);
+a Janome log is refused.
 
 Exit code: 0 the replay ended at rest at its end; 1 it was stopped (from elsewhere too: the replay
 then waits, paused, for a resume), ended short or the arm faulted;
@@ -76,7 +77,7 @@ def _request(path: Path, client: ServoClient) -> dict[str, Any]:
         except ValueError as exc:
             raise ValueError(f"{path}: not JSON ({exc}): give a POST /api/trajectory body, e.g. "
                              '{"joints": [[J1, ..., J6], ...]}') from None
-        keys = ("joints", "poses", "times", "log", "from_s", "to_s")
+        keys = ("joints", "poses", "times", "log", "from_s", "to_s", "blend")
         if not isinstance(body, dict) or not any(k in body for k in keys):
             raise ValueError(f"{path}: a JSON body needs one of joints, poses or log (an object such as "
                              '{"joints": [[J1, ..., J6], ...]}), not ' + json.dumps(body)[:60])

@@ -49,6 +49,10 @@ REFUSED: list[tuple[str, dict[str, Any], list[str]]] = [
      ["give exactly one of joints, poses or log"]),
     ("POST /api/trajectory", {"joints": [HOME], "from_s": 1.0}, ["select a window of a log: give log too"]),
     ("POST /api/trajectory", {"query": {"speed_scale": 5.0}, "csv": CSV}, ["speed_scale=5.0", "[0.001, 1.0]"]),
+    ("POST /api/trajectory", {"poses": [[400.0, 0.0, 300.0, 180.0, 0.0, 0.0]], "blend": True},
+     ["blend=true: only with joints"]),
+    ("POST /api/trajectory", {"joints": [[2.0, 0.0, 0.0, 0.0, -90.0, 0.0], HOME], "times": [1.0, 2.0], "blend": True},
+     ["times: not with blend=true"]),
 ]
 
 # What the service takes (200), each leaving the arm where it was.
@@ -61,6 +65,8 @@ ACCEPTED: list[tuple[str, dict[str, Any]]] = [
     ("POST /api/target", {"joints": HOME, "speed_scale": 0.5}),
     ("POST /api/tools", {"name": "gripper", "xyzwpr": [0.0, 0.0, 150.0, 0.0, 0.0, 90.0], "payload_kg": 2.0}),
     ("POST /api/trajectory", {"joints": [[2.0, 0.0, 0.0, 0.0, -90.0, 0.0], HOME], "times": [1.0, 2.0]}),
+    ("POST /api/trajectory", {"joints": [[2.0, 0.0, 0.0, 0.0, -90.0, 0.0], [2.0, 2.0, 0.0, 0.0, -90.0, 0.0], HOME],
+                              "blend": True}),
     ("POST /api/trajectory", {"query": {"speed_scale": 0.5, "pace": "limits"}, "csv": CSV + "0,0,0,0,-90,0\n"}),
 ]
 

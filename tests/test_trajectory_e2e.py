@@ -105,10 +105,40 @@ def test_cartesian_waypoints_keep_the_tcp_on_the_straight_segments(rig: Rig) -> 
     assert r.returncode == 0, r.stdout + r.stderr
 
 
+def test_blended_joint_waypoints_are_passed_through_without_stopping(rig: Rig) -> None:
+    """``blend``: one motion through the via points, at rest only at the last (rest to rest, the arm
+    stopped at each): the commands as the session log recorded them pass each inner waypoint at speed."""
+    h = at_home(rig)
+    via = np.array([[20.0, 20.0, -5.0, 10.0, -70.0, 30.0], [35.0, 10.0, 5.0, 0.0, -85.0, 0.0],
+                    [15.0, 0.0, -15.0, -10.0, -95.0, -30.0], [-10.0, 15.0, -5.0, 0.0, -80.0, 10.0]])
+    _, started = log_now(rig)
+    r = rig.http.post("/api/trajectory", headers=h, json={"joints": via.tolist(), "blend": True})
+    assert r.status_code == 200, r.text
+    assert "blended" in r.json()["detail"]["label"], r.text
+    s = rig.wait(lambda s: (s.get("trajectory") or {}).get("state") == "done" and s["at_rest"], 20.0, "done")
+    assert np.allclose(s["q_cmd"][:6], via[-1], atol=1e-3)
+    assert rig.sim_alarms() == []
+    rig.end_and_wait(h)
+    log = rig.latest_log()
+    cmds = log.commands[log.commands["t"] - log.commands["t"][0] >= started]
+    q = cmds["values"][:, :6].astype(float)
+    dt = float(np.median(np.diff(cmds["t"])))
+    speed = np.abs(np.diff(q, axis=0)).max(axis=1) / dt  # the fastest joint's, deg/s
+    for w in via[:-1]:
+        k = int(np.argmin(np.linalg.norm(q - w, axis=1)))
+        assert distance_to_polyline(w, q) < 0.05, w
+        assert speed[k - 1: k + 1].min() > 50.0, (w, speed[k - 1: k + 1])
+    assert np.array_equal(q[-1], via[-1].astype(np.float32))
+    r = subprocess.run([sys.executable, "-m", "servo_app.cli", "check", str(rig.var_dir / "download.srvlog")],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stdout + r.stderr
+
+
 def distance_to_polyline(point: np.ndarray, line: np.ndarray) -> float:
+    """Distance from a point to the polyline through ``line``'s rows (repeated rows: a point of it)."""
     a, b = line[:-1], line[1:]
     d = b - a
-    t = np.clip(np.einsum("ij,ij->i", point - a, d) / np.einsum("ij,ij->i", d, d), 0.0, 1.0)
+    t = np.clip(np.einsum("ij,ij->i", point - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300), 0.0, 1.0)
     return float(np.min(np.linalg.norm(a + t[:, None] * d - point, axis=1)))
 
 
@@ -278,6 +308,13 @@ def test_a_jog_ends_the_replay_and_the_state_says_why(rig: Rig) -> None:
     ({"joints": [HOME, HOME], "times": [1.0, 1.0]}, "times[1]=1.0"),
     ({"log": "no-such.srvlog"}, "log='no-such.srvlog'"),
     ({"log": "no-such.srvlog", "pace": "fast"}, "pace"),
+    ({"poses": [[400.0, 0.0, 300.0, 180.0, 0.0, 0.0]], "blend": True}, "blend=true: only with joints"),
+    ({"joints": [HOME, [20.0, 10.0, -10.0, 0.0, -80.0, 0.0]], "times": [1.0, 2.0], "blend": True},
+     "times: not with blend=true"),
+    # J5 to 1 deg from its range and on: the spline turns past it (straight segments would not).
+    ({"joints": [[20.0, 10.0, -10.0, 0.0, -80.0, 0.0], [20.0, 10.0, -10.0, 0.0, -124.0, 0.0],
+                 [40.0, 10.0, -10.0, 0.0, -80.0, 0.0]], "blend": True},
+     "blend: the spline from joints[1] to joints[2] overshoots"),
 ])
 def test_refusals_name_the_field_and_change_nothing(rig: Rig, body: dict[str, Any], words: str) -> None:
     h = at_home(rig)
@@ -312,6 +349,8 @@ def test_the_client_replays_and_servo_app_replay_runs_a_csv_file(rig: Rig, tmp_p
         summary = arm.replay([[10.0, 10.0, -10.0, 0.0, -80.0, 10.0]])
         assert summary["samples"] > 10 and arm.state().trajectory is not None
         assert arm.state().trajectory.state == "done"  # type: ignore[union-attr]
+        summary = arm.replay([[0.0, 20.0, -10.0, 0.0, -80.0, 0.0], HOME], blend=True)
+        assert "blended" in summary["label"] and arm.state().trajectory.state == "done"  # type: ignore[union-attr]
     last = [-10.0, 15.0, -5.0, 5.0, -75.0, -15.0]
     csv = tmp_path / "path.csv"
     csv.write_text(f"# J1..J6\n{','.join(map(str, HOME))}\n{','.join(map(str, last))}\n")

@@ -58,6 +58,12 @@ class TrajectoryBody(BaseModel):
     pace: Literal["recorded", "limits"] = Field("recorded", description=(
         "with log: 'recorded' replays no faster along the path than it was recorded (times speed_scale), "
         "'limits' as fast as the controller's limits allow"))
+    blend: bool = Field(False, description=(
+        "with joints: pass through the waypoints without stopping (blending: FANUC's CNT, not FINE): one "
+        "cubic spline in joint space from where the arm rests through every waypoint, at rest only at the "
+        "last; it may bulge past a straight line between two waypoints, and one that would leave the "
+        "joint ranges or the held configuration is refused (422, naming the two waypoints: add one between "
+        "them). Not with poses, log or times. false (default): straight segments, at rest at each waypoint"))
 
     @model_validator(mode="after")
     def _one_source(self) -> "TrajectoryBody":
@@ -74,7 +80,8 @@ class TrajectoryBody(BaseModel):
 def _documented_schema() -> dict[str, Any]:
     """TrajectoryBody's JSON schema with the rules plan_trajectory checks (its messages name the value):
     six values a waypoint, at least one waypoint and time, a window not before the log's start, exactly
-    one of joints, poses and log, the window only with log and times only with waypoints. Documentation
+    one of joints, poses and log, the window only with log, times only with waypoints and blend only with
+    joints and no times. Documentation
     only: a client or fuzzer working from the schema sends what the service takes."""
     schema = TrajectoryBody.model_json_schema()
     props = schema["properties"]
@@ -93,8 +100,10 @@ def _documented_schema() -> dict[str, Any]:
         return {"properties": {k: {"type": "null"} for k in keys}}
 
     schema["oneOf"] = [given("joints"), given("poses"), given("log")]
+    no_blend = {"properties": {"blend": {"const": False}}}
     schema["allOf"] = [{"anyOf": [given("log"), absent("from_s", "to_s", "from_unix", "to_unix")]},
-                       {"anyOf": [absent("log"), absent("times")]}]
+                       {"anyOf": [absent("log"), absent("times")]},
+                       {"anyOf": [given("joints"), no_blend]}, {"anyOf": [absent("times"), no_blend]}]
     return schema
 
 
@@ -152,7 +161,7 @@ async def trajectory(request: Request, raw: Annotated[bytes, Depends(uploaded)],
         body = await run_in_threadpool(_parse_json, raw)
         req = TrajectoryInput(joints=body.joints, poses=body.poses, times=body.times, log=body.log,
                               from_s=body.from_s, to_s=body.to_s, from_unix=body.from_unix, to_unix=body.to_unix,
-                              speed_scale=body.speed_scale, pace=body.pace)
+                              speed_scale=body.speed_scale, pace=body.pace, blend=body.blend)
     detail = {"source": "csv" if req.csv_text is not None else ("log" if req.log else
                                                                   "joints" if req.joints else "poses")}
 

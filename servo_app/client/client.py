@@ -453,8 +453,8 @@ class ServoClient:
                poses: Sequence[Sequence[float]] | None = None, times: Sequence[float] | None = None,
                csv: str | None = None, log: str | None = None, from_s: float | None = None,
                to_s: float | None = None, from_unix: float | None = None, to_unix: float | None = None,
-               speed_scale: float = 1.0, pace: str = "recorded", wait: bool = True, timeout: float = 300.0
-               ) -> dict[str, Any]:
+               speed_scale: float = 1.0, pace: str = "recorded", blend: bool = False, wait: bool = True,
+               timeout: float = 300.0) -> dict[str, Any]:
         """Replay a path within the controller's limits (``POST /api/trajectory``): joint waypoints
         (deg), TCP ``poses`` (X Y Z mm, W P R deg), a ``csv`` text in ``servo-app check``'s form, or a
         recorded session ``log`` by name with an optional window (s after its first command). The arm
@@ -462,7 +462,8 @@ class ServoClient:
         is done and at rest; a stop or a fault before that raises (StoppedError, FaultError). Returns
         the plan's summary (samples, duration_s, ramp_s, ...). A ``csv`` or ``log`` (one row per interval)
         replays no faster than it was recorded (``pace="recorded"``) or, with ``pace="limits"``, as fast
-        as the limits allow."""
+        as the limits allow. ``blend`` (joints only, no ``times``): pass through the waypoints without
+        stopping, at rest only at the last (one joint spline through them all)."""
         if csv is not None:
             ack = self._call("POST", "/api/trajectory", lease=True, csv=csv,
                              params={"speed_scale": speed_scale, "pace": pace})
@@ -473,6 +474,8 @@ class ServoClient:
                     body[key] = [[float(v) for v in row] for row in value]
             if times is not None:
                 body["times"] = [float(t) for t in times]
+            if blend:
+                body["blend"] = True
             if log is not None:
                 body["log"] = log
                 body["pace"] = pace

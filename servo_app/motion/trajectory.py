@@ -8,7 +8,9 @@ Timing a path (``TrajectoryPlanner.plan``):
 
 1. The path is split into segments that start and end at rest: at each given waypoint, and inside a
    dense path (a CSV, a session log) wherever it turns back on itself. A segment is a cubic spline in
-   joint space through its points, parameterised by chord length (a straight segment stays straight);
+   joint space through its points, parameterised by chord length (a straight segment stays straight).
+   Blended joint waypoints (``joint_segments(..., blend=True)``) are one segment through all of them,
+   from the rest position to the last: the arm passes through the inner ones without stopping;
 2. TOPP-RA (``toppra``) times each segment at a share of the velocity and acceleration limits;
 3. TOPP-RA's acceleration is piecewise constant (unbounded jerk): the path parameter s(t), sampled at
    the stream interval, is smoothed by a moving average of ``m`` samples. The motion stays on the path,
@@ -60,6 +62,10 @@ CART_STEP_DEG = 1.0  # ... and this many deg of orientation
 # between two statuses (unpickled, checked, copied: ~95 ns a sample here, 9.5 ms for 100 000, no alarm
 # at 4 ms with lead 2); 197 504 samples at 4 ms held the cycle up long enough for MOTN-603.
 MAX_SAMPLES = 100_000
+# A blended path's spline can overshoot its waypoints: it is checked against the joint ranges and the
+# held configuration at this many points between two waypoints and at every joint's turning point (the
+# samples are checked again after timing).
+BLEND_CHECK_POINTS = 64
 # deg: consecutive joint waypoints this close are one point (the wire's float32 step is 7.6e-6 deg at
 # 64-128 deg; the approach takes an arm resting within 1e-6 deg of the first waypoint as there).
 COINCIDENT_DEG = 1e-6
@@ -90,7 +96,7 @@ class PlanLimits:
 @dataclass
 class TimedTrajectory:
     """Samples at the stream interval (FANUC deg, float32 values): the first is the start, the last
-    three equal the end (at rest). ``waypoint_samples[i]``: where waypoint i is reached."""
+    three equal the end (at rest). ``waypoint_samples[i]``: where segment i ends (at rest)."""
 
     samples: np.ndarray
     dt: float
@@ -296,10 +302,17 @@ class TrajectoryPlanner:
         return cls(profile, limits, region, checker, tool_xyzwpr, speed_scale)
 
     # -- inputs -> segments
-    def joint_segments(self, start: np.ndarray, waypoints: np.ndarray, times: Sequence[float] | None
-                       ) -> list[_Segment]:
-        """Straight joint-space segments: start -> waypoint 0 (the approach), then waypoint to waypoint."""
+    def joint_segments(self, start: np.ndarray, waypoints: np.ndarray, times: Sequence[float] | None,
+                       blend: bool = False) -> list[_Segment]:
+        """Straight joint-space segments: start -> waypoint 0 (the approach), then waypoint to waypoint,
+        each from rest to rest; with ``blend`` one segment through them all (:meth:`blended_segment`)."""
         self._check_inside(waypoints, "joints")
+        if blend:
+            if times is not None:
+                raise TrajectoryRefused("times: not with blend (a blended path is one motion, timed as fast as "
+                                        "the limits allow); drop times, or send blend=false to reach each "
+                                        "waypoint at its time")
+            return self.blended_segment(start, waypoints)
         segs = self._approach(start, waypoints[0])
         at = 0  # the waypoint the path has reached
         for i in range(1, len(waypoints)):
@@ -316,6 +329,47 @@ class TrajectoryPlanner:
             segs.append(_Segment(_densify_line(pts[0], pts[1]), duration, label=label))
             at = i
         return self._anchored(segs)
+
+    def blended_segment(self, start: np.ndarray, waypoints: np.ndarray) -> list[_Segment]:
+        """One segment from rest at ``start`` through every waypoint to rest at the last: a cubic spline
+        in joint space by chord length (as a dense path's), so the arm passes through the inner
+        waypoints (and the first, if it rests elsewhere) without stopping. The spline can overshoot
+        between waypoints: one that leaves the joint ranges or the held configuration is refused,
+        naming the two waypoints (another waypoint between them pulls it in; straight segments stay in)."""
+        self._start = np.array(start, dtype=float)
+        knots, names = [self._start], ["the start"]
+        for i, w in enumerate(np.asarray(waypoints, float)):
+            if _coincident(knots[-1], w):
+                continue  # (a repeated waypoint, or the first where the arm rests: one point)
+            knots.append(w)
+            names.append(f"joints[{i}]")
+        if len(knots) < 2:
+            return []
+        pts = np.array(knots)
+        label = "the blended path through joints[0.." + f"{len(waypoints) - 1}]"
+        if len(pts) == 2:
+            return [_Segment(_densify_line(pts[0], pts[1]), label=label)]
+        from scipy.interpolate import CubicSpline
+
+        chord = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        ss = np.concatenate([[0.0], np.cumsum(chord)])
+        spline = CubicSpline(ss, pts)  # the path _time_segment times (toppra's SplineInterpolator: not-a-knot)
+        u = np.linspace(0.0, 1.0, BLEND_CHECK_POINTS + 1)
+        # Points along every span, and every joint's turning points (where an overshoot peaks).
+        s_check = np.sort(np.concatenate([(ss[:-1, None] + u[None, :] * chord[:, None]).ravel(),
+                                          _turning_points(spline)]))
+        q = spline(s_check)
+        q_model = fanuc_deg_to_model_rad(q, self.profile.j23_factor)
+        outside = np.flatnonzero(~self.region.contains(q_model))
+        if outside.size:
+            i = int(outside[0])
+            k = min(int(np.searchsorted(ss, s_check[i], side="right")) - 1, len(chord) - 1)
+            raise TrajectoryRefused(
+                f"blend: the spline from {names[k]} to {names[k + 1]} overshoots at "
+                f"{100 * (s_check[i] - ss[k]) / chord[k]:.0f} % of the way, {np.round(q[i], 3).tolist()}, leaving "
+                f"the joint ranges or the held configuration {self.region.reference}: "
+                f"{self._outside_axes(q_model[i])}; add a waypoint between them, or send blend=false")
+        return [_Segment(pts, label=label)]
 
     def dense_segments(self, start: np.ndarray, rows: np.ndarray, what: str, *, recorded_pace: bool = True,
                        row_dt: float | None = None) -> list[_Segment]:
@@ -518,14 +572,16 @@ class TrajectoryPlanner:
         outside = np.flatnonzero(~self.region.contains(q))
         if outside.size:
             i = int(outside[0])
-            lo, hi = np.degrees(self.region.lower), np.degrees(self.region.upper)
-            qd = np.degrees(q[i])
-            axes = [f"J{a + 1}={qd[a]:.3f} (allowed {lo[a]:.1f}..{hi[a]:.1f})" for a in range(6)
-                    if not lo[a] <= qd[a] <= hi[a]]
             raise TrajectoryRefused(f"{what}[{i}]={np.round(rows[i], 3).tolist()} leaves the joint ranges or the held "
-                                    f"configuration {self.region.reference}: "
-                                    + (", ".join(axes) or "the wrist centre crosses the J1 axis")
-                                    + " (model convention, deg)")
+                                    f"configuration {self.region.reference}: {self._outside_axes(q[i])}")
+
+    def _outside_axes(self, q_model: np.ndarray) -> str:
+        """Which joints of ``q_model`` (rad) leave the region's ranges, or that the wrist centre crosses."""
+        lo, hi = np.degrees(self.region.lower), np.degrees(self.region.upper)
+        qd = np.degrees(q_model)
+        axes = [f"J{a + 1}={qd[a]:.3f} (allowed {lo[a]:.1f}..{hi[a]:.1f})" for a in range(6)
+                if not lo[a] <= qd[a] <= hi[a]]
+        return (", ".join(axes) or "the wrist centre crosses the J1 axis") + " (model convention, deg)"
 
     def _solve(self, goal: np.ndarray, seed: np.ndarray, kin: ArmKinematics | None = None) -> np.ndarray | None:
         kin = kin or self.kin
@@ -561,6 +617,20 @@ class TrajectoryPlanner:
 def _coincident(a: np.ndarray, b: np.ndarray) -> bool:
     """The same point to within COINCIDENT_DEG on every joint."""
     return bool(np.abs(np.asarray(b) - np.asarray(a)).max() <= COINCIDENT_DEG)
+
+
+def _turning_points(spline: Any) -> np.ndarray:
+    """The path parameters where a joint of a cubic spline (scipy's, per span t^3 t^2 t 1 coefficients)
+    turns: the roots of its derivative inside each span."""
+    c3, c2, c1 = spline.c[0], spline.c[1], spline.c[2]  # (spans, joints)
+    h = np.diff(spline.x)[:, None]
+    a, b = 3.0 * c3, 2.0 * c2
+    disc = np.sqrt(np.maximum(b * b - 4.0 * a * c1, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        quadratic = [(-b + disc) / (2.0 * a), (-b - disc) / (2.0 * a)]
+        t = np.stack([*(np.where(np.abs(a) > 1e-12, r, -c1 / b) for r in quadratic)])
+    ok = np.isfinite(t) & (t > 0.0) & (t < h)
+    return (spline.x[:-1][None, :, None] + t)[ok]  # type: ignore[no-any-return]
 
 
 def _densify_line(a: np.ndarray, b: np.ndarray) -> np.ndarray:

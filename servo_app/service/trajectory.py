@@ -46,6 +46,8 @@ class TrajectoryInput:
     # A CSV or a log (one row per interval): "recorded" replays no faster than it was recorded (times
     # speed_scale), "limits" as fast as the limits allow.
     pace: str = "recorded"
+    # Joint waypoints: one motion through them all, at rest only at the start and the last (not at each).
+    blend: bool = False
 
 
 def _rows(name: str, values: Sequence[Sequence[float]], width: int) -> np.ndarray:
@@ -216,6 +218,13 @@ def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory,
     path: Path | None = None
     row_dt: float | None = None  # a log's own interval (a CSV: one row per stream interval)
     fmt = "joints"
+    if req.blend and req.joints is None:
+        raise InvalidRequest("blend=true: only with joints (a joint spline through the waypoints); poses are "
+                             "straight TCP lines and a CSV or a log one dense path already: send their joints, "
+                             "or drop blend")
+    if req.blend and req.times is not None:
+        raise InvalidRequest("times: not with blend=true (a blended path is one motion, timed as fast as the "
+                             "limits allow); drop times, or send blend=false to reach each waypoint at its time")
     if req.joints is not None:
         joints = _rows("joints", req.joints, dof)
         times = _times(req.times, len(joints))
@@ -260,8 +269,8 @@ def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory,
                                            tool_xyzwpr=None if tool.is_flange else tool.xyzwpr)
     try:
         if joints is not None:
-            segments = planner.joint_segments(q_now, joints, times)
-            label = f"{len(joints)} joint waypoints"
+            segments = planner.joint_segments(q_now, joints, times, blend=req.blend)
+            label = f"{len(joints)} joint waypoints" + (", blended" if req.blend else "")
         elif poses is not None:
             segments, _ = planner.cartesian_segments(q_now, poses, times)
             label = f"{len(poses)} poses"
