@@ -150,6 +150,11 @@ class RobotBackend(ABC):
         """The catalogue entry for a controller alarm code, or None."""
         return None
 
+    def flange_speed_cap(self, options: ProcessOptions, tables: Any = None) -> tuple[float, str] | None:
+        """The flange-speed cap in force (mm/s) and where it comes from, for ``GET /api/limits`` and
+        ``GET /api/robot``; ``tables`` as for :meth:`twist_flange_cap`. None: the backend has none."""
+        return None
+
     def twist_flange_cap(self, options: ProcessOptions, tables: Any = None) -> float | None:
         """The flange speed (mm/s) above which the servo process refuses a twist (the TCP's speed plus
         the swing of a turn about the tool), for the input feeds to refuse at the door; None: it

@@ -56,3 +56,39 @@ def test_a_twist_over_the_controllers_published_cap_is_refused(tmp_path: Path, c
         rig.wait(lambda s: s["state"] == "stopped", 5.0, "the feed's jog stale: stopped")
         # No alarm (the controller's warnings, MOTN-614 "close to the jerk limit", stop nothing).
         assert [a["code"] for a in rig.state()["alarms"] if not a["warning"]] == [], rig.state()["alarms"]
+
+
+PROFILE_VMAX = 4000.0  # lrmate200id's profile $MAX_SPD
+
+
+@pytest.mark.parametrize(("configured", "before", "after", "source"), [
+    (None, PROFILE_VMAX, CONTROLLER_VMAX, "the controller's $MAX_SPD"),
+    (1000.0, 1000.0, CONTROLLER_VMAX, "holds the configured flange_speed_cap of 1000 mm/s to it"),
+    (200.0, 200.0, 200.0, "the configured flange_speed_cap (below the controller's $MAX_SPD"),
+])
+def test_limits_and_robot_show_the_flange_cap_in_force(tmp_path: Path, configured: float | None, before: float,
+                                                        after: float, source: str) -> None:
+    """GET /api/limits and /api/robot give the flange-speed cap the service holds the arm to and
+    where it comes from: before a start the configured cap within the profile's $MAX_SPD, after it
+    the tighter of the configured cap and the controller's $MAX_SPD; a twist over its share is
+    refused naming the same number. Before: both showed the profile's 4000 mm/s whatever held."""
+    tables = replace(default_tables(load_profile(MODEL)), vmax=CONTROLLER_VMAX)
+    with running_rig(tmp_path / "var", model=MODEL, flange_speed_cap=configured,
+                     sim_options={"tables": tables}) as rig:
+        shown = {path: rig.http.get(path).json() for path in ("/api/limits", "/api/robot")}
+        h = rig.lease()
+        rig.start_streaming(h)
+        deadline = time.monotonic() + 5.0  # the tables' event reaches the service just after the start
+        while rig.http.get("/api/limits").json().get("max_flange_speed_mm_s") != after and time.monotonic() < deadline:
+            time.sleep(0.01)
+        for path, got in shown.items():
+            assert (got.get("max_flange_speed_mm_s"), rig.http.get(path).json().get("max_flange_speed_mm_s")) \
+                == (before, after), path
+        for path, got in shown.items():
+            assert "profile's $MAX_SPD" in got.get("max_flange_speed_source", ""), (path, got)
+            now = rig.http.get(path).json()
+            assert source in now["max_flange_speed_source"], (path, now["max_flange_speed_source"])
+        share = 0.8 * after  # ServoSettings.flange_speed_margin
+        r = rig.post("/api/jog", h, {"linear": [0.0, share + 10.0, 0.0], "angular": [0.0, 0.0, 0.0],
+                                     "frame": "base"}, expect=422)
+        assert f"above the flange-speed cap {share:.0f} mm/s" in r.json()["detail"], r.text

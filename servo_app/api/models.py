@@ -248,7 +248,10 @@ class LimitsView(BaseModel):
     vel_deg_s: list[float] | None = None
     acc_deg_s2: list[float] | None = None
     jerk_deg_s3: list[float] | None = None
-    max_flange_speed_mm_s: float | None = None
+    max_flange_speed_mm_s: float | None = Field(
+        None, description="FANUC: the flange-speed cap in force, the configured cap held to the controller's $MAX_SPD "
+        "(the profile's before a start has read the controller's tables); twists may use 0.8 of it")
+    max_flange_speed_source: str | None = Field(None, description="FANUC: where max_flange_speed_mm_s comes from")
     io_allow: dict[str, list[int]] | None = Field(None, description="I/O type -> [first, last] point allowed")
     tool: str | None = Field(None, description="the active tool, whose payload the tables are taken at")
     payload_kg: float | None = Field(None, description="the active tool's payload (null: the maximum)")
@@ -316,7 +319,10 @@ class RobotView(BaseModel):
     joint_min_deg: list[float] | None = None
     joint_max_deg: list[float] | None = None
     vel_limit_deg_s: list[float] | None = None
-    max_flange_speed_mm_s: float | None = None
+    max_flange_speed_mm_s: float | None = Field(
+        None, description="FANUC: the flange-speed cap in force, the configured cap held to the controller's $MAX_SPD "
+        "(the profile's before a start has read the controller's tables); twists may use 0.8 of it")
+    max_flange_speed_source: str | None = Field(None, description="FANUC: where max_flange_speed_mm_s comes from")
     q_fanuc_deg: list[float] | None = None
     q_model_deg: list[float] | None = None
     tcp: TcpPoint | None = Field(None, description="the active tool's TCP, drawn from the flange (FANUC)")

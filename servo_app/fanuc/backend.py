@@ -83,17 +83,26 @@ class FanucBackend(RobotBackend):
             "vel_deg_s": [float(v) for v in vel],
             "acc_deg_s2": [float(v) for v in acc],
             "jerk_deg_s3": [float(v) for v in jerk],
-            "max_flange_speed_mm_s": tables.vmax,
             # Only what check_io lets through: a type with fewer points than an access covers has none.
             "io_allow": {t: [1, n] for t, n in self._io_allow.items() if n >= IO_SPAN},
         }
 
-    def twist_flange_cap(self, options: ProcessOptions, tables: LimitTables | None = None) -> float | None:
-        # As the servo cycle checks a twist (StreamSupervisor._flange_cap): its share of the configured
-        # cap, never above the $MAX_SPD of the controller's tables once a start has read them, else of
-        # the profile's.
+    def flange_speed_cap(self, options: ProcessOptions, tables: LimitTables | None = None) -> tuple[float, str]:
+        # As the servo cycle holds it (LimitTables.cap): the configured cap, never above the $MAX_SPD
+        # of the controller's tables once a start has read them, else of the profile's.
+        vmax_of = ("the controller's $MAX_SPD (its limit tables, read at the last start)" if tables is not None
+                   else f"the profile's $MAX_SPD ({self.profile.name}; the controller's tables are read at start)")
         tables = tables if tables is not None else default_tables(self.profile)
-        return float(tables.cap(options.flange_speed_cap) * ServoSettings.flange_speed_margin)
+        configured, cap = options.flange_speed_cap, tables.cap(options.flange_speed_cap)
+        if not configured:
+            return cap, vmax_of
+        if configured < tables.vmax:
+            return cap, f"the configured flange_speed_cap (below {vmax_of}, {tables.vmax:g} mm/s)"
+        return cap, f"{vmax_of}, which holds the configured flange_speed_cap of {configured:g} mm/s to it"
+
+    def twist_flange_cap(self, options: ProcessOptions, tables: LimitTables | None = None) -> float | None:
+        # As the servo cycle checks a twist (StreamSupervisor._flange_cap): its share of the cap in force.
+        return float(self.flange_speed_cap(options, tables)[0] * ServoSettings.flange_speed_margin)
 
     def alarm(self, code: str) -> AlarmInfo | None:
         spec = ALARMS.get(code)

@@ -137,6 +137,15 @@ class StateViews:
         out = svc.backend.limits(svc.stream.state() if svc.stream else {}, svc.options)
         tool = svc.tools.active  # its payload picks the tables' interpolation (Appendix B)
         out.update(tool=tool.name, payload_kg=tool.payload_kg)
+        return self._with_flange_cap(out)
+
+    def _with_flange_cap(self, out: dict[str, Any]) -> dict[str, Any]:
+        """The flange-speed cap the servo, the feeds and the planner hold (the controller's $MAX_SPD
+        where tighter than the configured cap), not the profile's: a client plans by it."""
+        svc = self.service
+        cap = svc.backend.flange_speed_cap(svc.options, svc.controller_tables)
+        if cap is not None:
+            out.update(max_flange_speed_mm_s=float(cap[0]), max_flange_speed_source=cap[1])
         return out
 
     def robot(self) -> dict[str, Any]:
@@ -146,7 +155,7 @@ class StateViews:
         q = st.get("q_servo") if st.get("status_received") else st.get("q_cmd")
         view = svc.backend.robot_view(q or [0.0] * 6)
         view["cartesian_jog"] = svc.backend.cartesian_jog
-        return svc.tools.decorate_robot(view)  # the active tool's TCP, drawn from the flange
+        return self._with_flange_cap(svc.tools.decorate_robot(view))  # the active tool's TCP, drawn from the flange
 
     def session_logs(self) -> list[dict[str, Any]]:
         d = self.service.cfg.log_dir
