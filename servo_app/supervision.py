@@ -128,7 +128,9 @@ class SupervisorLog:
     """What happened, for the parent process and the API (fault texts, warnings, stops)."""
 
     transitions: list[tuple[float, str, str, str]] = field(default_factory=list)  # (t, from, to, event)
-    warnings: list[dict[str, Any]] = field(default_factory=list)
+    warnings: list[dict[str, Any]] = field(default_factory=list)  # the last 50, across resets
+    # Those active now: since the last reset or new stream, as the service's active alarms are.
+    active_warnings: list[dict[str, Any]] = field(default_factory=list)
     stops: dict[str, int] = field(default_factory=dict)
 
 
@@ -284,6 +286,8 @@ class SupervisorBase:
         if state != before:
             self.log.transitions.append((now, before.mode.value, state.mode.value, type(event).__name__))
             self.changed = True
+            if state.mode is Mode.STREAMING and before.mode not in STREAM_ALIVE:  # a new stream, not a resume
+                self.log.active_warnings.clear()
         self.state = state
         for action in t.actions:
             self._do(action, now)
@@ -317,8 +321,10 @@ class SupervisorBase:
         # HoldPosition: the motion stage holds by itself once at rest.
 
     def _warn(self, code: str, message: str, now: float) -> None:
-        self.log.warnings.append({"code": code, "message": message, "t": now})
-        del self.log.warnings[:-50]
+        item = {"code": code, "message": message, "t": now}
+        for kept in (self.log.warnings, self.log.active_warnings):
+            kept.append(item)
+            del kept[:-50]
         self.warned = True
 
     def _request(self, event: Event, now: float) -> None:
@@ -384,6 +390,11 @@ class SupervisorBase:
     def _on_reset(self, req: msg.Reset, now: float) -> None:
         was_fault = self.state.mode == Mode.FAULT
         self._request(ResetRequested(), now)
+        # Taken (a refused reset changes nothing): it acknowledges the warnings too, as the service's
+        # active alarms; a view that changes no mode (a fast stop's) is published for it all the same.
+        if self.log.active_warnings:
+            self.log.active_warnings.clear()
+            self.changed = True
         if was_fault:
             self._link_recover(now)
 
@@ -547,7 +558,8 @@ class SupervisorBase:
                                                  "cause": fault.cause, "remedy": fault.remedy,
                                                  "during": fault.during.value if fault.during else None},
             "stops": dict(self.log.stops),
-            "warnings": self.log.warnings[-10:],
+            "warnings": self.log.active_warnings[-10:],
+            "warning_history": self.log.warnings[-20:],
             "start_pending": self.start_pending,
             "start_error": self.start_error or None,
             "not_ready": not_ready(st),

@@ -131,6 +131,43 @@ def test_a_controller_warning_reaches_the_safety_views_warnings_while_the_stream
         assert s["warnings"][0]["message"] == first["message"], s["warnings"]
 
 
+def warned(rig: Rig, h: dict[str, str]) -> dict[str, Any]:
+    """A joint target that posts MOTN-612/613/614 ($WARN_LIM at 5 %), run to rest: the state once its
+    warnings are active in both lists and the arm settled (so that no more come)."""
+    q = rig.state()["q_cmd"][:6]
+    rig.post("/api/target", h, json={"joints": [q[0] + 20.0, *q[1:]], "speed_scale": 0.5})
+    rig.wait(lambda s: bool(s["alarms"]) and bool(s["warnings"]), 10.0, "warnings listed")
+    rig.wait_at_rest_settled(10.0)
+    return rig.wait(lambda s: set(codes(s["warnings"])) == set(codes(s["alarms"])), 5.0, "both lists alike")
+
+
+def test_a_reset_and_a_new_stream_clear_the_active_warnings_their_history_keeps_them(tmp_path: Path) -> None:
+    """The state's ``warnings`` are those active now, as ``alarms`` are: a reset (here after a fast stop)
+    or a new stream clears them, and ``warning_history`` keeps them. Old code: ``warnings`` (the servo
+    process's last ten) was never cleared, so the console listed a warning acknowledged long ago as
+    active beside an empty ``alarms``."""
+    with running_rig(tmp_path, sim_options={"config": ControllerConfig(warn_lim_pct=5.0)}) as rig:
+        h = rig.streaming()
+        first = warned(rig, h)["warnings"]
+        rig.post("/api/session/stop", h, {"fast": True})
+        rig.wait(lambda s: s["state"] == "stopped" and s["at_rest"], 5.0, "fast stop")
+        rig.post("/api/reset", h)  # acknowledges the stop and the warnings
+        s = rig.wait(lambda s: not s["stop_fast"], 5.0, "the reset's safety view")
+        assert (s["alarms"], s["warnings"]) == ([], []), (s["alarms"], s["warnings"])
+        assert s["warning_history"][-len(first):] == first, s["warning_history"]
+        assert set(codes(first)) <= set(codes(s["alarm_history"])), s["alarm_history"]
+
+        rig.post("/api/session/resume", h)
+        second = warned(rig, h)["warnings"]
+        rig.end_and_wait(h)
+        s = rig.state()
+        assert s["warnings"] == second, "an ended stream's warnings stay until the next one"
+        rig.start_streaming(h)
+        s = rig.wait(lambda s: s["alarms"] == [], 5.0, "the new stream's empty alarm list")
+        assert s["warnings"] == [], s["warnings"]
+        assert s["warning_history"][-len(second):] == second, s["warning_history"]
+
+
 # ----------------------------------------------------------------------------- a consistent view
 
 

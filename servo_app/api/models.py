@@ -511,7 +511,10 @@ class StateView(BaseModel):
     shutdown: bool | None = Field(None, description="a signal asked the servo process to exit")
     fault: FaultView | None = Field(None, description="set in the fault state")
     stops: dict[str, int] | None = Field(None, description="the servo process's stops by reason")
-    warnings: list[WarningView] | None = Field(None, description="recent warnings")
+    warnings: list[WarningView] | None = Field(None, description="the servo process's active warnings (the last "
+                                                                 "10): since the last reset or new stream")
+    warning_history: list[WarningView] | None = Field(None, description="the servo process's last 20 warnings, "
+                                                                        "kept across resets")
     start_pending: bool | None = Field(None, description="a start waits for the controller (until the stream runs)")
     start_error: str | None = Field(None, description="why the last start was given up")
     not_ready: str | None = Field(None, description="why a start would wait now: the controller's status "
