@@ -376,6 +376,7 @@ class ServoProcessHandle:
         self._send_lock = threading.Lock()
         self._reader: threading.Thread | None = None
         self._closing = False
+        self._given_up: tuple[str, str] | None = None  # give_up's (why, next step): no reply will come
         self._quiet_version = -1  # the state's version as quiet_for last saw it, and since when
         self._quiet_since = 0.0
 
@@ -462,6 +463,8 @@ class ServoProcessHandle:
         came after the wait (a stall between the two), goes to ``on_late`` (from the pipe's reader)."""
         if not self.alive:
             raise TimeoutError(f"the {self.name} is not running ({self.exit_cause})")
+        if self._given_up is not None:
+            raise TimeoutError(self._given_up_text(req))
         deadline = time.monotonic() + timeout
         with self._send_lock:
             self._next_id += 1
@@ -478,6 +481,10 @@ class ServoProcessHandle:
             try:
                 while rid not in self._replies:
                     left = deadline - time.monotonic()
+                    if self._given_up is not None:
+                        if on_late is not None:
+                            self._late[rid] = on_late
+                        raise TimeoutError(self._given_up_text(req))
                     if not self.alive:
                         raise TimeoutError(f"the {self.name} {self.exit_cause} before answering {type(req).__name__}")
                     if left <= 0:
@@ -492,6 +499,20 @@ class ServoProcessHandle:
         if not reply.ok:
             raise (InvalidRequest if reply.invalid else CommandRejected)(reply.error)
         return reply.result
+
+    def give_up(self, why: str, next_step: str) -> None:
+        """No reply will come (the owner found the process stalled and ends it): every request waiting
+        for one, and any asked from now on, raises TimeoutError at once with ``why`` and ``next_step``,
+        not when its own timeout runs out. (What a waiting request's caller was told is unchanged:
+        it was not answered; with ``on_late`` a reply that still comes goes there.)"""
+        with self._cv:
+            self._given_up = (why, next_step)
+            self._cv.notify_all()
+
+    def _given_up_text(self, req: msg.Request) -> str:
+        assert self._given_up is not None
+        why, next_step = self._given_up
+        return f"the {self.name} {why} and did not answer {type(req).__name__}; {next_step}"
 
     def last_event(self, kind: type[msg.Event]) -> msg.Event | None:
         with self._cv:

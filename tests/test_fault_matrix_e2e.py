@@ -469,6 +469,56 @@ def test_servo_process_stalled_is_ended_and_replaced(tmp_path: Path, reset_at: s
     no_children_left()
 
 
+def test_a_request_to_a_stalled_servo_process_is_answered_when_the_stall_is_named(tmp_path: Path) -> None:
+    """SIGSTOP to the servo process at rest; jogs come at once and halfway to the stall time. Each is
+    answered 503 as the watchdog names the stall (the request's own timeout, 5 s here, is not what
+    answers), naming the stall and the way out (reset); the arm did not move: after the reset and a
+    new stream it is where it stopped. Old code: each waited until the process the watchdog ended
+    died of its SIGKILL, the stall time and a second's grace later (2.03 s after the stop), for 'the
+    servo process ended by signal 9 (SIGKILL) before answering Jog': neither why nor what to do."""
+    with running_rig(tmp_path, request_timeout_s=5.0) as rig:
+        stall_s = rig.service.cfg.servo_stall_s
+        h = rig.lease()
+        rig.start_streaming(h)
+        before = rig.wait_at_rest_settled(10.0)["q_servo"]
+        pid = rig.service.stream.pid  # type: ignore[union-attr]
+        assert pid is not None
+        answers: list[tuple[float, httpx.Response]] = []
+
+        def jog(after_s: float) -> None:
+            time.sleep(after_s)
+            with httpx.Client(base_url=rig.base_url, timeout=10.0) as c:
+                r = c.post("/api/jog", json={"joints": JOG, "hold_ms": 300}, headers=h)
+            answers.append((time.monotonic() - t_stop, r))
+
+        t_stop = time.monotonic()
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            jogs = [threading.Thread(target=jog, args=(t,), daemon=True) for t in (0.0, stall_s / 2)]
+            for t in jogs:
+                t.start()
+            for t in jogs:
+                t.join(15.0)
+            assert len(answers) == 2
+            for took, r in answers:
+                assert r.status_code == 503, (took, r.text)
+                detail = r.json()["detail"]
+                assert detail.startswith("the servo process stalled: it ran no cycle for"), (took, detail)
+                assert "did not answer Jog" in detail and detail.endswith("POST /api/reset"), detail
+                assert stall_s <= took < stall_s + 0.8, (took, detail)  # (old code: 2.03 s)
+            assert eventually(lambda: not alive(pid), timeout=5.0), "the stalled process was not ended"
+        finally:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGCONT)
+        rig.post("/api/reset", h)
+        rig.wait_state("disconnected", "connected", "ready", timeout=15)
+        rig.start_streaming(h)
+        after = rig.wait_at_rest_settled(10.0)["q_servo"]
+        assert np.allclose(after, before, atol=1e-3), (before, after)
+        assert rig.sim_alarms() == ["MOTN-603"]  # the starved stream's, no other
+    no_children_left()
+
+
 # ------------------------------------------------------------------------------------ the main process
 
 

@@ -235,14 +235,18 @@ class ServoService:
 
     def _end_stalled(self, stream: ServoProcessHandle, quiet_s: float) -> None:
         # The stall time too: which setting made this a fault (servo-app run --servo-stall-s).
-        message = (f"servo process stalled: it ran no cycle for {quiet_s:.1f} s "
-                   f"(stall time {self.cfg.servo_stall_s:g} s, servo-app run --servo-stall-s)")
+        why = (f"stalled: it ran no cycle for {quiet_s:.1f} s "
+               f"(stall time {self.cfg.servo_stall_s:g} s, servo-app run --servo-stall-s)")
+        message = f"servo process {why}"
         log.warning("%s: ending it (SIGTERM, then SIGKILL)", message)
         # The fault first: the state names it, and requests are refused with it, while the process is ended.
         self._servo_gone(message, "The process that streams to the robot stopped running its cycle (stopped by "
                                   "a signal, or stuck); the controller got no further commands and stopped the "
                                   "arm itself. The service ended that process (SIGTERM, then SIGKILL), so it "
                                   "cannot send the controller stale commands if it runs again.")
+        # The requests waiting for it are answered now (503, the stall and the way out), not when the
+        # process dies of the SIGKILL a second later ("ended by signal 9": neither why nor what to do).
+        stream.give_up(why, "it is being ended; reset the fault to start a new servo process: POST /api/reset")
         stream.end_now(grace_s=1.0)
 
     def _servo_gone(self, message: str, cause: str) -> None:
