@@ -71,3 +71,9 @@ def stop_path(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, vmax: np.ndarra
         raise error
     times = np.linspace(traj.duration / samples, traj.duration, samples)
     return np.array([traj.at_time(float(t))[0] for t in times])
+
+
+def ease_out(speed: float, acc: float, jerk: float) -> Trajectory:
+    """A jerk-limited fall of one speed share to zero (its velocity ``at_time(t)[1][0]``)."""
+    return _plan_stop(np.zeros(1), np.array([speed]), np.zeros(1), np.array([max(speed, 1.0)]),
+                      np.array([acc]), np.array([jerk]), Synchronization.No)
