@@ -338,9 +338,12 @@ class ZenohInterface:
         with self._controlling(client, self._topics_lease_id, kind) as controller:
             if kind == "resume":
                 return session_routes.session_resume(controller, self.api.calls)
+            topic = next(t for t, (_, k) in self.ROS_COMMANDS.items() if k == kind)
             if kind in ("twist", "joint_jog"):
-                return self._jog(controller, self._jog_body(kind, message), arrived_ns)
-            return self._target(controller, self._target_body(kind, message))
+                body, said = self._jog_body(kind, message)
+                return as_sent(topic, said, lambda: self._jog(controller, body, arrived_ns))
+            body, said = self._target_body(kind, message)
+            return as_sent(topic, said, lambda: self._target(controller, body))
 
     def _run_json(self, kind: str, payload: bytes, arrived_ns: int | None = None) -> Any:
         try:
@@ -422,14 +425,52 @@ class ZenohInterface:
             raise Refused(409, f"stale hold-to-run command: stamped {age_ms:.0f} ms ago, past its hold time of "
                                f"{hold_ms:.0f} ms; send it fresh (clocks synchronised) to keep moving")
 
-    def _jog_body(self, kind: str, m: Any) -> dict[str, Any]:
+    def _joints_said(self, array: str, names: list[str], sent: np.ndarray, v: np.ndarray, service: list[float],
+                     rate: bool) -> Said:
+        """How a ROS command gave the REST body's ``joints``: ``array`` (``velocities``, ``position``)
+        as sent, with ``names`` (or none: in order), ``v`` per axis and ``service`` converted from it.
+        FANUC's J3 is joint_3 less joint_2 (J3 from the horizontal): its refusal names both as sent."""
+        per_s = "/s" if rate else ""
+        linear = [i < self.n and bool(self.linear[i]) for i in range(len(v))]  # (a count REST refuses too)
+        ros_units = [("m" if lin else "rad") + per_s for lin in linear] or ["rad" + per_s]
+        units = [("mm" if lin else "deg") + per_s for lin in linear] or ["deg" + per_s]
+
+        def label(i: int) -> str:
+            name = f"joint_{i + 1}"
+            if not names:
+                return f"{array}[{i}] ({name})"
+            return f"{array}[{names.index(name)}] ({name})" if name in names else f"{name} (not named)"
+
+        coupled = self.j23 != 0.0 and len(v) >= 3 and not self.linear[:3].any()
+        coupling = "joint_3 - joint_2" if self.j23 == 1.0 else f"joint_3 - {self.j23:g} * joint_2"
+        parts = [f"{label(i)} = {v[i]:g} {ros_units[i]} (joints[{i}] = {service[i]:g} {units[i]})"
+                 for i in range(len(v))]
+        if coupled:
+            parts[2] = (f"{label(2)} = {v[2]:g} {ros_units[2]} with {label(1)} = {v[1]:g} {ros_units[1]} "
+                        f"(joints[2], J3 = {service[2]:g} {units[2]} in FANUC's convention: {coupling}, J3 "
+                        "measured from the horizontal)")
+        one = len(set(ros_units)) == 1
+        whole = (f"{array} = {[float(x) for x in sent]} {ros_units[0] if one else tuple(ros_units)}"
+                 + (f" for {names}" if names else "") + f" (joints = {[round(x, 3) for x in service]} "
+                 + (units[0] if one else str(tuple(units)))
+                 + (f" in FANUC's convention: J3 = {coupling}" if coupled else "") + ")")
+        return Said(whole, tuple(parts), tuple(units))
+
+    def _jog_body(self, kind: str, m: Any) -> tuple[dict[str, Any], Callable[[], dict[str, Said]]]:
+        """The REST body of a twist or JointJog, and how the sender gave each of its fields (told only
+        for a refusal: a jog comes up to 100 times a second)."""
         hold_ms = 200.0
         if kind == "twist":
             self._check_fresh(m.header, hold_ms)
             frame = FRAMES.get(m.header.frame_id, m.header.frame_id)
             lin, ang = m.twist.linear, m.twist.angular
-            return {"frame": frame, "linear": [lin.x * 1000.0, lin.y * 1000.0, lin.z * 1000.0],
+            body = {"frame": frame, "linear": [lin.x * 1000.0, lin.y * 1000.0, lin.z * 1000.0],
                     "angular": [math.degrees(ang.x), math.degrees(ang.y), math.degrees(ang.z)]}
+            return body, lambda: {"frame": Said(f"header.frame_id = {m.header.frame_id!r}"),
+                                  "linear": Said.vector("twist.linear", [lin.x, lin.y, lin.z], "m/s", "linear",
+                                                        body["linear"], "mm/s"),
+                                  "angular": Said.vector("twist.angular", [ang.x, ang.y, ang.z], "rad/s",
+                                                         "angular", body["angular"], "deg/s")}
         if len(m.displacements) and not len(m.velocities):
             raise Refused(422, "delta_joint_cmds: displacements are not supported; send velocities (rad/s, m/s)")
         if not m.duration >= 0:  # NaN or negative: both were taken as no duration, the default hold
@@ -438,10 +479,15 @@ class ZenohInterface:
         if m.duration > 0:
             hold_ms = m.duration * 1000.0
         self._check_fresh(m.header, hold_ms)
-        v = self._by_name(list(m.joint_names), np.asarray(m.velocities, float), "delta_joint_cmds")
-        return {"joints": self.joints_to_service(v), "hold_ms": hold_ms}
+        names = list(m.joint_names)
+        v = self._by_name(names, np.asarray(m.velocities, float), "delta_joint_cmds")
+        body = {"joints": self.joints_to_service(v), "hold_ms": hold_ms}
+        return body, lambda: {
+            "joints": self._joints_said("velocities", names, m.velocities, v, body["joints"], rate=True),
+            "hold_ms": Said(f"duration = {m.duration:g} s (hold_ms = {hold_ms:g})", units=("ms",))}
 
-    def _target_body(self, kind: str, m: Any) -> dict[str, Any]:
+    def _target_body(self, kind: str, m: Any) -> tuple[dict[str, Any], Callable[[], dict[str, Said]]]:
+        """The REST body of a pose or joint target, and how the sender gave each of its fields."""
         from servo_app.robots.conventions import matrix_to_xyzwpr
 
         if kind == "pose_target":
@@ -455,9 +501,16 @@ class ZenohInterface:
                 pose = ros.pose_matrix(m.pose)
             except ValueError as exc:
                 raise Refused(422, f"pose_target: {exc}") from None
-            return {"xyzwpr": [float(v) for v in matrix_to_xyzwpr(pose)]}
-        q = self._by_name(list(m.name), np.asarray(m.position, float), "joint_target", every=True)
-        return {"joints": self.joints_to_service(q)}
+            xyzwpr = [float(v) for v in matrix_to_xyzwpr(pose)]
+            p, o = m.pose.position, m.pose.orientation
+            return {"xyzwpr": xyzwpr}, lambda: {"xyzwpr": Said(
+                f"pose.position = ({p.x:g}, {p.y:g}, {p.z:g}) m, pose.orientation = ({o.x:g}, {o.y:g}, {o.z:g}, "
+                f"{o.w:g}) (xyzwpr = {[round(v, 3) for v in xyzwpr]} mm, deg)")}
+        names = list(m.name)
+        q = self._by_name(names, np.asarray(m.position, float), "joint_target", every=True)
+        body = {"joints": self.joints_to_service(q)}
+        return body, lambda: {"joints": self._joints_said("position", names, m.position, q, body["joints"],
+                                                          rate=False)}
 
     # ----------------------------------------------------------------------------------- lease
     def _on_lease_query(self, query: Any) -> None:
@@ -596,6 +649,106 @@ class _Queued:
     payload: bytes
     attachment: bytes | None
     arrived_ns: int  # time.monotonic_ns()
+
+
+@dataclass(frozen=True)
+class Said:
+    """How a ROS command gave one field of the REST body it became, for that field's refusal: the
+    REST layer's words name the converted value (1500 mm/s for a sent 1.5 m/s, FANUC's coupled J3)."""
+
+    whole: str  # the field as sent, then as converted
+    parts: tuple[str, ...] = ()  # per component, the same
+    units: tuple[str, ...] = ()  # per component: the service's unit (a limit's value in the sender's units)
+
+    @staticmethod
+    def vector(ros_field: str, sent: list[float], ros_unit: str, field: str, service: list[float],
+               unit: str) -> Said:
+        parts = tuple(f"{ros_field}.{axis} = {v:g} {ros_unit} ({field}[{i}] = {x:g} {unit})"
+                      for i, (axis, v, x) in enumerate(zip("xyz", sent, service, strict=True)))
+        return Said(f"{ros_field} = ({', '.join(f'{v:g}' for v in sent)}) {ros_unit} "
+                     f"({field} = [{', '.join(f'{x:g}' for x in service)}] {unit})", parts, (unit,) * len(parts))
+
+
+# Service units -> the ROS sender's: (unit, factor)
+ROS_UNITS = {"mm/s": ("m/s", 1e-3), "deg/s": ("rad/s", math.pi / 180.0), "mm": ("m", 1e-3),
+             "deg": ("rad", math.pi / 180.0), "ms": ("s", 1e-3)}
+_NUMBER = r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?"
+# The REST field a refusal is about: its first mention (``linear[0]=``, ``joints has``, ``linear speed``);
+# the servo process's commands call the joints ``velocity`` and ``position``.
+_FIELD_RE = re.compile(r"\b(linear|angular|joints|velocity|position|hold_ms|frame|xyzwpr)(?:\[(\d+)\])?(?=[= ]|$)")
+_FIELD_ALIASES = {"velocity": "joints", "position": "joints"}
+# A value with its unit (not the echo of the value refused, ``joints[2]=572.958 deg/s``: the sender's
+# value is named as sent), and a range ``outside [-4000.0, 4000.0]`` in the field's unit.
+_QUANTITY_RE = re.compile(rf"(?<![=\w.\[-])({_NUMBER}) (mm/s|deg/s|mm|deg|ms)\b")
+_RANGE_RE = re.compile(rf"((?:outside|range) \[({_NUMBER}), ({_NUMBER})\])")
+
+
+def _in_ros_units(value: float, unit: str) -> str:
+    ros_unit, factor = ROS_UNITS[unit]
+    return f"{value * factor:.4g} {ros_unit}"
+
+
+def _limits_in_ros_units(text: str, unit: str | None) -> str:
+    """Each value with its unit in ``text`` followed by the same in the ROS sender's unit, and a range
+    (in ``unit``, the field's service unit) too."""
+    text = _QUANTITY_RE.sub(lambda q: f"{q.group(0)} ({_in_ros_units(float(q.group(1)), q.group(2))})", text)
+    if unit not in ROS_UNITS:
+        return text
+    ros_unit, factor = ROS_UNITS[unit]
+    return _RANGE_RE.sub(lambda r: f"{r.group(1)} ({float(r.group(2)) * factor:.4g} to "
+                                   f"{float(r.group(3)) * factor:.4g} {ros_unit})", text)
+
+
+def _refused_field(error: Any) -> tuple[str, str | None, int | None]:
+    """A refusal's text, the REST field it is about and the component, if it names them: a validation
+    error's ``loc`` says, else the text's first field."""
+    loc: list[Any] = list(error.get("loc") or []) if isinstance(error, dict) else []
+    text = (str(error.get("msg", error)) if isinstance(error, dict) else str(error)).removeprefix("Value error, ")
+    m = _FIELD_RE.search(text)
+    named = _FIELD_ALIASES.get(m.group(1), m.group(1)) if m else None
+    field = next((x for x in reversed(loc) if isinstance(x, str)), None) or named
+    field = _FIELD_ALIASES.get(field or "", field)
+    index = next((x for x in reversed(loc) if isinstance(x, int)), None)
+    if index is None and m is not None and m.group(2) is not None and named == field:
+        index = int(m.group(2))
+    return text, field, index
+
+
+def refusal_as_sent(topic: str, said: dict[str, Said], detail: Any) -> str:
+    """A REST refusal (its text, or its validation error list) of a ROS command, in the sender's terms:
+    each error after the field it is about as the sender gave it (its value and unit as sent, then as
+    converted), and every limit in it also in the sender's units."""
+    texts = []
+    for error in detail if isinstance(detail, list) else [detail]:
+        text, field, index = _refused_field(error)
+        s = said.get(field or "")
+        if s is None:  # not a field the sender gave: the whole command, as sent
+            what, unit = "; ".join(x.whole for x in said.values()), None
+        elif index is not None and index < len(s.parts):
+            what, unit = s.parts[index], s.units[index]
+        else:
+            what, unit = s.whole, (s.units[0] if s.units else None)
+        ctx = error.get("ctx") if isinstance(error, dict) else None
+        bound = next((ctx[k] for k in ("le", "ge", "lt", "gt") if k in ctx), None) if isinstance(ctx, dict) else None
+        if isinstance(bound, int | float) and unit in ROS_UNITS:  # pydantic's bound has no unit: the field's
+            text += f" ({_in_ros_units(float(bound), unit)})"
+        texts.append(f"{what}: {_limits_in_ros_units(text, unit)}")
+    return f"{topic}: " + "; ".join(texts)
+
+
+def as_sent(topic: str, said: Callable[[], dict[str, Said]], run: Callable[[], Any]) -> Any:
+    """``run()`` (a ROS command through the REST layer's functions), its refusal of the values (422)
+    in the sender's terms (``refusal_as_sent``); the state's refusals (409, ...) are REST's words as they are."""
+    try:
+        return run()
+    except Refused as exc:
+        if exc.status != 422:
+            raise
+        raise Refused(422, refusal_as_sent(topic, said(), exc.detail)) from None
+    except HTTPException as exc:
+        if exc.status_code != 422:
+            raise
+        raise Refused(422, refusal_as_sent(topic, said(), exc.detail)) from None
 
 
 # The frames MoveIt Servo users name in a TwistStamped's header: ours are "base" and "tool".

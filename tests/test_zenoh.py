@@ -28,9 +28,12 @@ from test_api_harness import AUTH, STOP_WAYS, TOKEN, Rig, running_rig, servo_app
 from servo_app.monitor import FleetMonitor
 from servo_app.ros import messages as ros
 from servo_app.zenoh_api import (
+    ROS_UNITS,
+    Said,
     ZenohInterface,
     ZenohSettings,
     parse_rmw_attachment,
+    refusal_as_sent,
     rmw_attachment,
     ros_key,
 )
@@ -175,6 +178,23 @@ def test_twist_and_jog_round_trip_in_cdr(x: float, y: float, z: float, a: float,
     assert list(j.joint_names) == ["joint_2"] and j.velocities.tolist() == [x] and j.duration == 0.5
 
 
+@given(st.floats(-1e5, 1e5), st.floats(-1e5, 1e5), st.sampled_from(sorted(ROS_UNITS)))
+def test_a_refusals_limits_are_also_in_the_senders_units(x: float, lo: float, unit: str) -> None:
+    """A REST refusal of a ROS command: after the field as sent, REST's words with each limit also in
+    the sender's unit (a value with its unit, a range in the field's unit); the echo of the converted
+    value (``joints[0]=...``) is left as REST wrote it (the field as sent comes first)."""
+    ros_unit, factor = ROS_UNITS[unit]
+    said = {"joints": Said("position = [...] rad", ("position[0] (joint_1) = 1 rad (joints[0] = 57.3 deg)",),
+                            (unit,))}
+    at_most = f"{abs(x):g}"
+    out = refusal_as_sent("joint_target", said, f"joints[0]={x!r} {unit} is outside [{lo!r}, {abs(lo)!r}]; "
+                                                f"send at most {at_most} {unit}")
+    assert out.startswith(f"joint_target: position[0] (joint_1) = 1 rad (joints[0] = 57.3 deg): joints[0]={x!r} "
+                          f"{unit} is outside"), out
+    assert f"[{lo!r}, {abs(lo)!r}] ({lo * factor:.4g} to {abs(lo) * factor:.4g} {ros_unit})" in out, out
+    assert out.endswith(f"send at most {at_most} {unit} ({float(at_most) * factor:.4g} {ros_unit})"), out
+
+
 # ------------------------------------------------------------------------------- telemetry and commands
 
 @pytest.mark.e2e
@@ -263,10 +283,11 @@ def test_every_refusal_is_answered_with_the_rest_message(cell: tuple[Rig, ZenohI
     rest = rig.http.post("/api/jog", json={"joints": [5.7, 0, 0, 0, 0, 0], "hold_ms": 5000},
                          headers={**AUTH, "X-Lease-Id": lease_id})
     assert rest.status_code == 422
+    # (named as the ROS sender gave it: duration in s; test_a_joint_jog_refusal_names_the_velocities_...)
     r = client.send("delta_joint_cmds", ros.JOINT_JOG, ros.joint_jog(0, ["joint_1"], [0.1], duration_s=5.0))
-    assert r["status"] == 422 and r["detail"][0]["msg"] == rest.json()["detail"][0]["msg"]
+    assert r["status"] == 422 and rest.json()["detail"][0]["msg"] in r["detail"], r
     r = client.send("delta_twist_cmds", ros.TWIST_STAMPED, ros.twist_stamped(0, (0, 0, 0), (0, 0, 0), "camera"))
-    assert r["status"] == 422 and "base" in r["detail"][0]["msg"], r
+    assert r["status"] == 422 and "base" in r["detail"], r
     r = client.send("delta_joint_cmds", ros.JOINT_JOG, ros.joint_jog(0, ["joint_9"], [0.1]))
     assert r["status"] == 422 and "unknown joint 'joint_9'" in r["detail"], r
     # stale hold-to-run: stamped a second ago, past its 0.2 s hold
@@ -494,6 +515,115 @@ def test_a_joint_jog_with_a_nan_duration_is_refused_naming_it(cell: tuple[Rig, Z
     s = rig.state()
     assert s["q_cmd"] == s0["q_cmd"] and s["at_rest"] and s["state"] == "streaming"
 
+
+def ros_number(detail: str, pattern: str) -> tuple[float, float]:
+    """The two numbers of ``pattern``'s groups in ``detail`` (a service-unit limit and its ROS value)."""
+    import re
+
+    m = re.search(pattern, detail)
+    assert m is not None, (pattern, detail)
+    return float(m.group(1)), float(m.group(2))
+
+
+@pytest.mark.e2e
+def test_a_twist_refusal_names_the_ros_fields_as_sent(cell: tuple[Rig, ZenohInterface, Client]) -> None:
+    """A TwistStamped over the flange-speed cap (3, 3, 0) m/s was refused naming "linear=[3000.0, 3000.0,
+    0.0]: 4242.6 mm/s", values the ROS sender never sent, in units it does not use; now the refusal
+    names twist.linear as sent, in m/s, and the cap in m/s too. So do a component over its bound,
+    a turn too fast, NaN, and a frame that is no frame (header.frame_id). Nothing moves."""
+    rig, _, client = cell
+    streaming_for_zenoh(rig, client)
+    s0 = rig.wait_at_rest_settled()
+
+    def refused(linear: tuple[float, ...], angular: tuple[float, ...], frame: str = "base_link") -> str:
+        r = send_fresh(client, "delta_twist_cmds", ros.TWIST_STAMPED,
+                       lambda t: ros.twist_stamped(t, linear, angular, frame))
+        assert r["status"] == 422 and isinstance(r["detail"], str), r
+        assert r["detail"].startswith("delta_twist_cmds: "), r
+        return str(r["detail"])
+
+    d = refused((3.0, 3.0, 0.0), (0.0, 0.0, 0.0))
+    assert "twist.linear = (3, 3, 0) m/s (linear = [3000, 3000, 0] mm/s)" in d, d
+    cap_mm_s, cap_m_s = ros_number(d, r"send at most (\d+) mm/s \(([\d.]+) m/s\)")
+    assert cap_m_s == pytest.approx(cap_mm_s / 1000.0) and cap_m_s < math.hypot(3.0, 3.0), d
+    d = refused((5.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    assert "twist.linear.x = 5 m/s (linear[0] = 5000 mm/s)" in d, d
+    lo, hi = ros_number(d, r"\[-4000.0, 4000.0\] \((-?[\d.]+) to ([\d.]+) m/s\)")
+    assert (lo, hi) == (-4.0, 4.0), d
+    d = refused((0.0, 0.0, 0.0), (0.0, 0.0, -30.0))
+    assert "twist.angular.z = -30 rad/s (angular[2] = -1718.87 deg/s)" in d, d
+    assert "[-1000.0, 1000.0] (-17.45 to 17.45 rad/s)" in d, d
+    d = refused((0.0, math.nan, 0.0), (0.0, 0.0, 0.0))
+    assert "twist.linear.y = nan m/s" in d and "is not a finite number" in d, d
+    d = refused((0.01, 0.0, 0.0), (0.0, 0.0, 0.0), frame="camera")
+    assert "header.frame_id = 'camera'" in d and "'base' or 'tool'" in d, d
+    s = rig.state()
+    assert s["q_cmd"] == s0["q_cmd"] and s["at_rest"] and s["state"] == "streaming"
+
+
+@pytest.mark.e2e
+def test_a_joint_jog_refusal_names_the_velocities_as_sent_with_the_j2_j3_coupling(
+        cell: tuple[Rig, ZenohInterface, Client]) -> None:
+    """joint_3 at 4 rad/s (229 deg/s, within J3's limit) with joint_2 at -6 rad/s is J3 at 573 deg/s in
+    FANUC's convention (J3 from the horizontal: joint_3 - joint_2), over J3's limit: the refusal named
+    "joints[2]=572.958 deg/s", a value the sender never sent. Now it names velocities[1] (joint_3) and
+    velocities[0] (joint_2) as sent, says how they make J3, and gives the limit in rad/s."""
+    rig, iface, client = cell
+    assert iface.j23 == 1.0  # the LR Mate's coupling: J3 = joint_3 - joint_2
+    streaming_for_zenoh(rig, client)
+    s0 = rig.wait_at_rest_settled()
+    r = send_fresh(client, "delta_joint_cmds", ros.JOINT_JOG,
+                   lambda t: ros.joint_jog(t, ["joint_2", "joint_3"], [-6.0, 4.0]))
+    d = r["detail"]
+    assert r["status"] == 422 and isinstance(d, str) and d.startswith("delta_joint_cmds: "), r
+    assert "velocities[1] (joint_3) = 4 rad/s with velocities[0] (joint_2) = -6 rad/s" in d, d
+    assert "J3 = 572.958 deg/s in FANUC's convention: joint_3 - joint_2" in d, d
+    limit_deg_s, limit_rad_s = ros_number(d, r"J3's speed limit ([\d.]+) deg/s \(([\d.]+) rad/s\)")
+    assert limit_rad_s == pytest.approx(math.radians(limit_deg_s), rel=1e-3) and 4.0 < limit_rad_s < 10.0, d
+    # unnamed (in order), a NaN: the position in the array and the joint it stands for
+    r = send_fresh(client, "delta_joint_cmds", ros.JOINT_JOG,
+                   lambda t: ros.joint_jog(t, [], [0.0, 0.0, 0.0, math.nan, 0.0, 0.0]))
+    assert r["status"] == 422 and "velocities[3] (joint_4) = nan rad/s" in r["detail"], r
+    # a count the arm does not have: REST's count refusal after the velocities as sent
+    for velocities in ([0.1] * 8, []):
+        r = send_fresh(client, "delta_joint_cmds", ros.JOINT_JOG, lambda t, v=velocities: ros.joint_jog(t, [], v))
+        assert r["status"] == 422 and r["detail"].startswith(f"delta_joint_cmds: velocities = {velocities} rad/s"), r
+    # the hold time: duration in s, not hold_ms
+    r = send_fresh(client, "delta_joint_cmds", ros.JOINT_JOG,
+                   lambda t: ros.joint_jog(t, ["joint_1"], [0.1], duration_s=5.0))
+    assert r["status"] == 422 and "duration = 5 s (hold_ms = 5000)" in r["detail"], r
+    assert "less than or equal to 2000 (2 s)" in r["detail"], r
+    s = rig.state()
+    assert s["q_cmd"] == s0["q_cmd"] and s["at_rest"] and s["state"] == "streaming"
+
+
+@pytest.mark.e2e
+def test_a_joint_target_refusal_names_the_positions_as_sent_with_the_j2_j3_coupling(
+        cell: tuple[Rig, ZenohInterface, Client]) -> None:
+    """joint_3 at -1.3 rad (-74.5 deg, below its range) with joint_2 at 0.5 rad: the refusal named
+    "joints[2]=-103.132 deg", FANUC's coupled J3 (joint_3 - joint_2), which the sender never sent. Now it
+    names the position entries as sent (by the names given, in any order), and the range in rad."""
+    rig, _, client = cell
+    streaming_for_zenoh(rig, client)
+    s0 = rig.wait_at_rest_settled()
+    q = np.array([0.0, 0.5, -1.3, 0.0, -1.5, 0.0])
+    reversed_names = ros.JointState(header=ros.header(0, ""), name=[f"joint_{i}" for i in (6, 5, 4, 3, 2, 1)],
+                                    position=q[::-1].copy(), velocity=np.zeros(0), effort=np.zeros(0))
+    r = client.send("joint_target", ros.JOINT_STATE, reversed_names)
+    d = r["detail"]
+    assert r["status"] == 422 and isinstance(d, str) and d.startswith("joint_target: "), r
+    assert "position[3] (joint_3) = -1.3 rad with position[4] (joint_2) = 0.5 rad" in d, d
+    assert "J3 = -103.132 deg in FANUC's convention: joint_3 - joint_2" in d, d
+    lo, hi = ros_number(d, r"joint range \[-?[\d.]+, [\d.]+\] \((-?[\d.]+) to ([\d.]+) rad\)")
+    assert lo > -1.3 and lo == pytest.approx(math.radians(-70.0), abs=0.02) and hi > 3.0, d
+    # unnamed: in order
+    r = client.send("joint_target", ros.JOINT_STATE, ros.joint_state(0, q))
+    assert r["status"] == 422 and "position[2] (joint_3) = -1.3 rad with position[1] (joint_2) = 0.5 rad" in \
+        r["detail"], r
+    r = client.send("joint_target", ros.JOINT_STATE, ros.joint_state(0, [0.0, 0.0, 0.0, math.inf, -1.5, 0.0]))
+    assert r["status"] == 422 and "position[3] (joint_4) = inf rad" in r["detail"], r
+    s = rig.state()
+    assert s["q_cmd"] == s0["q_cmd"] and s["at_rest"] and s["state"] == "streaming"
 
 
 def publish_until_exit(session: zenoh.Session, proc: subprocess.Popen[str], puts: dict[str, bytes],
