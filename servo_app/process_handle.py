@@ -31,7 +31,7 @@ import threading
 import time
 import traceback
 from collections.abc import Callable
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -40,7 +40,7 @@ from servo_app import messages as msg
 from servo_app.errors import CommandRejected, InvalidRequest
 from servo_app.ipc import LatestValueSlot
 from servo_app.pipe_frames import PipeEnd
-from servo_app.realtime import single_threaded_blas
+from servo_app.realtime import exit_done_child, single_threaded_blas
 from servo_app.safety import Mode
 from servo_app.session_log import SessionLogWriter
 from servo_app.state import MODES, OFFSET, PHASES, STATE_SIZE, StateVector, decode_state
@@ -48,6 +48,20 @@ from servo_app.state import MODES, OFFSET, PHASES, STATE_SIZE, StateVector, deco
 log = logging.getLogger(__name__)
 
 # ------------------------------------------------------------------------------------- child side
+
+
+def _configured_child(target: Callable[[dict[str, Any], Connection, str], None], conn: Connection,
+                      slot_name: str) -> None:
+    """The child's entry. It unpickles ``target`` first, which imports the backend's modules (2-3 s of
+    CPU for FANUC's: numba's cached kernels, MuJoCo): the parent may launch it before it knows the
+    controller's address (ServoProcessHandle.launch) and send the configuration, the pipe's first
+    message, once it does (start)."""
+    try:
+        cfg_dict = conn.recv()
+    except (EOFError, OSError):
+        return  # the parent shut it down before configuring it
+    target(cfg_dict, conn, slot_name)
+    exit_done_child()
 
 
 def run_child(conn: Connection, body: Callable[[], None]) -> None:
@@ -360,7 +374,7 @@ class ServoProcessHandle:
         self.slot = LatestValueSlot(STATE_SIZE)
         ctx = mp.get_context("spawn")
         self._conn, child_conn = ctx.Pipe()
-        self.process = ctx.Process(target=target, args=(asdict(cfg), child_conn, self.slot.name), name=name,
+        self.process = ctx.Process(target=_configured_child, args=(target, child_conn, self.slot.name), name=name,
                                    daemon=True)
         self._child_conn = child_conn
         self.events: list[msg.Event] = []
@@ -388,15 +402,29 @@ class ServoProcessHandle:
     def pid(self) -> int | None:
         return self.process.pid
 
-    def start(self, timeout: float = 30.0) -> msg.Ready:
-        """Start the process and its reader; returns its ``Ready`` event. A process that dies, crashes or
-        stays silent before it is ready is shut down (killed if need be, its slot closed) and the
-        error raised: RuntimeError naming how it ended, or TimeoutError."""
+    def launch(self) -> None:
+        """Start the process and its reader, once: it imports its modules, then waits for its
+        configuration (``start`` sends it). Until then ``cfg`` may still change (``retarget``)."""
+        if self._reader is not None:
+            return
         with single_threaded_blas():
             self.process.start()
         self._child_conn.close()  # ours is the only copy left: the child's death shows as end of file
         self._reader = threading.Thread(target=self._read_loop, name=f"{self.name} pipe", daemon=True)
         self._reader.start()
+
+    def retarget(self, host: str, port: int) -> None:
+        """Before ``start``: the controller's address, known only once its simulator is up (make_process
+        put its target's host and port in ``cfg``)."""
+        self.cfg = replace(self.cfg, host=host, port=port)
+
+    def start(self, timeout: float = 30.0) -> msg.Ready:
+        """Launch the process (unless ``launch`` did), send its configuration and return its ``Ready``
+        event. A process that dies, crashes or stays silent before it is ready is shut down (killed if
+        need be, its slot closed) and the error raised: RuntimeError naming how it ended, or TimeoutError."""
+        self.launch()
+        with self._send_lock, contextlib.suppress(OSError):  # (one that died: wait_event names how)
+            self._conn.send(asdict(self.cfg))
         try:
             ev = self.wait_event(msg.Ready, timeout)
         except (RuntimeError, TimeoutError):

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import sys
 from collections.abc import Iterator
+from typing import NoReturn
 
 
 def make_realtime(priority: int | None, pid: int | None = None) -> str:
@@ -84,3 +86,14 @@ def single_threaded_blas() -> Iterator[None]:
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+
+
+def exit_done_child(code: int = 0) -> NoReturn:
+    """End a child process (the servo process, the embedded simulator) whose work is done, closed
+    and flushed, without the interpreter's teardown: freeing numba's compiled kernels and every module
+    took 0.3-0.9 s of CPU here, which the parent's shutdown, a reset's replacement, waited for."""
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)

@@ -23,7 +23,7 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -117,15 +117,25 @@ class ServoService:
         target = self.backend.target
         if target.embedded:
             target = replace(target, port=self.cfg.sim_port)
-        if target.embedded and self.backend.simulator_first:
-            sim_options = {"interval_ms": self.cfg.interval_ms, **self.cfg.sim_options}
-            self.sim = self.backend.start_simulator(target, sim_options, self.cfg.sim_realtime_priority)
-            target = replace(target, host=self.sim.address[0], port=self.sim.address[1])
-        self.robot_address = (target.host, target.port)
-        if self.sim is not None:
-            self._set_simulator_payload(self.tools.active.payload_kg)
+        launched = None
+        try:
+            if target.embedded and self.backend.simulator_first:
+                # The servo process imports its modules while the simulator starts (each is 1-3 s of
+                # CPU), told the simulator's address once that is up: with two cores the service is up
+                # a simulator start sooner.
+                launched = self._launch_early(target)
+                sim_options = {"interval_ms": self.cfg.interval_ms, **self.cfg.sim_options}
+                self.sim = self.backend.start_simulator(target, sim_options, self.cfg.sim_realtime_priority)
+                target = replace(target, host=self.sim.address[0], port=self.sim.address[1])
+            self.robot_address = (target.host, target.port)
+            if self.sim is not None:
+                self._set_simulator_payload(self.tools.active.payload_kg)
+        except BaseException:
+            if launched is not None:
+                launched.shutdown(timeout=2.0)
+            raise
         with self._lifecycle:
-            self._spawn()
+            self._spawn(launched)
         try:
             self.tools.apply_to_new_process()
         except (ToolError, TimeoutError):  # (a process that did not take the tool is stopped already)
@@ -144,8 +154,19 @@ class ServoService:
         if self.inputs is not None:
             self.inputs.start(request=self.request, feedback=self.state_vector, act=self.io.on_action)
 
-    def _spawn(self) -> None:
-        """Start a servo process (the first, or one replacing a dead one). Holds ``_lifecycle``.
+    def _launch_early(self, target: Any) -> ServoProcessHandle | None:
+        """The first servo process, launched (importing) before its controller's address is known;
+        None for a backend whose process configuration has no ``host`` and ``port`` to set later."""
+        handle = self.backend.make_process(target, self.options, self._on_event, self._on_servo_exit)
+        if not {"host", "port"} <= {f.name for f in fields(handle.cfg)}:
+            handle.slot.close()  # (never launched: its pipe goes with it)
+            return None
+        handle.launch()
+        return handle
+
+    def _spawn(self, launched: ServoProcessHandle | None = None) -> None:
+        """Start a servo process (the first, or one replacing a dead one; ``launched``: the first,
+        launched by ``_launch_early``). Holds ``_lifecycle``.
 
         One that dies or stays silent before it is ready (killed while warming up, say) becomes the
         stream's fault: the state names it, the next reset tries again, and TimeoutError (503) says so."""
@@ -160,7 +181,11 @@ class ServoService:
             assert self.robot_address is not None
             # A replacement listens or connects where the first one did: the robot is configured for it.
             target = replace(self.backend.target, host=self.robot_address[0], port=self.robot_address[1])
-            handle = self.backend.make_process(target, self.options, self._on_event, self._on_servo_exit)
+            if launched is not None:
+                handle = launched
+                handle.retarget(target.host, target.port)
+            else:
+                handle = self.backend.make_process(target, self.options, self._on_event, self._on_servo_exit)
             try:
                 ready = handle.start()  # (on failure it has shut the process down)
             except (RuntimeError, TimeoutError) as exc:

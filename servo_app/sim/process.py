@@ -24,7 +24,7 @@ from collections.abc import Iterator, Sequence
 from multiprocessing.connection import Connection
 from typing import Any
 
-from servo_app.realtime import make_realtime, single_threaded_blas
+from servo_app.realtime import exit_done_child, make_realtime, single_threaded_blas
 
 _CALLS = {"reset", "start_program", "abort_program", "set_mode", "set_override", "set_joints", "jog_to",
           "set_payload"}
@@ -47,6 +47,7 @@ def _serve(kwargs: dict[str, Any], conn: Connection) -> None:
         serve_calls(sim, conn)
     finally:
         sim.stop()
+    exit_done_child()
 
 
 def serve_calls(sim: Any, conn: Connection) -> None:
@@ -283,6 +284,7 @@ def _serve_janome(server: tuple[str, int], model: str, conn: Connection,
         pass
     finally:
         sim.stop()
+    exit_done_child()
 
 
 class JanomeSimulatorProcess:
