@@ -5,7 +5,7 @@ against ruckig itself."""
 import math
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from servo_app.motion.shaper import Envelope, ShaperLimits
@@ -194,7 +194,9 @@ def test_velocity_share_limits_keep_the_axes_in_proportion(v, dv, along, rest):
     reach = np.minimum(plain[1], np.sqrt(2.0 * plain[2] * np.abs(d))) / np.where(moving, np.abs(d), 1.0)
     a0 = d * along * float(np.min(reach[moving])) if moving.any() else np.zeros(6)
     lim = np.empty((3, 6))
-    ok = velocity_share_limits(v0, a0, target, *plain, lim)
+    aim = np.empty(6)
+    ok = velocity_share_limits(v0, a0, target, *plain, lim, aim)
+    assert aim.tolist() == target.tolist()
     assert np.all(lim <= np.stack(plain)) and np.all(lim[0] == plain[0])
     if not moving.any():
         assert not ok
@@ -202,14 +204,47 @@ def test_velocity_share_limits_keep_the_axes_in_proportion(v, dv, along, rest):
     assert ok and np.all(lim > 0.0)
     scale = float(np.max(np.abs(d)))
     for vk in _velocity_plan(v0, a0, target, lim):
-        share = float((vk - v0) @ d / (d @ d))
+        share = float((vk - v0) / scale @ (d / scale) / ((d / scale) @ (d / scale)))  # (d @ d underflows at 1e-275)
         assert -1e-9 <= share <= 1.0 + 1e-9
         assert np.max(np.abs(vk - v0 - share * d)) <= 1e-6 * scale, (vk - v0) / np.where(moving, d, 1.0)
 
 
 def test_velocity_share_limits_leave_an_acceleration_across_the_change_to_ruckig():
     plain = LIMITS.scaled()
-    lim = np.empty((3, 6))
+    lim, aim = np.empty((3, 6)), np.empty(6)
     v0, target = np.zeros(6), np.array([10.0, 0.0, 0.0, 0.0, 0.0, 0.0])
-    assert not velocity_share_limits(v0, np.array([0.0, 50.0, 0.0, 0.0, 0.0, 0.0]), target, *plain, lim)
-    assert np.all(lim == np.stack(plain))
+    assert not velocity_share_limits(v0, np.array([5.0, 50.0, 0.0, 0.0, 0.0, 0.0]), target, *plain, lim, aim)
+    assert np.all(lim == np.stack(plain)) and aim.tolist() == target.tolist()
+
+
+@settings(max_examples=200, deadline=None)
+@given(six, six, six, st.floats(0.01, 1.0), st.booleans())
+def test_velocity_share_limits_turn_the_axes_to_braking_in_proportion(v, a, dv, size, against):
+    """An acceleration against the change (the turn from speeding up to braking, or a target reached while
+    still accelerating): ruckig's velocities under the turn's limits go on along the acceleration, every
+    axis ending it together (the slowest at its jerk limit), to ``aim``, within the plain limits; the
+    next cycle heads from there. Each axis at its own jerk limit (the plain limits) ended its acceleration
+    at its own time: a pose target's TCP turned +2.1 % over its angular speed there."""
+    plain = LIMITS.scaled()
+    v0 = v * plain[0] * 0.3
+    a0 = np.where(np.abs(a) < 1e-6, 0.0, a) * plain[1] * size  # (no subnormal accelerations)
+    d = dv * plain[0] * 0.3
+    assume(np.any(a0))
+    d = d - (d @ a0) / (a0 @ a0) * a0 - a0 * (0.01 if against else 1e-6)  # against, or across (a hair back)
+    k = float(np.min(plain[2][a0 != 0.0] / np.abs(a0[a0 != 0.0])))
+    assume(np.max(np.abs(a0)) / (2.0 * k) > 1e-3 * np.max(np.abs(d)))  # (not a remnant: see the kernel)
+    lim, aim = np.empty((3, 6)), np.empty(6)
+    ok = velocity_share_limits(v0, a0, v0 + d, *plain, lim, aim)
+    assert np.all(lim <= np.stack(plain)) and np.all(lim[0] == plain[0])
+    assert ok == bool(np.all(np.abs(v0 + a0 / (2.0 * k)) <= plain[0]))
+    if not ok:
+        assert aim.tolist() == (v0 + d).tolist() and np.all(lim == np.stack(plain))
+        return
+    assert np.allclose(aim - v0, a0 / (2.0 * k), rtol=1e-8, atol=1e-12 * float(np.max(np.abs(aim - v0))))
+    u = (aim - v0) / float(np.linalg.norm(aim - v0))
+    plan = _velocity_plan(v0, a0, aim, lim)
+    for vk in plan:
+        s = float((vk - v0) @ u)
+        assert np.max(np.abs(vk - v0 - s * u)) <= 1e-6 * float(np.max(np.abs(aim - v0))) + 1e-9
+    # The acceleration ends together: in 1/k, within a cycle.
+    assert len(plan) * DT <= 1.0 / k + 3 * DT

@@ -375,6 +375,7 @@ class JointShaper:
         # next plain plan gives ruckig its limits again.
         self._share_plan = (None, 0.0)
         self._within = np.empty(self.n)  # scratch of set_velocity
+        self._aim = np.empty(self.n)  # set_velocity's velocity for ruckig this cycle (velocity_share_limits)
         self._no_change = _NO_CHANGE[self.n]  # the guard's mask when it changed nothing
         self._target_still = True  # ruckig's target velocity is zero (what _settle asks)
         self._speed_caps: np.ndarray | None = None  # set_target's, for _apply_line_limits
@@ -537,12 +538,13 @@ class JointShaper:
         lim = self._line_limits
         if one_profile and self._plan_mode == "soft" and velocity_share_limits(
                 np.asarray(inp.current_velocity) if v_now is None else v_now, np.asarray(inp.current_acceleration),
-                within, soft.plan_vel, soft.plan_acc, soft.plan_jerk, lim):
+                within, soft.plan_vel, soft.plan_acc, soft.plan_jerk, lim, self._aim):
             if applied is not self._share_plan:  # (the velocity limits are the plan's: set once)
                 inp.max_velocity = soft.plan_vel.tolist()
                 self._applied_plan = applied = self._share_plan
             inp.max_acceleration, inp.max_jerk = lim[1].tolist(), lim[2].tolist()
             self._vel_scale = 1.0
+            within = self._aim  # (at a turn: the velocity its acceleration ends at; the target from there)
         elif (self._plan_mode == "soft" and applied is not None and applied[0] is soft and applied[1] == 1.0):
             # A velocity stream (a Cartesian jog: every cycle): ruckig has the plan's limits already.
             # What _select_plan comes to then, without its call and _apply_plan_limits' (each Python

@@ -103,47 +103,86 @@ def line_limits(p: np.ndarray, v: np.ndarray, a: np.ndarray, q: np.ndarray, plan
 
 
 @kernel("boolean(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], "
-        "float64[:, ::1])")
+        "float64[:, ::1], float64[::1])")
 def velocity_share_limits(v: np.ndarray, a: np.ndarray, target: np.ndarray, plan_vel: np.ndarray,
-                          plan_acc: np.ndarray, plan_jerk: np.ndarray, out: np.ndarray) -> bool:
+                          plan_acc: np.ndarray, plan_jerk: np.ndarray, out: np.ndarray, aim: np.ndarray) -> bool:
     """The planning limits (rows: velocity, acceleration, jerk) for a change of velocity from (v, a) to
-    ``target`` into ``out``; True when the acceleration is along the change (none, or within ~8 deg of
-    it): acceleration and jerk are then scaled to each axis' share of the change, so that the axes run
-    one profile scaled (:func:`line_limits` for a velocity), each at least what ends its present
-    acceleration as soon as the profile does and without passing its target; else the plain limits.
+    ``target`` into ``out``, and the velocity to give ruckig this cycle into ``aim``. True when the axes
+    run one profile scaled (:func:`line_limits` for a velocity), the velocity on a straight line:
+
+    - the acceleration along the change (none, within ~8 deg of it, or a remnant that changes the
+      velocity by under a thousandth of the change): ``aim`` is ``target``, acceleration and jerk scaled
+      to each axis' share of the change, each at least what ends its present acceleration as soon as
+      the profile does and without passing its target;
+    - the acceleration against the change (the turn from speeding up to braking, or a target reached
+      while still accelerating): every axis ends its acceleration in the same time, the slowest one's
+      at its jerk limit (each jerk in proportion to its acceleration), ``aim`` the velocity that
+      reaches: the velocity goes on along the acceleration, then (a later cycle, from no acceleration)
+      straight to the target.
+
+    False (``aim`` is ``target``, the plain limits): an acceleration off the change but not against it
+    (ending it along its own line there ran twists off by up to +14 %: the joints whose motions cancel
+    went on the old way), a turn whose velocity would leave the velocity limits, nothing to change.
 
     Why: ruckig keeps the axes in phase only for a change exactly along the acceleration; the IK's
     target moves a little every cycle of a ramp, and time synchronisation then stretched an axis with
     little to change over the slowest one's time, its own way (J3 stalled at 0.3 of its target while
-    J2 reached it): the TCP, the sum of joint motions that partly cancel, ran 2-5 % over its speed."""
+    J2 reached it): the TCP, the sum of joint motions that partly cancel, ran 2-5 % over its speed. At
+    the turn from speeding up to braking each axis ended its acceleration at its own jerk limit (J3
+    ~7 ms before J5 at 4 ms): a pose target's turn ran +2.1 %."""
     n = v.shape[0]
-    size, dot, na, nd = 0.0, 0.0, 0.0, 0.0
+    size, dot, na, nd, k = 0.0, 0.0, 0.0, 0.0, np.inf
     for i in range(n):
         out[0, i] = plan_vel[i]
         out[1, i] = plan_acc[i]
         out[2, i] = plan_jerk[i]
+        aim[i] = target[i]
         d = target[i] - v[i]
         size = max(size, abs(d))
         dot += a[i] * d
         na += a[i] * a[i]
         nd += d * d
-    if size <= 0.0 or dot < 0.99 * math.sqrt(na * nd):
+        if a[i] != 0.0:
+            k = min(k, plan_jerk[i] / abs(a[i]))  # every axis ends its acceleration in 1/k (the turn)
+    turn = 0.0  # the most an axis' velocity still changes in the turn
+    for i in range(n):
+        turn = max(turn, abs(a[i]) / (2.0 * k))
+    if turn <= 0.0 and size <= 0.0:
         return False
-    floor = 1e-6 * size  # an axis with (almost) nothing to change: a share of 1e-6, not a vanishing one
-    ka, kj = np.inf, np.inf
+    # (an acceleration whose turn is a thousandth of the change, a remnant: the change goes first)
+    if size > 0.0 and (dot >= 0.99 * math.sqrt(na * nd) or turn <= 1e-3 * size):
+        floor = 1e-6 * size  # an axis with (almost) nothing to change: a share of 1e-6, not a vanishing one
+        ka, kj = np.inf, np.inf
+        for i in range(n):
+            share = max(abs(target[i] - v[i]), floor)
+            ka = min(ka, plan_acc[i] / share)
+            kj = min(kj, plan_jerk[i] / share)
+        for i in range(n):
+            d = target[i] - v[i]
+            share = max(abs(d), floor)
+            acc = max(ka * share, abs(a[i]) * 1.0001)  # (its present acceleration within its limit)
+            jerk = max(kj * share, abs(a[i]) * kj / ka)  # its acceleration ended within the profile's time
+            if a[i] * d > 0.0:
+                jerk = max(jerk, 1.01 * a[i] * a[i] / (2.0 * share))  # ... before it passes the target
+            out[1, i] = min(plan_acc[i], acc)
+            out[2, i] = min(plan_jerk[i], jerk)
+        return True
+    if dot > 0.0:  # an acceleration off the change but not against it: ruckig's own limits (see above)
+        return False
+    # The turn: every axis ends its acceleration in 1/k, the slowest at its jerk limit.
+    floor = 2.0 * k * turn * 1e-6  # (of the largest acceleration: an axis with none keeps its velocity)
     for i in range(n):
-        share = max(abs(target[i] - v[i]), floor)
-        ka = min(ka, plan_acc[i] / share)
-        kj = min(kj, plan_jerk[i] / share)
-    for i in range(n):
-        d = target[i] - v[i]
-        share = max(abs(d), floor)
-        acc = max(ka * share, abs(a[i]) * 1.0001)  # (its present acceleration within its limit)
-        jerk = max(kj * share, abs(a[i]) * kj / ka)  # its acceleration ended within the profile's time
-        if a[i] * d > 0.0:
-            jerk = max(jerk, 1.01 * a[i] * a[i] / (2.0 * share))  # ... before it passes the target
-        out[1, i] = min(plan_acc[i], acc)
-        out[2, i] = min(plan_jerk[i], jerk)
+        # (a hair further than the slowest axis' jerk reaches, a hair more jerk for the others: ruckig's
+        # time synchronisation failed on two axes that end together to the last digit)
+        aim[i] = v[i] + a[i] * (1.0 + 1e-9) / (2.0 * k)
+        out[1, i] = min(plan_acc[i], max(abs(a[i]), floor) * 1.0001)
+        out[2, i] = min(plan_jerk[i], k * max(abs(a[i]), floor) * (1.0 + 1e-6))
+        if abs(aim[i]) > plan_vel[i]:
+            for j in range(n):
+                out[1, j] = plan_acc[j]
+                out[2, j] = plan_jerk[j]
+                aim[j] = target[j]
+            return False
     return True
 
 
