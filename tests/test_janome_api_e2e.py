@@ -59,8 +59,9 @@ def test_twist_and_pose_target_map_to_x_y_z_r(janome: tuple[Rig, JanomeSimulator
     x0 = s0["q_cmd"][0]
     for body, words in (({"linear": [10.0, 0, 0], "angular": [5.0, 0, 0]}, ["angular", "only about Z"]),
                         ({"linear": [10.0, 0, 0], "frame": "tool"}, ["frame='tool'"]),
-                        ({"linear": [0, 0, 0], "angular": [0, 0, 5000.0]}, ["R (angular[2])", "speed limit"]),
-                        ({"joints": [900.0, 0, 0, 0]}, ["joints[0]", "X's speed limit 800 mm/s"]),
+                        ({"linear": [0, 0, 0], "angular": [0, 0, 5000.0]},
+                         ["angular[2]=5000 deg/s", "R's speed limit 200 deg/s"]),
+                        ({"joints": [900.0, 0, 0, 0]}, ["joints[0]=900 mm/s", "X's speed limit 100 mm/s"]),
                         ({"joints": [10.0, 0, 0]}, ["joints has 3 values, expected 4"])):
         r = rig.http.post("/api/jog", json=body, headers=hdr)
         assert r.status_code == 422, (body, r.text)
@@ -129,3 +130,53 @@ def test_a_link_warning_shows_at_once_while_the_stream_runs_on(janome: tuple[Rig
             assert time.monotonic() < deadline, "no warning on /ws/telemetry"
         assert seen["warnings"][-1]["message"] == w["message"] and seen["state"] == "streaming", seen
     assert rig.state()["state"] == "streaming"  # nothing but the warning changed
+
+
+def test_limits_are_the_speeds_commanded_and_a_faster_jog_is_refused(janome: tuple[Rig, JanomeSimulator]) -> None:
+    """GET /api/limits gives the speeds the stream really commands: the JR3000's profile allows 800 mm/s,
+    the link one step of 10 mm per 0.1 s (100 mm/s; R 20 deg: 200 deg/s). It gave the profile's 800,
+    and a jog at 300 mm/s was answered 200 and ran at 100. Now a jog or twist over them is refused
+    (422 naming the field, the value, the limit, where it comes from and what to send), changing
+    nothing; one at the limit runs at it."""
+    rig, _sim = janome
+    lim = rig.http.get("/api/limits").json()
+    assert lim["speed"] == [100.0, 100.0, 100.0, 200.0] and lim["cp_speed_mm_s"] == 100.0, lim
+    assert lim["speed_source"][0] == lim["cp_speed_source"] == \
+        "the link's step: link.max_step_mm 10 mm per 0.1 s step", lim
+    assert lim["speed_source"][3] == "the link's step: link.max_step_deg 20 deg per 0.1 s step", lim
+    assert lim["profile_speed"] == [800.0, 800.0, 320.0, 1000.0] and lim["profile_cp_speed_mm_s"] == 800.0, lim
+    # The console's jog slider is a share of the axes' speeds in GET /api/robot: the same ones.
+    assert [a["speed"] for a in rig.http.get("/api/robot").json()["axes"]] == lim["speed"]
+
+    hdr = rig.lease()
+    rig.wait_state("ready")
+    rig.start_streaming(hdr)
+    # At the limit: accepted, commanded at 100 mm/s (the state's vel is the commands' own rate).
+    top = 0.0
+    end = time.monotonic() + 1.0
+    while time.monotonic() < end:
+        rig.post("/api/jog", hdr, {"joints": [lim["speed"][0], 0.0, 0.0, 0.0], "hold_ms": 300})
+        top = max(top, rig.state()["vel"][0])
+        time.sleep(0.05)
+    assert top == pytest.approx(100.0, abs=0.5), top
+    s0 = rig.wait(lambda s: s["state"] == "stopped" and s["at_rest"], 10.0, "the hold-to-run stop")
+    assert s0["q_cmd"][0] > 150.0 + 30.0, s0["q_cmd"]  # from home X=150
+
+    for body, words in (
+            ({"joints": [300.0, 0, 0, 0]},
+             "joints[0]=300 mm/s is faster than X's speed limit 100 mm/s (the link's step: link.max_step_mm 10 mm "
+             "per 0.1 s step); send at most 100 mm/s, as GET /api/limits says (speed)"),
+            ({"joints": [0, 0, 0, -200.5]},
+             "joints[3]=-200.5 deg/s is faster than R's speed limit 200 deg/s (the link's step: link.max_step_deg "
+             "20 deg per 0.1 s step); send at most 200 deg/s, as GET /api/limits says (speed)"),
+            ({"linear": [0, 300.0, 0]},
+             "linear[1]=300 mm/s is faster than Y's speed limit 100 mm/s (the link's step: link.max_step_mm 10 mm "
+             "per 0.1 s step); send at most 100 mm/s, as GET /api/limits says (speed)"),
+            ({"linear": [80.0, 0, -80.0], "angular": [0, 0, 10.0]},
+             "linear[0], linear[1], linear[2] = [80.0, 0.0, -80.0] mm/s: 113.1 mm/s along X Y Z is above the line "
+             "speed limit 100 mm/s (the link's step: link.max_step_mm 10 mm per 0.1 s step); send at most 100 mm/s "
+             "along X Y Z, as GET /api/limits says (cp_speed_mm_s)")):
+        r = rig.http.post("/api/jog", json={**body, "hold_ms": 300}, headers=hdr)
+        assert r.status_code == 422 and r.json()["detail"] == words, (body, r.text)
+        s = rig.state()  # a refused jog resumes nothing and moves nothing
+        assert s["state"] == "stopped" and s["at_rest"] and s["q_cmd"] == s0["q_cmd"], s

@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from servo_app.errors import CommandRejected
-from servo_app.janome.motion import JanomeMotion
+from servo_app.errors import CommandRejected, InvalidRequest
+from servo_app.janome.motion import JanomeMotion, stream_speeds
 from servo_app.janome.profile import JanomeProfile, load_janome_profile
 from servo_app.janome.protocol import RobotKind
+from servo_app.janome.supervisor import JanomeSupervisor
+from servo_app.messages import Jog, Twist
 
 PROFILES = {name: load_janome_profile(name) for name in ("jr3000", "js3")}
 
@@ -88,3 +92,40 @@ def test_a_held_scara_jog_meeting_the_reach_at_a_slant_rests_on_it(angle: float)
     rest = sent[-1][1]
     _j1, j2, _, _ = profile.workspace().joints(rest, 1)
     assert np.hypot(*rest[:2]) > 349.9 and 2.0 < j2 < 2.6  # on the limit, with its margin
+
+
+def test_the_stream_s_speeds_are_the_tighter_of_the_profile_s_share_and_the_link_s_step() -> None:
+    """Per axis and along the X Y Z line, each limit with where it comes from: JR3000's X Y R are held to
+    the link's step (10 mm, 20 deg per 0.1 s), a slower Z and line by the profile's share (0.9)."""
+    p = replace(PROFILES["jr3000"], speed=(800.0, 800.0, 50.0, 1000.0), cp_speed=90.0)
+    sp = stream_speeds(p, 0.1, 0.9)
+    assert sp.vel.tolist() == pytest.approx([100.0, 100.0, 45.0, 200.0]) and sp.cp_speed == pytest.approx(81.0)
+    assert sp.vel_source == ("the link's step: link.max_step_mm 10 mm per 0.1 s step",) * 2 + (
+        "0.9 of the profile's axes.speed[2] 50 mm/s", "the link's step: link.max_step_deg 20 deg per 0.1 s step")
+    assert sp.cp_source == "0.9 of the profile's cp.speed_mm_s 90"
+    m = JanomeMotion(p)
+    assert m.vel.tolist() == sp.vel.tolist() and m.cp_speed == sp.cp_speed
+    with pytest.raises(InvalidRequest) as exc:  # refused before any stream: nothing to change
+        JanomeSupervisor(m).request(Jog(joints=(0.0, 0.0, -45.5, 0.0)), 0.0)
+    assert str(exc.value) == ("joints[2]=-45.5 mm/s is faster than Z's speed limit 45 mm/s (0.9 of the profile's "
+                              "axes.speed[2] 50 mm/s); send at most 45 mm/s, as GET /api/limits says (speed)")
+    with pytest.raises(InvalidRequest, match=r"82.7 mm/s along X Y Z is above the line speed limit 81 mm/s \(0.9 "
+                       r"of the profile's cp.speed_mm_s 90\); send at most 81 mm/s"):
+        JanomeSupervisor(m).request(Twist(linear=(70.0, 0.0, 44.0)), 0.0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(name=st.sampled_from(sorted(PROFILES)), u=st.lists(st.floats(-1.2, 1.2), min_size=4, max_size=4))
+def test_a_jog_accepted_is_run_as_asked(name: str, u: list[float]) -> None:
+    """Whatever jog the supervisor accepts, the motion runs unscaled: no silent slow-down."""
+    p = PROFILES[name]
+    m = JanomeMotion(p)
+    v = np.array(u) * m.vel
+    try:
+        JanomeSupervisor(m)._check_jog(v)
+    except InvalidRequest:
+        assert np.any(np.abs(v) > m.vel) or np.linalg.norm(v[:3]) > m.cp_speed
+        return
+    m.begin(p.home, int(p.elbow))
+    m.jog(v)
+    assert m._jog is not None and np.allclose(m._jog, v, rtol=1e-9, atol=0.0)  # (the check allows 1e-9 over)

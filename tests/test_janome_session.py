@@ -248,7 +248,7 @@ def test_start_before_the_robot_connects_is_kept_pending() -> None:
 
 def test_scara_jog_stops_at_the_edge_in_its_configuration() -> None:
     rig = started("js3")
-    rig.sup.request(Jog(joints=(200.0, 0.0, 0.0, 0.0), hold_s=100.0), rig.now)
+    rig.sup.request(Jog(joints=(100.0, 0.0, 0.0, 0.0), hold_s=100.0), rig.now)  # its X speed limit
     rig.run(60)
     assert rig.mode == Mode.STREAMING
     _j1, j2, _, _ = rig.robot.joints()

@@ -544,7 +544,8 @@ def test_janome_backend_jogs_its_axes(page: Any, janome: Service) -> None:
     labels = page.locator("#jog-pad .jog-axis").all_text_contents()
     assert labels == ["X", "Y", "Z", "R"]
     assert page.locator("#io-card").is_hidden()
-    hold(page, "[data-jog='+X']", 1.0)
+    # 20 % of the slider: 5 % of X's 100 mm/s (the link's step, GET /api/robot), 5 mm/s.
+    hold(page, "[data-jog='+X']", 2.0)
     shot(page, "console-janome-jog")
     page.mouse.up()
     s = janome.wait(lambda s: s["at_rest"] and s["state"] in ("streaming", "stopped"), "at rest")

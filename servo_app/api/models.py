@@ -259,9 +259,17 @@ class LimitsView(BaseModel):
     axes: list[str] | None = Field(None, description="Janome: X Y Z R")
     axis_min: list[float] | None = None
     axis_max: list[float] | None = None
-    speed: list[float] | None = None
+    speed: list[float] | None = Field(None, description=(
+        "Janome: the fastest each axis is commanded (mm/s, deg/s), the tighter of the profile's share and the "
+        "link's step; a jog asking more is refused"))
+    speed_source: list[str] | None = Field(None, description="Janome: where each of speed's limits comes from")
     accel: list[float] | None = None
-    cp_speed_mm_s: float | None = None
+    cp_speed_mm_s: float | None = Field(None, description=(
+        "Janome: the fastest along the X Y Z line (mm/s), the tighter of the profile's share and the link's step"))
+    cp_speed_source: str | None = Field(None, description="Janome: where cp_speed_mm_s comes from")
+    profile_speed: list[float] | None = Field(None, description="Janome: the profile's axes.speed")
+    profile_cp_speed_mm_s: float | None = Field(None, description="Janome: the profile's cp.speed_mm_s")
+    speed_fraction: float | None = Field(None, description="Janome: share of the profile's speeds the motion may use")
     step_s: float | None = None
     max_step_mm: float | None = None
     max_step_deg: float | None = None

@@ -55,6 +55,35 @@ class MotionSettings:
             raise ValueError(f"ptp_cond={self.ptp_cond} must be 0..99")
 
 
+@dataclass(frozen=True)
+class StreamSpeeds:
+    """The fastest the stream commands each axis and the X Y Z line, and where each bound comes from."""
+
+    vel: np.ndarray  # X Y Z (mm/s), R (deg/s)
+    cp_speed: float  # the X Y Z line (mm/s)
+    vel_source: tuple[str, ...]
+    cp_source: str
+
+
+def stream_speeds(profile: JanomeProfile, step_s: float, speed_fraction: float) -> StreamSpeeds:
+    """The tighter, per axis, of the profile's speed (its share ``speed_fraction``) and the link's step:
+    one step of at most max_step_mm / max_step_deg per ``step_s`` (100 mm/s at 10 mm per 0.1 s, for a
+    profile allowing 800). What the service commands, what /api/limits reports and jogs are held to."""
+    f = speed_fraction
+    step = (f"the link's step: link.max_step_mm {profile.max_step_mm:g} mm per {step_s:g} s step",
+            f"the link's step: link.max_step_deg {profile.max_step_deg:g} deg per {step_s:g} s step")
+    vel, src = [], []
+    for i, unit in enumerate(UNITS):
+        by_step = (profile.max_step_deg if unit == "deg" else profile.max_step_mm) / step_s
+        by_profile = profile.speed[i] * f
+        vel.append(min(by_profile, by_step))
+        src.append(step[unit == "deg"] if by_step < by_profile else
+                   f"{f:g} of the profile's axes.speed[{i}] {profile.speed[i]:g} {unit}/s")
+    cp_by_step, cp_by_profile = profile.max_step_mm / step_s, profile.cp_speed * f
+    cp_source = step[0] if cp_by_step < cp_by_profile else f"{f:g} of the profile's cp.speed_mm_s {profile.cp_speed:g}"
+    return StreamSpeeds(np.array(vel), min(cp_by_step, cp_by_profile), tuple(src), cp_source)
+
+
 class JanomeMotion:
     def __init__(self, profile: JanomeProfile, step_s: float | None = None,
                  settings: MotionSettings | None = None) -> None:
@@ -64,11 +93,11 @@ class JanomeMotion:
         if not 0.01 <= self.step_s <= 2.0:
             raise ValueError(f"step_s={self.step_s} must be in 0.01..2 s")
         f = self.settings.speed_fraction
-        step_cap = np.array([profile.max_step_mm] * 3 + [profile.max_step_deg]) / self.step_s
-        self.vel = np.minimum(np.array(profile.speed) * f, step_cap)
+        self.speeds = stream_speeds(profile, self.step_s, f)
+        self.vel = self.speeds.vel
         self.acc = np.array(profile.accel) * f
         self.jerk = self.acc * self.settings.jerk_per_s
-        self.cp_speed = min(profile.cp_speed * f, profile.max_step_mm / self.step_s)
+        self.cp_speed = self.speeds.cp_speed
         self.limits = ShaperLimits(self.vel, self.acc, self.jerk, fraction=1.0, fast_fraction=1.0,
                                    pos_abs_max=profile.pos_abs_max)
         self.ws: Workspace = profile.workspace(self.settings.margin)  # where commands may lead
@@ -167,7 +196,8 @@ class JanomeMotion:
 
     def jog(self, v: np.ndarray) -> None:
         """Jog at X Y Z R velocities (mm/s, deg/s); the XYZ speed is capped at the CP speed, keeping the
-        direction, and the jog brakes to rest at the work envelope's edge."""
+        direction, and the jog brakes to rest at the work envelope's edge. Requests over the speeds were
+        refused before (JanomeSupervisor); a device's input is scaled down here."""
         v = self._checked(v, "joints")
         self._require()
         lin = float(np.linalg.norm(v[:3]))

@@ -8,7 +8,7 @@ about motion goes through :func:`servo_app.safety.transition`:
   :class:`CommandRejected` with the state machine's message and change nothing. A twist and a pose
   target map onto X Y Z R (R turns about Z; a rotation about X or Y, or the tool frame, is refused as
   not supported by the Janome backend); every motion is checked whole first (:class:`InvalidRequest`:
-  counts, the profile's axis speeds, the work envelope);
+  counts, the speeds the stream commands, the work envelope);
 - each valid status frame feeds ``StatusReceived``: bit 0 = the point job is in its loop (not BYE),
   bit 1 = 0 (the point job takes a new stream at any time), SYSRDY = 1 (it could not talk otherwise);
 - a stop sends no further step; the robot's next status proves its last step is done, which feeds
@@ -22,6 +22,7 @@ The state machine words its own faults for FANUC; faults caused here get Janome'
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from typing import Any, ClassVar
 
@@ -55,9 +56,15 @@ from servo_app.safety import (
     StatusReceived,
     stream_alive,
 )
-from servo_app.supervision import SupervisorBase, axis_values, check_count, check_speeds
+from servo_app.supervision import SupervisorBase, axis_values, check_count
 
 UNSUPPORTED = "not supported by the Janome backend"
+JOINT_FIELDS = ("joints[0]", "joints[1]", "joints[2]", "joints[3]")
+
+
+def _most(limit: float) -> str:
+    """A limit as shown in a refusal, rounded down (a value sent as shown is accepted)."""
+    return f"{math.floor(limit * 1000) / 1000:g}"
 
 
 class JanomeSupervisor(SupervisorBase):
@@ -109,11 +116,24 @@ class JanomeSupervisor(SupervisorBase):
                        remedy=alarm.remedy)
 
     # ------------------------------------------------------------------ requests
-    def _check_jog(self, v: np.ndarray, names: list[str] | None = None) -> np.ndarray:
+    def _check_jog(self, v: np.ndarray, fields: tuple[str, ...] = JOINT_FIELDS) -> np.ndarray:
+        """Within the speeds the stream really commands (StreamSpeeds: the profile's share, or the link's
+        step where tighter), per axis and along the X Y Z line: a faster jog is refused, not scaled down
+        without a word; the limit is named with where it comes from, and what to send instead."""
         check_count("joints", v, 4, "X Y Z in mm/s, R in deg/s")
-        p = self.motion.profile
-        check_speeds("joints", v, p.speed, names or list(AXES), [f"{u}/s" for u in UNITS],
-                     f"the {p.display_name} profile's axis speeds")
+        sp = self.motion.speeds
+        for i, (x, lim) in enumerate(zip(v, sp.vel, strict=True)):
+            if abs(x) > lim * (1 + 1e-9):
+                unit = f"{UNITS[i]}/s"
+                raise InvalidRequest(f"{fields[i]}={x:g} {unit} is faster than {AXES[i]}'s speed limit "
+                                     f"{_most(lim)} {unit} ({sp.vel_source[i]}); send at most {_most(lim)} {unit}, "
+                                     "as GET /api/limits says (speed)")
+        lin = float(np.linalg.norm(v[:3]))
+        if lin > sp.cp_speed * (1 + 1e-9):
+            names = ", ".join(fields[:3])
+            raise InvalidRequest(f"{names} = {[float(x) for x in v[:3]]} mm/s: {lin:.1f} mm/s along X Y Z is above "
+                                 f"the line speed limit {_most(sp.cp_speed)} mm/s ({sp.cp_source}); send at most "
+                                 f"{_most(sp.cp_speed)} mm/s along X Y Z, as GET /api/limits says (cp_speed_mm_s)")
         return v
 
     def _check_joint_target(self, q: np.ndarray, speed_scale: float) -> None:
@@ -132,7 +152,7 @@ class JanomeSupervisor(SupervisorBase):
             raise InvalidRequest(f"{UNSUPPORTED}: angular={[float(a) for a in ang]} deg/s turns about X or Y; "
                                  f"the {name} turns only about Z (its R axis): send angular [0, 0, r]")
         v = np.array([lin[0], lin[1], lin[2], ang[2]])
-        self._check_jog(v, ["X (linear[0])", "Y (linear[1])", "Z (linear[2])", "R (angular[2])"])
+        self._check_jog(v, ("linear[0]", "linear[1]", "linear[2]", "angular[2]"))
         self._hold_to_run(float(req.hold_s), now, "twist")
         self.motion.jog(v)
 

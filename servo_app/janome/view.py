@@ -15,7 +15,9 @@ from servo_app.janome.profile import JanomeProfile
 from servo_app.janome.protocol import RobotKind
 
 
-def janome_view(profile: JanomeProfile, q_xyzr: Sequence[float]) -> dict[str, Any]:
+def janome_view(profile: JanomeProfile, q_xyzr: Sequence[float],
+                speeds: Sequence[float] | None = None) -> dict[str, Any]:
+    """``speeds``: each axis's speed limit (default the profile's axes.speed)."""
     x, y, z, r = (float(v) for v in q_xyzr[:4])
     lo, hi = list(profile.axis_min), list(profile.axis_max)
     top = hi[2]  # the arm (SCARA) or the beam (Cartesian) at the top of the Z stroke
@@ -50,7 +52,7 @@ def janome_view(profile: JanomeProfile, q_xyzr: Sequence[float]) -> dict[str, An
         "pose_names": ["X", "Y", "Z", "R"],
         "pose_caption": "tool X Y Z (mm), R (°): controller feedback",
         "axes": [{"name": n, "unit": u, "min": a, "max": b, "speed": v} for n, u, a, b, v in
-                 zip(names, units, lo, hi, profile.speed, strict=True)],
+                 zip(names, units, lo, hi, speeds or profile.speed, strict=True)],
         "j23_factor": 0.0,
         "q": [x, y, z, r],
         "points": points,
