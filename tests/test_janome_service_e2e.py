@@ -69,6 +69,7 @@ def test_embedded_robot_killed_then_reset_brings_it_back(tmp_path: os.PathLike[s
         # The new robot stands where the killed one stopped, not at its home (a jump no arm makes).
         assert s["q_servo"][:4] == pytest.approx(last, abs=1e-3), (last, s["q_servo"])
         assert rig.service.sim.process.pid != killed and not alive(killed)
+        h = rig.lease()  # the robot's restart can outlast the lease's 10 s under load
         s0 = rig.start_streaming(h)
         rig.jog_for(h, [40.0, 0.0, 0.0, 0.0], 0.6, hold_ms=500)
         s = rig.wait(lambda s: s["state"] == "stopped" and s["at_rest"], 10.0, "hold-to-run stop")
@@ -106,6 +107,7 @@ def test_janome_servo_process_stalled_is_ended_and_replaced(tmp_path: os.PathLik
         finally:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGCONT)
+        h = rig.lease()  # the stall, the reset and the new process's start can outlast the lease's 10 s under load
         s0 = rig.start_streaming(h)
         rig.jog_for(h, [40.0, 0.0, 0.0, 0.0], 0.6, hold_ms=500)
         s = rig.wait(lambda s: s["state"] == "stopped" and s["at_rest"], 10.0, "hold-to-run stop")
