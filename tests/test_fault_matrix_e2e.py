@@ -459,6 +459,7 @@ def test_servo_process_stalled_is_ended_and_replaced(tmp_path: Path, reset_at: s
         finally:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGCONT)
+        h = rig.lease()  # the stall, the reset and the new process's start can outlast the lease's 10 s under load
         rig.post("/api/session/start", h)
         assert rig.state()["state"] == "streaming"
         moves(rig, h)
