@@ -189,7 +189,7 @@ def check_speeds(name: str, v: np.ndarray, limits: Any, axis_names: list[str], u
     for i, (x, lim) in enumerate(zip(v, limits, strict=False)):
         if abs(x) > lim:
             raise InvalidRequest(f"{name}[{i}]={x:g} {units[i]} is faster than {axis_names[i]}'s speed limit "
-                                 f"{float(lim):.4g} {units[i]} ({source})")
+                                 f"{float(lim):.4g} {units[i]} ({source}); send at most {float(lim):.4g} {units[i]}")
 
 
 class SupervisorBase:

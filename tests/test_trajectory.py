@@ -445,3 +445,30 @@ def test_random_blended_waypoints_are_planned_within_every_limit_or_refused_with
     assert np.allclose(traj.samples[-1], w[-1], atol=1e-4)
     for x in w:
         assert distance_to_polyline(x, traj.samples) < 0.05
+
+
+@pytest.mark.parametrize("gap", [2e-6, 1e-3, 0.2])
+def test_a_blend_through_two_near_coincident_waypoints_is_refused_naming_both(gap: float) -> None:
+    """Two consecutive waypoints closer than BLEND_MIN_CHORD_DEG (above COINCIDENT_DEG's "same point"):
+    the spline would turn on the spot between them (planned, it took up to 5.3 s, or no timing was
+    found): refused naming both and what to do; the same path stopping at each is planned."""
+    p = planner()
+    w = np.insert(VIA, 2, VIA[1] + np.array([gap, 0.0, 0.0, 0.0, 0.0, 0.0]), axis=0)
+    with pytest.raises(TrajectoryRefused, match=rf"blend: joints\[1\] and joints\[2\] are {gap:.3g} deg apart, "
+                                                r"closer than 0.25 deg .*; send them as one waypoint, or send "
+                                                r"blend=false"):
+        p.joint_segments(HOME, w, None, blend=True)
+    assert_within_every_limit(p, p.plan(p.joint_segments(HOME, w, None)).samples)
+    # From where the arm rests to a first waypoint as close: drop it (one knot pair: a straight line is kept).
+    w = np.vstack([HOME + np.array([0.0, gap, 0.0, 0.0, 0.0, 0.0]), VIA])
+    with pytest.raises(TrajectoryRefused, match=r"blend: the start \(where the arm rests\) and joints\[0\] are .*"
+                                                r"drop joints\[0\], or send blend=false"):
+        p.joint_segments(HOME, w, None, blend=True)
+    q = p.plan(p.joint_segments(HOME, w[:1], None, blend=True)).samples
+    assert np.allclose(q[-1], w[0], atol=1e-4)
+
+
+def test_a_blend_with_waypoints_just_over_the_near_distance_is_planned() -> None:
+    p = planner()
+    w = np.insert(VIA, 2, VIA[1] + np.array([0.26, 0.0, 0.0, 0.0, 0.0, 0.0]), axis=0)
+    assert_within_every_limit(p, p.plan(p.joint_segments(HOME, w, None, blend=True)).samples)

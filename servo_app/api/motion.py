@@ -50,7 +50,8 @@ def admit_jog(api: ApiContext, client: str) -> float:
     if not api.jog_limiter.allow(client.split("@")[-1].rsplit(":", 1)[0], admitted):
         api.metrics.count("rate_limited")
         api.audit.record(client, "jog", False, "rate limited", admitted)
-        raise HTTPException(429, f"jog requests limited to {api.jog_limiter.per_second} per second per client")
+        raise HTTPException(429, f"jog requests limited to {api.jog_limiter.per_second} per second per client; "
+                                 "send them less often (hold_ms keeps a jog going between them)")
     return admitted
 
 

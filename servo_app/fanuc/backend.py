@@ -147,16 +147,17 @@ class FanucBackend(RobotBackend):
             known = name in IoType.__members__
             raise InvalidRequest(
                 f"type={io_type!r}: {'this I/O type is not' if known else 'not an I/O type'} allowed by the "
-                f"service (allowed: {allowed}); the controller would post PRIO-023 and stop")
+                f"service (the controller would post PRIO-023 and stop); send an allowed type: {allowed}")
         n = self._io_allow[name]
         if n < IO_SPAN:
             raise InvalidRequest(
                 f"type={name}: only {n} points are assigned and an access always covers {IO_SPAN} points, so "
-                f"any {name} access would make the controller post PRIO-023")
+                f"any {name} access would make the controller post PRIO-023; send an allowed type: {allowed}")
         if not 1 <= index <= n - IO_SPAN + 1:
             raise InvalidRequest(
                 f"index={index}: an access covers {IO_SPAN} points from the index, so {name} indexes must be in "
-                f"1..{n - IO_SPAN + 1} ({name} has points 1..{n}); the controller would post PRIO-023")
+                f"1..{n - IO_SPAN + 1} ({name} has points 1..{n}; the controller would post PRIO-023); send an index "
+                f"in 1..{n - IO_SPAN + 1}")
         return name
 
     def io_type_code(self, name: str) -> int:

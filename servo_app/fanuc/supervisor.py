@@ -93,7 +93,7 @@ def check_pose_plausible(xyzwpr: tuple[float, ...], profile: RobotProfile,
     dist = math.hypot(math.hypot(x, y) - a1, z)
     if dist > limit:
         raise InvalidRequest(f"xyzwpr X={x:g} Y={y:g} Z={z:g} mm is {dist:.0f} mm from the J2 axis, out of "
-                             f"the {profile.display_name}'s reach of {limit:.0f} mm")
+                             f"the {profile.display_name}'s reach of {limit:.0f} mm; send a pose within reach")
 
 
 class StreamSupervisor(SupervisorBase):

@@ -69,7 +69,7 @@ def _bounded(name: str, values: tuple[float, ...], limit: float, unit: str) -> N
         return
     for i, v in enumerate(values):
         if abs(v) > limit:
-            raise ValueError(f"{name}[{i}]={v} {unit} is outside [-{limit}, {limit}]")
+            raise ValueError(f"{name}[{i}]={v} {unit} is outside [-{limit}, {limit}]; send a value within it")
 
 
 def check_speed_scale(value: float) -> float:
@@ -160,7 +160,7 @@ class PoseTarget(_Stamped):
         _bounded("xyzwpr", pose[:3], MAX_POSITION_MM, "mm")
         for i in (3, 4, 5):
             if abs(pose[i]) > 360.0:
-                raise ValueError(f"xyzwpr[{i}]={pose[i]} deg is outside [-360, 360]")
+                raise ValueError(f"xyzwpr[{i}]={pose[i]} deg is outside [-360, 360]; send an angle within it")
         object.__setattr__(self, "xyzwpr", pose)
         object.__setattr__(self, "linear_speed",
                            _scalar("linear_speed", self.linear_speed, MIN_LINEAR_MM_S, MAX_LINEAR_MM_S))

@@ -327,7 +327,8 @@ class ServoCycle:
             if reach < 1.0:
                 raise CommandRejected(
                     f"joints={[round(float(v), 3) for v in q]} leave the arm configuration {self.configuration} "
-                    f"held since the stream started (manual 61.5, MOTN-156): only {reach:.0%} of the way keeps it")
+                    f"held since the stream started (manual 61.5, MOTN-156): only {reach:.0%} of the way keeps it; "
+                    f"send a target the arm reaches in that configuration")
         return q
 
     def set_joint_target(self, q_fanuc_deg: np.ndarray, speed_scale: float = 1.0) -> None:
@@ -886,6 +887,6 @@ class ServoCycle:
             i = out[0]
             raise CommandRejected(
                 f"joints[{i}]={_deg(q[i])} deg (J{i + 1} = {_deg(q_model[i])} deg in model convention) is outside "
-                f"the joint range [{lo[i]:.1f}, {hi[i]:.1f}]"
+                f"the joint range [{lo[i]:.1f}, {hi[i]:.1f}]; send a value within the range"
             )
         return q

@@ -69,6 +69,14 @@ BLEND_CHECK_POINTS = 64
 # deg: consecutive joint waypoints this close are one point (the wire's float32 step is 7.6e-6 deg at
 # 64-128 deg; the approach takes an arm resting within 1e-6 deg of the first waypoint as there).
 COINCIDENT_DEG = 1e-6
+# deg (chord): a blended path's consecutive knots closer than this are refused, naming both. Below it
+# the spline turns between them on the spot, alike at any scale: on the e2e via path (1.35 s blended,
+# 2.18 s stopping at each), a waypoint added 0.03 or 0.25 deg from another in a random direction gave
+# the same timings, up to 5.3 s; 2e-6 deg apart, up to 5.1 s, a neighbouring span newly overshooting its
+# range, or "TOPP-RA found no timing". The planner spaces a dense path's knots as far (DENSE_KNOT_DEG);
+# 0.25 deg is far above float noise (33 000 float32 steps at 64-128 deg), and a client sending two
+# waypoints this close meant one point or a stop there: it can send one, or blend=false.
+BLEND_MIN_CHORD_DEG = DENSE_KNOT_DEG
 
 
 class TrajectoryRefused(ValueError):
@@ -240,7 +248,8 @@ def ramp_steps_for(samples: np.ndarray, env: Envelope, dt: float) -> int:
         if ramps_fit(q, n, env, dt) < 0:
             return n
         n = 2 * math.ceil(n * 1.3 / 2.0) + 1
-    raise TrajectoryRefused("no pause ramp keeps the limits along this trajectory")
+    raise TrajectoryRefused("no pause ramp keeps the limits along this trajectory; send it with a lower "
+                            "speed_scale")
 
 
 # ------------------------------------------------------------------------------------------ planner
@@ -335,7 +344,8 @@ class TrajectoryPlanner:
         in joint space by chord length (as a dense path's), so the arm passes through the inner
         waypoints (and the first, if it rests elsewhere) without stopping. The spline can overshoot
         between waypoints: one that leaves the joint ranges or the held configuration is refused,
-        naming the two waypoints (another waypoint between them pulls it in; straight segments stay in)."""
+        naming the two waypoints (another waypoint between them pulls it in; straight segments stay in),
+        and so are two consecutive knots closer than BLEND_MIN_CHORD_DEG, naming both."""
         self._start = np.array(start, dtype=float)
         knots, names = [self._start], ["the start"]
         for i, w in enumerate(np.asarray(waypoints, float)):
@@ -346,12 +356,21 @@ class TrajectoryPlanner:
         if len(knots) < 2:
             return []
         pts = np.array(knots)
+        chord = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        near = np.flatnonzero(chord < BLEND_MIN_CHORD_DEG)
+        if near.size and len(pts) > 2:  # (two knots: a straight line, no turn)
+            k = int(near[0])
+            first, merge = ("the start (where the arm rests)", f"drop {names[1]}") if k == 0 else \
+                (names[k], "send them as one waypoint")
+            raise TrajectoryRefused(
+                f"blend: {first} and {names[k + 1]} are {chord[k]:.3g} deg apart, closer than "
+                f"{BLEND_MIN_CHORD_DEG:g} deg (the spline would turn on the spot between them); {merge}, or "
+                f"send blend=false to stop at each")
         label = "the blended path through joints[0.." + f"{len(waypoints) - 1}]"
         if len(pts) == 2:
             return [_Segment(_densify_line(pts[0], pts[1]), label=label)]
         from scipy.interpolate import CubicSpline
 
-        chord = np.linalg.norm(np.diff(pts, axis=0), axis=1)
         ss = np.concatenate([[0.0], np.cumsum(chord)])
         spline = CubicSpline(ss, pts)  # the path _time_segment times (toppra's SplineInterpolator: not-a-knot)
         u = np.linspace(0.0, 1.0, BLEND_CHECK_POINTS + 1)
@@ -429,7 +448,8 @@ class TrajectoryPlanner:
             q = self._solve(xyzwpr_to_matrix(pose), seed, kin)
             if q is None:
                 raise TrajectoryRefused(f"{what}[{i}]={[round(float(v), 3) for v in pose]} has no joint solution in "
-                                        f"the held configuration {self.region.reference} within the joint ranges")
+                                        f"the held configuration {self.region.reference} within the joint ranges; "
+                                        f"send a pose the arm reaches in that configuration")
             joints[i] = model_rad_to_fanuc_deg(q, self.profile.j23_factor)
             seed = q
         return joints
@@ -449,10 +469,12 @@ class TrajectoryPlanner:
             segments[seg].share *= SLOWDOWN
             if segments[seg].duration_s is not None and segments[seg].share < 1.0:
                 raise TrajectoryRefused(f"times: {segments[seg].label} cannot be done in the "
-                                        f"{segments[seg].duration_s:g} s given within the limits ({why})")
+                                        f"{segments[seg].duration_s:g} s given within the limits ({why}); "
+                                        f"give it more time, or drop times")
             samples = self._time_all(segments)
         else:
-            raise TrajectoryRefused(f"no timing of {segments[bad[0]].label} keeps the limits ({bad[1]})")
+            raise TrajectoryRefused(f"no timing of {segments[bad[0]].label} keeps the limits ({bad[1]}); "
+                                    f"{_reshape(segments[bad[0]].label)}")
         ramp = ramp_steps_for(samples, env, dt)
         ends = np.cumsum([0, *self._segment_lengths])
         return TimedTrajectory(samples, dt, ramp, [int(e) for e in ends[1:]])
@@ -501,7 +523,7 @@ class TrajectoryPlanner:
         instance = toppra.algorithm.TOPPRA(constraints, path, gridpoints=grid, parametrizer="ParametrizeConstAccel")
         _sdd, sd, _ = instance.compute_parameterization(0.0, 0.0)
         if sd is None or not np.all(np.isfinite(sd)):
-            raise TrajectoryRefused(f"{seg.label}: TOPP-RA found no timing within the limits")
+            raise TrajectoryRefused(f"{seg.label}: TOPP-RA found no timing within the limits; {_reshape(seg.label)}")
         s = _sample_constant_acceleration(grid, np.maximum(sd, 0.0), dt)
         if seg.duration_s is not None:
             try:
@@ -573,7 +595,8 @@ class TrajectoryPlanner:
         if outside.size:
             i = int(outside[0])
             raise TrajectoryRefused(f"{what}[{i}]={np.round(rows[i], 3).tolist()} leaves the joint ranges or the held "
-                                    f"configuration {self.region.reference}: {self._outside_axes(q[i])}")
+                                    f"configuration {self.region.reference}: {self._outside_axes(q[i])}; "
+                                    f"send it within them")
 
     def _outside_axes(self, q_model: np.ndarray) -> str:
         """Which joints of ``q_model`` (rad) leave the region's ranges, or that the wrist centre crosses."""
@@ -608,10 +631,18 @@ class TrajectoryPlanner:
             q = self._solve(goal, seed)
             if q is None:
                 raise TrajectoryRefused(f"poses[{index - 1}] -> poses[{index}]: the straight line leaves the reach or "
-                                        f"the held configuration {self.region.reference} at {100 * u:.0f} % of it")
+                                        f"the held configuration {self.region.reference} at {100 * u:.0f} % of it; "
+                                        f"add a pose between them that keeps it inside, or send joints")
             out.append(model_rad_to_fanuc_deg(q, self.profile.j23_factor))
             seed = q
         return np.array(out)
+
+
+def _reshape(label: str) -> str:
+    """The next step for a segment no timing fits: change its shape."""
+    if "blended" in label:
+        return "add a waypoint where it turns, or send blend=false"
+    return "send it with a lower speed_scale"
 
 
 def _coincident(a: np.ndarray, b: np.ndarray) -> bool:
@@ -731,7 +762,8 @@ def _stretch(s: np.ndarray, duration_s: float, dt: float, width: int) -> np.ndar
     fastest timing is longer (the caller names the segment)."""
     fastest = (len(s) - 1 + width - 1) * dt
     if duration_s + 1e-9 < fastest:
-        raise TrajectoryRefused(f"needs at least {fastest:.3f} s within the limits, {duration_s:g} s given")
+        raise TrajectoryRefused(f"needs at least {fastest:.3f} s within the limits, {duration_s:g} s given; "
+                                f"give it at least {fastest:.3f} s")
     steps = max(1, round(duration_s / dt) - (width - 1))
     t_old = np.arange(len(s))
     t_new = np.linspace(0.0, len(s) - 1, steps + 1)

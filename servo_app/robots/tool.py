@@ -99,7 +99,7 @@ def check_tool(name: str, xyzwpr: Any, payload_kg: Any, max_payload_kg: float | 
                         f"{MAX_OFFSET_MM:.0f} mm: units are mm (did you send 0.1 mm?)")
     for label, v in zip("WPR", values[3:], strict=True):
         if abs(v) > 360.0:
-            raise ToolError(f"{key}.xyzwpr {label}={v:g} deg is outside -360..360")
+            raise ToolError(f"{key}.xyzwpr {label}={v:g} deg is outside -360..360; send an angle within it")
     payload = _checked_payload(f"{key}.payload_kg", payload_kg, max_payload_kg)
     return Tool(name, (values[0], values[1], values[2], values[3], values[4], values[5]), payload)
 
@@ -123,7 +123,7 @@ def _checked_payload(key: str, value: Any, max_payload_kg: float | None) -> floa
         raise ToolError(f"{key}={value:g} must be above 0 kg (a tool weighs something)")
     if max_payload_kg is not None and value > max_payload_kg:
         raise ToolError(f"{key}={value:g} kg is above the robot's maximum payload of {max_payload_kg:g} kg: "
-                        "the controller's limits do not hold for it")
+                        f"the controller's limits do not hold for it; send at most {max_payload_kg:g} kg")
     return float(value)
 
 

@@ -129,7 +129,7 @@ def read_log_window(path: Path, name: str, from_s: float | None, to_s: float | N
     pick = (t >= lo) & (t <= hi)
     if pick.sum() < 2:
         raise InvalidRequest(f"from_s={lo:g}..to_s={hi:g} holds {int(pick.sum())} commands of log={name!r} "
-                             f"(it spans 0..{t[-1]:.3f} s)")
+                             f"(it spans 0..{t[-1]:.3f} s); widen the window to hold two or more")
     return cmds["values"][pick, :6].astype(float)
 
 
@@ -233,7 +233,8 @@ def plan_trajectory(service: Any, req: TrajectoryInput) -> tuple[msg.Trajectory,
         times = _times(req.times, len(poses))
     else:
         if req.times is not None:
-            raise InvalidRequest("times: only with joints or poses (a CSV or a log is timed within the limits)")
+            raise InvalidRequest("times: only with joints or poses (a CSV or a log is timed within the limits); "
+                                 "drop times")
         times = None
         if req.csv_text is not None:
             rows, fmt = read_csv_rows(req.csv_text)
