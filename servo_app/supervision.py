@@ -395,8 +395,18 @@ class SupervisorBase:
         if self.log.active_warnings:
             self.log.active_warnings.clear()
             self.changed = True
+        self._link_acknowledge()
         if was_fault:
             self._link_recover(now)
+
+    def _link_acknowledge(self) -> None:
+        """A reset taken acknowledges the link's last error too (``link_error`` beside a link that is not
+        faulted: a target the robot rejected and was sent again, a datagram refused): the console lists
+        it as active beside the warnings, and it stood there until the next connection."""
+        stats = getattr(self.session, "stats", None)
+        if getattr(stats, "last_error", ""):
+            stats.last_error = ""
+            self.changed = True
 
     def _on_lease_lost(self, req: msg.LeaseLost, now: float) -> None:
         self._feed(LeaseLost(holder=req.holder), now)

@@ -219,8 +219,38 @@ export function alarmWhen(a, firstSeenUnix) {
 const alarmKey = (a) => `${a.code}|${a.message}|${a.time_unix ?? ""}|${a.controller_time_ms ?? ""}`;
 const firstSeen = new Map();
 
-/** Active: the fault (what stopped the session), the link error, then the controller's active alarms,
- * newest first. History, apart: the service's ``alarm_history`` (else what this console saw). */
+/** A controller's warning reaches the servo process too (the service forwards each one it lists), so
+ * it is in ``alarms``/``alarm_history`` and again in ``warnings``/``warning_history``; the servo
+ * process's own (session log, Janome link) are only in its lists. Its warnings that no alarm entry
+ * stands for, oldest first: each pairs with the newest unpaired warning alarm of the same code and
+ * message stamped within SAME_WITHIN_S (both lists keep the order they happened in). */
+const SAME_WITHIN_S = 5;
+export function servoOnlyWarnings(warnings, alarms) {
+  const unpaired = (alarms || []).filter((a) => a.warning);
+  const near = (a, w) => !(Number.isFinite(a.time_unix) && Number.isFinite(w.time_unix))
+    || Math.abs(a.time_unix - w.time_unix) < SAME_WITHIN_S;
+  const out = [];
+  for (const w of [...(warnings || [])].reverse()) {
+    const i = unpaired.findLastIndex((a) => a.code === w.code && (a.message || a.code) === w.message && near(a, w));
+    if (i >= 0) unpaired.splice(i, 1);
+    else out.push(w);
+  }
+  return out.reverse();
+}
+
+/** The history, oldest first: the service's ``alarm_history`` (else what this console saw) and the
+ * servo process's warnings not in it (``warning_history``, kept across resets), by wall clock. */
+export function mergedHistory(s, seen) {
+  const alarms = Array.isArray(s.alarm_history) ? s.alarm_history : seen;
+  const warnings = servoOnlyWarnings(s.warning_history, alarms).map((w) => ({ ...w, warning: true }));
+  if (!warnings.length) return alarms;
+  const t = (a) => (Number.isFinite(a.time_unix) ? a.time_unix : Infinity);
+  return [...alarms, ...warnings].sort((a, b) => t(a) - t(b));  // stable: ties keep their order
+}
+
+/** Active: the fault (what stopped the session), the link error, then the controller's active alarms
+ * and the servo process's active warnings, newest first. History, apart: see mergedHistory. Warnings
+ * are marked as such in both. */
 export function renderAlarms(s) {
   const box = $("#alarm-list");
   const now = Date.now() / 1000;
@@ -234,10 +264,10 @@ export function renderAlarms(s) {
     items.push(el("li", { class: "alarm warn" }, el("b", {}, "alarm list "), `cannot be read: ${s.alarm_poll_error}`));
   }
   for (const a of [...active].reverse()) items.push(alarmItem({ ...a, kind: a.warning ? "warning" : "alarm" }, when(a)));
-  for (const w of [...(s.warnings || [])].reverse()) items.push(alarmItem({ ...w, kind: "warning" }, when(w)));
-  const history = Array.isArray(s.alarm_history) ? s.alarm_history
-    : [...firstSeen.values()].map(({ a }) => a).slice(-50);
-  const key = JSON.stringify([s.state, s.fault, s.link_error, s.alarm_poll_error, active, s.warnings, history]);
+  const warnings = servoOnlyWarnings(s.warnings, active);
+  for (const w of [...warnings].reverse()) items.push(alarmItem({ ...w, kind: "warning" }, when(w)));
+  const history = mergedHistory(s, [...firstSeen.values()].map(({ a }) => a).slice(-50));
+  const key = JSON.stringify([s.state, s.fault, s.link_error, s.alarm_poll_error, active, warnings, history]);
   if (box.dataset.key === key) return; // same content: keep the DOM (and any text selection)
   box.dataset.key = key;
   box.replaceChildren(...(items.length ? items : [el("li", { class: "muted" }, "no alarms")]));
@@ -249,9 +279,11 @@ export function renderAlarms(s) {
 }
 
 function alarmItem(a, when) {
-  return el("li", { class: `alarm ${a.kind === "warning" ? "warn" : "bad"}${a.past ? " past" : ""}`,
-    dataset: { code: a.code || "" } },
-  el("div", {}, el("b", { class: "code" }, a.code || a.kind), " ", a.message || ""),
+  const warning = a.kind === "warning";
+  return el("li", { class: `alarm ${warning ? "warn" : "bad"}${a.past ? " past" : ""}`,
+    dataset: { code: a.code || "", kind: a.kind } },
+  el("div", {}, el("b", { class: "code" }, a.code || a.kind), " ",
+    warning ? el("span", { class: "kind" }, "warning") : null, warning ? " " : null, a.message || ""),
   when ? el("div", { class: "when" }, when) : null,
   a.cause ? el("div", { class: "cause" }, el("span", { class: "muted" }, "cause: "), a.cause) : null,
   a.remedy ? el("div", { class: "remedy" }, el("span", { class: "muted" }, "remedy: "), a.remedy) : null);

@@ -358,6 +358,7 @@ class WarningView(BaseModel):
     code: str | None = None
     message: str
     t: float | None = Field(None, description="servo-process clock, s (Janome)")
+    time_unix: float | None = Field(None, description="wall clock (Unix s) at the warning, from t")
 
 
 class McapErrorView(BaseModel):
@@ -528,7 +529,8 @@ class StateView(BaseModel):
     not_ready: str | None = Field(None, description="why a start would wait now: the controller's status "
                                                     "flows but does not show it waiting for a stream (null: "
                                                     "ready, streaming, or no status)")
-    link_error: str | None = Field(None, description="the link's fault reason or last error")
+    link_error: str | None = Field(None, description="the link's fault reason or last error (since the last "
+                                                    "reset or connection)")
     inputs_enabled: bool | None = Field(None, description="FANUC: the servo process takes the input slot")
     input_error: str | None = Field(None, description="FANUC: why the inputs were last refused")
     robot_connected: bool | None = Field(None, description="Janome: the robot's point job is connected")

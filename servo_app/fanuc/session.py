@@ -475,7 +475,7 @@ class StreamSession:
 
     def _refused_note(self) -> str:
         """Datagrams that came but were refused (a version mismatch, a wrong length) explain a silence."""
-        if self.stats.malformed > self._malformed_at_status:
+        if self.stats.malformed > self._malformed_at_status and self.stats.last_error:  # (a reset clears it)
             return f" (datagrams refused meanwhile: {self.stats.last_error})"
         return ""
 

@@ -3,6 +3,7 @@ the service's own facts), the limits, the robot's drawing, the session logs."""
 
 from __future__ import annotations
 
+import threading
 import time
 from collections import Counter
 from pathlib import Path
@@ -20,6 +21,8 @@ LIVE_LINKS = frozenset({"fetching_tables", "connected", "waiting_ready", "stream
 # A status older than this is not live whatever the phase says (FANUC: every 2-8 ms; Janome: after
 # each move and every ~0.05-0.1 s while it holds; both links fault on far shorter silences).
 STATUS_STALE_S = 2.0
+# Warnings whose wall clock is remembered: more than the servo process lists (its last 20).
+WARNINGS_STAMPED = 100
 
 
 def consistent(s: dict[str, Any], now: float) -> dict[str, Any]:
@@ -43,6 +46,8 @@ def consistent(s: dict[str, Any], now: float) -> dict[str, Any]:
 class StateViews:
     def __init__(self, service: ServoService) -> None:
         self.service = service
+        self._warning_unix: dict[float, float] = {}  # a warning's servo clock ``t`` -> its wall clock
+        self._warning_lock = threading.Lock()
         # The forwarder follows the servo process's safety view (resets, new streams, faults).
         service.alarm_forwarder.attach(lambda: service.safety, lambda: service.servo_fault, self._status_time_ms)
 
@@ -62,6 +67,23 @@ class StateViews:
         """The controller's time stamp of the last status (None: none, or it has no clock)."""
         t = (self._published() or {}).get("status_time_ms")
         return None if t is None else int(t)
+
+    def _with_wall_clock(self, warnings: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        """The servo process's warnings, each with ``time_unix``: its ``t`` is that process's monotonic
+        clock, which this process shares (one host), so the console can order them among the
+        controller's alarms (stamped ``time_unix``) and say when they happened. Worked out once per
+        warning, so that every read gives the same; copies (the safety view is shared)."""
+        offset = time.time() - time.monotonic()
+        out: list[dict[str, Any]] = []
+        with self._warning_lock:
+            for w in warnings:
+                t = w.get("t")
+                if isinstance(t, (int, float)):
+                    w = {**w, "time_unix": self._warning_unix.setdefault(t, t + offset)}
+                out.append(w)
+            while len(self._warning_unix) > WARNINGS_STAMPED:  # the oldest first (insertion order)
+                del self._warning_unix[next(iter(self._warning_unix))]
+        return out
 
     def _no_process(self) -> dict[str, Any]:
         svc = self.service
@@ -96,6 +118,9 @@ class StateViews:
             return self._no_process()
         safety = svc.safety_view(s["state"])
         s.update({k: v for k, v in safety.items() if k not in ("state", "link")})
+        for key in ("warnings", "warning_history"):
+            if s.get(key):
+                s[key] = self._with_wall_clock(s[key])
         s["servo_process"] = "running"
         if svc.servo_fault is not None:  # the last published state is stale: the process is gone
             # The controller stopped the arm; no feedback says where it came to rest.
