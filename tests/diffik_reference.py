@@ -1,8 +1,10 @@
 """The diff-IK as it was before issue 15 (commit f31c1c5), kept verbatim as the reference the fast
 implementation in :mod:`servo_app.motion.diffik` is compared with (tests/test_diffik_equivalence.py),
-but for one later change of behaviour made to both: a pose target's reference slides along its line
+but for later changes of behaviour made to both: a pose target's reference slides along its line
 to the goal (``_along_track_to``), and there is no pull-back once it has arrived; and a pose target's
-line runs no faster than its turn in joint space lets the arm follow it (``_turn_cap``).
+line runs no faster than its turn in joint space lets the arm follow it (``_turn_cap``); and an
+infeasible QP is solved again with its rows within the acceleration's reach (``_within_reach``), a
+failed one brakes the joints in proportion (``_decelerate``).
 
 It assembles its QP from mink task and limit objects every cycle (``compute_qp_objective`` /
 ``compute_qp_inequalities``); the limits in :mod:`servo_app.motion.ik_limits` keep that contract.
@@ -19,6 +21,7 @@ import mujoco
 import numpy as np
 
 from servo_app.motion.commands import Command, JointJog, JointTarget, PoseTarget, Twist
+from servo_app.motion.diffik import _within_reach
 from servo_app.motion.ik_limits import (
     AccelerationLimit,
     BrakingLimit,
@@ -51,7 +54,7 @@ class IkFlag(enum.IntFlag):
     CONFIGURATION = enum.auto()  # a configuration-keeping row binds (flip/up/top/turns)
     PATH_BLEND = enum.auto()  # direction change the acceleration cannot follow at once: straight velocity blend
     QP_FALLBACK = enum.auto()  # neither line nor blend fits the limits: the QP's best tracking
-    SOLVER_FAILED = enum.auto()  # QP failed: every joint brakes at its acceleration limit
+    SOLVER_FAILED = enum.auto()  # QP failed: the motion brakes at the acceleration limit (_decelerate)
     NO_COMMAND = enum.auto()  # no live command: stopping along the current motion
     ARRIVED = enum.auto()  # pose / joint target reached
 
@@ -399,14 +402,21 @@ class DifferentialIK:
                     dq = self._blend(goal, g, h)
                 if dq is not None:
                     flags |= IkFlag.PATH_BLEND
-        if dq is None:  # 3. the QP's best tracking within every limit; 4. every joint brakes
+        if dq is None:  # 3. the QP's best tracking within every limit; 4. brake
             sol = self._qp_solve(p, c, g, h)
             solver_status = sol.status
+            if not sol.ok:
+                assert self._accel_rows is not None
+                sol = self._qp_solve(p, c, g, _within_reach(g, h, self._accel_rows, self.c_inv,
+                                                            self.settings.binding_tol))
+                solver_status = f"{solver_status}; within reach: {sol.status}"
+                assert self.qp is not None
+                self.qp.reset()  # (a corner of other rows: no warm start for the next cycle's problem)
             if sol.ok:
                 dq = sol.x
                 flags |= IkFlag.QP_FALLBACK
             else:
-                dq = self._decelerate()
+                dq = self._decelerate(g, h)
                 flags |= IkFlag.SOLVER_FAILED
         dd = float(d @ d)
         scale = min(max(float(dq @ d) / dd, 0.0), 1.0) * s_sing if s_goal == 1.0 and dd > 0.0 else 0.0
@@ -622,12 +632,22 @@ class DifferentialIK:
             self.qp = PersistentQP(N, g.shape[0], self._solver, var_scale=self.dt, settings=self._qp_settings)
         return self.qp.solve(p, c, g, h)
 
-    def _decelerate(self) -> np.ndarray:
-        """Last resort: every joint brakes at its own acceleration limit (FANUC axes). The path bends,
-        but each joint stops within the braking distance the braking rows kept free."""
+    def _decelerate(self, g: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """Last resort: the whole motion brakes with one factor, as fast as the joint that needs the
+        longest may (FANUC axes), so it stops when that joint would on its own and the joints keep their
+        proportion: the TCP's twist shrinks along itself. Each joint at its own limit instead (the path
+        bends) only where that keeps a row ``G dq <= h`` the common factor would break.
+
+        Why: braked joint by joint, motions that cancel at the TCP fell out of step. A pose target past
+        J1's axis (J1 and J6 counter-rotating at 230 deg/s, J1 braking for its range) stopped J6 (5000
+        deg/s^2) twice as fast as J1 (2250): the TCP turned at 49 deg/s for 5."""
         p = self.c @ self._dq_prev
         da = self.acc * self.dt * self.dt
-        return self.c_inv @ (np.sign(p) * np.maximum(np.abs(p) - da, 0.0))
+        own = self.c_inv @ (np.sign(p) * np.maximum(np.abs(p) - da, 0.0))
+        cycles = float(np.max(np.abs(p) / da))  # to a stop, for the joint that needs the longest
+        together = self._dq_prev * max(0.0, 1.0 - 1.0 / cycles) if cycles > 1.0 else np.zeros(N)
+        tol = self.settings.binding_tol
+        return together if bool(np.all((g @ together <= h + tol) | (g @ own > h + tol))) else own
 
     def _ensure_rows(self, m: int) -> None:
         """Map each QP row to the flag it raises when binding (the limits' row counts are fixed)."""

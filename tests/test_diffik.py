@@ -390,14 +390,64 @@ def test_qp_fallback_and_solver_failure_never_give_nan(monkeypatch: pytest.Monke
         speed = np.linalg.norm(KIN.fk(qs[-1])[:3, 3] - KIN.fk(qs[-2])[:3, 3]) * 1000.0 / DT
         assert speed == pytest.approx(200.0, rel=1e-3)
         assert ik.qp is not None and ik.qp.solver == solver
-        # Now the solver fails too: every joint brakes at its limit; finite, flagged.
+        # Now the solver fails too: the motion brakes at the acceleration limit; finite, flagged.
         monkeypatch.setattr(ik.qp, "solve", lambda *a: QpSolution(np.zeros(6), False, "forced", 0))
+        dq0 = ik.previous_increment
         _, failed, qs2 = run(ik, qs[-1], twist((200.0, 0.0, 0.0)), 40)
         assert all(r.flags & IkFlag.SOLVER_FAILED for r in failed)
         assert all(np.all(np.isfinite(r.q_next)) for r in failed)
         assert np.allclose(failed[-1].dq, 0.0)
+        # ... every joint in proportion (the TCP keeps its line; old code: each joint at its own limit).
+        for r in failed:
+            k = float(r.dq @ dq0) / float(dq0 @ dq0)
+            assert 0.0 <= k < 1.0
+            np.testing.assert_allclose(r.dq, k * dq0, rtol=0, atol=1e-12)
         _, acc = rates(ik, [qs[-2], *qs2])
         assert np.all(np.abs(acc[1:]) <= ik.acc * (1 + 1e-9))
+
+
+@pytest.mark.parametrize("solver", ["osqp", "daqp"])
+def test_a_joint_past_its_braking_curve_brakes_hardest_in_the_qp(solver: str) -> None:
+    """J1 19.5 deg from its range at its full speed (braking needs ~90): its own braking row is out of
+    the acceleration's reach. The QP is solved with that row at the hardest brake there is (old code:
+    infeasible, SOLVER_FAILED, every joint braking on its own), tracking the command otherwise."""
+    ik = new_ik(solver=solver)
+    q = HOME.copy()
+    q[0] = math.radians(150.0)
+    dq_prev = np.zeros(6)
+    dq_prev[0] = ik.vel[0] * DT
+    ik.reset(q, dq_prev)
+    r = ik.step(q, twist((0.0, 0.0, 50.0)))
+    assert r.flags & IkFlag.QP_FALLBACK and not r.flags & IkFlag.SOLVER_FAILED, r.flags
+    assert r.dq[0] == pytest.approx(dq_prev[0] - ik.acc[0] * DT * DT, abs=1e-6 * dq_prev[0])
+
+
+_rows = st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(_rows, min_size=1, max_size=8), st.lists(st.floats(-0.05, 0.05), min_size=8, max_size=8),
+       st.lists(st.floats(-0.03, 0.03), min_size=6, max_size=6), st.lists(st.floats(1e-6, 0.01), min_size=6,
+                                                                        max_size=6))
+def test_within_reach_raises_only_the_rows_the_acceleration_cannot_reach(
+        rows: list[list[float]], h_rows: list[float], p: list[float], da: list[float]) -> None:
+    """diffik._within_reach: a row the acceleration box (C dq within p +- da, FANUC axes) can meet keeps
+    its bound; one it cannot is raised to the least it reaches (plus the margin): met at a corner of the
+    box, so the QP is asked for the hardest brake there is; the box's own rows stay."""
+    ik = new_ik()
+    c, c_inv = ik.c, ik.c_inv
+    p_, da_ = np.array(p), np.array(da)
+    g = np.vstack([np.array(rows), c, -c])
+    n = len(rows)
+    h = np.concatenate([np.array(h_rows[:n]), p_ + da_, -(p_ - da_)])
+    acc = slice(n, n + 12)
+    margin = 1e-9
+    out = diffik_module._within_reach(g, h, acc, c_inv, margin)
+    assert np.array_equal(out[acc], h[acc])
+    # dq at the box's 64 corners (C dq at each end of each joint's interval)
+    corners = np.array(list(itertools.product(*zip(p_ - da_, p_ + da_, strict=True)))) @ c_inv.T
+    least = np.min(corners @ g[:n].T, axis=0)
+    np.testing.assert_allclose(out[:n], np.maximum(h[:n], least + margin), rtol=0, atol=1e-12)
 
 
 def test_invalid_inputs_are_rejected() -> None:

@@ -101,3 +101,18 @@ def test_a_translation_the_arm_cannot_finish_keeps_its_speeds(xyz: tuple[float, 
     got = approach([*xyz, 0.0, 0.0, 0.0], linear, angular, dt, tool, seconds=5.0)
     assert_within(got.lin, got.ang, linear, angular, ramp=ramp_window(got.lin, got.ang, dt),
                   ramp_rel=RANDOM_RAMP_REL)
+
+
+@pytest.mark.parametrize("x", [-686.0, -684.0])
+def test_a_translation_beyond_the_reach_past_j1_s_axis_keeps_its_turn(x: float) -> None:
+    # Found by the property above. The line passes 28 mm beside J1's axis, J1 and J6 counter-rotating
+    # at ~230 deg/s, and J1 then brakes for its range (170 deg): the line's late braking left J1 past
+    # its own braking curve, the QP was infeasible, and the last resort braked every joint on its own,
+    # J6 (5000 deg/s^2) twice as fast as J1 (2250). Old code: 49.4 deg/s (-686 mm) and 31.9 (-684)
+    # for 5 (over 5 s, the property's run: 37.0 and 20.2 at its last command). Now 1.4 and 2.0: the QP
+    # is solved with J1's row at its hardest brake (diffik._within_reach).
+    got = approach([x, 28.0, 0.0, 0.0, 0.0, 0.0], 87.0, 5.0, 0.004, TOOL_200, seconds=6.0)
+    assert got.joints[:, 0].max() > 169.0  # (it did pass the axis and meet J1's range)
+    assert_within(got.lin, got.ang, 87.0, 5.0, ramp=ramp_window(got.lin, got.ang, 0.004),
+                  ramp_rel=RANDOM_RAMP_REL)
+    assert got.joints[:, 0].max() <= 170.0 - 0.5 + 1e-3  # J1's range less the IK's margin

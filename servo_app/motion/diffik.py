@@ -32,9 +32,12 @@ actually sent, so the request must already be deliverable:
    the position and velocity limits, as far as every row allows: first order a ramp between the two
    TCP velocities, again without clipping joints one by one. Flagged ``PATH_BLEND``.
 5. **QP** (persistent OSQP or DAQP, :mod:`servo_app.motion.qp`) when neither fits: the best tracking
-   within every limit (each joint braking on its own, always feasible), flagged ``QP_FALLBACK``. If
-   the solver fails too: every joint brakes at its acceleration limit, flagged ``SOLVER_FAILED``.
-   Never NaN.
+   within every limit (each joint braking on its own), flagged ``QP_FALLBACK``; if a joint is already
+   past its own braking curve (the line's late braking), its row raised to the hardest brake the
+   acceleration allows (``_within_reach``). If the solver fails even so:
+   the whole motion brakes with one factor at the acceleration limit of the joint that needs the
+   longest, the joints in proportion (each joint on its own only where that keeps a row the common
+   factor would break), flagged ``SOLVER_FAILED``. Never NaN.
 
 Singularities: the condition number of the flange Jacobian (linear rows divided by the arm's reach,
 so both halves are comparable) is probed one small step along the commanded direction. Between
@@ -99,7 +102,7 @@ class IkFlag(enum.IntFlag):
     CONFIGURATION = enum.auto()  # a configuration-keeping row binds (flip/up/top/turns)
     PATH_BLEND = enum.auto()  # direction change the acceleration cannot follow at once: straight velocity blend
     QP_FALLBACK = enum.auto()  # neither line nor blend fits the limits: the QP's best tracking
-    SOLVER_FAILED = enum.auto()  # QP failed: every joint brakes at its acceleration limit
+    SOLVER_FAILED = enum.auto()  # QP failed: the motion brakes at the acceleration limit (_decelerate)
     NO_COMMAND = enum.auto()  # no live command: stopping along the current motion
     ARRIVED = enum.auto()  # pose / joint target reached
 
@@ -530,14 +533,21 @@ class DifferentialIK:
                     dq = self._blend(goal, g, h)
                 if dq is not None:
                     flags |= _B.PATH_BLEND
-        if dq is None:  # 3. the QP's best tracking within every limit; 4. every joint brakes
+        if dq is None:  # 3. the QP's best tracking within every limit; 4. brake
             sol = self._qp_solve(p, c, g, h)
             solver_status = sol.status
+            if not sol.ok:  # a row already out of the acceleration's reach: as near it as the arm can
+                assert self._accel_rows is not None
+                sol = self._qp_solve(p, c, g, _within_reach(g, h, self._accel_rows, self.c_inv,
+                                                            st.binding_tol))
+                solver_status = f"{solver_status}; within reach: {sol.status}"
+                assert self.qp is not None
+                self.qp.reset()  # (a corner of other rows: no warm start for the next cycle's problem)
             if sol.ok:
                 dq = sol.x
                 flags |= _B.QP_FALLBACK
             else:
-                dq = self._decelerate()
+                dq = self._decelerate(g, h)
                 flags |= _B.SOLVER_FAILED
         # In one kernel call: the share of the command delivered, the flags of the rows dq binds (within
         # binding_tol + 1e-6 |h|; inactive rows, h = inf, never bind; an acceleration row whose bound is
@@ -1087,12 +1097,22 @@ class DifferentialIK:
             self.qp = PersistentQP(N, g.shape[0], self._solver, var_scale=self.dt, settings=self._qp_settings)
         return self.qp.solve(p, c, g, h)
 
-    def _decelerate(self) -> np.ndarray:
-        """Last resort: every joint brakes at its own acceleration limit (FANUC axes). The path bends,
-        but each joint stops within the braking distance the braking rows kept free."""
+    def _decelerate(self, g: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """Last resort: the whole motion brakes with one factor, as fast as the joint that needs the
+        longest may (FANUC axes), so it stops when that joint would on its own and the joints keep their
+        proportion: the TCP's twist shrinks along itself. Each joint at its own limit instead (the path
+        bends) only where that keeps a row ``G dq <= h`` the common factor would break.
+
+        Why: braked joint by joint, motions that cancel at the TCP fell out of step. A pose target past
+        J1's axis (J1 and J6 counter-rotating at 230 deg/s, J1 braking for its range) stopped J6 (5000
+        deg/s^2) twice as fast as J1 (2250): the TCP turned at 49 deg/s for 5."""
         p = self.c @ self._dq_prev
         da = self.acc * self.dt * self.dt
-        return self.c_inv @ (np.sign(p) * np.maximum(np.abs(p) - da, 0.0))
+        own = self.c_inv @ (np.sign(p) * np.maximum(np.abs(p) - da, 0.0))
+        cycles = float(np.max(np.abs(p) / da))  # to a stop, for the joint that needs the longest
+        together = self._dq_prev * max(0.0, 1.0 - 1.0 / cycles) if cycles > 1.0 else np.zeros(N)
+        tol = self.settings.binding_tol
+        return together if bool(np.all((g @ together <= h + tol) | (g @ own > h + tol))) else own
 
     def _mark_configuration_rows(self) -> None:
         """Braking rows whose bound is a configuration interval raise CONFIGURATION, not JOINT_LIMIT."""
@@ -1142,6 +1162,25 @@ def _scale_interval(direction: np.ndarray, g: np.ndarray, h: np.ndarray, shift: 
     else:
         lo, hi = kernels.scale_interval(direction, g, h, shift, 1.0)
     return None if math.isnan(lo) else (lo, hi)
+
+
+def _within_reach(g: np.ndarray, h: np.ndarray, accel_rows: slice, c_inv: np.ndarray, margin: float
+                  ) -> np.ndarray:
+    """``h`` with each row raised, if need be, to the least ``g dq`` the acceleration rows (``C dq`` in a
+    box, FANUC axes) reach, plus ``margin``: a row the state has already outrun (a joint past its own
+    braking curve) then asks for the hardest brake there is.
+
+    Why: the line's late braking (``_line_past_braking``) can leave a joint past its own braking curve;
+    its row then made the QP infeasible and the last resort braked joint by joint. A pose target past
+    J1's axis (J1 braking for its range, J1 and J6 counter-rotating) turned the TCP at up to 6 x its
+    angular speed; the QP within reach keeps the tracking (the orientation) while J1 brakes."""
+    box = h[accel_rows]
+    n = len(box) // 2
+    hi, lo = box[:n], -box[n:]
+    a = g @ c_inv
+    out = np.maximum(h, np.where(a > 0.0, a * lo, a * hi).sum(axis=1) + margin)
+    out[accel_rows] = box
+    return out
 
 
 def _path_scale(direction: np.ndarray, s_goal: float, g: np.ndarray, h: np.ndarray,
