@@ -16,13 +16,12 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
 from test_api_harness import AUTH, Rig, running_rig
+from test_trajectory_e2e import HOME, at_home
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(180)]
 
-HOME = [0.0, 10.0, -10.0, 0.0, -80.0, 0.0]  # wrist bent: away from every configuration boundary
 VIA = [[20.0, 20.0, -5.0, 10.0, -70.0, 30.0], [35.0, 10.0, 5.0, 0.0, -85.0, 0.0]]
 NEXT_STEP = re.compile(r"; (send|give|drop|add|widen) ")
 
@@ -32,16 +31,6 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
     with running_rig(tmp_path_factory.mktemp("refusal-words")) as r:
         yield r
         assert r.sim_alarms() == [], r.sim_alarms()  # nothing here made the controller alarm
-
-
-def at_home(rig: Rig) -> dict[str, str]:
-    """A running stream with the arm at rest at HOME."""
-    h = rig.streaming("refusals")
-    s = rig.wait(lambda s: s["at_rest"], 15.0, "at rest")
-    if not np.allclose(s["q_cmd"][:6], HOME, atol=1e-3):
-        rig.post("/api/target", h, {"joints": HOME})
-        rig.wait(lambda s: s["at_rest"] and np.allclose(s["q_cmd"][:6], HOME, atol=1e-3), 20.0, "at HOME")
-    return h
 
 
 def snapshot(rig: Rig) -> tuple[Any, ...]:
